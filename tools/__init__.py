@@ -1,0 +1,1 @@
+"""Host-side tools: the ucr CLI dispatcher, the emulated segment chain, flashing, VM helpers."""

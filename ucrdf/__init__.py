@@ -1,0 +1,1 @@
+"""U(C)RDF: the Unified (Continuum) Robot Description Format information model."""

@@ -1,0 +1,1 @@
+"""Kinematic model plugins (PCC, PPC, …), found by name and through entry points."""
