@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli")
+_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli", "host.client_cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
