@@ -1,0 +1,139 @@
+"""One direction of an emulated UART link: plug state, baud-rate throttle, latency, corruption.
+
+A :class:`Pipe` is pure bookkeeping with an explicit clock (``now`` in seconds), so it can be unit
+tested on plain byte streams; the proxy thread feeds it what it reads from one pty master and
+writes what :meth:`Pipe.due` releases to the other.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+
+#: Bits on the wire per byte of an 8N1 UART frame (start + 8 data + stop).
+BITS_PER_BYTE = 10
+#: Throttled bytes are released in chunks lasting at most this long (s), so a long burst arrives
+#: progressively as on a real wire, without one timer per byte.
+CHUNK_S = 0.0005
+
+
+class Pipe:
+    """Bytes travelling one way on a link.
+
+    Settings (change them any time): ``enabled`` (False = cable pulled: bytes are dropped and
+    counted), ``baud`` (None = unthrottled; else each byte takes ``10 / baud`` s, order kept
+    ), ``latency_s`` (fixed delay added to every byte), ``corrupt_rate`` (probability that a
+    byte is replaced by a different value; seeded RNG, every corrupted byte is counted).
+    """
+
+    def __init__(self, name: str, *, seed: int = 0) -> None:
+        self.name = name
+        self.enabled = True
+        self.baud: int | None = None
+        self.latency_s = 0.0
+        self.corrupt_rate = 0.0
+        self._rng = random.Random(seed)
+        self._queue: deque[tuple[float, bytes]] = deque()
+        self._busy_until = 0.0
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.dropped = 0
+        self.corrupted = 0
+
+    # -- settings -------------------------------------------------------------------------------
+    def configure(
+        self,
+        *,
+        baud: int | None | bool = False,
+        latency_s: float | None = None,
+        corrupt_rate: float | None = None,
+        seed: int | None = None,
+    ) -> None:
+        """Change settings; arguments left at their default keep the current value.
+
+        ``baud=None`` removes the throttle (``False`` means "unchanged").
+        """
+        if baud is not False:
+            if baud is not None and (not isinstance(baud, int) or baud <= 0):
+                raise ValueError(f"baud must be a positive integer or None, got {baud!r}")
+            self.baud = baud
+        if latency_s is not None:
+            if not latency_s >= 0.0:
+                raise ValueError(f"latency must be >= 0 s, got {latency_s!r}")
+            self.latency_s = float(latency_s)
+        if corrupt_rate is not None:
+            if not 0.0 <= corrupt_rate <= 1.0:
+                raise ValueError(f"corrupt rate must be within [0, 1], got {corrupt_rate!r}")
+            self.corrupt_rate = float(corrupt_rate)
+        if seed is not None:
+            self._rng.seed(seed)
+
+    def set_enabled(self, enabled: bool) -> None:
+        """Plug (True) or pull (False) the cable; pulling loses the bytes still in flight."""
+        self.enabled = enabled
+        if not enabled:
+            self.dropped += sum(len(d) for _, d in self._queue)
+            self._queue.clear()
+            self._busy_until = 0.0
+
+    # -- data -----------------------------------------------------------------------------------
+    def feed(self, data: bytes, now: float) -> None:
+        """Bytes that entered the wire at time ``now`` (s)."""
+        self.bytes_in += len(data)
+        if not self.enabled:
+            self.dropped += len(data)
+            return
+        if self.corrupt_rate > 0.0:
+            data = self._corrupt(data)
+        if self.baud is None:
+            self._queue.append((now + self.latency_s, bytes(data)))
+            return
+        byte_s = BITS_PER_BYTE / self.baud
+        chunk = max(1, int(CHUNK_S / byte_s))
+        start = max(now, self._busy_until)
+        for i in range(0, len(data), chunk):
+            piece = bytes(data[i : i + chunk])
+            start += len(piece) * byte_s
+            self._queue.append((start + self.latency_s, piece))
+        self._busy_until = start
+
+    def _corrupt(self, data: bytes) -> bytes:
+        out = bytearray(data)
+        rng = self._rng
+        rate = self.corrupt_rate
+        for i in range(len(out)):
+            if rng.random() < rate:
+                out[i] ^= rng.randrange(1, 256)  # never 0: the byte really changes
+                self.corrupted += 1
+        return bytes(out)
+
+    def due(self, now: float) -> bytes:
+        """Bytes whose delivery time has come, in order."""
+        if not self._queue or self._queue[0][0] > now:
+            return b""
+        parts = []
+        while self._queue and self._queue[0][0] <= now:
+            parts.append(self._queue.popleft()[1])
+        out = b"".join(parts)
+        self.bytes_out += len(out)
+        return out
+
+    def next_deadline(self) -> float | None:
+        """Time (s) of the next release, None when nothing is in flight."""
+        return self._queue[0][0] if self._queue else None
+
+    def in_flight(self) -> int:
+        return sum(len(d) for _, d in self._queue)
+
+    def stats(self) -> dict:
+        return {
+            "enabled": self.enabled,
+            "baud": self.baud,
+            "latency_s": self.latency_s,
+            "corrupt_rate": self.corrupt_rate,
+            "bytes_in": self.bytes_in,
+            "bytes_out": self.bytes_out,
+            "dropped": self.dropped,
+            "corrupted": self.corrupted,
+            "in_flight": self.in_flight(),
+        }

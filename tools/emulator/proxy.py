@@ -1,0 +1,249 @@
+"""Pseudo-terminal ends and the proxy thread that moves bytes between them.
+
+Every port of the emulator (the host port, each segment's UART ports, each REPL) is a pty pair:
+a user of the port opens the *slave path* (pyserial, mpremote, the firmware's HAL); the emulator
+holds the *master* and copies bytes between masters through :class:`~tools.emulator.pipe.Pipe`
+objects, which is where plug state, throttling, latency and corruption happen.
+
+The emulator also keeps one fd of each slave open: closing the last user of a slave would make the
+master report EIO/HUP until someone reopens it, and the slave's termios settings (raw mode, set here
+before anyone connects so no byte is ever echoed or line-edited) would be lost.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import selectors
+import termios
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+from tools.emulator.pipe import Pipe
+
+#: Bytes waiting for a slow reader of one master before new ones are dropped (UART overrun).
+MAX_PENDING = 64 * 1024
+
+
+def _raw_attrs(attrs: list, *, isig: bool) -> list:
+    """termios attributes for a binary port: no echo, no line editing, no CR/LF translation.
+
+    ``isig`` keeps Ctrl-C -> SIGINT (with NOFLSH), which is how a unix-port MicroPython running
+    ``main.py`` gets its KeyboardInterrupt when mpremote sends Ctrl-C to the REPL.
+    """
+    attrs = list(attrs)
+    attrs[0] = 0  # iflag: no ICRNL, no IXON, ...
+    attrs[1] = 0  # oflag: no OPOST (no \n -> \r\n: mpremote matches exact byte strings)
+    attrs[2] = (attrs[2] & ~(termios.CSIZE | termios.PARENB)) | termios.CS8 | termios.CREAD
+    attrs[3] = (termios.ISIG | termios.NOFLSH) if isig else 0
+    cc = list(attrs[6])
+    cc[termios.VMIN] = 1
+    cc[termios.VTIME] = 0
+    attrs[6] = cc
+    return attrs
+
+
+class PtyEnd:
+    """One pty pair: ``path`` is what users open; the emulator reads/writes ``master``."""
+
+    def __init__(self, name: str, *, isig: bool = False) -> None:
+        self.name = name
+        self.master, self.slave = os.openpty()
+        self.path = os.ttyname(self.slave)
+        termios.tcsetattr(
+            self.slave, termios.TCSANOW, _raw_attrs(termios.tcgetattr(self.slave), isig=isig)
+        )
+        os.set_blocking(self.master, False)
+        self.pending = bytearray()
+        self.overrun = 0  # bytes dropped because the reader of this port did not keep up
+        self.on_read: Callable[[bytes, float], None] | None = None
+        self.closed = False
+
+    def flush_input(self) -> None:
+        """Discard bytes waiting to be read from the slave (e.g. before a board restarts)."""
+        termios.tcflush(self.slave, termios.TCIFLUSH)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class Proxy:
+    """A thread copying bytes between pty masters through pipes, with timers for delayed bytes.
+
+    All public methods are thread-safe (one lock); ``call(fn)`` runs ``fn`` under that lock.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+        self._sel = selectors.DefaultSelector()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        self._ends: list[PtyEnd] = []
+        self._routes: list[tuple[Pipe, PtyEnd]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ucr-emulator-proxy", daemon=True)
+        self.error: BaseException | None = None
+
+    # -- wiring ---------------------------------------------------------------------------------
+    def add_end(self, name: str, *, isig: bool = False) -> PtyEnd:
+        with self._lock:
+            end = PtyEnd(name, isig=isig)
+            self._ends.append(end)
+            self._sel.register(end.master, selectors.EVENT_READ, end)
+            return end
+
+    def connect(self, src: PtyEnd, pipe: Pipe, dst: PtyEnd) -> None:
+        """Bytes read from ``src`` travel through ``pipe`` and are written to ``dst``."""
+        with self._lock:
+            src.on_read = pipe.feed
+            self._routes.append((pipe, dst))
+            self._wake()
+
+    def route(self, pipe: Pipe, dst: PtyEnd) -> None:
+        """Deliver what ``pipe`` releases to ``dst`` (for pipes fed by something else)."""
+        with self._lock:
+            self._routes.append((pipe, dst))
+            self._wake()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def call(self, fn: Callable[[], object]) -> object:
+        """Run ``fn`` under the proxy lock and wake the loop (settings take effect at once)."""
+        with self._lock:
+            result = fn()
+            self._wake()
+            return result
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except BlockingIOError:
+            pass
+
+    # -- loop -----------------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    timeout = self._next_timeout(time.monotonic())
+                events = self._sel.select(timeout)
+                with self._lock:
+                    now = time.monotonic()
+                    for key, mask in events:
+                        end = key.data
+                        if end is None:
+                            try:
+                                os.read(self._wake_r, 4096)
+                            except BlockingIOError:
+                                pass
+                            continue
+                        if mask & selectors.EVENT_READ:
+                            self._read(end, now)
+                        if mask & selectors.EVENT_WRITE:
+                            self._flush(end)
+                    now = time.monotonic()
+                    for pipe, dst in self._routes:
+                        data = pipe.due(now)
+                        if data:
+                            self._write(dst, data)
+        except BaseException as exc:  # surfaced by EmulatedChain.stats()/close()
+            self.error = exc
+            raise
+
+    def _next_timeout(self, now: float) -> float:
+        timeout = 0.1
+        for pipe, _ in self._routes:
+            t = pipe.next_deadline()
+            if t is not None:
+                timeout = min(timeout, max(0.0, t - now))
+        return timeout
+
+    def _read(self, end: PtyEnd, now: float) -> None:
+        try:
+            data = os.read(end.master, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            return
+        if data and end.on_read is not None:
+            end.on_read(data, now)
+
+    def _write(self, end: PtyEnd, data: bytes) -> None:
+        if end.closed:
+            return
+        room = MAX_PENDING - len(end.pending)
+        if len(data) > room:
+            end.overrun += len(data) - max(room, 0)
+            data = data[: max(room, 0)]
+        end.pending += data
+        self._flush(end)
+
+    def _flush(self, end: PtyEnd) -> None:
+        if end.closed:
+            return
+        while end.pending:
+            try:
+                n = os.write(end.master, end.pending)
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                if exc.errno != errno.EIO:
+                    raise
+                end.overrun += len(end.pending)
+                end.pending.clear()
+                break
+            del end.pending[:n]
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if end.pending else 0)
+        self._sel.modify(end.master, events, end)
+
+    # -- teardown -------------------------------------------------------------------------------
+    def close(self) -> None:
+        self._stop.set()
+        self._wake()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        with self._lock:
+            for end in self._ends:
+                try:
+                    self._sel.unregister(end.master)
+                except (KeyError, ValueError):
+                    pass
+                end.close()
+            self._sel.close()
+            for fd in (self._wake_r, self._wake_w):
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
+
+class RingLog:
+    """The last ``size`` bytes seen (a segment's REPL output, for diagnostics)."""
+
+    def __init__(self, size: int = 16384) -> None:
+        self._chunks: deque[bytes] = deque()
+        self._size = size
+        self._len = 0
+
+    def add(self, data: bytes) -> None:
+        self._chunks.append(data)
+        self._len += len(data)
+        while self._len > self._size and len(self._chunks) > 1:
+            self._len -= len(self._chunks.popleft())
+
+    def text(self) -> str:
+        return b"".join(self._chunks)[-self._size :].decode(errors="replace")
