@@ -1,0 +1,422 @@
+"""Python client of the daemon API (synchronous; a reader thread matches replies and pushes).
+
+    from host.api.client import connect
+    with connect() as c:                       # ws://127.0.0.1:8765 or $UCR_URL
+        print(c.status())
+        result = c.send_trajectory(points, progress=print)
+        for msg in c.subscribe(["joint_states"], max_rate=10):
+            ...
+
+Errors: :class:`ApiError` (``code``, ``message``) for refused requests; connection problems raise
+:class:`ApiConnectionError`, which is also a built-in ``ConnectionError``; a refused token raises
+:class:`ApiAuthError` (also a ``PermissionError``); timeouts raise :class:`ApiTimeoutError`.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import json
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI, WebSocketException
+from websockets.sync.client import ClientConnection
+from websockets.sync.client import connect as ws_connect
+
+from host.api import ENV_TOKEN, default_url
+
+
+class ApiError(Exception):
+    """The daemon refused a request; ``code`` is one of ``host.api.schema.ERROR_CODES``."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message
+
+
+class ApiConnectionError(ApiError, ConnectionError):
+    """The daemon cannot be reached or the connection broke."""
+
+    def __init__(self, message: str, code: str = "connection") -> None:
+        super().__init__(code, message)
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class ApiAuthError(ApiConnectionError, PermissionError):
+    """The daemon refused the token (or wanted one and got none)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, "unauthorized")
+
+
+class ApiTimeoutError(ApiError, TimeoutError):
+    """No reply in time."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__("timeout", message)
+
+
+class _Pending:
+    __slots__ = ("event", "reply")
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.reply: dict | None = None
+
+
+class Subscription:
+    """Iterator over messages of one subscription; ``close()`` unsubscribes.
+
+    Messages are the daemon's dicts (``{"kind": ..., "t": ..., ...}``). If the caller reads more
+    slowly than messages arrive, the oldest are dropped locally (``dropped_local``); the server
+    reports its own drops in ``dropped_server``.
+    """
+
+    def __init__(self, client: Client, sid: int, kinds: list[str], buffer: int) -> None:
+        self.client = client
+        self.sid = sid
+        self.kinds = kinds
+        self._buf: collections.deque[dict] = collections.deque()
+        self._cond = threading.Condition()
+        self._limit = buffer
+        self.dropped_local = 0
+        self.dropped_server = 0
+        self.closed = False
+
+    def _put(self, msg: dict, dropped: int) -> None:
+        with self._cond:
+            self.dropped_server = dropped
+            if len(self._buf) >= self._limit:
+                self._buf.popleft()
+                self.dropped_local += 1
+            self._buf.append(msg)
+            self._cond.notify()
+
+    def _end(self) -> None:
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    def get(self, timeout: float | None = None) -> dict | None:
+        """Next message, or None after ``timeout`` s; raises if the connection is gone."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while not self._buf:
+                if self.closed or self.client.closed:
+                    if self.client.closed and self.client.error is not None:
+                        raise self.client.error
+                    raise StopIteration
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                self._cond.wait(remaining if remaining is not None else 0.5)
+            return self._buf.popleft()
+
+    def __iter__(self) -> Iterator[dict]:
+        while True:
+            try:
+                msg = self.get()
+            except StopIteration:
+                return
+            if msg is not None:
+                yield msg
+
+    def close(self) -> dict | None:
+        """Unsubscribe; returns the server's counters (sent, dropped, thinned) if connected."""
+        if self.closed:
+            return None
+        with self.client._lock:
+            self.client._subs.pop(self.sid, None)
+            self.client._gone_subs.add(self.sid)
+        self._end()
+        if self.client.closed:
+            return None
+        return self.client.call("unsubscribe", sub=self.sid)
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self.close()
+        except ApiError:
+            pass
+
+
+class Client:
+    """One connection to the daemon API. Thread-safe: calls may come from several threads."""
+
+    def __init__(self, ws: ClientConnection, url: str, timeout: float) -> None:
+        self.ws = ws
+        self.url = url
+        self.timeout = timeout
+        self.closed = False
+        self.error: ApiConnectionError | None = None
+        self._ids = itertools.count(1)
+        self._pending: dict[int, _Pending] = {}
+        self._lock = threading.Lock()
+        self._subs: dict[int, Subscription] = {}
+        self._orphans: dict[Any, list[tuple[dict, int]]] = {}
+        self._gone_subs: set[int] = set()
+        self._goals: dict[Any, Callable[[dict], None]] = {}
+        self._goal_final: dict[Any, dict] = {}
+        self._goal_cond = threading.Condition()
+        self.last_goal: Any = None
+        self._reader = threading.Thread(target=self._read_loop, name="ucr-api-client", daemon=True)
+        self._reader.start()
+
+    # ------------------------------------------------------------------ plumbing
+    def _read_loop(self) -> None:
+        try:
+            for frame in self.ws:
+                try:
+                    msg = json.loads(frame)
+                except ValueError:
+                    continue  # the server only sends JSON; ignore anything else defensively
+                if not isinstance(msg, dict):
+                    continue
+                if "push" in msg:
+                    self._on_push(msg)
+                    continue
+                with self._lock:
+                    pending = self._pending.pop(msg.get("id"), None)
+                if pending is not None:
+                    pending.reply = msg
+                    pending.event.set()
+            if not self.closed:
+                code = self.ws.close_code
+                self.error = ApiConnectionError(
+                    f"the daemon at {self.url} closed the connection (code {code})"
+                )
+        except ConnectionClosed as exc:
+            if not self.closed:
+                self.error = ApiConnectionError(f"connection to {self.url} lost: {exc}")
+        except Exception as exc:  # noqa: BLE001 - surfaced to callers as a connection error
+            self.error = ApiConnectionError(f"connection to {self.url} failed: {exc}")
+        finally:
+            self._shutdown()
+
+    def _shutdown(self) -> None:
+        self.closed = True
+        with self._lock:
+            pending = list(self._pending.values())
+            self._pending.clear()
+        for p in pending:
+            p.event.set()
+        for sub in list(self._subs.values()):
+            sub._end()
+        with self._goal_cond:
+            self._goal_cond.notify_all()
+
+    def _on_push(self, msg: dict) -> None:
+        kind = msg.get("push")
+        if kind == "stream":
+            data, dropped = msg.get("msg"), int(msg.get("dropped") or 0)
+            if not isinstance(data, dict):
+                return
+            with self._lock:
+                sub = self._subs.get(msg.get("sub"))
+                if sub is None and msg.get("sub") not in self._gone_subs:
+                    # A message can overtake the subscribe reply: keep a few until it is known.
+                    early = self._orphans.setdefault(msg.get("sub"), [])
+                    if len(early) < 100 and len(self._orphans) < 100:
+                        early.append((data, dropped))
+                    return
+            if sub is not None:
+                sub._put(data, dropped)
+        elif kind == "trajectory":
+            goal = msg.get("goal")
+            status = msg.get("status") if isinstance(msg.get("status"), dict) else {}
+            # A push overtaking the send reply finds no callback yet: only that progress is lost.
+            callback = self._goals.get(goal)
+            if callback is not None:
+                try:
+                    callback(status)
+                except Exception:  # noqa: BLE001, S110 - a user callback must not kill the reader
+                    pass
+            if msg.get("done"):
+                with self._goal_cond:
+                    self._goals.pop(goal, None)
+                    self._goal_final[goal] = status
+                    while len(self._goal_final) > 100:  # goals nobody waits for
+                        self._goal_final.pop(next(iter(self._goal_final)))
+                    self._goal_cond.notify_all()
+
+    def call(self, op: str, timeout: float | None = None, **params: Any) -> Any:
+        """Send one request, wait for its reply; return ``result`` or raise :class:`ApiError`."""
+        if self.closed:
+            raise self.error or ApiConnectionError(f"connection to {self.url} is closed")
+        rid = next(self._ids)
+        pending = _Pending()
+        with self._lock:
+            self._pending[rid] = pending
+        try:
+            self.ws.send(json.dumps({"id": rid, "op": op, **params}, allow_nan=False))
+        except ValueError as exc:
+            with self._lock:
+                self._pending.pop(rid, None)
+            raise ApiError("invalid_params", f"cannot encode request: {exc}") from None
+        except (ConnectionClosed, OSError) as exc:
+            with self._lock:
+                self._pending.pop(rid, None)
+            raise ApiConnectionError(f"connection to {self.url} lost: {exc}") from None
+        wait = self.timeout if timeout is None else timeout
+        if not pending.event.wait(wait):
+            with self._lock:
+                self._pending.pop(rid, None)
+            raise ApiTimeoutError(f"no reply to {op!r} within {wait:g} s")
+        reply = pending.reply
+        if reply is None:
+            raise self.error or ApiConnectionError(f"connection to {self.url} closed")
+        if reply.get("ok"):
+            return reply.get("result")
+        err = reply.get("error") or {}
+        raise ApiError(str(err.get("code", "error")), str(err.get("message", "request failed")))
+
+    # ------------------------------------------------------------------ ops
+    def ping(self) -> float:
+        """Round trip time (s)."""
+        t0 = time.perf_counter()
+        self.call("ping")
+        return time.perf_counter() - t0
+
+    def status(self) -> dict:
+        return self.call("status")
+
+    def topology(self) -> Any:
+        return self.call("topology")
+
+    def loop_stats(self) -> dict:
+        return self.call("loop_stats")
+
+    def controllers(self) -> Any:
+        return self.call("controllers.list")
+
+    def switch(self, start: list[str] | None = None, stop: list[str] | None = None) -> Any:
+        """Activate ``start`` and deactivate ``stop`` controllers in one switch."""
+        return self.call("controllers.switch", start=list(start or []), stop=list(stop or []))
+
+    def send_trajectory(
+        self,
+        points: list[dict],
+        *,
+        wait: bool = True,
+        progress: Callable[[dict], None] | None = None,
+        controller: str | None = None,
+        timeout: float | None = None,
+    ) -> Any:
+        """Send waypoints (docs/api.md); with ``wait`` return the final status, else the goal id.
+
+        ``progress`` is called with each status the daemon pushes (from the reader thread).
+        ``timeout`` (s) bounds the wait for the result; None waits as long as it takes.
+        """
+        params: dict[str, Any] = {"points": points}
+        if controller is not None:
+            params["controller"] = controller
+        result = self.call("trajectory.send", **params)
+        goal = result["goal"]
+        self.last_goal = goal
+        if progress is not None:
+            self._goals[goal] = progress
+        if not wait:
+            return goal
+        return self.wait_trajectory(goal, timeout)
+
+    def wait_trajectory(self, goal: Any, timeout: float | None = None) -> dict:
+        """Block until the goal ends; returns its final status."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._goal_cond:
+            while goal not in self._goal_final:
+                if self.closed:
+                    raise self.error or ApiConnectionError(f"connection to {self.url} closed")
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    raise ApiTimeoutError(f"trajectory {goal} not finished within {timeout:g} s")
+                self._goal_cond.wait(0.5 if remaining is None else min(remaining, 0.5))
+            return self._goal_final.pop(goal)
+
+    def trajectory_status(self, goal: Any = None) -> Any:
+        return self.call("trajectory.status", goal=self._goal(goal))
+
+    def cancel(self, goal: Any = None) -> Any:
+        """Cancel a goal (default: the last one this client sent)."""
+        return self.call("trajectory.cancel", goal=self._goal(goal))
+
+    def _goal(self, goal: Any) -> Any:
+        goal = self.last_goal if goal is None else goal
+        if goal is None:
+            raise ApiError("invalid_params", "no goal given and none sent on this connection")
+        return goal
+
+    def ffc_input(self, rates: dict[str, tuple[float, float] | list[float]]) -> Any:
+        """Stream one cFFC input: ``{segment: (dkx, dky)}`` deflections in [-1, 1]."""
+        return self.call(
+            "ffc.input", rates={k: [float(v[0]), float(v[1])] for k, v in rates.items()}
+        )
+
+    def subscribe(
+        self, kinds: list[str] | str, max_rate: float | None = None, buffer: int = 1000
+    ) -> Subscription:
+        """Subscribe to ``joint_states``, ``transforms``, ``events``, ``topology``."""
+        kinds = [kinds] if isinstance(kinds, str) else list(kinds)
+        params: dict[str, Any] = {"kinds": kinds}
+        if max_rate is not None:
+            params["max_rate"] = max_rate
+        result = self.call("subscribe", **params)
+        sub = Subscription(self, result["sub"], result.get("kinds", kinds), buffer)
+        with self._lock:
+            self._subs[sub.sid] = sub
+            early = self._orphans.pop(sub.sid, [])
+        for msg, dropped in early:
+            sub._put(msg, dropped)
+        return sub
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            try:
+                self.ws.close()
+            except Exception:  # noqa: BLE001, S110 - closing a broken socket
+                pass
+        self._reader.join(2.0)
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def connect(url: str | None = None, token: str | None = None, timeout: float = 5.0) -> Client:
+    """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to ``$UCR_TOKEN``."""
+    url = url or default_url()
+    token = token if token is not None else os.environ.get(ENV_TOKEN) or None
+    headers = {"Authorization": f"Bearer {token}"} if token else None
+    try:
+        ws = ws_connect(
+            url,
+            additional_headers=headers,
+            open_timeout=timeout,
+            max_size=16 * 1024 * 1024,
+            ping_interval=20,
+            close_timeout=2,
+            legacy=True,  # a plain connection object; Client.close() ends it
+        )
+    except InvalidStatus as exc:
+        status = exc.response.status_code
+        if status in (401, 403):
+            what = "wrong token" if token else "a token is required (--token or $UCR_TOKEN)"
+            raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
+        raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
+    except InvalidURI as exc:
+        raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None
+    except (OSError, TimeoutError, WebSocketException) as exc:
+        raise ApiConnectionError(f"cannot reach the daemon at {url}: {exc}") from None
+    return Client(ws, url, timeout)
