@@ -1,0 +1,300 @@
+"""Segment-side helpers for the cyclic messages that allocate nothing (fixed-point ints only).
+
+Decoders walk CBOR in place (``protocol.cbor.Reader``) and write results into a caller list;
+encoders write the CBOR payload into a caller buffer. Return codes instead of exceptions, so a
+malformed frame costs no allocation either: ``OK``/``HOLD`` >= 0, ``MALFORMED`` < 0 (answer ERROR
+with code ERR_MALFORMED). Slow-path messages (descriptor, params, error text) use
+``protocol.messages``.
+"""
+
+from protocol.cbor import Reader, put_head, put_int
+from protocol.constants import (
+    FLAG_BCAST,
+    FLAG_LOCAL,
+    FLAG_UP,
+    HEADER_LEN,
+    T_ALIVE,
+    T_EVENT,
+    T_STATE,
+    VERSION_MAX,
+    VERSION_MIN,
+)
+from protocol.frame import frame_into
+
+try:
+    from micropython import const
+except ImportError:  # CPython
+
+    def const(x):
+        return x
+
+
+OK = const(1)  # decoded; SYNC: this segment's entry present
+HOLD = const(0)  # SYNC without an entry for this position: hold the current setpoint
+MALFORMED = const(-1)  # not a valid message of this type
+
+# indices into the ``out`` list filled by decode_sync
+SYNC_CYCLE = const(0)
+SYNC_KAPPA = const(1)
+SYNC_PHI = const(2)
+SYNC_RESUME = const(3)
+
+_R = Reader()  # module-level: decoders reuse it (not re-entrant, not thread safe)
+
+
+def version_supported(ver):
+    """True if this implementation speaks protocol version ``ver``."""
+    return VERSION_MIN <= ver <= VERSION_MAX
+
+
+def _int_or_null(r):
+    """Read an int (-> r.val, return 1) or null (return 0); -1 if anything else."""
+    m = r.head()
+    if m == 0 or m == 1:
+        return 1
+    if m == 7 and r.arg == 22:
+        return 0
+    return -1
+
+
+def decode_sync(buf, start, end, position, out):
+    """Decode SYNC ``{0: cycle, 1: [k0, p0, ...], 2: resume?}`` for segment ``position``.
+
+    Fills ``out`` (a list of >= 4 ints): [SYNC_CYCLE] cycle, [SYNC_KAPPA] kappa (1e-4 1/m),
+    [SYNC_PHI] phi (1e-4 rad), [SYNC_RESUME] 1 if key 2 is true/1 else 0. Returns OK when the
+    entry for ``position`` is present, HOLD when the list is too short or the entry is
+    [null, null], MALFORMED otherwise (out is then undefined). Unknown keys are skipped.
+    """
+    r = _R
+    r.reset(buf, start, end)
+    if r.head() != 5:
+        return MALFORMED
+    pairs = r.arg
+    seen = 0
+    found = HOLD
+    out[SYNC_RESUME] = 0
+    ik = 2 * position
+    for _ in range(pairs):
+        if r.head() != 0:
+            return MALFORMED
+        key = r.arg
+        if key < 16:
+            bit = 1 << key
+            if seen & bit:
+                return MALFORMED  # duplicate key
+            seen |= bit
+        if key == 0:
+            if r.head() != 0:
+                return MALFORMED
+            out[SYNC_CYCLE] = r.arg
+        elif key == 1:
+            if r.head() != 4:
+                return MALFORMED
+            cnt = r.arg
+            if cnt & 1:
+                return MALFORMED  # kappa/phi come in pairs
+            j = 0
+            while j < cnt:
+                if j == ik:
+                    a = _int_or_null(r)
+                    if a < 0:
+                        return MALFORMED
+                    k = r.val
+                    b = _int_or_null(r)
+                    if b != a:
+                        return MALFORMED  # both ints or both null
+                    if a:
+                        out[SYNC_KAPPA] = k
+                        out[SYNC_PHI] = r.val
+                        found = OK
+                    j += 2
+                else:
+                    if _int_or_null(r) < 0:
+                        return MALFORMED
+                    j += 1
+        elif key == 2:
+            m = r.head()
+            if m == 7 and (r.arg == 20 or r.arg == 21):
+                out[SYNC_RESUME] = 1 if r.arg == 21 else 0
+            elif m == 0:
+                out[SYNC_RESUME] = 1 if r.arg else 0
+            else:
+                return MALFORMED
+        elif not r.skip():
+            return MALFORMED
+    if not (seen & 3 == 3) or not r.at_end():
+        return MALFORMED  # cycle and setpoint list are mandatory
+    return found
+
+
+def decode_cycle(buf, start, end):
+    """Decode HEARTBEAT ``{0: cycle}``: return the cycle (>= 0) or MALFORMED."""
+    r = _R
+    r.reset(buf, start, end)
+    if r.head() != 5:
+        return MALFORMED
+    cycle = MALFORMED
+    for _ in range(r.arg):
+        if r.head() != 0:
+            return MALFORMED
+        if r.arg == 0:
+            if cycle >= 0 or r.head() != 0:
+                return MALFORMED
+            cycle = r.arg
+        elif not r.skip():
+            return MALFORMED
+    if not r.at_end():
+        return MALFORMED
+    return cycle
+
+
+def decode_empty(buf, start, end):
+    """Check an empty-map payload (DISCOVER, HOLD, ALIVE): OK, or MALFORMED.
+
+    An empty payload (no bytes) counts as ``{}``; unknown keys are skipped.
+    """
+    if start == end:
+        return OK
+    r = _R
+    r.reset(buf, start, end)
+    if r.head() != 5:
+        return MALFORMED
+    for _ in range(2 * r.arg):
+        if not r.skip():
+            return MALFORMED
+    return OK if r.at_end() else MALFORMED
+
+
+def _put_int_list(buf, off, items, n):
+    off = put_head(buf, off, 4, n)
+    for i in range(n):
+        off = put_int(buf, off, items[i])
+    return off
+
+
+def encode_state(
+    buf, off, cycle, t_ms, kappa, phi, tendons, n_tendons, servos, n_servos, status, kx, ky
+):
+    """Write a STATE payload (wire ints, see constants) into ``buf`` at ``off``; return end.
+
+    ``tendons``/``servos``: sequences of ints (µm, 1e-4 rad), first ``n_*`` used. Allocates
+    nothing. Typical: ``end = encode_state(raw, HEADER_LEN, ...)`` then ``frame_into``.
+    """
+    buf[off] = 0xA9  # map of 9 pairs, keys 0..8
+    buf[off + 1] = 0
+    off = put_int(buf, off + 2, cycle)
+    buf[off] = 1
+    off = put_int(buf, off + 1, t_ms)
+    buf[off] = 2
+    off = put_int(buf, off + 1, kappa)
+    buf[off] = 3
+    off = put_int(buf, off + 1, phi)
+    buf[off] = 4
+    off = _put_int_list(buf, off + 1, tendons, n_tendons)
+    buf[off] = 5
+    off = _put_int_list(buf, off + 1, servos, n_servos)
+    buf[off] = 6
+    off = put_int(buf, off + 1, status)
+    buf[off] = 7
+    off = put_int(buf, off + 1, kx)
+    buf[off] = 8
+    return put_int(buf, off + 1, ky)
+
+
+def encode_event(buf, off, code, detail, t_ms):
+    """Write an EVENT payload ``{0: code, 1: detail, 2: t_ms}`` at ``off``; return end."""
+    buf[off] = 0xA3
+    buf[off + 1] = 0
+    off = put_int(buf, off + 2, code)
+    buf[off] = 1
+    off = put_int(buf, off + 1, detail)
+    buf[off] = 2
+    return put_int(buf, off + 1, t_ms)
+
+
+def encode_empty(buf, off):
+    """Write ``{}`` at ``off``; return end."""
+    buf[off] = 0xA0
+    return off + 1
+
+
+def state_frame(
+    raw,
+    out,
+    seq,
+    cycle,
+    t_ms,
+    kappa,
+    phi,
+    tendons,
+    n_tendons,
+    servos,
+    n_servos,
+    status,
+    kx,
+    ky,
+):
+    """Build a complete STATE wire frame (UP, hop 0) into ``out``; return its length.
+
+    ``raw`` is scratch space of MAX_FRAME bytes. Allocates nothing.
+    """
+    end = encode_state(
+        raw,
+        HEADER_LEN,
+        cycle,
+        t_ms,
+        kappa,
+        phi,
+        tendons,
+        n_tendons,
+        servos,
+        n_servos,
+        status,
+        kx,
+        ky,
+    )
+    return frame_into(raw, end, FLAG_UP, 0, T_STATE, seq, out, 0)
+
+
+def event_frame(raw, out, seq, code, detail, t_ms):
+    """Build a complete EVENT wire frame (UP, hop 0) into ``out``; return its length."""
+    end = encode_event(raw, HEADER_LEN, code, detail, t_ms)
+    return frame_into(raw, end, FLAG_UP, 0, T_EVENT, seq, out, 0)
+
+
+def alive_frame(raw, out, seq):
+    """Build an ALIVE wire frame (UP|LOCAL, hop 0, payload {}) into ``out``; return its length."""
+    end = encode_empty(raw, HEADER_LEN)
+    return frame_into(raw, end, FLAG_UP | FLAG_LOCAL, 0, T_ALIVE, seq, out, 0)
+
+
+# forwarding decisions (header only) ---------------------------------------------------------
+FWD_NONE = const(0)  # do not forward
+FWD_UP = const(1)  # forward upstream with hop + 1
+FWD_DOWN = const(2)  # forward downstream with new hop
+
+
+def route(flags, hop):
+    """Decide what a segment does with a good frame from its header.
+
+    Returns ``(mine << 2) | forward`` as one small int without allocating: ``mine`` (bit 2) is
+    set when this segment must process the frame, ``forward`` is FWD_NONE/FWD_UP/FWD_DOWN; the
+    hop byte to forward with is ``next_hop(flags, hop)``. Frames with FLAG_UP that arrive from
+    downstream are never processed, only forwarded (unless LOCAL).
+    """
+    if flags & FLAG_LOCAL:
+        return 4  # link-local: consume, never forward
+    if flags & FLAG_UP:
+        return FWD_UP
+    if flags & FLAG_BCAST:
+        return 4 | FWD_DOWN
+    if hop == 0:
+        return 4
+    return FWD_DOWN
+
+
+def next_hop(flags, hop):
+    """The hop byte a forwarded frame carries (UP: +1, BCAST: +1, addressed: -1)."""
+    if flags & (FLAG_UP | FLAG_BCAST):
+        return (hop + 1) & 0xFF
+    return hop - 1

@@ -1,0 +1,626 @@
+"""Message builders and parsers with SI units (host, tests, emulator, device slow path).
+
+``encode_*`` return complete wire frames (bytes, COBS + delimiter); ``*_payload`` return the
+int-keyed payload dict; ``decode_*`` take a payload (bytes-like, CBOR) and return a dict with the
+names of docs/architecture.md in SI units. Errors raise ``ProtocolError`` subclasses whose
+``code`` is the ERROR code to answer with. Runs on MicroPython too (allocates: not for the
+control cycle, see ``protocol.device``).
+"""
+
+import math
+
+from protocol import cbor
+from protocol.constants import (
+    ANGLE_SCALE,
+    DESCRIPTOR_KEYS,
+    ERROR_NAMES,
+    EVENT_NAMES,
+    FLAG_BCAST,
+    FLAG_LOCAL,
+    FLAG_UP,
+    INT_LIMIT,
+    KAPPA_SCALE,
+    LENGTH_SCALE,
+    STATUS_NAMES,
+    T_ALIVE,
+    T_DESCRIPTOR,
+    T_DISCOVER,
+    T_ERROR,
+    T_EVENT,
+    T_HEARTBEAT,
+    T_HOLD,
+    T_PARAM_GET,
+    T_PARAM_SET,
+    T_PARAM_VALUE,
+    T_STATE,
+    T_SYNC,
+    TYPE_NAMES,
+    VERSION,
+    VERSION_MAX,
+    VERSION_MIN,
+)
+from protocol.errors import (
+    BadValueError,
+    MalformedError,
+    UnknownTypeError,
+    UnsupportedVersionError,
+)
+from protocol.frame import encode_frame
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+# Optional fast encoder on the host: cbor2 in canonical mode gives the same bytes as
+# protocol.cbor.dumps (tested for every message). None on MicroPython.
+try:
+    import cbor2 as _cbor2
+except ImportError:
+    _cbor2 = None
+
+_use_cbor2 = _cbor2 is not None
+
+
+def use_cbor2(enabled: bool) -> None:
+    """Select cbor2 (True, host only) or the project's own codec (False) for payload encoding."""
+    global _use_cbor2
+    if enabled and _cbor2 is None:
+        raise RuntimeError("cbor2 is not installed")
+    _use_cbor2 = bool(enabled)
+
+
+def dumps(obj) -> bytes:
+    """Canonical CBOR bytes of ``obj`` (cbor2 or own codec: identical output)."""
+    if _use_cbor2:
+        return _cbor2.dumps(obj, canonical=True)
+    return cbor.dumps(obj)
+
+
+# --------------------------------------------------------------------------------------------
+# value conversion and validation
+# --------------------------------------------------------------------------------------------
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v) -> bool:
+    return (isinstance(v, int) or isinstance(v, float)) and not isinstance(v, bool)
+
+
+def _finite(x, name: str) -> float:
+    """``x`` as a finite float; BadValueError for NaN, inf or a non-number."""
+    if not _is_num(x):
+        raise BadValueError("%s must be a number, got %r" % (name, x))
+    x = float(x)
+    if not math.isfinite(x):
+        raise BadValueError("%s must be finite, got %r" % (name, x))
+    return x
+
+
+def _check_wire_int(v: int, name: str) -> int:
+    if not -INT_LIMIT < v < INT_LIMIT:
+        raise BadValueError("%s = %d is outside the wire range +-2**30" % (name, v))
+    return v
+
+
+def to_fixed(x, scale: int, name: str = "value") -> int:
+    """SI float -> wire int ``round(x * scale)``; BadValueError if not finite or out of range."""
+    return _check_wire_int(int(round(_finite(x, name) * scale)), name)
+
+
+def wrap_angle(phi: float) -> float:
+    """Angle in rad wrapped to (-pi, pi]."""
+    phi = math.fmod(phi, _TWO_PI)
+    if phi <= -_PI:
+        phi += _TWO_PI
+    elif phi > _PI:
+        phi -= _TWO_PI
+    return phi
+
+
+def phi_to_wire(phi: float) -> int:
+    """phi in rad -> wire int (1e-4 rad), wrapped to (-pi, pi] first."""
+    return to_fixed(wrap_angle(_finite(phi, "phi")), ANGLE_SCALE, "phi")
+
+
+def _uint(v, name: str, limit: int = INT_LIMIT) -> int:
+    if not _is_int(v) or not 0 <= v < limit:
+        raise BadValueError("%s must be an int 0..%d, got %r" % (name, limit - 1, v))
+    return v
+
+
+def _seq(seq) -> int:
+    return _uint(seq, "seq", 256)
+
+
+def status_bits(status) -> int:
+    """Status as an int from an int or an iterable of names ("HOLD", "WATCHDOG", ...)."""
+    if _is_int(status):
+        return _uint(status, "status")
+    bits = 0
+    for name in status:
+        for bit, n in STATUS_NAMES:
+            if n == name:
+                bits |= bit
+                break
+        else:
+            raise BadValueError("unknown status name %r" % (name,))
+    return bits
+
+
+def status_names(bits: int) -> set:
+    """Set of status names for the bits set in ``bits`` (unknown bits are named "BIT<n>")."""
+    names = set()
+    for i in range(30):
+        b = 1 << i
+        if bits & b:
+            for bit, n in STATUS_NAMES:
+                if bit == b:
+                    names.add(n)
+                    break
+            else:
+                names.add("BIT%d" % i)
+    return names
+
+
+def _param_value(v):
+    if isinstance(v, bool) or isinstance(v, str):
+        return v
+    if _is_int(v):
+        return _check_wire_int(v, "value")
+    if isinstance(v, float):
+        return _finite(v, "value")
+    raise BadValueError("parameter value must be int, float, bool or str, got %r" % (v,))
+
+
+# --------------------------------------------------------------------------------------------
+# payload decoding helpers
+# --------------------------------------------------------------------------------------------
+def decode_map(payload) -> dict:
+    """Payload bytes -> int-keyed dict (empty payload -> {}); MalformedError if not a map."""
+    if len(payload) == 0:
+        return {}
+    obj = cbor.loads(payload)
+    if not isinstance(obj, dict):
+        raise MalformedError("payload is not a CBOR map")
+    for k in obj:
+        if not _is_int(k):
+            raise MalformedError("payload map keys must be ints")
+    return obj
+
+
+def _get(d: dict, key: int, name: str, kind: str, required: bool = True):
+    """Field ``key`` of kind "int", "num", "str", "bool", "intlist", "numlist"."""
+    if key not in d:
+        if required:
+            raise MalformedError("missing key %d (%s)" % (key, name))
+        return None
+    v = d[key]
+    ok = False
+    if kind == "int":
+        ok = _is_int(v)
+    elif kind == "num":
+        ok = _is_num(v)
+    elif kind == "str":
+        ok = isinstance(v, str)
+    elif kind == "bool":
+        ok = isinstance(v, bool)
+    elif kind == "intlist":
+        ok = isinstance(v, list) and all(_is_int(x) for x in v)
+    elif kind == "numlist":
+        ok = isinstance(v, list) and all(_is_num(x) for x in v)
+    if not ok:
+        raise MalformedError("key %d (%s) has the wrong type: %r" % (key, name, v))
+    if kind == "int":
+        _check_wire_int(v, name)
+    elif kind == "intlist":
+        for x in v:
+            _check_wire_int(x, name)
+    return v
+
+
+# --------------------------------------------------------------------------------------------
+# host -> segments
+# --------------------------------------------------------------------------------------------
+def encode_discover(seq: int) -> bytes:
+    """DISCOVER broadcast (every segment answers DESCRIPTOR)."""
+    return encode_frame(FLAG_BCAST, 0, T_DISCOVER, _seq(seq), {})
+
+
+def sync_payload(cycle: int, setpoints_si, resume: bool = False) -> dict:
+    """SYNC payload: ``setpoints_si`` is a list of (kappa 1/m, phi rad) or None (hold)."""
+    flat = []
+    for i, sp in enumerate(setpoints_si):
+        if sp is None:
+            flat.append(None)
+            flat.append(None)
+            continue
+        if len(sp) != 2:
+            raise BadValueError("setpoint %d must be (kappa, phi), got %r" % (i, sp))
+        flat.append(to_fixed(sp[0], KAPPA_SCALE, "kappa"))
+        flat.append(phi_to_wire(sp[1]))
+    d = {0: _uint(cycle, "cycle"), 1: flat}
+    if resume:
+        d[2] = True
+    return d
+
+
+def encode_sync(seq: int, cycle: int, setpoints_si, resume: bool = False) -> bytes:
+    """SYNC broadcast: one (kappa 1/m, phi rad) or None per position; ``resume`` ends a HOLD."""
+    return encode_frame(FLAG_BCAST, 0, T_SYNC, _seq(seq), sync_payload(cycle, setpoints_si, resume))
+
+
+def decode_sync(payload) -> dict:
+    """SYNC payload -> ``{cycle, setpoints: [(kappa 1/m, phi rad) | None], resume}``."""
+    d = decode_map(payload)
+    cycle = _get(d, 0, "cycle", "int")
+    flat = d.get(1)
+    if not isinstance(flat, list) or len(flat) % 2:
+        raise MalformedError("SYNC key 1 must be a list of kappa/phi pairs")
+    sps = []
+    for i in range(0, len(flat), 2):
+        k, p = flat[i], flat[i + 1]
+        if k is None and p is None:
+            sps.append(None)
+        elif _is_int(k) and _is_int(p):
+            _check_wire_int(k, "kappa")
+            _check_wire_int(p, "phi")
+            sps.append((k / KAPPA_SCALE, p / ANGLE_SCALE))
+        else:
+            raise MalformedError("SYNC entry %d must be two ints or two nulls" % (i // 2))
+    resume = d.get(2, False)
+    if not (isinstance(resume, bool) or resume in (0, 1)):
+        raise MalformedError("SYNC key 2 (resume) must be a bool")
+    return {"cycle": cycle, "setpoints": sps, "resume": bool(resume)}
+
+
+def encode_heartbeat(seq: int, cycle: int) -> bytes:
+    """HEARTBEAT broadcast (feeds watchdogs; every segment answers STATE)."""
+    return encode_frame(FLAG_BCAST, 0, T_HEARTBEAT, _seq(seq), {0: _uint(cycle, "cycle")})
+
+
+def decode_heartbeat(payload) -> dict:
+    """HEARTBEAT payload -> ``{cycle}``."""
+    return {"cycle": _get(decode_map(payload), 0, "cycle", "int")}
+
+
+def param_get_payload(param_id: int, uid=None) -> dict:
+    """PARAM_GET payload."""
+    d = {0: _uint(param_id, "param_id")}
+    if uid is not None:
+        if not isinstance(uid, str):
+            raise BadValueError("uid must be text")
+        d[15] = uid
+    return d
+
+
+def encode_param_get(seq: int, position: int, param_id: int, uid=None) -> bytes:
+    """PARAM_GET addressed to chain ``position`` (0 = first segment); ``uid`` checks identity."""
+    return encode_frame(
+        0,
+        _uint(position, "position", 256),
+        T_PARAM_GET,
+        _seq(seq),
+        param_get_payload(param_id, uid),
+    )
+
+
+def decode_param_get(payload) -> dict:
+    """PARAM_GET payload -> ``{param_id, uid (None if absent)}``."""
+    d = decode_map(payload)
+    return {
+        "param_id": _get(d, 0, "param_id", "int"),
+        "uid": _get(d, 15, "uid", "str", False),
+    }
+
+
+def param_set_payload(param_id: int, value, uid=None) -> dict:
+    """PARAM_SET payload (value: int, finite float in SI, bool or text)."""
+    d = param_get_payload(param_id, uid)
+    d[1] = _param_value(value)
+    return d
+
+
+def encode_param_set(seq: int, position: int, param_id: int, value, uid=None) -> bytes:
+    """PARAM_SET addressed to chain ``position``; answered by PARAM_VALUE with the stored value."""
+    return encode_frame(
+        0,
+        _uint(position, "position", 256),
+        T_PARAM_SET,
+        _seq(seq),
+        param_set_payload(param_id, value, uid),
+    )
+
+
+def _value(d: dict):
+    if 1 not in d:
+        raise MalformedError("missing key 1 (value)")
+    v = d[1]
+    try:
+        return _param_value(v)
+    except BadValueError as e:
+        raise MalformedError(str(e)) from None
+
+
+def decode_param_set(payload) -> dict:
+    """PARAM_SET payload -> ``{param_id, value, uid (None if absent)}``."""
+    d = decode_map(payload)
+    out = decode_param_get(payload)
+    out["value"] = _value(d)
+    return out
+
+
+def encode_hold(seq: int, position=None) -> bytes:
+    """HOLD to every segment (``position`` None: broadcast) or to one position."""
+    if position is None:
+        return encode_frame(FLAG_BCAST, 0, T_HOLD, _seq(seq), {})
+    return encode_frame(0, _uint(position, "position", 256), T_HOLD, _seq(seq), {})
+
+
+def encode_alive(seq: int) -> bytes:
+    """ALIVE (segment -> upstream neighbour only, LOCAL)."""
+    return encode_frame(FLAG_UP | FLAG_LOCAL, 0, T_ALIVE, _seq(seq), {})
+
+
+def decode_empty(payload) -> dict:
+    """Payload of DISCOVER / HOLD / ALIVE: ``{}`` (unknown keys ignored) -> {}."""
+    decode_map(payload)
+    return {}
+
+
+# --------------------------------------------------------------------------------------------
+# segments -> host
+# --------------------------------------------------------------------------------------------
+_DESC_KINDS = (
+    "str",  # uid
+    "str",  # fw_version
+    "int",  # protocol_version
+    "str",  # model
+    "num",  # length
+    "numlist",  # tendon_angles
+    "num",  # tendon_radius
+    "num",  # spool_radius
+    "num",  # kappa_max
+    "num",  # kappa_rate_max
+    "num",  # mass
+    "num",  # backbone_radius
+    "str",  # name
+    "str",  # servo_driver
+    "int",  # watchdog_ms
+    "bool",  # downstream_present
+)
+_DESC_REQUIRED = 4  # uid, fw_version, protocol_version, model are mandatory
+
+
+def descriptor_payload(desc: dict) -> dict:
+    """DESCRIPTOR payload from a dict with the contract's names (SI floats).
+
+    uid, fw_version, protocol_version and model are required; other names may be absent (then
+    not sent). Unknown names raise BadValueError (typo protection).
+    """
+    for name in desc:
+        if name not in DESCRIPTOR_KEYS and name != "position":
+            raise BadValueError("unknown descriptor field %r" % (name,))
+    d = {}
+    for key in range(len(DESCRIPTOR_KEYS)):
+        name = DESCRIPTOR_KEYS[key]
+        kind = _DESC_KINDS[key]
+        if name not in desc or desc[name] is None:
+            if key < _DESC_REQUIRED:
+                raise BadValueError("descriptor field %r is required" % (name,))
+            continue
+        v = desc[name]
+        if kind == "str":
+            if not isinstance(v, str):
+                raise BadValueError("%s must be text" % name)
+        elif kind == "int":
+            v = _uint(v, name)
+        elif kind == "num":
+            v = _finite(v, name)
+        elif kind == "numlist":
+            v = [_finite(x, name) for x in v]
+        elif kind == "bool":
+            if not isinstance(v, bool):
+                raise BadValueError("%s must be a bool" % name)
+        d[key] = v
+    return d
+
+
+def encode_descriptor(desc: dict, seq: int = 0) -> bytes:
+    """DESCRIPTOR frame (UP, hop 0) answering DISCOVER ``seq``."""
+    return encode_frame(FLAG_UP, 0, T_DESCRIPTOR, _seq(seq), descriptor_payload(desc))
+
+
+def decode_descriptor(payload) -> dict:
+    """DESCRIPTOR payload -> dict with every contract name (absent optional fields are None)."""
+    d = decode_map(payload)
+    out = {}
+    for key in range(len(DESCRIPTOR_KEYS)):
+        kind = _DESC_KINDS[key]
+        v = _get(d, key, DESCRIPTOR_KEYS[key], kind, key < _DESC_REQUIRED)
+        if v is not None:
+            if kind == "num":
+                v = float(v)
+            elif kind == "numlist":
+                v = [float(x) for x in v]
+        out[DESCRIPTOR_KEYS[key]] = v
+    return out
+
+
+def state_payload(
+    *,
+    cycle: int,
+    t_ms: int,
+    kappa: float,
+    phi: float,
+    tendon_lengths=(),
+    servo_angles=(),
+    status=0,
+    kx=None,
+    ky=None,
+) -> dict:
+    """STATE payload from SI values (kappa 1/m, phi rad, tendon lengths m, servo angles rad).
+
+    kx/ky default to kappa*(cos phi, sin phi).
+    """
+    kappa = _finite(kappa, "kappa")
+    phi = wrap_angle(_finite(phi, "phi"))
+    if kx is None:
+        kx = kappa * math.cos(phi)
+    if ky is None:
+        ky = kappa * math.sin(phi)
+    return {
+        0: _uint(cycle, "cycle"),
+        1: _uint(t_ms, "t_ms"),
+        2: to_fixed(kappa, KAPPA_SCALE, "kappa"),
+        3: to_fixed(phi, ANGLE_SCALE, "phi"),
+        4: [to_fixed(x, LENGTH_SCALE, "tendon length") for x in tendon_lengths],
+        5: [to_fixed(x, ANGLE_SCALE, "servo angle") for x in servo_angles],
+        6: status_bits(status),
+        7: to_fixed(kx, KAPPA_SCALE, "kx"),
+        8: to_fixed(ky, KAPPA_SCALE, "ky"),
+    }
+
+
+def encode_state(seq: int, **fields) -> bytes:
+    """STATE frame (UP, hop 0) from SI keyword fields, see ``state_payload``."""
+    return encode_frame(FLAG_UP, 0, T_STATE, _seq(seq), state_payload(**fields))
+
+
+def decode_state(payload, position=None) -> dict:
+    """STATE payload -> SI dict ``{position, cycle, t_ms, kappa, phi, kx, ky, tendon_lengths,
+    servo_angles, status: set of names, raw_status}``."""
+    d = decode_map(payload)
+    raw_status = _get(d, 6, "status", "int")
+    if raw_status < 0:
+        raise BadValueError("status must not be negative")
+    return {
+        "position": position,
+        "cycle": _get(d, 0, "cycle", "int"),
+        "t_ms": _get(d, 1, "t_ms", "int"),
+        "kappa": _get(d, 2, "kappa", "int") / KAPPA_SCALE,
+        "phi": _get(d, 3, "phi", "int") / ANGLE_SCALE,
+        "kx": _get(d, 7, "kx", "int") / KAPPA_SCALE,
+        "ky": _get(d, 8, "ky", "int") / KAPPA_SCALE,
+        "tendon_lengths": [v / LENGTH_SCALE for v in _get(d, 4, "tendons", "intlist")],
+        "servo_angles": [v / ANGLE_SCALE for v in _get(d, 5, "servos", "intlist")],
+        "status": status_names(raw_status),
+        "raw_status": raw_status,
+    }
+
+
+def encode_param_value(seq: int, param_id: int, value) -> bytes:
+    """PARAM_VALUE frame (UP, hop 0) answering PARAM_GET/PARAM_SET ``seq``."""
+    return encode_frame(
+        FLAG_UP,
+        0,
+        T_PARAM_VALUE,
+        _seq(seq),
+        {0: _uint(param_id, "param_id"), 1: _param_value(value)},
+    )
+
+
+def decode_param_value(payload) -> dict:
+    """PARAM_VALUE payload -> ``{param_id, value}``."""
+    d = decode_map(payload)
+    return {"param_id": _get(d, 0, "param_id", "int"), "value": _value(d)}
+
+
+def encode_event(seq: int, code: int, detail: int, t_ms: int) -> bytes:
+    """EVENT frame (UP, hop 0, unsolicited)."""
+    payload = {0: _uint(code, "code"), 1: _check_wire_int(detail, "detail"), 2: _uint(t_ms, "t_ms")}
+    return encode_frame(FLAG_UP, 0, T_EVENT, _seq(seq), payload)
+
+
+def decode_event(payload) -> dict:
+    """EVENT payload -> ``{code, name, detail, t_ms}`` (name "UNKNOWN_<n>" for new codes)."""
+    d = decode_map(payload)
+    code = _get(d, 0, "code", "int")
+    return {
+        "code": code,
+        "name": EVENT_NAMES.get(code, "UNKNOWN_%d" % code),
+        "detail": _get(d, 1, "detail", "int"),
+        "t_ms": _get(d, 2, "t_ms", "int"),
+    }
+
+
+def error_payload(code: int, offending_type: int, text: str = "", versions=None) -> dict:
+    """ERROR payload; ``versions`` = (min, max) supported, sent as key 3 (UNSUPPORTED_VERSION)."""
+    if not isinstance(text, str):
+        raise BadValueError("error text must be str")
+    d = {0: _uint(code, "code"), 1: _uint(offending_type, "offending type", 256), 2: text}
+    if versions is not None:
+        d[3] = [_uint(versions[0], "version", 256), _uint(versions[1], "version", 256)]
+    return d
+
+
+def encode_error(seq: int, code: int, offending_type: int, text: str = "", versions=None) -> bytes:
+    """ERROR frame (UP, hop 0) answering the request ``seq`` of type ``offending_type``."""
+    return encode_frame(
+        FLAG_UP, 0, T_ERROR, _seq(seq), error_payload(code, offending_type, text, versions)
+    )
+
+
+def encode_version_error(seq: int, offending_type: int) -> bytes:
+    """ERROR UNSUPPORTED_VERSION naming this implementation's range (text and key 3)."""
+    text = "supported protocol versions %d..%d" % (VERSION_MIN, VERSION_MAX)
+    return encode_error(seq, 3, offending_type, text, (VERSION_MIN, VERSION_MAX))
+
+
+def decode_error(payload) -> dict:
+    """ERROR payload -> ``{code, name, offending_type, text, versions ((min, max) or None)}``."""
+    d = decode_map(payload)
+    code = _get(d, 0, "code", "int")
+    versions = d.get(3)
+    if versions is not None:
+        if not (isinstance(versions, list) and len(versions) == 2 and all(map(_is_int, versions))):
+            raise MalformedError("ERROR key 3 must be [min, max]")
+        versions = (versions[0], versions[1])
+    return {
+        "code": code,
+        "name": ERROR_NAMES.get(code, "UNKNOWN_%d" % code),
+        "offending_type": _get(d, 1, "offending type", "int"),
+        "text": _get(d, 2, "text", "str", False) or "",
+        "versions": versions,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# dispatch
+# --------------------------------------------------------------------------------------------
+_DECODERS = {
+    T_DISCOVER: decode_empty,
+    T_SYNC: decode_sync,
+    T_HEARTBEAT: decode_heartbeat,
+    T_PARAM_GET: decode_param_get,
+    T_PARAM_SET: decode_param_set,
+    T_HOLD: decode_empty,
+    T_ALIVE: decode_empty,
+    T_DESCRIPTOR: decode_descriptor,
+    T_STATE: decode_state,
+    T_PARAM_VALUE: decode_param_value,
+    T_EVENT: decode_event,
+    T_ERROR: decode_error,
+}
+
+
+def decode_message(frame) -> dict:
+    """Decode a ``Frame`` into ``{"type": name, "mtype", "seq", "hop", "flags", "ver", **fields}``.
+
+    Raises UnknownTypeError, MalformedError/BadValueError (bad payload) or
+    UnsupportedVersionError; all are ProtocolError carrying the ERROR ``code`` to answer.
+    """
+    if frame.ver != VERSION:
+        raise UnsupportedVersionError("unsupported protocol version %d" % frame.ver)
+    dec = _DECODERS.get(frame.mtype)
+    if dec is None:
+        raise UnknownTypeError("unknown message type 0x%02x" % frame.mtype)
+    out = dec(frame.payload)
+    if frame.flags & FLAG_UP:
+        out["position"] = frame.hop  # upstream hop counts forwarders: the source position
+    out["type"] = TYPE_NAMES[frame.mtype]
+    out["mtype"] = frame.mtype
+    out["seq"] = frame.seq
+    out["hop"] = frame.hop
+    out["flags"] = frame.flags
+    out["ver"] = frame.ver
+    return out
