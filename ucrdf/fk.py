@@ -1,0 +1,269 @@
+"""Robot forward kinematics: transforms of every link frame for a configuration.
+
+A configuration maps each bendable name to its model variables (``{"kappa": 1/m, "phi": rad}`` for
+PCC) and each movable rigid joint name to its position (rad or m). Anything left out takes the
+``initial_value`` of its ``<ros2_control>`` interface when declared, else the model variable's
+default (0 for joints). Transforms are 4x4 numpy arrays in the root link frame.
+
+:class:`RobotKinematics` precomputes the tree, the constant origin matrices and one model instance
+per bendable, so repeated calls (the host's state publisher runs FK at 100+ Hz) only evaluate the
+variable parts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ucrdf.model import Joint, Robot
+from ucrdf.models import create
+from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError
+
+Config = Mapping[str, "Mapping[str, float] | float"]
+
+
+class ConfigError(ModelError):
+    """A configuration given to FK/IK names something unknown or holds a bad value."""
+
+
+def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """3x3 rotation by ``angle`` (rad) about the unit vector ``axis`` (Rodrigues)."""
+    x, y, z = axis
+    c, s = math.cos(angle), math.sin(angle)
+    v = 1.0 - c
+    return np.array(
+        [
+            [c + x * x * v, x * y * v - z * s, x * z * v + y * s],
+            [y * x * v + z * s, c + y * y * v, y * z * v - x * s],
+            [z * x * v - y * s, z * y * v + x * s, c + z * z * v],
+        ]
+    )
+
+
+@dataclass
+class Element:
+    """One edge of the kinematic tree: a rigid joint or a bendable, with its constant origin."""
+
+    kind: str  # "joint" or "bendable"
+    name: str
+    parent: str
+    child: str
+    origin: np.ndarray  # 4x4
+    joint_type: str = "fixed"  # for joints
+    axis: np.ndarray | None = None  # unit axis, joints only
+    lower: float = -math.inf
+    upper: float = math.inf
+    model: CurvatureModel | None = None  # bendables only
+
+
+def _joint_motion(el: Element, q: float) -> np.ndarray:
+    t = np.eye(4)
+    if el.joint_type in ("revolute", "continuous"):
+        t[:3, :3] = axis_rotation(el.axis, q)
+    elif el.joint_type == "prismatic":
+        t[:3, 3] = el.axis * q
+    return t
+
+
+class RobotKinematics:
+    """Precomputed kinematic tree of a robot; ModelError if a model or the tree is unusable."""
+
+    def __init__(self, robot: Robot):
+        self.robot = robot
+        try:
+            self.root = robot.root_link()
+        except ValueError as exc:
+            raise ModelError(str(exc)) from None
+        self.models: dict[str, CurvatureModel] = {}
+        children: dict[str, list[Element]] = {}
+        for b in robot.bendables.values():
+            try:
+                model = create(b.model)
+            except ModelError as exc:
+                raise ModelError(f"bendable {b.name!r}: {exc}") from None
+            self.models[b.name] = model
+            el = Element("bendable", b.name, b.parent, b.child, b.origin.matrix(), model=model)
+            children.setdefault(b.parent, []).append(el)
+        for j in robot.joints.values():
+            children.setdefault(j.parent, []).append(self._joint_element(j))
+        # breadth-first order from the root: parents always before children
+        self.order: list[Element] = []
+        seen = {self.root}
+        frontier = [self.root]
+        while frontier:
+            nxt = []
+            for link in frontier:
+                for el in children.get(link, []):
+                    if el.child in seen:
+                        raise ModelError(
+                            f"{el.kind} {el.name!r} closes a loop at link {el.child!r}"
+                        )
+                    seen.add(el.child)
+                    self.order.append(el)
+                    nxt.append(el.child)
+            frontier = nxt
+        missing = [name for name in robot.links if name not in seen]
+        if missing:
+            raise ModelError(f"links not connected to root {self.root!r}: {', '.join(missing)}")
+        self.elements = {el.name: el for el in self.order}
+        self.by_child = {el.child: el for el in self.order}
+        self.movable_joints = [
+            el.name for el in self.order if el.kind == "joint" and el.joint_type in _MOVABLE
+        ]
+        self.defaults = self._initial_values()
+
+    @staticmethod
+    def _joint_element(j: Joint) -> Element:
+        axis = np.asarray(j.axis, dtype=float)
+        lower, upper = -math.inf, math.inf
+        if j.type in _MOVABLE:
+            norm = float(np.linalg.norm(axis))
+            if not norm > 0.0:
+                raise ModelError(f"joint {j.name!r} has a zero axis")
+            axis = axis / norm
+            if j.type != "continuous" and j.limit is not None:
+                lower, upper = j.limit.lower, j.limit.upper
+        return Element(
+            "joint", j.name, j.parent, j.child, j.origin.matrix(), j.type, axis, lower, upper
+        )
+
+    def _initial_values(self) -> dict[str, dict[str, float]]:
+        """Per bendable/joint: variable -> initial_value declared in <ros2_control> (command
+        interfaces win over state interfaces)."""
+        out: dict[str, dict[str, float]] = {}
+        for rc in self.robot.ros2_control:
+            for cj in rc.joints:
+                for iface in list(cj.state_interfaces) + list(cj.command_interfaces):
+                    value = iface.params.get("initial_value")
+                    if isinstance(value, (int, float)):
+                        var = iface.name.rsplit("/", 1)[-1]
+                        out.setdefault(cj.name, {})[var] = float(value)
+        return out
+
+    # -- configuration ---------------------------------------------------------------------------
+    def resolve(
+        self, config: Config | None = None, *, strict: bool = True
+    ) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
+        """Complete configuration: (bendable -> model variables, movable joint -> position).
+
+        Unknown names, non-numbers and (when ``strict``) values outside the limits raise
+        ConfigError; missing entries take initial values / defaults."""
+        config = config or {}
+        if not isinstance(config, Mapping):
+            raise ConfigError("configuration must be an object mapping names to values")
+        unknown = [k for k in config if k not in self.models and k not in self.movable_joints]
+        if unknown:
+            fixed = [k for k in unknown if k in self.elements]
+            if fixed:
+                raise ConfigError(f"joint {fixed[0]!r} is not movable and takes no value")
+            raise ConfigError(
+                f"unknown name(s) in configuration: {', '.join(map(repr, unknown))} "
+                f"(bendables: {', '.join(self.models) or '-'}; "
+                f"movable joints: {', '.join(self.movable_joints) or '-'})"
+            )
+        bend: dict[str, dict[str, float]] = {}
+        for name, model in self.models.items():
+            given = config.get(name, {})
+            if not isinstance(given, Mapping):
+                raise ConfigError(
+                    f"bendable {name!r} needs an object of variables "
+                    f"({', '.join(v.name for v in model.variables())}), got {given!r}"
+                )
+            merged = {**self.defaults.get(name, {}), **given}
+            merged = {k: v for k, v in merged.items() if k in given or k in _var_names(model)}
+            try:
+                if strict:
+                    bend[name] = model.check_config(merged)
+                else:
+                    bend[name] = {
+                        v.name: float(merged.get(v.name, v.default)) for v in model.variables()
+                    }
+            except ModelError as exc:
+                raise ConfigError(f"bendable {name!r}: {exc}") from None
+        joints: dict[str, float] = {}
+        for name in self.movable_joints:
+            el = self.elements[name]
+            default = self.defaults.get(name, {}).get("position", 0.0)
+            raw = config.get(name, default)
+            if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+                raise ConfigError(f"joint {name!r} needs a finite number, got {raw!r}")
+            value = float(raw)
+            if strict:
+                slack = LIMIT_SLACK * max(1.0, abs(el.lower), abs(el.upper))
+                if value < el.lower - slack or value > el.upper + slack:
+                    raise ConfigError(
+                        f"joint {name!r} = {value:g} is outside its limits "
+                        f"[{el.lower:g}, {el.upper:g}]"
+                    )
+            joints[name] = value
+        return bend, joints
+
+    def coordinates(self, config: Config | None = None, *, strict: bool = True):
+        """(bendable -> coordinate vector, joint -> position) for a configuration."""
+        bend, joints = self.resolve(config, strict=strict)
+        return {n: self.models[n].to_coordinates(c) for n, c in bend.items()}, joints
+
+    # -- forward kinematics ----------------------------------------------------------------------
+    def fk(self, config: Config | None = None, *, strict: bool = True) -> dict[str, np.ndarray]:
+        """4x4 transform (root frame) of every link frame."""
+        coords, joints = self.coordinates(config, strict=strict)
+        return self.fk_coordinates(coords, joints)
+
+    def fk_coordinates(
+        self, coords: Mapping[str, np.ndarray], joints: Mapping[str, float] | None = None
+    ) -> dict[str, np.ndarray]:
+        """FK from model coordinates (e.g. PCC (kx, ky)) without checks: the fast path."""
+        joints = joints or {}
+        frames = {self.root: np.eye(4)}
+        for el in self.order:
+            t = frames[el.parent] @ el.origin
+            if el.kind == "bendable":
+                t = t @ el.model.transform_coordinates(coords[el.name])
+            elif el.joint_type in _MOVABLE:
+                t = t @ _joint_motion(el, joints.get(el.name, 0.0))
+            frames[el.child] = t
+        return frames
+
+    def backbone_frames(
+        self, config: Config | None = None, samples: int = 20, *, strict: bool = True
+    ) -> dict[str, np.ndarray]:
+        """Per bendable: (samples, 4, 4) frames along its backbone, base to tip, root frame."""
+        if samples < 2:
+            raise ConfigError(f"samples must be >= 2, got {samples}")
+        bend, joints = self.resolve(config, strict=strict)
+        coords = {n: self.models[n].to_coordinates(c) for n, c in bend.items()}
+        frames = self.fk_coordinates(coords, joints)
+        out: dict[str, np.ndarray] = {}
+        for name, model in self.models.items():
+            el = self.elements[name]
+            base = frames[el.parent] @ el.origin
+            local = np.array(
+                [
+                    model.transform_coordinates(coords[name], s)
+                    for s in np.linspace(0.0, model.length, samples)
+                ]
+            )
+            out[name] = base @ local
+        return out
+
+
+_MOVABLE = ("revolute", "continuous", "prismatic")
+
+
+def _var_names(model: CurvatureModel) -> set[str]:
+    return {v.name for v in model.variables()}
+
+
+def robot_fk(robot: Robot, config: Config | None = None) -> dict[str, np.ndarray]:
+    """Transforms (4x4, root frame) of every link of ``robot`` for ``config`` (checked)."""
+    return RobotKinematics(robot).fk(config)
+
+
+def bendable_frames(
+    robot: Robot, config: Config | None = None, samples: int = 20
+) -> dict[str, np.ndarray]:
+    """Per bendable: (samples, 4, 4) backbone frames in the root frame, for drawing."""
+    return RobotKinematics(robot).backbone_frames(config, samples)
