@@ -26,8 +26,14 @@ class Origin:
     def matrix(self) -> np.ndarray:
         """4x4 homogeneous transform, R = Rz(yaw) Ry(pitch) Rx(roll) as URDF defines it."""
         r, p, y = self.rpy
-        cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p),
-                                  math.cos(y), math.sin(y))
+        cr, sr, cp, sp, cy, sy = (
+            math.cos(r),
+            math.sin(r),
+            math.cos(p),
+            math.sin(p),
+            math.cos(y),
+            math.sin(y),
+        )
         t = np.eye(4)
         t[:3, :3] = [
             [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
@@ -70,6 +76,8 @@ class Link:
     inertial: Inertial | None = None
     geometry: list[Geometry] = field(default_factory=list)
     line: int = field(default=0, compare=False)
+    # Extension children (namespaced elements) kept verbatim as normalised XML text.
+    extensions: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -94,6 +102,9 @@ class Joint:
     axis: Vec3 = (1.0, 0.0, 0.0)
     limit: JointLimit | None = None
     line: int = field(default=0, compare=False)
+    # Children not interpreted here (calibration, dynamics, mimic, safety_controller, namespaced
+    # extensions) kept verbatim as normalised XML text so a rewrite loses nothing.
+    extensions: list[str] = field(default_factory=list)
 
     @property
     def movable(self) -> bool:
@@ -243,6 +254,9 @@ class Robot:
     bendables: dict[str, Bendable] = field(default_factory=dict)
     ros2_control: list[Ros2Control] = field(default_factory=list)
     source: str = field(default="", compare=False)
+    # Top-level extension elements (<gazebo>, <transmission>, <material>, anything unknown) kept
+    # verbatim as normalised XML text, in document order.
+    extensions: list[str] = field(default_factory=list)
 
     def root_link(self) -> str:
         """The one link that is nobody's child."""

@@ -1,0 +1,500 @@
+"""Semantic checks of a U(C)RDF robot: what the XML Schema cannot express.
+
+Cross references (links named by joints and bendables, ros2_control joints naming bendables or
+joints), tree shape (one parent per link, no cycles, one root), physical ranges (positive lengths
+and curvature limits, tendons that keep a positive length), consistency with the kinematic model
+plugin (variables named by interfaces, the model's own ``validate()``, interface bounds inside the
+model limits) and actuation (tendon/servo counts, servo direction ±1).
+
+:func:`check` returns every problem found, each as a :class:`ucrdf.errors.Diagnostic`; it never
+raises on bad content. The parser passes its line table so each message points at the offending
+element; for robots built in code (``ucrdf.compose``) the lines fall back to 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import ucrdf.models as registry
+from ucrdf.errors import Diagnostic
+from ucrdf.model import Bendable, ControlJoint, Interface, Joint, Robot
+from ucrdf.models.base import CurvatureModel, ModelError
+
+# Key of a line-number table entry: ("bendable", name, "limits"), ("ros2_control", 0, "joint", 2)…
+LineKey = tuple[object, ...]
+LineTable = dict[LineKey, int]
+
+_PHI_SLACK = 1e-9  # rad: tolerance on the (-pi, pi] bending-plane range when written as decimals
+
+
+def _exceeds(value: float, bound: float) -> bool:
+    return value > bound + 1e-9 * max(1.0, abs(bound))
+
+
+def _below(value: float, bound: float) -> bool:
+    return value < bound - 1e-9 * max(1.0, abs(bound))
+
+
+def _names(items: object) -> str:
+    listed = ", ".join(sorted(str(i) for i in items))  # type: ignore[attr-defined]
+    return listed or "none"
+
+
+def model_registry() -> tuple[Callable[[str], type[CurvatureModel]], Callable[[], list[str]]]:
+    """``(get_model, available)`` from :mod:`ucrdf.models`; raises LookupError if the installed
+    registry lacks them (a broken installation, reported as a diagnostic by :func:`check`)."""
+    get_model = getattr(registry, "get_model", None)
+    available = getattr(registry, "available", None)
+    if get_model is None or available is None:
+        raise LookupError("model registry ucrdf.models has no get_model()/available()")
+    return get_model, available
+
+
+def check(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
+    """All semantic problems of ``robot`` (empty list = the description is usable)."""
+    checker = _Checker(robot, lines or {})
+    checker.run()
+    return checker.diagnostics
+
+
+class _Checker:
+    def __init__(self, robot: Robot, lines: LineTable):
+        self.robot = robot
+        self.lines = lines
+        self.diagnostics: list[Diagnostic] = []
+        # bendable name -> constructed model (only for bendables whose model validated)
+        self.models: dict[str, CurvatureModel] = {}
+        self.model_classes: dict[str, type[CurvatureModel]] = {}
+
+    def line(self, key: LineKey, fallback: int = 0) -> int:
+        return self.lines.get(key, fallback)
+
+    def error(self, line: int, message: str) -> None:
+        self.diagnostics.append(Diagnostic(self.robot.source or "<robot>", line, message))
+
+    # -------------------------------------------------------------------------------------------
+    def run(self) -> None:
+        robot = self.robot
+        if not robot.name.strip():
+            self.error(0, "robot has an empty name")
+        if not robot.links:
+            self.error(0, f"robot {robot.name!r} has no <link>; a robot needs at least one")
+        for name in robot.joints.keys() & robot.bendables.keys():
+            b = robot.bendables[name]
+            self.error(
+                b.line,
+                f"duplicate name {name!r}: a joint and a bendable share it "
+                "(joints and bendables share one namespace)",
+            )
+        for link in robot.links.values():
+            if link.inertial is not None:
+                self.inertial(link.inertial.mass, f"link {link.name!r}", link.line)
+        for joint in robot.joints.values():
+            self.joint(joint)
+        for bendable in robot.bendables.values():
+            self.bendable(bendable)
+        self.tree()
+        self.ros2_control()
+
+    # -- kinematic tree ----------------------------------------------------------------------------
+    def tree(self) -> None:
+        robot = self.robot
+        edges: list[tuple[str, str, str, str, int]] = []  # (kind, name, parent, child, line)
+        for j in robot.joints.values():
+            edges.append(("joint", j.name, j.parent, j.child, j.line))
+        for b in robot.bendables.values():
+            edges.append(("bendable", b.name, b.parent, b.child, b.line))
+        parent_of: dict[str, tuple[str, str, str, int]] = {}  # child -> (kind, name, parent, line)
+        for kind, name, parent, child, line in edges:
+            ok = True
+            for role, link in (("parent", parent), ("child", child)):
+                if link not in robot.links:
+                    self.error(
+                        self.line((kind, name, role), line),
+                        f"{kind} {name!r}: {role} link {link!r} is not defined "
+                        f"(links: {_names(robot.links)})",
+                    )
+                    ok = False
+            if not ok:
+                continue
+            if parent == child:
+                self.error(line, f"{kind} {name!r} connects link {parent!r} to itself")
+                continue
+            if child in parent_of:
+                other_kind, other_name, _, other_line = parent_of[child]
+                self.error(
+                    self.line((kind, name, "child"), line),
+                    f"link {child!r} has two parents: {kind} {name!r} and {other_kind} "
+                    f"{other_name!r} (line {other_line}); a link has at most one parent",
+                )
+                continue
+            parent_of[child] = (kind, name, parent, line)
+
+        # cycles: with one parent per link, following parents either reaches a root or loops
+        reported: set[str] = set()
+        for start in robot.links:
+            path: list[str] = []
+            seen: set[str] = set()
+            node = start
+            while node in parent_of and node not in seen:
+                seen.add(node)
+                path.append(node)
+                node = parent_of[node][2]
+            if node in seen and node not in reported:
+                cycle = path[path.index(node) :]
+                reported.update(cycle)
+                names = " -> ".join([*reversed(cycle), cycle[-1]])
+                line = min(parent_of[n][3] for n in cycle)
+                via = ", ".join(f"{parent_of[n][0]} {parent_of[n][1]!r}" for n in reversed(cycle))
+                self.error(line, f"kinematic cycle {names} (through {via})")
+
+        roots = [name for name in robot.links if name not in parent_of]
+        if len(roots) > 1:
+            line = robot.links[roots[1]].line
+            self.error(
+                line,
+                f"robot has {len(roots)} root links ({', '.join(roots)}); exactly one link may "
+                "lack a parent — connect the others with a joint or bendable",
+            )
+
+    # -- rigid joints --------------------------------------------------------------------------
+    def joint(self, joint: Joint) -> None:
+        where = f"joint {joint.name!r}"
+        line = joint.line
+        if not all(map(math.isfinite, (*joint.origin.xyz, *joint.origin.rpy))):
+            self.error(line, f"{where}: origin has a non-finite value")
+        if joint.type in ("revolute", "prismatic") and joint.limit is None:
+            self.error(
+                line, f"{where}: a {joint.type} joint needs <limit lower upper effort velocity>"
+            )
+        if joint.limit is not None:
+            lim = joint.limit
+            lline = self.line(("joint", joint.name, "limit"), line)
+            values = (lim.lower, lim.upper, lim.effort, lim.velocity)
+            if not all(map(math.isfinite, values)):
+                self.error(lline, f"{where}: <limit> has a non-finite value")
+            elif lim.lower > lim.upper:
+                self.error(lline, f"{where}: limit lower {lim.lower} > upper {lim.upper}")
+            if lim.effort < 0 or lim.velocity < 0:
+                self.error(lline, f"{where}: limit effort and velocity must be >= 0")
+        if joint.type in ("revolute", "continuous", "prismatic", "planar"):
+            norm = math.sqrt(sum(a * a for a in joint.axis))
+            if not math.isfinite(norm) or norm < 1e-12:
+                aline = self.line(("joint", joint.name, "axis"), line)
+                self.error(aline, f"{where}: axis {joint.axis} has no direction (zero length)")
+
+    def inertial(self, mass: float, where: str, line: int) -> None:
+        if not math.isfinite(mass) or mass < 0:
+            self.error(line, f"{where}: mass must be a finite value >= 0 kg, got {mass}")
+
+    # -- bendables -----------------------------------------------------------------------------
+    def bendable(self, b: Bendable) -> None:
+        key = ("bendable", b.name)
+        where = f"bendable {b.name!r}"
+        spec = b.model
+        if not all(map(math.isfinite, (*b.origin.xyz, *b.origin.rpy))):
+            self.error(b.line, f"{where}: origin has a non-finite value")
+        if b.inertial is not None:
+            self.inertial(b.inertial.mass, where, self.line((*key, "inertial"), b.line))
+
+        sound = True
+        bb = spec.backbone
+        bline = self.line((*key, "backbone"), b.line)
+        if not (math.isfinite(bb.length) and bb.length > 0):
+            self.error(bline, f"{where}: backbone length must be > 0 m, got {bb.length}")
+            sound = False
+        if not (math.isfinite(bb.radius) and bb.radius >= 0):
+            self.error(bline, f"{where}: backbone radius must be >= 0 m, got {bb.radius}")
+        for attr, unit in (("youngs_modulus", "Pa"), ("bending_stiffness", "N m^2")):
+            value = getattr(bb, attr)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                self.error(bline, f"{where}: backbone {attr} must be > 0 {unit}, got {value}")
+
+        lim = spec.limits
+        lline = self.line((*key, "limits"), b.line)
+        if not (math.isfinite(lim.kappa_max) and lim.kappa_max > 0):
+            self.error(lline, f"{where}: kappa_max must be > 0 1/m, got {lim.kappa_max}")
+            sound = False
+        if lim.kappa_rate_max is not None and not (
+            math.isfinite(lim.kappa_rate_max) and lim.kappa_rate_max > 0
+        ):
+            self.error(
+                lline, f"{where}: kappa_rate_max must be > 0 1/m/s, got {lim.kappa_rate_max}"
+            )
+        if not (math.isfinite(lim.phi_min) and math.isfinite(lim.phi_max)):
+            self.error(lline, f"{where}: phi_min/phi_max must be finite")
+            sound = False
+        elif lim.phi_min >= lim.phi_max:
+            self.error(lline, f"{where}: phi_min {lim.phi_min} must be < phi_max {lim.phi_max}")
+            sound = False
+        elif lim.phi_min < -math.pi - _PHI_SLACK or lim.phi_max > math.pi + _PHI_SLACK:
+            self.error(
+                lline,
+                f"{where}: phi range [{lim.phi_min}, {lim.phi_max}] rad leaves [-pi, pi] "
+                "(phi is the bending-plane angle, reported in (-pi, pi])",
+            )
+            sound = False
+        for name, value in lim.extra.items():
+            if not math.isfinite(value):
+                self.error(lline, f"{where}: limit {name} must be finite, got {value}")
+                sound = False
+
+        if b.actuation is not None:
+            self.actuation(b, sound)
+        self.model(b, sound)
+
+    def model(self, b: Bendable, sound: bool) -> None:
+        key = ("bendable", b.name)
+        where = f"bendable {b.name!r}"
+        mline = self.line((*key, "model"), b.line)
+        try:
+            get_model, available = model_registry()
+        except LookupError as exc:
+            self.error(mline, f"{where}: cannot check model {b.model.type!r}: {exc}")
+            return
+        names = list(available())
+        if b.model.type not in names:
+            self.error(
+                mline,
+                f"{where}: unknown model type {b.model.type!r} (available: {', '.join(names)})",
+            )
+            return
+        try:
+            cls = get_model(b.model.type)
+        except Exception as exc:  # a third-party plugin failing to load must not crash a check
+            self.error(mline, f"{where}: model {b.model.type!r} failed to load: {exc}")
+            return
+        self.model_classes[b.name] = cls
+        if not sound:
+            return  # the generic range errors above already explain why the model would refuse
+        try:
+            self.models[b.name] = cls(b.model)
+        except ModelError as exc:
+            self.error(
+                self.line((*key, "limits"), mline), f"{where}: model {b.model.type!r}: {exc}"
+            )
+        except Exception as exc:  # noqa: BLE001 - plugin bug: report, never traceback
+            self.error(
+                mline, f"{where}: model {b.model.type!r} failed on these parameters: {exc!r}"
+            )
+
+    def actuation(self, b: Bendable, sound: bool) -> None:
+        act = b.actuation
+        assert act is not None
+        key = ("bendable", b.name)
+        where = f"bendable {b.name!r}: actuation"
+        aline = self.line((*key, "actuation"), b.line)
+        if act.type != "tendon":
+            self.error(aline, f"{where}: type {act.type!r} is not supported (only 'tendon')")
+        if not act.angles:
+            self.error(aline, f"{where}: no tendons")
+        if act.servos and len(act.servos) != len(act.angles):
+            self.error(
+                aline,
+                f"{where}: {len(act.angles)} tendons but {len(act.servos)} servos "
+                "(give one servo per tendon, or none)",
+            )
+        if not (math.isfinite(act.radius) and act.radius > 0):
+            self.error(aline, f"{where}: tendon radius must be > 0 m, got {act.radius}")
+        elif sound and act.radius * b.model.limits.kappa_max >= 1.0:
+            self.error(
+                aline,
+                f"{where}: tendon radius {act.radius} m times kappa_max "
+                f"{b.model.limits.kappa_max} 1/m is {act.radius * b.model.limits.kappa_max:.3g} "
+                ">= 1: the inner tendon would reach zero length before the bend limit",
+            )
+        if not (math.isfinite(act.spool_radius) and act.spool_radius > 0):
+            self.error(aline, f"{where}: spool radius must be > 0 m, got {act.spool_radius}")
+        if not act.driver.strip():
+            self.error(aline, f"{where}: empty servo driver name")
+        seen: dict[float, int] = {}
+        for i, angle in enumerate(act.angles):
+            tline = self.line((*key, "tendon", i), aline)
+            if not math.isfinite(angle):
+                self.error(tline, f"{where}: tendon {i} angle is not finite")
+                continue
+            wrapped = round(math.remainder(angle, math.tau), 9)
+            if wrapped in seen:
+                self.error(
+                    tline, f"{where}: tendon {i} sits at the same angle as tendon {seen[wrapped]}"
+                )
+            seen[wrapped] = i
+        ids: dict[int, int] = {}
+        # spool angle needed to pay out / wind the largest tendon length change, l*d*kappa_max
+        travel = None
+        if sound and act.radius > 0 and act.spool_radius > 0 and math.isfinite(act.spool_radius):
+            lim = b.model.limits.kappa_max
+            travel = b.model.backbone.length * act.radius * lim / act.spool_radius
+        for i, servo in enumerate(act.servos):
+            sline = self.line((*key, "servo", i), aline)
+            if servo.direction not in (1, -1):
+                self.error(
+                    sline, f"{where}: servo {i} direction must be 1 or -1, got {servo.direction}"
+                )
+            if servo.id < 0:
+                self.error(sline, f"{where}: servo {i} id must be >= 0, got {servo.id}")
+            if servo.id in ids:
+                self.error(
+                    sline,
+                    f"{where}: servo {i} has the same bus id {servo.id} as servo {ids[servo.id]}",
+                )
+            ids[servo.id] = i
+            values = (servo.zero_offset, servo.min_angle, servo.max_angle)
+            if not all(map(math.isfinite, values)):
+                self.error(sline, f"{where}: servo {i} has a non-finite angle")
+            elif servo.min_angle >= servo.max_angle:
+                self.error(
+                    sline,
+                    f"{where}: servo {i} min_angle {servo.min_angle} must be < max_angle "
+                    f"{servo.max_angle} rad",
+                )
+            elif travel is not None and (
+                _below(-travel, servo.min_angle) or _exceeds(travel, servo.max_angle)
+            ):
+                self.error(
+                    sline,
+                    f"{where}: servo {i} travel [{servo.min_angle:.4g}, {servo.max_angle:.4g}] rad "
+                    f"cannot reach kappa_max: the spool must turn ±{travel:.4g} rad "
+                    "(tendon radius * kappa_max * length / spool radius)",
+                )
+
+    # -- ros2_control ----------------------------------------------------------------------------
+    def ros2_control(self) -> None:
+        robot = self.robot
+        names: dict[str, int] = {}
+        controlled: dict[str, int] = {}
+        for c_index, control in enumerate(robot.ros2_control):
+            ckey = ("ros2_control", c_index)
+            cline = self.line(ckey, control.line)
+            where = f"ros2_control {control.name!r}"
+            if control.name in names:
+                self.error(
+                    cline,
+                    f"duplicate ros2_control name {control.name!r} (line {names[control.name]})",
+                )
+            names[control.name] = cline
+            if not control.plugin.strip():
+                self.error(self.line((*ckey, "hardware"), cline), f"{where}: empty <plugin>")
+            model_name = control.hardware_params.get("model")
+            if model_name is not None:
+                try:
+                    available = model_registry()[1]()
+                except LookupError:
+                    available = None
+                if available is not None and model_name not in available:
+                    self.error(
+                        self.line((*ckey, "param", "model"), cline),
+                        f"{where}: hardware param model={model_name!r} is not a known model "
+                        f"(available: {', '.join(available)})",
+                    )
+            for j_index, cjoint in enumerate(control.joints):
+                jkey = (*ckey, "joint", j_index)
+                jline = self.line(jkey, cjoint.line)
+                if cjoint.name in controlled:
+                    self.error(
+                        jline,
+                        f"joint {cjoint.name!r} is claimed by two ros2_control joints "
+                        f"(first on line {controlled[cjoint.name]})",
+                    )
+                controlled.setdefault(cjoint.name, jline)
+                self.control_joint(cjoint, jkey, jline)
+
+    def control_joint(self, cjoint: ControlJoint, jkey: LineKey, jline: int) -> None:
+        robot = self.robot
+        name = cjoint.name
+        where = f"ros2_control joint {name!r}"
+        if name in robot.bendables:
+            bendable = robot.bendables[name]
+            cls = self.model_classes.get(name)
+            model = self.models.get(name)
+            variables = [v.name for v in cls.variables()] if cls is not None else None
+            bounds = model.limits() if model is not None else {}
+            for kind, iface in self._interfaces(cjoint):
+                iline = self.line((*jkey, kind, iface.name), jline)
+                if variables is not None and iface.name not in variables:
+                    self.error(
+                        iline,
+                        f"{where}: {kind} {iface.name!r} is not a variable of model "
+                        f"{bendable.model.type!r} (variables: {', '.join(variables)})",
+                    )
+                    continue
+                bound = bounds.get(iface.name)
+                limit_text = f"the model limits of {iface.name!r}"
+                self.interface_params(where, kind, iface, iline, bound, limit_text)
+            return
+        if name in robot.joints:
+            joint = robot.joints[name]
+            if joint.type == "fixed":
+                self.error(jline, f"{where}: joint {name!r} is fixed and has nothing to control")
+                return
+            for kind, iface in self._interfaces(cjoint):
+                iline = self.line((*jkey, kind, iface.name), jline)
+                bound = None
+                if (
+                    iface.name == "position"
+                    and joint.limit is not None
+                    and joint.type != "continuous"
+                ):
+                    bound = (joint.limit.lower, joint.limit.upper)
+                limit_text = f"the <limit> of joint {name!r}"
+                self.interface_params(where, kind, iface, iline, bound, limit_text)
+            return
+        self.error(
+            jline,
+            f"{where} names neither a bendable nor a joint "
+            f"(bendables: {_names(robot.bendables)}; joints: "
+            f"{_names(j.name for j in robot.joints.values() if j.type != 'fixed')})",
+        )
+
+    @staticmethod
+    def _interfaces(cjoint: ControlJoint) -> list[tuple[str, Interface]]:
+        return [("command_interface", i) for i in cjoint.command_interfaces] + [
+            ("state_interface", i) for i in cjoint.state_interfaces
+        ]
+
+    def interface_params(
+        self,
+        where: str,
+        kind: str,
+        iface: Interface,
+        line: int,
+        bound: tuple[float, float] | None,
+        limit_text: str,
+    ) -> None:
+        label = f"{where}: {kind} {iface.name!r}"
+        values: dict[str, float] = {}
+        for pname in ("initial_value", "min", "max"):
+            if pname not in iface.params:
+                continue
+            value = iface.params[pname]
+            if isinstance(value, str) or not math.isfinite(value):
+                self.error(line, f"{label}: param {pname} must be a finite number, got {value!r}")
+                continue
+            values[pname] = float(value)
+        lo, hi = values.get("min"), values.get("max")
+        if lo is not None and hi is not None and lo > hi:
+            self.error(line, f"{label}: min {lo} > max {hi}")
+        if bound is not None:
+            if lo is not None and _below(lo, bound[0]):
+                self.error(
+                    line,
+                    f"{label}: min {lo} is below {limit_text} [{bound[0]:.6g}, {bound[1]:.6g}]",
+                )
+            if hi is not None and _exceeds(hi, bound[1]):
+                self.error(
+                    line, f"{label}: max {hi} exceeds {limit_text} [{bound[0]:.6g}, {bound[1]:.6g}]"
+                )
+        init = values.get("initial_value")
+        if init is not None:
+            low = lo if lo is not None else (bound[0] if bound else None)
+            high = hi if hi is not None else (bound[1] if bound else None)
+            if (low is not None and _below(init, low)) or (
+                high is not None and _exceeds(init, high)
+            ):
+                self.error(
+                    line,
+                    f"{label}: initial_value {init} lies outside [{low:.6g}, {high:.6g}]"
+                    if low is not None and high is not None
+                    else f"{label}: initial_value {init} lies outside its bounds",
+                )

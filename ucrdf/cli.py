@@ -1,0 +1,162 @@
+"""``ucr check FILE``: validate a U(C)RDF file and print its structure, or its errors.
+
+On success the summary tree goes to stdout and the exit code is 0. On any problem (missing file,
+XML syntax, schema, semantics) each problem is one ``path:line: message`` line on stderr and the
+exit code is 1 — never a traceback. The kinematics commands (``fk``, ``ik``, ``export-urdf``)
+live in :mod:`ucrdf.kin_cli` and are registered from here when that module is installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the model imports numpy; keep `ucr --help` light
+    from ucrdf.model import Bendable, Interface, Joint, Robot
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``check`` (and, when available, the kinematics commands) to the ``ucr`` dispatcher."""
+    parser = subparsers.add_parser(
+        "check",
+        help="validate a U(C)RDF file and print its links, joints, bendables and interfaces",
+        description="Validate a U(C)RDF file (XML syntax, schema, semantic checks). Prints a "
+        "summary tree on success; prints path:line: message lines on stderr and exits 1 on error.",
+    )
+    parser.add_argument("file", metavar="FILE", help="U(C)RDF file (.ucrdf / .urdf)")
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing on success (exit code only)"
+    )
+    parser.set_defaults(func=run_check)
+    try:
+        kin_cli = importlib.import_module("ucrdf.kin_cli")
+    except ModuleNotFoundError as exc:
+        if exc.name != "ucrdf.kin_cli":
+            raise
+        return
+    kin_cli.register(subparsers)
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Entry point of ``ucr check``: 0 when the file is valid, 1 otherwise."""
+    from ucrdf.errors import UcrdfError  # noqa: PLC0415 - lazy: lxml/numpy only when run
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    try:
+        robot = load(args.file)
+    except UcrdfError as exc:
+        for diagnostic in exc.diagnostics:
+            print(diagnostic, file=sys.stderr)
+        count = len(exc.diagnostics)
+        print(f"{args.file}: {count} error{'s' if count != 1 else ''}", file=sys.stderr)
+        return 1
+    if not args.quiet:
+        print(summary(robot))
+    return 0
+
+
+# -- summary -------------------------------------------------------------------------------------
+def _num(value: float, digits: int = 4) -> str:
+    return f"{value:.{digits}g}"
+
+
+def _deg(angle_rad: float) -> str:
+    return f"{math.degrees(angle_rad):.1f}°"
+
+
+def _interface(iface: Interface) -> str:
+    parts = [iface.name]
+    lo, hi = iface.params.get("min"), iface.params.get("max")
+    if lo is not None or hi is not None:
+        lo_text = _num(lo) if isinstance(lo, float) else "-"
+        hi_text = _num(hi) if isinstance(hi, float) else "-"
+        parts.append(f"[{lo_text}, {hi_text}]")
+    init = iface.params.get("initial_value")
+    if isinstance(init, float):
+        parts.append(f"init {_num(init)}")
+    return " ".join(parts)
+
+
+def _joint_line(joint: Joint) -> str:
+    text = f"joint {joint.name} ({joint.type}"
+    if joint.movable:
+        text += f", axis {' '.join(_num(a, 3) for a in joint.axis)}"
+        if joint.limit is not None and joint.type != "continuous":
+            lo, hi = joint.limit.lower, joint.limit.upper
+            if joint.type == "revolute":
+                text += f", [{_num(lo)}, {_num(hi)}] rad = [{_deg(lo)}, {_deg(hi)}]"
+            else:
+                text += f", [{_num(lo)}, {_num(hi)}] m"
+    return text + ")"
+
+
+def _bendable_lines(b: Bendable) -> list[str]:
+    """Heading plus detail lines (limits, actuation) of one bendable."""
+    lim = b.model.limits
+    bend = lim.kappa_max * b.length
+    head = f"bendable {b.name} (model {b.model.type}, length {_num(b.length)} m)"
+    limits = f"kappa_max {_num(lim.kappa_max)} 1/m ({math.degrees(bend):.1f}° bend)"
+    if lim.kappa_rate_max is not None:
+        limits += f", kappa_rate_max {_num(lim.kappa_rate_max)} 1/m/s"
+    limits += f", phi [{_num(lim.phi_min)}, {_num(lim.phi_max)}] rad"
+    out = [head, limits]
+    if b.inertial is not None:
+        out.append(f"mass {_num(b.inertial.mass)} kg")
+    act = b.actuation
+    if act is not None:
+        angles = ", ".join(_deg(a) for a in act.angles)
+        text = (
+            f"{act.count} tendons at {angles}, radius {_num(act.radius)} m, "
+            f"spool {_num(act.spool_radius)} m, driver {act.driver}"
+        )
+        if act.servos:
+            text += f", servo ids {', '.join(str(s.id) for s in act.servos)}"
+        out.append(text)
+    return out
+
+
+def summary(robot: Robot) -> str:
+    """The robot as an indented tree from its root link, then its ros2_control blocks."""
+    lines = [
+        (
+            f"robot {robot.name}: {len(robot.links)} links, {len(robot.joints)} joints, "
+            f"{len(robot.bendables)} bendables"
+        )
+    ]
+    children: dict[str, list[tuple[list[str], str]]] = {}
+    for j in robot.joints.values():
+        children.setdefault(j.parent, []).append(([_joint_line(j)], j.child))
+    for b in robot.bendables.values():
+        children.setdefault(b.parent, []).append((_bendable_lines(b), b.child))
+
+    def walk(link: str, prefix: str) -> None:
+        items = children.get(link, [])
+        for i, (label, child) in enumerate(items):
+            last = i == len(items) - 1
+            inner = prefix + ("   " if last else "│  ")
+            lines.append(f"{prefix}{'└─' if last else '├─'} {label[0]}")
+            lines.extend(f"{inner}│    {detail}" for detail in label[1:])
+            lines.append(f"{inner}└─ link {child}")
+            walk(child, inner + "   ")
+
+    root = robot.root_link()
+    lines.append(f"link {root}")
+    walk(root, "")
+    for control in robot.ros2_control:
+        lines.append(f"ros2_control {control.name} ({control.type}), plugin {control.plugin}")
+        if control.hardware_params:
+            params = ", ".join(f"{k}={v}" for k, v in control.hardware_params.items())
+            lines.append(f"  hardware: {params}")
+        for cj in control.joints:
+            kind = "bendable" if cj.name in robot.bendables else "joint"
+            lines.append(f"  {kind} {cj.name}")
+            if cj.command_interfaces:
+                commands = "; ".join(_interface(i) for i in cj.command_interfaces)
+                lines.append(f"    command: {commands}")
+            if cj.state_interfaces:
+                states = "; ".join(_interface(i) for i in cj.state_interfaces)
+                lines.append(f"    state: {states}")
+    return "\n".join(lines)

@@ -1,0 +1,534 @@
+"""Read U(C)RDF files into :class:`ucrdf.model.Robot`.
+
+Three passes, each reporting ``path:line: message`` diagnostics: XML syntax (lxml), structure (the
+XSD shipped in the package, ``ucrdf.xsd``), then the document-level rules the schema cannot express
+(duplicates, counts, indices) followed by the semantic checks of :mod:`ucrdf.checks`. All problems
+of a pass are collected before raising one :class:`ucrdf.errors.UcrdfError`.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+
+from lxml import etree
+
+from ucrdf.checks import LineKey, LineTable
+from ucrdf.checks import check as semantic_check
+from ucrdf.errors import Diagnostic, UcrdfError
+from ucrdf.model import (
+    Actuation,
+    Backbone,
+    Bendable,
+    ControlJoint,
+    CurvatureLimits,
+    Geometry,
+    Inertial,
+    Interface,
+    Joint,
+    JointLimit,
+    Link,
+    ModelSpec,
+    Origin,
+    Robot,
+    Ros2Control,
+    Servo,
+    Vec3,
+)
+
+# Joint children stored verbatim in Joint.extensions (valid URDF we do not interpret).
+_JOINT_OPAQUE = ("calibration", "dynamics", "mimic", "safety_controller")
+
+
+@lru_cache(maxsize=1)
+def schema() -> etree.XMLSchema:
+    """The U(C)RDF XML Schema shipped as package data (compiled once)."""
+    data = resources.files("ucrdf").joinpath("ucrdf.xsd").read_bytes()
+    return etree.XMLSchema(etree.fromstring(data))
+
+
+def load(path: str | Path, *, check: bool = True) -> Robot:
+    """Parse and (by default) semantically check the U(C)RDF file at ``path``.
+
+    Raises UcrdfError with one diagnostic per problem; a missing or unreadable file is one
+    diagnostic too, so callers need to handle only that one exception type.
+    """
+    source = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise UcrdfError([Diagnostic(source, 0, f"cannot read file: {reason}")]) from None
+    return parse_bytes(data, source=source, check=check)
+
+
+def parse_string(text: str, source: str = "<string>", *, check: bool = True) -> Robot:
+    """Parse U(C)RDF from a string; ``source`` names it in diagnostics."""
+    return parse_bytes(text.encode("utf-8"), source=source, check=check)
+
+
+def parse_bytes(data: bytes, source: str = "<bytes>", *, check: bool = True) -> Robot:
+    """Parse U(C)RDF from bytes (any encoding the XML declaration names)."""
+    robot, lines, diagnostics = _build(data, source)
+    if check:
+        diagnostics += semantic_check(robot, lines)
+    if diagnostics:
+        raise UcrdfError(diagnostics)
+    return robot
+
+
+def parse_with_lines(data: bytes, source: str = "<bytes>") -> tuple[Robot, LineTable]:
+    """Parse without semantic checks, also returning the line table (for tools that run
+    :func:`ucrdf.checks.check` themselves and want precise lines)."""
+    robot, lines, diagnostics = _build(data, source)
+    if diagnostics:
+        raise UcrdfError(diagnostics)
+    return robot, lines
+
+
+def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]]:
+    """Syntax and schema errors raise at once (nothing to build on); document-level problems are
+    returned so the semantic checks can add theirs to the same report."""
+    root = _parse_xml(data, source)
+    if root.tag != "robot":
+        line = root.sourceline or 0
+        raise UcrdfError(
+            [Diagnostic(source, line, f"root element is <{root.tag}>, expected <robot>")]
+        )
+    xsd = schema()
+    if not xsd.validate(root):
+        raise UcrdfError(
+            Diagnostic(source, err.line, _clean_schema_message(err.message))
+            for err in xsd.error_log
+        )
+    builder = _Builder(source)
+    robot = builder.build(root)
+    return robot, builder.lines, list(builder.diagnostics)
+
+
+def _parse_xml(data: bytes, source: str) -> etree._Element:
+    parser = etree.XMLParser(
+        resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False
+    )
+    try:
+        root = etree.fromstring(data, parser)
+    except etree.XMLSyntaxError as exc:
+        entries = [e for e in exc.error_log if e.level >= etree.ErrorLevels.ERROR]
+        if not entries:
+            line = exc.lineno or 0
+            raise UcrdfError([Diagnostic(source, line, f"XML syntax error: {exc.msg}")]) from None
+        raise UcrdfError(
+            Diagnostic(source, e.line, f"XML syntax error: {e.message}") for e in entries[:1]
+        ) from None
+    if root is None:
+        raise UcrdfError([Diagnostic(source, 0, "empty document")])
+    return root
+
+
+def _clean_schema_message(message: str) -> str:
+    """libxml2's schema messages, minus the noise of namespace braces and trailing dots."""
+    return message.replace("{http://www.w3.org/2001/XMLSchema}", "xs:").rstrip(".")
+
+
+def normalise_xml(element: etree._Element) -> str:
+    """Canonical text of an element kept verbatim (visual, collision, extensions): exclusive C14N
+    with comments and whitespace-only text removed, so a parse -> write -> parse compares equal."""
+    el = copy.deepcopy(element)
+    el.tail = None
+    for node in list(el.iter()):
+        if not isinstance(node.tag, str):  # comment or processing instruction
+            parent = node.getparent()
+            if parent is not None:
+                _remove_keep_tail(node)
+            continue
+        if node.text is not None and not node.text.strip():
+            node.text = None
+        if node is not el and node.tail is not None and not node.tail.strip():
+            node.tail = None
+    return etree.tostring(el, method="c14n", exclusive=True, with_comments=False).decode("utf-8")
+
+
+def _remove_keep_tail(node: etree._Element) -> None:
+    parent = node.getparent()
+    tail = node.tail
+    if tail and tail.strip():
+        prev = node.getprevious()
+        if prev is not None:
+            prev.tail = (prev.tail or "") + tail
+        else:
+            parent.text = (parent.text or "") + tail
+    parent.remove(node)
+
+
+def _children(element: etree._Element) -> list[etree._Element]:
+    """Element children only (comments and processing instructions skipped)."""
+    return [c for c in element if isinstance(c.tag, str)]
+
+
+def _float(text: str) -> float:
+    return float(text.strip())
+
+
+def _number_or_text(text: str) -> float | str:
+    """Parameter values: a float when the text is a number, else the stripped text."""
+    stripped = text.strip()
+    try:
+        return float(stripped)
+    except ValueError:
+        return stripped
+
+
+def _vec3(text: str | None, default: Vec3) -> Vec3:
+    if text is None:
+        return default
+    x, y, z = (float(v) for v in text.split())
+    return (x, y, z)
+
+
+class _Builder:
+    """Turns a schema-valid tree into a Robot, recording lines and document-level problems."""
+
+    def __init__(self, source: str):
+        self.source = source
+        self.diagnostics: list[Diagnostic] = []
+        self.lines: LineTable = {}
+
+    def error(self, element: etree._Element | int, message: str) -> None:
+        line = element if isinstance(element, int) else (element.sourceline or 0)
+        self.diagnostics.append(Diagnostic(self.source, line, message))
+
+    # -- robot ---------------------------------------------------------------------------------
+    def build(self, root: etree._Element) -> Robot:
+        robot = Robot(name=root.get("name", ""), source=self.source)
+        seen_kinematic: dict[str, tuple[str, int]] = {}  # joint/bendable name -> (kind, line)
+        for child in _children(root):
+            tag = child.tag
+            if tag == "link":
+                link = self.link(child)
+                if link.name in robot.links:
+                    self.error(
+                        child,
+                        f"duplicate link name {link.name!r} "
+                        f"(first defined on line {robot.links[link.name].line})",
+                    )
+                    continue
+                robot.links[link.name] = link
+            elif tag in ("joint", "bendable"):
+                item = self.joint(child) if tag == "joint" else self.bendable(child)
+                if item is None:
+                    continue
+                if item.name in seen_kinematic:
+                    kind, line = seen_kinematic[item.name]
+                    self.error(
+                        child,
+                        f"duplicate name {item.name!r}: this {tag} has the same name as the "
+                        f"{kind} on line {line} (joints and bendables share one namespace)",
+                    )
+                    continue
+                seen_kinematic[item.name] = (tag, item.line)
+                if tag == "joint":
+                    robot.joints[item.name] = item
+                else:
+                    robot.bendables[item.name] = item
+            elif tag == "ros2_control":
+                robot.ros2_control.append(self.ros2_control(child, len(robot.ros2_control)))
+            else:
+                robot.extensions.append(normalise_xml(child))
+        return robot
+
+    # -- URDF pieces ---------------------------------------------------------------------------
+    def origin(self, element: etree._Element | None) -> Origin:
+        if element is None:
+            return Origin()
+        return Origin(
+            xyz=_vec3(element.get("xyz"), (0.0, 0.0, 0.0)),
+            rpy=_vec3(element.get("rpy"), (0.0, 0.0, 0.0)),
+        )
+
+    def inertial(self, element: etree._Element) -> Inertial:
+        origin_el = element.find("origin")
+        mass_el = element.find("mass")
+        inertia_el = element.find("inertia")
+        inertia = (0.0,) * 6
+        if inertia_el is not None:
+            inertia = tuple(
+                float(inertia_el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            )
+        return Inertial(
+            mass=_float(mass_el.get("value")),
+            origin=self.origin(origin_el),
+            inertia=inertia,  # type: ignore[arg-type]
+        )
+
+    def link(self, element: etree._Element) -> Link:
+        name = element.get("name")
+        link = Link(name=name, line=element.sourceline or 0)
+        self.lines[("link", name)] = link.line
+        for child in _children(element):
+            if child.tag == "inertial":
+                if link.inertial is not None:
+                    self.error(child, f"link {name!r} has more than one <inertial>")
+                    continue
+                link.inertial = self.inertial(child)
+                self.lines[("link", name, "inertial")] = child.sourceline or 0
+            elif child.tag in ("visual", "collision"):
+                link.geometry.append(
+                    Geometry(kind=child.tag, xml=normalise_xml(child), line=child.sourceline or 0)
+                )
+            else:
+                link.extensions.append(normalise_xml(child))
+        return link
+
+    def _once(self, element: etree._Element, tag: str, owner: str) -> etree._Element | None:
+        """The single child ``tag`` of ``element``; reports duplicates (and returns the first)."""
+        found = element.findall(tag)
+        for extra in found[1:]:
+            self.error(extra, f"{owner} has more than one <{tag}>")
+        return found[0] if found else None
+
+    def joint(self, element: etree._Element) -> Joint | None:
+        name = element.get("name")
+        owner = f"joint {name!r}"
+        line = element.sourceline or 0
+        self.lines[("joint", name)] = line
+        parent = self._once(element, "parent", owner)
+        child = self._once(element, "child", owner)
+        ok = True
+        for tag, el in (("parent", parent), ("child", child)):
+            if el is None:
+                self.error(element, f"{owner} has no <{tag} link=…>")
+                ok = False
+            else:
+                self.lines[("joint", name, tag)] = el.sourceline or 0
+        origin = self._once(element, "origin", owner)
+        axis = self._once(element, "axis", owner)
+        limit_el = self._once(element, "limit", owner)
+        if not ok:
+            return None
+        limit = None
+        if limit_el is not None:
+            limit = JointLimit(
+                lower=float(limit_el.get("lower", "0")),
+                upper=float(limit_el.get("upper", "0")),
+                effort=float(limit_el.get("effort")),
+                velocity=float(limit_el.get("velocity")),
+            )
+            self.lines[("joint", name, "limit")] = limit_el.sourceline or 0
+        if axis is not None:
+            self.lines[("joint", name, "axis")] = axis.sourceline or 0
+        extensions = [
+            normalise_xml(c)
+            for c in _children(element)
+            if c.tag not in ("parent", "child", "origin", "axis", "limit")
+        ]
+        return Joint(
+            name=name,
+            type=element.get("type"),
+            parent=parent.get("link"),
+            child=child.get("link"),
+            origin=self.origin(origin),
+            axis=_vec3(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+            limit=limit,
+            line=line,
+            extensions=extensions,
+        )
+
+    # -- bendable ------------------------------------------------------------------------------
+    def bendable(self, element: etree._Element) -> Bendable | None:
+        name = element.get("name")
+        line = element.sourceline or 0
+        key = ("bendable", name)
+        self.lines[key] = line
+        parent = element.find("parent")
+        child = element.find("child")
+        self.lines[(*key, "parent")] = parent.sourceline or 0
+        self.lines[(*key, "child")] = child.sourceline or 0
+        model = self.model(element.find("curvature/model"), name)
+        if model is None:
+            return None
+        inertial_el = element.find("inertial")
+        inertial = None
+        if inertial_el is not None:
+            inertial = self.inertial(inertial_el)
+            self.lines[(*key, "inertial")] = inertial_el.sourceline or 0
+        actuation_el = element.find("actuation")
+        actuation = None
+        if actuation_el is not None:
+            actuation = self.actuation(actuation_el, name)
+        return Bendable(
+            name=name,
+            parent=parent.get("link"),
+            child=child.get("link"),
+            model=model,
+            origin=self.origin(element.find("origin")),
+            inertial=inertial,
+            actuation=actuation,
+            line=line,
+        )
+
+    def model(self, element: etree._Element, bendable: str) -> ModelSpec | None:
+        key = ("bendable", bendable)
+        owner = f"bendable {bendable!r}: <model>"
+        self.lines[(*key, "model")] = element.sourceline or 0
+        limits_el = self._once(element, "limits", owner)
+        backbone_el = self._once(element, "backbone", owner)
+        params: dict[str, float | str] = {}
+        for p in element.findall("param"):
+            pname = p.get("name")
+            if pname in params:
+                self.error(p, f"{owner} parameter {pname!r} given twice")
+                continue
+            params[pname] = _number_or_text(p.get("value"))
+            self.lines[(*key, "param", pname)] = p.sourceline or 0
+        missing = [t for t, el in (("limits", limits_el), ("backbone", backbone_el)) if el is None]
+        for tag in missing:
+            self.error(element, f"{owner} has no <{tag}> (required)")
+        if missing:
+            return None
+        self.lines[(*key, "limits")] = limits_el.sourceline or 0
+        self.lines[(*key, "backbone")] = backbone_el.sourceline or 0
+        known = {"kappa_max", "kappa_rate_max", "phi_min", "phi_max"}
+        extra: dict[str, float] = {}
+        for attr, value in limits_el.attrib.items():
+            if attr in known:
+                continue
+            if attr.startswith("{"):
+                self.error(
+                    limits_el, f"{owner}: namespaced attribute {attr!r} not allowed in <limits>"
+                )
+                continue
+            try:
+                extra[attr] = _float(value)
+            except ValueError:
+                self.error(limits_el, f"{owner}: <limits {attr}={value!r}> is not a number")
+        rate = limits_el.get("kappa_rate_max")
+        limits = CurvatureLimits(
+            kappa_max=_float(limits_el.get("kappa_max")),
+            kappa_rate_max=_float(rate) if rate is not None else None,
+            phi_min=_float(limits_el.get("phi_min", repr(-math.pi))),
+            phi_max=_float(limits_el.get("phi_max", repr(math.pi))),
+            extra=extra,
+        )
+        e = backbone_el.get("youngs_modulus")
+        ei = backbone_el.get("bending_stiffness")
+        backbone = Backbone(
+            length=_float(backbone_el.get("length")),
+            radius=_float(backbone_el.get("radius", "0")),
+            youngs_modulus=_float(e) if e is not None else None,
+            bending_stiffness=_float(ei) if ei is not None else None,
+        )
+        return ModelSpec(type=element.get("type"), limits=limits, backbone=backbone, params=params)
+
+    def actuation(self, element: etree._Element, bendable: str) -> Actuation:
+        key = ("bendable", bendable)
+        owner = f"bendable {bendable!r}: <actuation>"
+        self.lines[(*key, "actuation")] = element.sourceline or 0
+        count = int(element.get("count"))
+        tendons: dict[int, float] = {}
+        servos: dict[int, Servo] = {}
+        for child in _children(element):
+            index = int(child.get("index"))
+            table = tendons if child.tag == "tendon" else servos
+            if index in table:
+                self.error(child, f"{owner} has two <{child.tag}> with index {index}")
+                continue
+            if index >= count:
+                self.error(
+                    child,
+                    f"{owner} <{child.tag} index={index}> is out of range: count is {count}, "
+                    f"indices run 0..{count - 1}",
+                )
+                continue
+            self.lines[(*key, child.tag, index)] = child.sourceline or 0
+            if child.tag == "tendon":
+                tendons[index] = _float(child.get("angle"))
+            else:
+                servos[index] = Servo(
+                    id=int(child.get("id")),
+                    zero_offset=_float(child.get("zero_offset", "0")),
+                    direction=int(child.get("direction", "1")),
+                    min_angle=_float(child.get("min_angle", repr(-math.pi))),
+                    max_angle=_float(child.get("max_angle", repr(math.pi))),
+                )
+        if len(tendons) != count:
+            self.error(
+                element,
+                f"{owner} declares count={count} but has {len(tendons)} <tendon> elements",
+            )
+        if servos and len(servos) != count:
+            self.error(
+                element,
+                f"{owner} has {count} tendons but {len(servos)} <servo> elements "
+                "(give one servo per tendon, or none)",
+            )
+        return Actuation(
+            type=element.get("type"),
+            angles=[tendons[i] for i in sorted(tendons)],
+            radius=_float(element.get("radius")),
+            spool_radius=_float(element.get("spool_radius")),
+            driver=element.get("driver", "pwm"),
+            servos=[servos[i] for i in sorted(servos)],
+        )
+
+    # -- ros2_control --------------------------------------------------------------------------
+    def params(self, elements: list[etree._Element], owner: str, key: LineKey) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for p in elements:
+            pname = p.get("name")
+            if pname in out:
+                self.error(p, f"{owner}: <param name={pname!r}> given twice")
+                continue
+            out[pname] = (p.text or "").strip()
+            self.lines[(*key, "param", pname)] = p.sourceline or 0
+        return out
+
+    def ros2_control(self, element: etree._Element, index: int) -> Ros2Control:
+        key: LineKey = ("ros2_control", index)
+        name = element.get("name")
+        line = element.sourceline or 0
+        self.lines[key] = line
+        hardware = element.find("hardware")
+        self.lines[(*key, "hardware")] = hardware.sourceline or 0
+        control = Ros2Control(
+            name=name,
+            type=element.get("type", "system"),
+            plugin=(hardware.findtext("plugin") or "").strip(),
+            hardware_params=self.params(
+                hardware.findall("param"), f"ros2_control {name!r} <hardware>", key
+            ),
+            line=line,
+        )
+        for j_index, joint_el in enumerate(element.findall("joint")):
+            jname = joint_el.get("name")
+            jkey = (*key, "joint", j_index)
+            self.lines[jkey] = joint_el.sourceline or 0
+            joint = ControlJoint(name=jname, line=joint_el.sourceline or 0)
+            for iface_el in _children(joint_el):
+                kind = iface_el.tag
+                iname = iface_el.get("name")
+                target = (
+                    joint.command_interfaces
+                    if kind == "command_interface"
+                    else joint.state_interfaces
+                )
+                if any(i.name == iname for i in target):
+                    self.error(
+                        iface_el,
+                        f"ros2_control joint {jname!r} has two <{kind} name={iname!r}>",
+                    )
+                    continue
+                ikey = (*jkey, kind, iname)
+                self.lines[ikey] = iface_el.sourceline or 0
+                raw = self.params(
+                    iface_el.findall("param"),
+                    f"ros2_control joint {jname!r} <{kind} {iname}>",
+                    ikey,
+                )
+                target.append(
+                    Interface(name=iname, params={k: _number_or_text(v) for k, v in raw.items()})
+                )
+            control.joints.append(joint)
+        return control
