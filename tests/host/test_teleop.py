@@ -1,0 +1,209 @@
+"""Teleop input sources and the ffc.input streaming policy (no daemon needed here; the run through
+the API against the emulated chain is in test_api_e2e.py)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from types import SimpleNamespace
+
+import evdev
+import pytest
+from evdev import ecodes
+
+from host.teleop import (
+    GamepadSource,
+    InputEvent,
+    KeyboardSource,
+    Recorder,
+    ReplaySource,
+    Teleop,
+    TeleopError,
+    normalise_axis,
+    parse_keys,
+    parse_recording,
+)
+
+pytestmark = pytest.mark.timeout(30)
+
+
+def write_lines(path, objs) -> str:
+    path.write_text("".join(json.dumps(o) + "\n" for o in objs))
+    return str(path)
+
+
+class Sink:
+    """Collects what Teleop sends, with time stamps."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[float, dict]] = []
+
+    def __call__(self, rates: dict) -> None:
+        self.sent.append((time.monotonic(), dict(rates)))
+
+
+# ------------------------------------------------------------------ recording format
+@pytest.mark.parametrize(
+    ("line", "needle"),
+    [
+        ("not json", "not JSON"),
+        ('{"rates": {"a": [0, 0]}}', "'t'"),
+        ('{"t": -1, "stop": true}', "'t'"),
+        ('{"t": 0, "rates": {"a": [2, 0]}}', "within [-1, 1]"),
+        ('{"t": 0, "rates": {"a": [0]}}', "within [-1, 1]"),
+        ('{"t": 0, "rates": {}}', "must map"),
+        ('{"t": 0, "jump": true}', "expected exactly one of"),
+        ('{"t": 0, "stop": false}', "expected exactly one of"),
+    ],
+)
+def test_bad_recording_line_is_reported_with_its_line_number(line, needle):
+    with pytest.raises(TeleopError) as info:
+        parse_recording(['{"t": 0, "stop": true}', line], "rec.jsonl")
+    assert "rec.jsonl:2" in str(info.value) and needle in str(info.value)
+
+
+def test_recording_going_back_in_time_is_refused():
+    with pytest.raises(TeleopError, match="back in time"):
+        parse_recording(['{"t": 1, "stop": true}', '{"t": 0.5, "stop": true}'])
+
+
+# ------------------------------------------------------------------ streaming policy
+def test_replay_streams_while_deflected_sends_one_zero_on_release_and_nothing_after_end(tmp_path):
+    rec = write_lines(
+        tmp_path / "r.jsonl",
+        [
+            {"t": 0.0, "rates": {"s1": [0.5, 0.0]}},
+            {"t": 0.4, "stop": True},
+            {"t": 0.7, "rates": {"s2": [0.0, -1.0]}},
+            {"t": 1.0, "end": True},
+        ],
+    )
+    sink = Sink()
+    t0 = time.monotonic()
+    result = Teleop(sink, rate_hz=50).run(ReplaySource(rec))
+    assert result.reason == "end"
+    first = [r for t, r in sink.sent if t - t0 < 0.39]
+    assert all(r == {"s1": (0.5, 0.0)} for r in first)
+    assert 14 <= len(first) <= 21  # ~50 Hz for 0.4 s
+    zeros = [t for t, r in sink.sent if not any(x or y for x, y in r.values())]
+    assert len(zeros) == 1 and result.zeros_sent == 1  # one stop on release, not a stream
+    second = [r for t, r in sink.sent if t - t0 > 0.69]
+    assert second and all(r == {"s1": (0.0, 0.0), "s2": (0.0, -1.0)} for r in second)
+    # Input ended while deflected: no zero afterwards (the daemon's deadman stops the robot).
+    assert sink.sent[-1][1]["s2"] == (0.0, -1.0)
+    assert sink.sent[-1][0] - t0 < 1.1
+
+
+def test_quit_sends_a_final_zero(tmp_path):
+    rec = write_lines(
+        tmp_path / "r.jsonl", [{"t": 0.0, "rates": {"s1": [0.0, 0.3]}}, {"t": 0.1, "quit": True}]
+    )
+    sink = Sink()
+    result = Teleop(sink, rate_hz=50).run(ReplaySource(rec))
+    assert result.reason == "quit"
+    assert sink.sent[-1][1] == {"s1": (0.0, 0.0)}
+
+
+def test_recorder_output_replays_to_the_same_events(tmp_path):
+    rec = write_lines(
+        tmp_path / "r.jsonl",
+        [
+            {"t": 0.0, "rates": {"s1": [0.25, -0.5]}},
+            {"t": 0.05, "stop": True},
+            {"t": 0.1, "end": True},
+        ],
+    )
+    out = io.StringIO()
+    Teleop(lambda r: None).run(Recorder(ReplaySource(rec), out))
+    again = parse_recording(out.getvalue().splitlines())
+    assert [e.kind for _, e in again] == ["rates", "stop", "end"]
+    assert again[0][1].rates == {"s1": (0.25, -0.5)}
+
+
+# ------------------------------------------------------------------ keyboard
+def test_key_parsing_understands_arrows_and_letters():
+    assert parse_keys(b"w\x1b[A\x1b[D 3q\x03") == ["w", "up", "left", "space", "3", "q", "ctrl-c"]
+
+
+def test_keyboard_keys_deflect_selected_segment_then_release_after_hold_time():
+    r, w = os.pipe()
+    try:
+        kb = KeyboardSource(["s1", "s2"], fd=r, hold_s=0.2, gain=0.5)
+        os.write(w, b"2w")
+        evs = kb.read(0.1)
+        assert evs[-1].kind == "rates" and evs[-1].rates == {"s1": (0.0, 0.0), "s2": (0.0, 0.5)}
+        os.write(w, b"\x1b[C")  # right arrow adds +x on the same segment
+        assert kb.read(0.1)[-1].rates["s2"] == (0.5, 0.5)
+        time.sleep(0.25)
+        released = kb.read(0.0)
+        assert released[-1].rates == {"s1": (0.0, 0.0), "s2": (0.0, 0.0)}
+        os.write(w, b" ")
+        assert kb.read(0.1)[0].kind == "stop"
+        os.write(w, b"q")
+        assert kb.read(0.1)[-1].kind == "quit"
+        kb.close()
+    finally:
+        os.close(r)
+        os.close(w)
+
+
+# ------------------------------------------------------------------ gamepad mapping
+def test_axis_normalisation_centre_deadzone_and_ends():
+    assert normalise_axis(0, -32768, 32767, 0.1) == 0.0
+    assert normalise_axis(2000, -32768, 32767, 0.1) == 0.0  # inside the deadzone
+    assert normalise_axis(32767, -32768, 32767, 0.1) == pytest.approx(1.0)
+    assert normalise_axis(-32768, -32768, 32767, 0.1) == pytest.approx(-1.0)
+    assert normalise_axis(255, 0, 255, 0.1) == pytest.approx(1.0)
+    assert 0.0 < normalise_axis(20000, -32768, 32767, 0.1) < 0.61
+
+
+class FakeDevice:
+    """An evdev-like device fed by the test (a pipe gives select() a real fd)."""
+
+    def __init__(self) -> None:
+        self.r, self.w = os.pipe()
+        self.fd = self.r
+        self.name = "Test Pad"
+        self.pending: list = []
+        info = SimpleNamespace(min=-32768, max=32767)
+        self._caps = {
+            ecodes.EV_ABS: [
+                (c, info) for c in (ecodes.ABS_X, ecodes.ABS_Y, ecodes.ABS_RX, ecodes.ABS_RY)
+            ]
+        }
+
+    def capabilities(self):
+        return self._caps
+
+    def feed(self, *events) -> None:
+        self.pending.extend(evdev.InputEvent(0, 0, t, c, v) for t, c, v in events)
+        os.write(self.w, b"x")
+
+    def read(self):
+        os.read(self.r, 64)
+        out, self.pending = self.pending, []
+        return out
+
+    def close(self) -> None:
+        os.close(self.r)
+        os.close(self.w)
+
+
+def test_gamepad_sticks_map_to_selected_segment_pair_and_buttons_select_and_hold():
+    dev = FakeDevice()
+    pad = GamepadSource(["s1", "s2", "s3"], device=dev)
+    dev.feed((ecodes.EV_ABS, ecodes.ABS_X, 32767), (ecodes.EV_ABS, ecodes.ABS_RY, -32768))
+    rates = pad.read(0.5)[-1].rates
+    assert rates["s1"] == (pytest.approx(1.0), 0.0)  # left stick right -> +x on s1
+    assert rates["s2"] == (0.0, pytest.approx(1.0))  # right stick up -> +y on s2
+    assert rates["s3"] == (0.0, 0.0)
+    dev.feed((ecodes.EV_KEY, ecodes.BTN_TR, 1))  # next pair: s2, s3
+    rates = pad.read(0.5)[-1].rates
+    assert rates["s2"][0] == pytest.approx(1.0) and rates["s3"][1] == pytest.approx(1.0)
+    dev.feed((ecodes.EV_KEY, ecodes.BTN_SOUTH, 1))  # hold: everything reads zero
+    assert all(v == (0.0, 0.0) for v in pad.read(0.5)[-1].rates.values())
+    dev.feed((ecodes.EV_KEY, ecodes.BTN_START, 1))
+    assert pad.read(0.5) == [InputEvent("quit")]
+    pad.close()
