@@ -59,7 +59,7 @@ class Element:
     model: CurvatureModel | None = None  # bendables only
 
 
-def _joint_motion(el: Element, q: float) -> np.ndarray:
+def joint_motion(el: Element, q: float) -> np.ndarray:
     t = np.eye(4)
     if el.joint_type in ("revolute", "continuous"):
         t[:3, :3] = axis_rotation(el.axis, q)
@@ -223,7 +223,7 @@ class RobotKinematics:
             if el.kind == "bendable":
                 t = t @ el.model.transform_coordinates(coords[el.name])
             elif el.joint_type in _MOVABLE:
-                t = t @ _joint_motion(el, joints.get(el.name, 0.0))
+                t = t @ joint_motion(el, joints.get(el.name, 0.0))
             frames[el.child] = t
         return frames
 

@@ -1,0 +1,177 @@
+"""``ucr fk``, ``ucr ik`` and ``ucr export-urdf``: the kinematics commands.
+
+Registered by :mod:`ucrdf.cli`. Every failure is one or more plain lines on stderr and exit code
+1 (file problems as ``path:line: message``), never a traceback. Heavy imports stay inside the
+command functions so ``ucr --help`` is fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+
+class _CliError(Exception):
+    """A user mistake on the command line: printed as one line, exit 1."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``fk``, ``ik`` and ``export-urdf`` to the ``ucr`` dispatcher."""
+    p = subparsers.add_parser(
+        "fk",
+        help="forward kinematics: transform of every link frame as JSON",
+        description="Print a JSON object {link: 4x4 matrix (nested lists, root frame, m)} for a "
+        'configuration. --config maps each bendable to {"kappa": 1/m, "phi": rad} (its model\'s '
+        "variables) and each movable joint to a number (rad or m); anything not named takes its "
+        "ros2_control initial_value, else 0.",
+    )
+    p.add_argument("file", metavar="FILE", help="U(C)RDF file")
+    p.add_argument(
+        "--config", default="{}", help="configuration as a JSON string, or @path to a JSON file"
+    )
+    p.set_defaults(func=_guard(run_fk))
+
+    p = subparsers.add_parser(
+        "ik",
+        help="inverse kinematics: configuration that puts a link at a target position",
+        description="Solve for the configuration placing the tip link at x,y,z (m, root frame) "
+        "by damped least squares in (kx, ky). Prints JSON {success, residual, iterations, "
+        "message, tip, config}; exit 0 on success, 1 when no solution within tolerance.",
+    )
+    p.add_argument("file", metavar="FILE", help="U(C)RDF file")
+    p.add_argument("--target", required=True, help="target position x,y,z in m (root frame)")
+    p.add_argument("--tip", help="link to place (default: the robot's one end link)")
+    p.add_argument("--initial", help="start configuration (JSON or @file), like fk --config")
+    p.add_argument("--tol", type=float, default=1e-4, help="position tolerance in m (1e-4)")
+    p.set_defaults(func=_guard(run_ik))
+
+    p = subparsers.add_parser(
+        "export-urdf",
+        help="export plain URDF: each bendable as a chain of rigid subdivisions",
+        description="Write a plain URDF in which every bendable is a pseudo-rigid-body chain of "
+        "N subdivisions (universal joints). With --config the pose is baked into fixed joints.",
+    )
+    p.add_argument("file", metavar="FILE", help="U(C)RDF file")
+    p.add_argument("--subdivisions", "-n", type=int, default=10, help="per bendable (10)")
+    p.add_argument("-o", "--output", required=True, help="output URDF path ('-' for stdout)")
+    p.add_argument("--config", help="bake this configuration (JSON or @file) as fixed joints")
+    p.set_defaults(func=_guard(run_export))
+
+
+def _guard(func):
+    """Turn expected errors into stderr lines and exit code 1."""
+
+    def run(args: argparse.Namespace) -> int:
+        from ucrdf.errors import UcrdfError  # noqa: PLC0415
+        from ucrdf.models.base import ModelError  # noqa: PLC0415
+
+        try:
+            return func(args)
+        except UcrdfError as exc:
+            for diagnostic in exc.diagnostics:
+                print(diagnostic, file=sys.stderr)
+            return 1
+        except (_CliError, ModelError) as exc:
+            print(f"ucr {args.command}: error: {exc}", file=sys.stderr)
+            return 1
+
+    return run
+
+
+def _json_arg(text: str, option: str) -> Any:
+    """Parse a JSON option value; ``@path`` reads the file."""
+    source = option
+    if text.startswith("@"):
+        path = Path(text[1:])
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise _CliError(f"cannot read {option} file {str(path)!r}: {exc.strerror}") from None
+        source = f"{option} file {str(path)!r}"
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise _CliError(
+            f"{source} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+        ) from None
+    if not isinstance(value, dict):
+        raise _CliError(f"{source} must be a JSON object mapping names to values")
+    return value
+
+
+def _load(path: str):
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    return load(path)
+
+
+def run_fk(args: argparse.Namespace) -> int:
+    from ucrdf.fk import RobotKinematics  # noqa: PLC0415
+
+    config = _json_arg(args.config, "--config")
+    robot = _load(args.file)
+    frames = RobotKinematics(robot).fk(config)
+    out = {name: [[float(x) for x in row] for row in t.tolist()] for name, t in frames.items()}
+    json.dump(out, sys.stdout, indent=1)
+    print()
+    return 0
+
+
+def _target(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise _CliError(f"--target must be three numbers x,y,z in m, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def run_ik(args: argparse.Namespace) -> int:
+    from ucrdf.ik import solve_ik  # noqa: PLC0415
+
+    target = _target(args.target)
+    initial = _json_arg(args.initial, "--initial") if args.initial else None
+    if not (args.tol > 0.0 and math.isfinite(args.tol)):
+        raise _CliError(f"--tol must be a positive number of metres, got {args.tol}")
+    robot = _load(args.file)
+    result = solve_ik(robot, target, tip=args.tip, initial=initial, tol=args.tol)
+    out = {
+        "success": result.success,
+        "residual": result.residual,
+        "iterations": result.iterations,
+        "message": result.message,
+        "tip": result.tip,
+        "target": list(target),
+        "config": result.config,
+    }
+    json.dump(out, sys.stdout, indent=1)
+    print()
+    if not result.success:
+        print(f"ucr ik: {result.message}", file=sys.stderr)
+    return 0 if result.success else 1
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from ucrdf.export import export_urdf  # noqa: PLC0415
+
+    if args.subdivisions < 1:
+        raise _CliError(f"--subdivisions must be >= 1, got {args.subdivisions}")
+    config = _json_arg(args.config, "--config") if args.config else None
+    robot = _load(args.file)
+    text = export_urdf(robot, args.subdivisions, config)
+    if args.output == "-":
+        sys.stdout.write(text)
+        return 0
+    try:
+        Path(args.output).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise _CliError(f"cannot write {args.output!r}: {exc.strerror}") from None
+    print(f"wrote {args.output} ({len(robot.bendables)} bendable(s) x {args.subdivisions} "
+          "subdivisions)", file=sys.stderr)  # fmt: skip
+    return 0
