@@ -1,0 +1,331 @@
+"""Daemon configuration: a small YAML file (controllers, port, loop rate, API, watchdog) with
+defaults, plus the per-bendable interface limits read from the U(C)RDF ``<ros2_control>`` block.
+
+Bad input raises :class:`ConfigError`, whose one-line message names the file and the key, so the
+CLI can print it and exit 1 without a traceback.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+DEFAULT_CONTROLLERS: dict[str, dict[str, Any]] = {
+    "jtc": {"type": "jtc", "params": {}},
+    "ffc": {"type": "ffc", "params": {}},
+    "jsb": {"type": "jsb", "params": {"rate_hz": 50.0}},
+    "rsp": {"type": "rsp", "params": {"rate_hz": 20.0}},
+}
+DEFAULT_ACTIVE = ["jtc", "jsb", "rsp"]
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is wrong; ``str()`` is one line: ``file: key: problem``."""
+
+    def __init__(self, source: str, key: str, problem: str):
+        self.source = source
+        self.key = key
+        self.problem = problem
+        super().__init__(f"{source}: {key}: {problem}" if key else f"{source}: {problem}")
+
+
+@dataclass
+class ApiConfig:
+    """Network API: bind address, TCP port, token (required for a non-loopback bind)."""
+
+    bind: str = "127.0.0.1"
+    port: int = 8765
+    token: str | None = None
+    enabled: bool = True
+
+
+@dataclass
+class WatchdogConfig:
+    """Link supervision. ``reply_timeout_s``: how long one SYNC/HEARTBEAT waits for the states;
+    ``missed_cycles``: consecutive cycles a segment may stay silent before the host treats the
+    topology as changed; reconnect back-off bounds for a vanished adapter; discovery timeout."""
+
+    reply_timeout_s: float = 0.02
+    missed_cycles: int = 3
+    reconnect_min_s: float = 0.1
+    reconnect_max_s: float = 2.0
+    discover_timeout_s: float = 0.3
+
+
+@dataclass
+class DaemonConfig:
+    """Everything the daemon needs besides the robot description. SI units (s, Hz)."""
+
+    port: str | None = None
+    baudrate: int = 921600
+    rate_hz: float = 100.0
+    controllers: dict[str, dict[str, Any]] = field(
+        default_factory=lambda: {
+            k: {"type": v["type"], "params": dict(v["params"])}
+            for k, v in DEFAULT_CONTROLLERS.items()
+        }
+    )
+    active: list[str] = field(default_factory=lambda: list(DEFAULT_ACTIVE))
+    api: ApiConfig = field(default_factory=ApiConfig)
+    watchdog: WatchdogConfig = field(default_factory=WatchdogConfig)
+    source: str = "<defaults>"
+
+
+def _num(
+    source: str,
+    key: str,
+    value: Any,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    integer: bool = False,
+) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(source, key, f"expected a number, got {value!r}")
+    if integer and not isinstance(value, int):
+        raise ConfigError(source, key, f"expected an integer, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(source, key, f"must be finite, got {value!r}")
+    if lo is not None and value < lo:
+        raise ConfigError(source, key, f"must be >= {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ConfigError(source, key, f"must be <= {hi}, got {value!r}")
+    return value
+
+
+def _check_keys(source: str, prefix: str, data: dict, allowed: set[str]) -> None:
+    for k in data:
+        if k not in allowed:
+            raise ConfigError(
+                source, f"{prefix}{k}", f"unknown key (allowed: {', '.join(sorted(allowed))})"
+            )
+
+
+def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
+    """Validate a decoded YAML mapping and build a :class:`DaemonConfig` (defaults fill gaps)."""
+    from host.controllers import known_types  # noqa: PLC0415 - host.controllers imports us
+
+    cfg = DaemonConfig(source=source)
+    if data is None:
+        return cfg
+    if not isinstance(data, dict):
+        raise ConfigError(source, "", "top level must be a mapping")
+    _check_keys(
+        source,
+        "",
+        data,
+        {"port", "baudrate", "rate_hz", "controllers", "active", "api", "watchdog"},
+    )
+    if "port" in data:
+        if data["port"] is not None and not isinstance(data["port"], str):
+            raise ConfigError(
+                source, "port", f"expected a pyserial URL or path, got {data['port']!r}"
+            )
+        cfg.port = data["port"]
+    if "baudrate" in data:
+        cfg.baudrate = int(_num(source, "baudrate", data["baudrate"], lo=1200, integer=True))
+    if "rate_hz" in data:
+        cfg.rate_hz = float(_num(source, "rate_hz", data["rate_hz"], lo=1.0, hi=2000.0))
+    if "controllers" in data:
+        ctrls = data["controllers"]
+        if not isinstance(ctrls, dict) or not ctrls:
+            raise ConfigError(
+                source, "controllers", "expected a non-empty mapping name -> {type, params}"
+            )
+        cfg.controllers = {}
+        types = known_types()
+        for name, spec in ctrls.items():
+            key = f"controllers.{name}"
+            if not isinstance(name, str) or not name:
+                raise ConfigError(source, key, "controller names must be non-empty strings")
+            if not isinstance(spec, dict):
+                raise ConfigError(source, key, "expected a mapping with 'type' (and 'params')")
+            _check_keys(source, key + ".", spec, {"type", "params"})
+            ctype = spec.get("type")
+            if ctype not in types:
+                raise ConfigError(
+                    source,
+                    key + ".type",
+                    f"unknown controller type {ctype!r} (known: {', '.join(types)})",
+                )
+            params = spec.get("params") or {}
+            if not isinstance(params, dict):
+                raise ConfigError(source, key + ".params", "expected a mapping")
+            cfg.controllers[name] = {"type": ctype, "params": dict(params)}
+        if "active" not in data:
+            cfg.active = [n for n in cfg.controllers if n in DEFAULT_ACTIVE]
+    if "active" in data:
+        act = data["active"]
+        if not isinstance(act, list) or not all(isinstance(a, str) for a in act):
+            raise ConfigError(source, "active", "expected a list of controller names")
+        for a in act:
+            if a not in cfg.controllers:
+                raise ConfigError(source, "active", f"{a!r} is not a configured controller")
+        cfg.active = list(act)
+    if "api" in data:
+        api = data["api"]
+        if not isinstance(api, dict):
+            raise ConfigError(source, "api", "expected a mapping")
+        _check_keys(source, "api.", api, {"bind", "port", "token", "enabled"})
+        if "bind" in api:
+            if not isinstance(api["bind"], str):
+                raise ConfigError(source, "api.bind", "expected an address string")
+            cfg.api.bind = api["bind"]
+        if "port" in api:
+            cfg.api.port = int(_num(source, "api.port", api["port"], lo=0, hi=65535, integer=True))
+        if "token" in api:
+            if api["token"] is not None and not isinstance(api["token"], str):
+                raise ConfigError(source, "api.token", "expected a string")
+            cfg.api.token = api["token"]
+        if "enabled" in api:
+            if not isinstance(api["enabled"], bool):
+                raise ConfigError(source, "api.enabled", "expected true or false")
+            cfg.api.enabled = api["enabled"]
+    if "watchdog" in data:
+        wd = data["watchdog"]
+        if not isinstance(wd, dict):
+            raise ConfigError(source, "watchdog", "expected a mapping")
+        _check_keys(source, "watchdog.", wd, set(WatchdogConfig.__dataclass_fields__))
+        for k, v in wd.items():
+            integer = k == "missed_cycles"
+            val = _num(source, f"watchdog.{k}", v, lo=1 if integer else 0.0005, integer=integer)
+            setattr(cfg.watchdog, k, int(val) if integer else float(val))
+    return cfg
+
+
+def load_config(path: str | Path | None) -> DaemonConfig:
+    """Read a YAML daemon config (``None`` → defaults). Raises :class:`ConfigError`."""
+    if path is None:
+        return parse_config(None)
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "YAML"
+        raise ConfigError(str(p), where, f"invalid YAML: {getattr(exc, 'problem', exc)}") from None
+    return parse_config(data, str(p))
+
+
+# -- interfaces from the U(C)RDF <ros2_control> block -----------------------------------------
+
+
+@dataclass
+class BendableLimits:
+    """Effective limits of one bendable: the model's ``<limits>`` intersected with the
+    ``<ros2_control>`` command interface ``min``/``max``. Units 1/m, 1/m/s, rad."""
+
+    name: str
+    length: float
+    kappa_max: float
+    kappa_rate_max: float
+    phi_min: float = -math.pi
+    phi_max: float = math.pi
+    kappa_initial: float = 0.0
+    phi_initial: float = 0.0
+    command_interfaces: tuple[str, ...] = ("kappa", "phi")
+    state_interfaces: tuple[str, ...] = ("kappa", "phi")
+
+    @property
+    def full_circle(self) -> bool:
+        return self.phi_min <= -math.pi + 1e-9 and self.phi_max >= math.pi - 1e-9
+
+
+DEFAULT_KAPPA_RATE_MAX = 2.0  # 1/m/s, used when the U(C)RDF gives no kappa_rate_max
+
+
+def _fparam(params: dict, key: str, robot_src: str, where: str) -> float | None:
+    if key not in params:
+        return None
+    try:
+        v = float(params[key])
+    except (TypeError, ValueError):
+        raise ConfigError(
+            robot_src, where + "." + key, f"expected a number, got {params[key]!r}"
+        ) from None
+    if not math.isfinite(v):
+        raise ConfigError(robot_src, where + "." + key, f"must be finite, got {v!r}")
+    return v
+
+
+def bendable_limits(robot: Any) -> dict[str, BendableLimits]:
+    """Per-bendable effective limits and interface names, in document order.
+
+    A bendable listed in ``<ros2_control>`` exposes the interfaces declared there; one that is not
+    listed gets the default kappa/phi pair (so a U(C)RDF without ``<ros2_control>`` still runs).
+    ``max`` of the kappa command interface may only tighten ``kappa_max``; a looser one is an error.
+    """
+    src = getattr(robot, "source", "") or robot.name
+    declared: dict[str, Any] = {}
+    for block in getattr(robot, "ros2_control", []):
+        for j in block.joints:
+            declared[j.name] = j
+    out: dict[str, BendableLimits] = {}
+    for name, b in robot.bendables.items():
+        lim = b.model.limits
+        rate = lim.kappa_rate_max if lim.kappa_rate_max else DEFAULT_KAPPA_RATE_MAX
+        bl = BendableLimits(
+            name=name,
+            length=b.length,
+            kappa_max=float(lim.kappa_max),
+            kappa_rate_max=float(rate),
+            phi_min=lim.phi_min,
+            phi_max=lim.phi_max,
+        )
+        cj = declared.get(name)
+        if cj is not None:
+            where = f"ros2_control.joint[{name}]"
+            cmds = tuple(i.name for i in cj.command_interfaces)
+            sts = tuple(i.name for i in cj.state_interfaces)
+            for i in cmds + sts:
+                if i not in ("kappa", "phi"):
+                    raise ConfigError(
+                        src,
+                        f"{where}.{i}",
+                        "a PCC bendable offers only 'kappa' and 'phi' interfaces",
+                    )
+            bl.command_interfaces = cmds
+            bl.state_interfaces = sts or cmds
+            for itf in cj.command_interfaces:
+                w = f"{where}.command_interface[{itf.name}]"
+                lo = _fparam(itf.params, "min", src, w)
+                hi = _fparam(itf.params, "max", src, w)
+                init = _fparam(itf.params, "initial_value", src, w)
+                if itf.name == "kappa":
+                    if hi is not None:
+                        if hi <= 0:
+                            raise ConfigError(src, w + ".max", f"must be > 0, got {hi}")
+                        bl.kappa_max = min(bl.kappa_max, hi)
+                    if lo is not None and lo > 0:
+                        raise ConfigError(
+                            src,
+                            w + ".min",
+                            "kappa is a magnitude; a minimum above 0 is not supported",
+                        )
+                    if init is not None:
+                        bl.kappa_initial = init
+                else:
+                    if lo is not None:
+                        bl.phi_min = max(bl.phi_min, lo)
+                    if hi is not None:
+                        bl.phi_max = min(bl.phi_max, hi)
+                    if init is not None:
+                        bl.phi_initial = init
+            if bl.phi_min >= bl.phi_max:
+                raise ConfigError(src, where, f"empty phi range [{bl.phi_min}, {bl.phi_max}]")
+            if not 0.0 <= bl.kappa_initial <= bl.kappa_max:
+                raise ConfigError(
+                    src,
+                    where + ".kappa.initial_value",
+                    f"{bl.kappa_initial} is outside [0, {bl.kappa_max}]",
+                )
+        out[name] = bl
+    return out

@@ -1,0 +1,145 @@
+"""Controller base class and the data it sees each cycle.
+
+A controller is constructed for one robot (its bendables and their limits, in chain order), claims
+command interfaces (``<name>/kappa``, ``<name>/phi``) while active, and in ``update`` returns
+desired curvature vectors (kx, ky) in 1/m for the bendables it commands. Broadcasters claim
+nothing and publish instead. The controller manager turns (kx, ky) into the (kappa, phi) interface
+form, so every controller works in (kx, ky) as the architecture prescribes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from host.config import BendableLimits
+
+
+class ControllerError(ValueError):
+    """A controller cannot be loaded, configured or given this request (message says why)."""
+
+
+@dataclass
+class RobotState:
+    """Measured state of the controlled bendables at time ``t`` (s, monotonic), chain order.
+
+    Curvature vectors (kx, ky) and the interface form (kappa, phi) in SI; ``valid[i]`` is False
+    when segment i did not answer this cycle (its values are then the last known ones).
+    """
+
+    t: float
+    names: list[str]
+    kx: list[float]
+    ky: list[float]
+    kappa: list[float]
+    phi: list[float]
+    valid: list[bool]
+
+    @classmethod
+    def zeros(cls, names: list[str], t: float = 0.0) -> RobotState:
+        n = len(names)
+        return cls(t, list(names), [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [False] * n)
+
+
+@dataclass
+class ControllerContext:
+    """What a controller knows about the robot it runs on. ``limits`` is chain-ordered.
+
+    ``publish(msg)`` hands a message dict to the daemon's subscribers (broadcasters use it);
+    ``robot`` is the (possibly truncated) U(C)RDF robot currently controlled.
+    """
+
+    limits: dict[str, BendableLimits]
+    robot: Any = None
+    publish: Callable[[dict], None] = field(default=lambda msg: None)
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.limits)
+
+
+Commands = dict[str, tuple[float, float]]
+
+
+class Controller:
+    """Base of every controller. Subclasses set ``type_name`` and override the hooks.
+
+    Lifecycle (managed by the controller manager): constructed → ``on_activate`` → ``update`` each
+    cycle → ``on_deactivate``. ``params`` come from the daemon config; unknown keys are an error.
+    """
+
+    type_name: str = ""
+    #: parameter name -> default; subclasses extend. "joints" = bendables to command (None = all).
+    defaults: dict[str, Any] = {"joints": None}
+    #: broadcasters do not claim command interfaces
+    claims_commands: bool = True
+
+    def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
+        self.name = name
+        unknown = set(params) - set(self.defaults)
+        if unknown:
+            raise ControllerError(
+                f"controller {name!r} ({self.type_name}): unknown parameter(s) "
+                f"{', '.join(sorted(unknown))} (known: {', '.join(sorted(self.defaults))})"
+            )
+        self.params = {**self.defaults, **params}
+        self.ctx = ctx
+        joints = self.params.get("joints")
+        if joints is None:
+            self.joints = list(ctx.limits)
+        else:
+            if not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
+                raise ControllerError(f"controller {name!r}: 'joints' must be a list of names")
+            # After a hot-plug some configured bendables may be gone: keep the present ones.
+            self.joints = [j for j in ctx.limits if j in joints]
+        self.active = False
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _float_param(self, key: str, *, lo: float = 0.0) -> float:
+        v = self.params[key]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < lo:
+            raise ControllerError(
+                f"controller {self.name!r}: parameter {key!r} must be a number >= {lo}, got {v!r}"
+            )
+        return float(v)
+
+    def command_interfaces(self) -> list[str]:
+        """The command interfaces this controller claims while active."""
+        if not self.claims_commands:
+            return []
+        out = []
+        for j in self.joints:
+            out += [f"{j}/{i}" for i in self.ctx.limits[j].command_interfaces]
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        """Status for ``Daemon.controllers()``; subclasses add their own fields."""
+        return {
+            "name": self.name,
+            "type": self.type_name,
+            "state": "active" if self.active else "inactive",
+            "claimed_interfaces": self.command_interfaces() if self.active else [],
+            "joints": list(self.joints),
+        }
+
+    # -- hooks -------------------------------------------------------------------------------
+    def on_activate(self, state: RobotState) -> None:
+        """Called when switched on; commanding controllers start by holding ``state``."""
+
+    def on_deactivate(self, reason: str = "") -> None:
+        """Called when switched off (``reason`` says why, for goals that end here)."""
+
+    def update(self, state: RobotState, dt: float) -> Commands | None:
+        """One cycle: return {bendable: (kx, ky)} desired (1/m), or None for no command."""
+        return None
+
+
+def clamp_radial(kx: float, ky: float, kmax: float) -> tuple[float, float, bool]:
+    """Scale (kx, ky) back onto the disc |kappa| <= kmax. Returns (kx, ky, clamped)."""
+    k = math.hypot(kx, ky)
+    if k <= kmax:
+        return kx, ky, False
+    s = kmax / k
+    return kx * s, ky * s, True

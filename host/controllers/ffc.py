@@ -1,0 +1,139 @@
+"""cFFC: the continuum feed-forward controller (paper Fig. 5: a hand-held controller bends the
+segments, the stick deflection sets the rate of curvature change).
+
+Input: per bendable a deflection (ux, uy), each in [-1, 1] (stick x/y), streamed through
+``Daemon.ffc_input``. Output: the commanded curvature vector integrates
+    d(kx, ky)/dt = kappa_rate_max * gain * (ux, uy)   (|(ux, uy)| limited to 1, deadzone applied)
+clamped radially at kappa_max. When no input arrives for ``deadman_timeout`` s every rate drops
+to zero: the robot stops where it is (deadman).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from host.controllers.base import (
+    Commands,
+    Controller,
+    ControllerContext,
+    ControllerError,
+    RobotState,
+    clamp_radial,
+)
+
+
+class FeedForwardController(Controller):
+    """cFFC. Parameters: joints, deadman_timeout (s, 0.3), deadzone (0.05 of full deflection),
+    gain (fraction of kappa_rate_max at full deflection, 1.0)."""
+
+    type_name = "ffc"
+    defaults = {**Controller.defaults, "deadman_timeout": 0.3, "deadzone": 0.05, "gain": 1.0}
+
+    def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
+        super().__init__(name, params, ctx)
+        self.deadman_timeout = self._float_param("deadman_timeout", lo=0.01)
+        self.deadzone = self._float_param("deadzone")
+        self.gain = self._float_param("gain")
+        if self.deadzone >= 1.0 or self.gain > 1.0:
+            raise ControllerError(f"controller {name!r}: deadzone must be < 1 and gain <= 1")
+        self._cmd: dict[str, list[float]] = {j: [0.0, 0.0] for j in self.joints}
+        self._input: dict[str, tuple[float, float]] = {}
+        self._t_input = -math.inf
+        self.deadman_tripped = False
+        self.clamped = False
+
+    # -- input (called under the daemon lock, from any thread) ---------------------------------
+    @staticmethod
+    def _pair(name: str, val: Any) -> tuple[float, float]:
+        if isinstance(val, dict):
+            val = (val.get("x", 0.0), val.get("y", 0.0))
+        if not isinstance(val, list | tuple) or len(val) != 2:
+            raise ControllerError(f"ffc input {name!r}: expected [x, y] deflection in [-1, 1]")
+        out = []
+        for v in val:
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ControllerError(f"ffc input {name!r}: deflection must be finite numbers")
+            if abs(v) > 1.0 + 1e-9:
+                raise ControllerError(f"ffc input {name!r}: deflection {v} outside [-1, 1]")
+            out.append(float(v))
+        return out[0], out[1]
+
+    def validate_input(self, rates: Any) -> dict[str, tuple[float, float]]:
+        """Check a stick input {bendable: (ux, uy)}; raises ControllerError naming the problem."""
+        if not isinstance(rates, dict):
+            raise ControllerError("ffc input: expected a mapping bendable -> [x, y]")
+        new: dict[str, tuple[float, float]] = {}
+        for name, val in rates.items():
+            if name not in self._cmd:
+                raise ControllerError(
+                    f"ffc input: bendable {name!r} is not commanded by {self.name!r} "
+                    f"(commanded: {', '.join(self.joints) or 'none'})"
+                )
+            new[name] = self._pair(name, val)
+        return new
+
+    def set_input(self, rates: dict[str, Any], now: float | None = None) -> None:
+        """Replace the stick input: {bendable: (ux, uy)}; bendables not named get zero rate."""
+        self._input = self.validate_input(rates)
+        self._t_input = time.monotonic() if now is None else now
+        self.deadman_tripped = False
+
+    @staticmethod
+    def has_deflection(rates: dict[str, Any], deadzone: float = 0.05) -> bool:
+        """True when any stick leaves the deadzone (used by arbitration to take over)."""
+        for val in rates.values():
+            if isinstance(val, dict):
+                val = (val.get("x", 0.0), val.get("y", 0.0))
+            try:
+                if math.hypot(float(val[0]), float(val[1])) > deadzone:
+                    return True
+            except (TypeError, ValueError, IndexError):
+                return True  # malformed: let set_input report it
+        return False
+
+    # -- lifecycle / cycle ---------------------------------------------------------------------
+    def on_activate(self, state: RobotState) -> None:
+        for j in self.joints:
+            si = state.names.index(j)
+            if state.valid[si]:
+                self._cmd[j] = [state.kx[si], state.ky[si]]
+        self._input = {}
+        self.active = True
+
+    def on_deactivate(self, reason: str = "") -> None:
+        self._input = {}
+        self.active = False
+
+    def rate_of(self, ux: float, uy: float, rate_max: float) -> tuple[float, float]:
+        """Curvature-vector rate (1/m/s) for one deflection, with deadzone and unit-disc limit."""
+        mag = math.hypot(ux, uy)
+        if mag <= self.deadzone:
+            return 0.0, 0.0
+        scale = (min(mag, 1.0) - self.deadzone) / (1.0 - self.deadzone) / mag
+        k = rate_max * self.gain * scale
+        return ux * k, uy * k
+
+    def update(self, state: RobotState, dt: float) -> Commands | None:
+        if self._input and state.t - self._t_input > self.deadman_timeout:
+            self._input = {}
+            self.deadman_tripped = True
+        self.clamped = False
+        out: Commands = {}
+        for j in self.joints:
+            c = self._cmd[j]
+            u = self._input.get(j)
+            if u is not None:
+                lim = self.ctx.limits[j]
+                rx, ry = self.rate_of(u[0], u[1], lim.kappa_rate_max)
+                c[0], c[1], clamped = clamp_radial(c[0] + rx * dt, c[1] + ry * dt, lim.kappa_max)
+                self.clamped |= clamped
+            out[j] = (c[0], c[1])
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d["input_age_s"] = None if not self._input else round(time.monotonic() - self._t_input, 3)
+        d["deadman_tripped"] = self.deadman_tripped
+        return d

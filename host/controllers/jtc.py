@@ -1,0 +1,503 @@
+"""cJTC: the continuum joint trajectory controller.
+
+Takes segment-wise waypoints (kappa, phi per bendable at a time from start), and up-samples them
+into a smooth motion in the curvature-vector plane (kx, ky) — never in phi, so a path through
+straight does not whip the bending plane around.
+
+Path: piecewise quintic Hermite per bendable and axis. Waypoint velocities are the mean of the
+neighbouring chord slopes (zero where a component reverses, and zero at the goal), accelerations at
+waypoints are zero, so position, velocity and acceleration are continuous. The first piece starts
+from the controller's current desired position, velocity and acceleration: a replacement goal
+continues without a jump.
+
+Limits (decided here, documented in docs/controllers.md):
+- a waypoint with kappa > kappa_max (or phi outside a restricted phi range) rejects the whole goal
+  with a reason naming the waypoint and the bendable; between waypoints the sampled command is
+  clamped radially onto |kappa| <= kappa_max (the spline may bulge slightly near the boundary).
+- the rate |d(kx, ky)/dt| is kept <= ``rate_margin`` * kappa_rate_max by stretching the time of the
+  pieces that would exceed it (retiming); the status reports the new duration.
+Tolerances (1/m, Euclidean in (kx, ky)): ``path_tolerance`` while moving (0 disables), and
+``goal_tolerance`` within ``goal_time_tolerance`` s after the end. A violation aborts the goal
+with a reason and holds the measured position.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+import time
+import uuid
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+
+from host.controllers.base import (
+    Commands,
+    Controller,
+    ControllerContext,
+    ControllerError,
+    RobotState,
+    clamp_radial,
+)
+
+MAX_WAYPOINTS = 2000
+_SAMPLES = 33  # samples per piece when checking the rate limit
+_TERMINAL = ("succeeded", "aborted", "canceled", "rejected")
+
+
+def quintic_coeffs(
+    p0: np.ndarray,
+    v0: np.ndarray,
+    a0: np.ndarray,
+    p1: np.ndarray,
+    v1: np.ndarray,
+    a1: np.ndarray,
+    T: float,
+) -> np.ndarray:
+    """Coefficients c0..c5 (last axis) of the quintic with the given boundary values over [0, T]."""
+    T2, T3 = T * T, T * T * T
+    c3 = (20 * (p1 - p0) - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T2) / (2 * T3)
+    c4 = (30 * (p0 - p1) + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T2) / (2 * T3 * T)
+    c5 = (12 * (p1 - p0) - 6 * (v1 + v0) * T - (a0 - a1) * T2) / (2 * T3 * T2)
+    return np.stack([p0, v0, a0 / 2.0, c3, c4, c5], axis=-1)
+
+
+class CurvatureTrajectory:
+    """A timed path for J bendables in (kx, ky): knots, piecewise quintics, evaluation.
+
+    ``start`` arrays are (J, 2): position (1/m), velocity (1/m/s), acceleration (1/m/s^2) at
+    ``t0``; ``knots`` is a list of (time_from_start s, (J, 2) positions) with increasing times.
+    ``rate_max`` (J,) is the allowed |d(kx, ky)/dt| per bendable; pieces are stretched until it
+    holds (``retimed`` tells whether that happened).
+    """
+
+    def __init__(
+        self,
+        t0: float,
+        p0: np.ndarray,
+        v0: np.ndarray,
+        a0: np.ndarray,
+        knots: list[tuple[float, np.ndarray]],
+        rate_max: np.ndarray,
+        max_iterations: int = 30,
+    ):
+        self.t0 = t0
+        self.positions = np.stack([p0] + [p for _, p in knots])  # (m+1, J, 2)
+        times = [0.0] + [t for t, _ in knots]
+        self.requested_durations = np.diff(times)
+        self.durations = self.requested_durations.astype(float).copy()
+        self.v0, self.a0 = v0, a0
+        self.rate_max = rate_max
+        self.retimed = False
+        for _ in range(max_iterations):
+            self._build()
+            ratio = self._rate_ratios()
+            over = ratio > 1.0
+            if not over.any():
+                break
+            self.retimed = True
+            self.durations[over] *= ratio[over] * 1.02
+        self.ends = np.cumsum(self.durations).tolist()
+        self.duration = self.ends[-1]
+        self.final = self.positions[-1]
+
+    def _build(self) -> None:
+        P, d = self.positions, self.durations
+        m = len(d)
+        V = np.zeros_like(P)
+        A = np.zeros_like(P)
+        V[0], A[0] = self.v0, self.a0
+        if m > 1:
+            slopes = (P[1:] - P[:-1]) / d[:, None, None]
+            s_in, s_out = slopes[:-1], slopes[1:]
+            same = np.sign(s_in) * np.sign(s_out) > 0
+            V[1:-1] = np.where(same, 0.5 * (s_in + s_out), 0.0)
+        self.coeffs = np.stack(
+            [
+                quintic_coeffs(P[i], V[i], A[i], P[i + 1], V[i + 1], A[i + 1], float(d[i]))
+                for i in range(m)
+            ]
+        )  # (m, J, 2, 6)
+
+    def _rate_ratios(self) -> np.ndarray:
+        """Per piece: max over samples and bendables of |v| / rate_max."""
+        m = len(self.durations)
+        out = np.zeros(m)
+        u = np.linspace(0.0, 1.0, _SAMPLES)
+        for i in range(m):
+            tau = u * self.durations[i]
+            pw = np.stack(
+                [np.zeros_like(tau), np.ones_like(tau), 2 * tau, 3 * tau**2, 4 * tau**3, 5 * tau**4]
+            )  # (6, S)
+            vel = self.coeffs[i] @ pw  # (J, 2, S)
+            speed = np.hypot(vel[:, 0, :], vel[:, 1, :]).max(axis=1)  # (J,)
+            out[i] = float((speed / self.rate_max).max())
+        return out
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration (each (J, 2)) at absolute time ``t``."""
+        tau = t - self.t0
+        if tau >= self.duration:
+            z = np.zeros_like(self.final)
+            return self.final.copy(), z, z.copy()
+        tau = max(tau, 0.0)
+        i = bisect.bisect_right(self.ends, tau)
+        start = self.ends[i - 1] if i > 0 else 0.0
+        s = tau - start
+        c = self.coeffs[i]
+        s2, s3 = s * s, s * s * s
+        p = c @ np.array([1.0, s, s2, s3, s3 * s, s3 * s2])
+        v = c @ np.array([0.0, 1.0, 2 * s, 3 * s2, 4 * s3, 5 * s3 * s])
+        a = c @ np.array([0.0, 0.0, 2.0, 6 * s, 12 * s2, 20 * s3])
+        return p, v, a
+
+
+class Goal:
+    """One trajectory request and its fate; ``status()`` is what the caller sees."""
+
+    def __init__(self, goal_id: str, controller: str, n_points: int):
+        self.id = goal_id
+        self.controller = controller
+        self.n_points = n_points
+        self.state = "pending"
+        self.reason = ""
+        self.t_accepted: float | None = None
+        self.trajectory: CurvatureTrajectory | None = None
+        self.progress = 0.0
+        self.max_error = 0.0
+        self.final_error: dict[str, float] = {}
+
+    def finish(self, state: str, reason: str = "") -> None:
+        if self.state not in _TERMINAL:
+            self.state, self.reason = state, reason
+
+    def status(self) -> dict[str, Any]:
+        tr = self.trajectory
+        return {
+            "id": self.id,
+            "controller": self.controller,
+            "state": self.state,
+            "reason": self.reason,
+            "progress": round(self.progress, 4),
+            "duration": tr.duration if tr else None,
+            "requested_duration": float(tr.requested_durations.sum()) if tr else None,
+            "retimed": bool(tr.retimed) if tr else False,
+            "points": self.n_points,
+            "max_path_error": self.max_error,
+            "final_error": dict(self.final_error),
+            "done": self.state in _TERMINAL,
+        }
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+class JointTrajectoryController(Controller):
+    """cJTC. Parameters (daemon config ``params``), SI units:
+
+    joints (list, default all bendables), path_tolerance (1/m, 0.5; 0 = off), goal_tolerance (1/m,
+    0.05), goal_time_tolerance (s, 2.0), rate_margin (fraction of kappa_rate_max used, 0.95),
+    stop_time (s, 0.3: deceleration on cancel/preemption).
+    """
+
+    type_name = "jtc"
+    defaults = {
+        **Controller.defaults,
+        "path_tolerance": 0.5,
+        "goal_tolerance": 0.05,
+        "goal_time_tolerance": 2.0,
+        "rate_margin": 0.95,
+        "stop_time": 0.3,
+    }
+
+    def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
+        super().__init__(name, params, ctx)
+        self.path_tolerance = self._float_param("path_tolerance")
+        self.goal_tolerance = self._float_param("goal_tolerance", lo=1e-6)
+        self.goal_time_tolerance = self._float_param("goal_time_tolerance")
+        self.rate_margin = self._float_param("rate_margin", lo=0.05)
+        if self.rate_margin > 1.0:
+            raise ControllerError(f"controller {name!r}: rate_margin must be <= 1")
+        self.stop_time = self._float_param("stop_time", lo=0.01)
+        lim = [ctx.limits[j] for j in self.joints]
+        self._kmax = np.array([b.kappa_max for b in lim])
+        self._rate = np.array([b.kappa_rate_max for b in lim]) * self.rate_margin
+        self._index = {j: i for i, j in enumerate(self.joints)}
+        self._state_index: list[int] = [ctx.names.index(j) for j in self.joints]
+        J = len(self.joints)
+        self._traj: CurvatureTrajectory | None = None
+        self._hold = np.zeros((J, 2))
+        self._goal: Goal | None = None
+        self._goals: OrderedDict[str, Goal] = OrderedDict()
+        self._last_state: RobotState | None = None
+        self._clamped = 0
+        self._counter = itertools.count(1)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def on_activate(self, state: RobotState) -> None:
+        """Hold the measured position: activation never moves the robot."""
+        self._traj = None
+        self._hold = self._measured(state, fallback=self._hold)
+        self._last_state = state
+        self.active = True
+
+    def on_deactivate(self, reason: str = "") -> None:
+        if self._goal is not None:
+            self._goal.finish("aborted", reason or f"controller {self.name!r} deactivated")
+            self._goal = None
+        self._traj = None
+        self.active = False
+
+    # -- requests (called under the daemon lock) ----------------------------------------------
+    def parse_points(self, points: Any) -> list[tuple[float, np.ndarray]]:
+        """Validate waypoints and turn them into knots (time, (J, 2) curvature vectors).
+
+        Each point: ``{"time_from_start": s, "segments": {name: {"kappa": 1/m, "phi": rad}}}``
+        (``kx``/``ky`` instead of kappa/phi also accepted). A bendable absent from a point keeps
+        its value from the previous point (or its current desired value). Raises ControllerError.
+        """
+        if not isinstance(points, list | tuple) or not points:
+            raise ControllerError("trajectory: expected a non-empty list of points")
+        if len(points) > MAX_WAYPOINTS:
+            raise ControllerError(f"trajectory: {len(points)} points, at most {MAX_WAYPOINTS}")
+        prev_t = 0.0
+        current = self._desired_now()[0]
+        knots = []
+        for n, pt in enumerate(points):
+            where = f"trajectory point {n}"
+            if not isinstance(pt, dict):
+                raise ControllerError(f"{where}: expected a mapping")
+            unknown = set(pt) - {"time_from_start", "t", "segments"}
+            if unknown:
+                raise ControllerError(
+                    f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))}"
+                )
+            t = pt.get("time_from_start", pt.get("t"))
+            if not _finite(t):
+                raise ControllerError(f"{where}: 'time_from_start' (s) missing or not a number")
+            if t <= prev_t:
+                raise ControllerError(
+                    f"{where}: time_from_start {t} s must be > {prev_t} s (strictly increasing, "
+                    "first > 0)"
+                )
+            segs = pt.get("segments")
+            if not isinstance(segs, dict) or not segs:
+                raise ControllerError(
+                    f"{where}: 'segments' must map bendable names to {{kappa, phi}}"
+                )
+            pos = current.copy()
+            for name, val in segs.items():
+                if name not in self._index:
+                    known = ", ".join(self.joints) or "none"
+                    raise ControllerError(
+                        f"{where}: bendable {name!r} is not commanded by {self.name!r} "
+                        f"(commanded: {known})"
+                    )
+                i = self._index[name]
+                lim = self.ctx.limits[name]
+                if not isinstance(val, dict):
+                    raise ControllerError(f"{where}.{name}: expected {{kappa, phi}}")
+                if "kx" in val or "ky" in val:
+                    kx, ky = val.get("kx", 0.0), val.get("ky", 0.0)
+                    if not (_finite(kx) and _finite(ky)):
+                        raise ControllerError(f"{where}.{name}: kx/ky must be numbers (1/m)")
+                    kappa, phi = math.hypot(kx, ky), math.atan2(ky, kx)
+                else:
+                    kappa = val.get("kappa")
+                    phi = val.get("phi", 0.0)
+                    if not _finite(kappa) or kappa < 0:
+                        raise ControllerError(f"{where}.{name}: kappa must be a number >= 0 (1/m)")
+                    if not _finite(phi):
+                        raise ControllerError(f"{where}.{name}: phi must be a number (rad)")
+                    kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
+                if kappa > lim.kappa_max + 1e-9:
+                    raise ControllerError(
+                        f"{where}.{name}: kappa {kappa:.4g} 1/m exceeds kappa_max "
+                        f"{lim.kappa_max:.4g} 1/m (goal rejected; nothing moved)"
+                    )
+                if not lim.full_circle and kappa > 1e-9:
+                    ph = math.atan2(ky, kx)
+                    if not lim.phi_min - 1e-9 <= ph <= lim.phi_max + 1e-9:
+                        raise ControllerError(
+                            f"{where}.{name}: phi {ph:.4g} rad outside [{lim.phi_min:.4g}, "
+                            f"{lim.phi_max:.4g}] rad"
+                        )
+                pos[i] = (kx, ky)
+            knots.append((float(t), pos))
+            current = pos
+            prev_t = t
+        return knots
+
+    def send_goal(self, points: Any, now: float | None = None) -> Goal:
+        """Accept (or reject with ControllerError) a trajectory; it replaces a running one.
+
+        The new path starts at ``now`` from the current desired position/velocity/acceleration.
+        """
+        if not self.active:
+            raise ControllerError(f"controller {self.name!r} is not active")
+        if not self.joints:
+            raise ControllerError(f"controller {self.name!r} commands no bendable")
+        now = time.monotonic() if now is None else now
+        knots = self.parse_points(points)
+        p, v, a = self._desired_now(now)
+        traj = CurvatureTrajectory(now, p, v, a, knots, self._rate)
+        goal = Goal(
+            f"{self.name}-{next(self._counter)}-{uuid.uuid4().hex[:6]}", self.name, len(knots)
+        )
+        goal.trajectory = traj
+        goal.t_accepted = now
+        goal.state = "executing"
+        if self._goal is not None:
+            self._goal.finish("aborted", f"replaced by goal {goal.id}")
+        self._goal = goal
+        self._traj = traj
+        self._remember(goal)
+        return goal
+
+    def cancel(
+        self,
+        goal_id: str,
+        now: float | None = None,
+        reason: str = "canceled by caller",
+        state: str = "canceled",
+    ) -> bool:
+        """Stop the goal (decelerating over ``stop_time``); False if it was not running."""
+        g = self._goals.get(goal_id)
+        if g is None:
+            raise ControllerError(f"unknown goal id {goal_id!r}")
+        if g is not self._goal or g.state in _TERMINAL:
+            return False
+        g.finish(state, reason)
+        self._goal = None
+        self._stop(time.monotonic() if now is None else now)
+        return True
+
+    def abort_active(self, reason: str, now: float | None = None) -> str | None:
+        """Abort the running goal (e.g. arbitration or topology change); returns its id."""
+        if self._goal is None:
+            return None
+        gid = self._goal.id
+        self.cancel(gid, now, reason, state="aborted")
+        return gid
+
+    def status_of(self, goal_id: str) -> dict[str, Any]:
+        g = self._goals.get(goal_id)
+        if g is None:
+            raise ControllerError(f"unknown goal id {goal_id!r}")
+        return g.status()
+
+    def has_goal(self, goal_id: str) -> bool:
+        return goal_id in self._goals
+
+    @property
+    def current_goal(self) -> Goal | None:
+        return self._goal
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d["goal"] = self._goal.id if self._goal else None
+        d["clamped_samples"] = self._clamped
+        return d
+
+    # -- cycle -------------------------------------------------------------------------------
+    def update(self, state: RobotState, dt: float) -> Commands | None:
+        self._last_state = state
+        t = state.t
+        if self._traj is not None:
+            p, _, _ = self._traj.sample(t)
+        else:
+            p = self._hold
+        g = self._goal
+        if g is not None:
+            self._check_goal(g, state, p, t)
+            if self._goal is None and g.state == "aborted":
+                p = self._hold  # held at the measured position by _check_goal
+        out: Commands = {}
+        for i, j in enumerate(self.joints):
+            kx, ky, clamped = clamp_radial(float(p[i, 0]), float(p[i, 1]), self._kmax[i])
+            self._clamped += clamped
+            out[j] = (kx, ky)
+        return out
+
+    # -- internals ---------------------------------------------------------------------------
+    def _check_goal(self, g: Goal, state: RobotState, desired: np.ndarray, t: float) -> None:
+        tr = g.trajectory
+        assert tr is not None
+        tau = t - tr.t0
+        g.progress = min(1.0, max(0.0, tau / tr.duration))
+        errs: dict[str, float] = {}
+        for i, j in enumerate(self.joints):
+            si = self._state_index[i]
+            if state.valid[si]:
+                errs[j] = math.hypot(state.kx[si] - desired[i, 0], state.ky[si] - desired[i, 1])
+        if tau < tr.duration:
+            if errs:
+                worst = max(errs, key=errs.get)
+                g.max_error = max(g.max_error, errs[worst])
+                if self.path_tolerance > 0 and errs[worst] > self.path_tolerance:
+                    g.finish(
+                        "aborted",
+                        f"path tolerance violated on {worst}: error "
+                        f"{errs[worst]:.3f} 1/m > {self.path_tolerance:.3f} 1/m at "
+                        f"t = {tau:.2f} s",
+                    )
+                    self._goal = None
+                    self._traj = None
+                    self._hold = self._measured(state, fallback=desired)
+            return
+        g.final_error = {k: round(v, 5) for k, v in errs.items()}
+        if len(errs) == len(self.joints) and all(e <= self.goal_tolerance for e in errs.values()):
+            g.finish("succeeded")
+            self._goal = None
+        elif tau > tr.duration + self.goal_time_tolerance:
+            worst = max(errs, key=errs.get) if errs else "?"
+            g.finish(
+                "aborted",
+                f"goal tolerance not reached {self.goal_time_tolerance:.2f} s "
+                f"after the end: {worst} error {errs.get(worst, float('nan')):.3f} 1/m > "
+                f"{self.goal_tolerance:.3f} 1/m",
+            )
+            self._goal = None
+            self._hold = self._measured(state, fallback=desired)
+            self._traj = None
+
+    def _desired_now(self, now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._traj is None:
+            z = np.zeros_like(self._hold)
+            return self._hold.copy(), z, z.copy()
+        t = time.monotonic() if now is None else now
+        return self._traj.sample(t)
+
+    def _stop(self, now: float) -> None:
+        """Decelerate from the current desired motion to rest over ``stop_time`` s."""
+        p, v, a = self._desired_now(now)
+        end = p + v * self.stop_time / 2.0
+        for i in range(len(self.joints)):
+            end[i, 0], end[i, 1], _ = clamp_radial(end[i, 0], end[i, 1], self._kmax[i])
+        if np.allclose(v, 0.0) and np.allclose(a, 0.0):
+            self._traj = None
+            self._hold = p
+            return
+        self._traj = CurvatureTrajectory(now, p, v, a, [(self.stop_time, end)], self._rate / 0.95)
+        self._hold = end
+
+    def _measured(self, state: RobotState, fallback: np.ndarray) -> np.ndarray:
+        out = np.array(fallback, dtype=float, copy=True)
+        if out.shape != (len(self.joints), 2):
+            out = np.zeros((len(self.joints), 2))
+        for i in range(len(self.joints)):
+            si = self._state_index[i]
+            if state.valid[si]:
+                out[i] = (state.kx[si], state.ky[si])
+        return out
+
+    def _remember(self, goal: Goal) -> None:
+        self._goals[goal.id] = goal
+        while len(self._goals) > 200:
+            old_id, old = next(iter(self._goals.items()))
+            if old is self._goal:
+                break
+            del self._goals[old_id]
