@@ -105,6 +105,7 @@ class _Checker:
             edges.append(("joint", j.name, j.parent, j.child, j.line))
         for b in robot.bendables.values():
             edges.append(("bendable", b.name, b.parent, b.child, b.line))
+        edges.sort(key=lambda e: e[4])  # document order, so errors point at the later element
         parent_of: dict[str, tuple[str, str, str, int]] = {}  # child -> (kind, name, parent, line)
         for kind, name, parent, child, line in edges:
             ok = True
@@ -144,9 +145,16 @@ class _Checker:
             if node in seen and node not in reported:
                 cycle = path[path.index(node) :]
                 reported.update(cycle)
-                names = " -> ".join([*reversed(cycle), cycle[-1]])
-                line = min(parent_of[n][3] for n in cycle)
-                via = ", ".join(f"{parent_of[n][0]} {parent_of[n][1]!r}" for n in reversed(cycle))
+                # parent -> child order, starting at the parent of the earliest edge in the file
+                order = list(reversed(cycle))
+                first = min(cycle, key=lambda n: parent_of[n][3])
+                start_at = order.index(parent_of[first][2])
+                order = order[start_at:] + order[:start_at]
+                names = " -> ".join([*order, order[0]])
+                line = parent_of[first][3]
+                via = ", ".join(
+                    f"{parent_of[n][0]} {parent_of[n][1]!r}" for n in [*order[1:], order[0]]
+                )
                 self.error(line, f"kinematic cycle {names} (through {via})")
 
         roots = [name for name in robot.links if name not in parent_of]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -116,13 +117,15 @@ def _parse_xml(data: bytes, source: str) -> etree._Element:
     try:
         root = etree.fromstring(data, parser)
     except etree.XMLSyntaxError as exc:
-        entries = [e for e in exc.error_log if e.level >= etree.ErrorLevels.ERROR]
-        if not entries:
-            line = exc.lineno or 0
-            raise UcrdfError([Diagnostic(source, line, f"XML syntax error: {exc.msg}")]) from None
-        raise UcrdfError(
-            Diagnostic(source, e.line, f"XML syntax error: {e.message}") for e in entries[:1]
-        ) from None
+        # the parser's own log (exc.error_log may hold errors of earlier documents)
+        entries = [e for e in parser.error_log if e.level >= etree.ErrorLevels.ERROR]
+        if entries:
+            first = entries[0]
+            diagnostic = Diagnostic(source, first.line, f"XML syntax error: {first.message}")
+        else:
+            message = re.sub(r", line \d+, column \d+$", "", exc.msg or "not well-formed")
+            diagnostic = Diagnostic(source, exc.lineno or 0, f"XML syntax error: {message}")
+        raise UcrdfError([diagnostic]) from None
     if root is None:
         raise UcrdfError([Diagnostic(source, 0, "empty document")])
     return root
