@@ -303,6 +303,10 @@ class Client:
         """Activate ``start`` and deactivate ``stop`` controllers in one switch."""
         return self.call("controllers.switch", start=list(start or []), stop=list(stop or []))
 
+    def hand_back(self, manual: str | None = None) -> Any:
+        """End a manual (cFFC) takeover and restart the controllers it preempted."""
+        return self.call("controllers.hand_back", **({} if manual is None else {"manual": manual}))
+
     def send_trajectory(
         self,
         points: list[dict],

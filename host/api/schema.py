@@ -28,7 +28,8 @@ BAD_REQUEST = "bad_request"  # not an object, missing/invalid id or op, binary f
 UNKNOWN_OP = "unknown_op"
 INVALID_PARAMS = "invalid_params"  # unknown field, wrong type, out of range
 NOT_FOUND = "not_found"  # unknown goal, subscription, controller or segment
-REJECTED = "rejected"  # the daemon refused (e.g. controller conflict, not active)
+REJECTED = "rejected"  # the daemon refused (e.g. controller conflict, not active, limits)
+UNAVAILABLE = "unavailable"  # the daemon cannot act now (chain lost, rebuilding, stopping)
 INTERNAL = "internal"  # unexpected failure inside the daemon (logged on the server)
 ERROR_CODES = (
     BAD_JSON,
@@ -38,6 +39,7 @@ ERROR_CODES = (
     INVALID_PARAMS,
     NOT_FOUND,
     REJECTED,
+    UNAVAILABLE,
     INTERNAL,
 )
 
@@ -219,6 +221,12 @@ def _trajectory_send(params: dict) -> dict:
     return out
 
 
+def _hand_back(params: dict) -> dict:
+    _check_fields(params, ("manual",))
+    manual = params.get("manual")
+    return {"manual": None if manual is None else _name(manual, "manual")}
+
+
 def _goal_op(params: dict) -> dict:
     _check_fields(params, ("goal",), ("goal",))
     return {"goal": _goal_id(params["goal"])}
@@ -288,6 +296,7 @@ OPS: dict[str, Callable[[dict], dict]] = {
     "loop_stats": _no_params,
     "controllers.list": _no_params,
     "controllers.switch": _switch,
+    "controllers.hand_back": _hand_back,
     "trajectory.send": _trajectory_send,
     "trajectory.status": _goal_op,
     "trajectory.cancel": _goal_op,

@@ -386,6 +386,13 @@ class ApiServer:
             return await self._call(d.controllers)
         if op == "controllers.switch":
             return await self._call(d.switch_controllers, p["start"], p["stop"])
+        if op == "controllers.hand_back":
+            hand_back = getattr(d, "hand_back", None)
+            if hand_back is None:
+                raise S.RequestError(
+                    S.UNKNOWN_OP, "this daemon has no manual takeover to hand back"
+                )
+            return await self._call(hand_back, p["manual"])
         if op == "trajectory.send":
             goal = await self._call(d.send_trajectory, p["points"], p["controller"])
             session.goals[goal] = None
@@ -497,16 +504,21 @@ def _progress_key(status: Any) -> Any:
 
 
 def _classify(exc: Exception) -> tuple[str, str]:
-    """Map a daemon exception onto an error code without leaking a traceback."""
+    """Map a daemon exception onto an error code without leaking a traceback.
+
+    The daemon's ``DaemonError`` (a RuntimeError: not running, chain lost) -> unavailable;
+    ``GoalNotFound`` (LookupError) -> not_found; ``ControllerError``/``SwitchError`` (ValueError:
+    refused goal, conflicting switch, input for an unknown bendable) -> rejected.
+    """
     code = getattr(exc, "code", None)
     if isinstance(code, str) and code in S.ERROR_CODES:
         return code, str(exc)
-    if isinstance(exc, KeyError | LookupError):
+    if isinstance(exc, LookupError):
         return S.NOT_FOUND, str(exc.args[0]) if exc.args else type(exc).__name__
     if isinstance(exc, ValueError | TypeError):
         return S.REJECTED, str(exc)
-    if isinstance(exc, RuntimeError | PermissionError):
-        return S.REJECTED, str(exc)
+    if any(c.__name__ == "DaemonError" for c in type(exc).__mro__):
+        return S.UNAVAILABLE, str(exc)
     return S.INTERNAL, f"internal error ({type(exc).__name__}): {exc}"
 
 
