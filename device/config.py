@@ -1,0 +1,182 @@
+"""Segment configuration: load ``config.json`` (SI units), fall back to defaults, convert to ints.
+
+The file is generated from the robot's U(C)RDF by ``tools/segment_config.py``; keys are those of
+docs/architecture.md ("Segment configuration"). Device-only optional keys (not generated, see
+docs/firmware.md): ``sc`` (simple-controller strategy), ``sc_gain``, ``servo_speed`` (rad/s, SC
+slew and emulated servo speed), ``servo_tau`` (s, emulated servo time constant), ``pins`` (ESP32 pin
+map), ``pwm`` (hobby servo calibration), ``bus`` (serial bus servo settings).
+
+Floats are used here, once at boot; the control cycle only sees the ints computed here.
+If the file is absent or invalid the segment runs on the defaults and reports UNCONFIGURED.
+"""
+
+import math
+
+FW_VERSION = "0.1.0"
+
+_TWO_PI_3 = 2.0 * math.pi / 3.0
+
+# Defaults: the paper's segment (316 mm, three tendons 120 deg apart, bend up to 60 deg).
+DEFAULTS = {
+    "name": "segment",
+    "length": 0.316,
+    "tendon_angles": [0.0, _TWO_PI_3, 2.0 * _TWO_PI_3],
+    "tendon_radius": 0.05,
+    "spool_radius": 0.02,
+    "kappa_max": (math.pi / 3.0) / 0.316,
+    "kappa_rate_max": 10.0,
+    "mass": 0.5,
+    "backbone_radius": 0.003,
+    "model": "pcc",
+    "servo_driver": None,  # None: the HAL's default driver ("emulated" on unix, "pwm" on ESP32)
+    "servos": None,  # None: one default servo per tendon
+    "watchdog_ms": 200,
+    "uid_override": None,
+    "sc": "direct",
+    "sc_gain": 0.5,
+    "servo_speed": 6.0,
+    "servo_tau": 0.03,
+    "pins": None,
+    "pwm": None,
+    "bus": None,
+}
+
+_SERVO_DEFAULT = {"zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
+
+KAPPA_SCALE = 10000  # 1e-4 1/m (mirrors protocol/constants.py; contract in docs/architecture.md)
+ANGLE_SCALE = 10000  # 1e-4 rad
+LENGTH_SCALE = 1000000  # 1e-6 m
+
+# Bounds that keep every hot-path intermediate a small int on a 32-bit MCU (see docs/firmware.md)
+_MAX_KAPPA = 100.0  # 1/m
+_MAX_LENGTH = 2.0  # m
+_MAX_ANGLE = 50.0  # rad of servo travel from zero
+_MAX_TENDONS = 8
+
+
+def _num(cfg, key, lo, hi):
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ValueError("%s must be a number, got %r" % (key, v))
+    v = float(v)
+    if not (lo <= v <= hi):
+        raise ValueError("%s = %r outside [%r, %r]" % (key, v, lo, hi))
+    return v
+
+
+class Config:
+    """Validated configuration: SI floats (``si``) plus the fixed-point ints of the hot path.
+
+    Attributes (ints unless said): ``length_um``, ``kappa_max`` (1e-4 1/m), ``rate_max`` (1e-4 1/m
+    per s), ``watchdog_ms``, ``n`` tendons, ``tendon_angles`` (1e-4 rad), ``zero`` / ``direction``
+    / ``min_angle`` / ``max_angle`` per servo (1e-4 rad), ``servo_ids``; ``unconfigured`` (bool),
+    ``error`` (text or None), ``si`` (dict of the SI values as loaded).
+    """
+
+    def __init__(self, data=None, default_driver="emulated"):
+        self.unconfigured = data is None
+        self.error = None
+        cfg = dict(DEFAULTS)
+        if data is not None:
+            if not isinstance(data, dict):
+                raise ValueError("config must be a JSON object")
+            for k in data:
+                cfg[k] = data[k]
+        if cfg["servo_driver"] is None:
+            cfg["servo_driver"] = default_driver
+        self._validate(cfg)
+        self.si = cfg
+        self._derive(cfg)
+
+    def _validate(self, cfg):
+        if not isinstance(cfg["name"], str) or not cfg["name"]:
+            raise ValueError("name must be a non-empty string")
+        _num(cfg, "length", 1e-3, _MAX_LENGTH)
+        _num(cfg, "tendon_radius", 1e-4, 0.5)
+        _num(cfg, "spool_radius", 1e-4, 0.5)
+        _num(cfg, "kappa_max", 0.0, _MAX_KAPPA)
+        _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
+        _num(cfg, "mass", 0.0, 1e3)
+        _num(cfg, "backbone_radius", 0.0, 0.5)
+        _num(cfg, "watchdog_ms", 10, 60000)
+        _num(cfg, "sc_gain", 0.01, 1.0)
+        _num(cfg, "servo_speed", 0.01, 100.0)
+        _num(cfg, "servo_tau", 0.0, 10.0)
+        ang = cfg["tendon_angles"]
+        if not isinstance(ang, list) or not (2 <= len(ang) <= _MAX_TENDONS):
+            raise ValueError("tendon_angles must be a list of 2..%d angles (rad)" % _MAX_TENDONS)
+        for a in ang:
+            if isinstance(a, bool) or not isinstance(a, (int, float)) or abs(a) > 10.0:
+                raise ValueError("tendon_angles: bad angle %r" % (a,))
+        if not isinstance(cfg["model"], str):
+            raise ValueError("model must be a string")
+        if cfg["sc"] not in ("direct", "p_slew"):
+            raise ValueError("sc must be 'direct' or 'p_slew', got %r" % (cfg["sc"],))
+        if cfg["servo_driver"] not in ("emulated", "pwm", "feetech_sts", "feetech_scs"):
+            raise ValueError("unknown servo_driver %r" % (cfg["servo_driver"],))
+        servos = cfg["servos"]
+        if servos is None:
+            servos = [{"id": i} for i in range(len(ang))]
+        if not isinstance(servos, list) or len(servos) != len(ang):
+            raise ValueError("servos must list one servo per tendon (%d)" % len(ang))
+        full = []
+        for i, s in enumerate(servos):
+            if not isinstance(s, dict):
+                raise ValueError("servos[%d] must be an object" % i)
+            d = dict(_SERVO_DEFAULT)
+            d["id"] = i
+            for k in s:
+                d[k] = s[k]
+            if isinstance(d["id"], bool) or not isinstance(d["id"], int) or not 0 <= d["id"] < 254:
+                raise ValueError("servos[%d].id must be an int 0..253" % i)
+            if d["direction"] not in (1, -1):
+                raise ValueError("servos[%d].direction must be 1 or -1" % i)
+            for k in ("zero_offset", "min_angle", "max_angle"):
+                _num(d, k, -_MAX_ANGLE, _MAX_ANGLE)
+            if d["min_angle"] >= d["max_angle"]:
+                raise ValueError("servos[%d]: min_angle must be below max_angle" % i)
+            full.append(d)
+        cfg["servos"] = full
+        if cfg["uid_override"] is not None and not isinstance(cfg["uid_override"], str):
+            raise ValueError("uid_override must be a string")
+
+    def _derive(self, cfg):
+        self.name = cfg["name"]
+        self.n = len(cfg["tendon_angles"])
+        self.length_um = int(cfg["length"] * LENGTH_SCALE + 0.5)
+        self.kappa_max = int(cfg["kappa_max"] * KAPPA_SCALE + 0.5)
+        self.rate_max = int(cfg["kappa_rate_max"] * KAPPA_SCALE + 0.5)
+        self.watchdog_ms = int(cfg["watchdog_ms"])
+        self.tendon_angles = [_e4(a) for a in cfg["tendon_angles"]]
+        s = cfg["servos"]
+        self.servo_ids = [d["id"] for d in s]
+        self.zero = [_e4(d["zero_offset"]) for d in s]
+        self.direction = [d["direction"] for d in s]
+        self.min_angle = [_e4(d["min_angle"]) for d in s]
+        self.max_angle = [_e4(d["max_angle"]) for d in s]
+        self.driver = cfg["servo_driver"]
+        self.sc = cfg["sc"]
+        self.uid_override = cfg["uid_override"]
+
+
+def _e4(x):
+    v = x * 10000.0
+    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+
+
+def load(path="config.json", default_driver="emulated"):
+    """Read ``path``; absent -> defaults (unconfigured); invalid -> defaults with ``error`` set."""
+    import json
+
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return Config(None, default_driver)
+    try:
+        data = json.loads(text)
+        return Config(data, default_driver)
+    except (ValueError, TypeError, KeyError) as e:
+        c = Config(None, default_driver)
+        c.error = "config.json rejected: %s" % (e,)
+        return c

@@ -1,0 +1,191 @@
+"""Mechanism controller (MC): curvature <-> tendon lengths <-> servo angles, in fixed point.
+
+Forward: (kappa, phi) -> (kx, ky) = kappa (cos phi, sin phi) -> tendon lengths
+l_i = l (1 - d (kx cos s_i + ky sin s_i)) -> spool angle -dl_i / r_spool -> servo target
+zero_i + dir_i * angle_i, clamped to the servo's range. Backward: servo positions -> tendon lengths
+-> (kx, ky) by the least-squares inverse of the n-tendon map (pseudo-inverse precomputed at boot)
+-> kappa (projection on the atan2 direction) and phi (held when kappa is about zero).
+
+Limits: |kappa| <= kappa_max, servo targets within range, and the curvature *vector* moves at most
+kappa_rate_max * dt per cycle. Units: curvature 1e-4 1/m, angles 1e-4 rad, lengths um (ints).
+Nothing here allocates after ``__init__`` (arrays are preallocated; all ints stay below 2**30).
+"""
+
+try:
+    from micropython import const
+except ImportError:  # CPython
+
+    def const(x):
+        return x
+
+
+from array import array
+
+import fxp
+from fxp import atan2_e4, cos_q14, mulq, sin_q14
+
+CLAMP_KAPPA = const(1)  # LIMIT_CLAMPED detail bits (contract)
+CLAMP_RATE = const(2)
+CLAMP_SERVO = const(4)
+_PHI_HOLD_EPS = const(10)  # 1e-3 1/m: below this measured kappa, phi keeps its last value
+_MAX_DL_UM = const(1 << 23)  # largest tendon length change the fixed-point scheme allows
+
+
+class Mechanism:
+    """Fixed-point MC of one segment; ``cfg`` is a ``config.Config``, ``tick_ms`` the cycle time."""
+
+    def __init__(self, cfg, tick_ms):
+        import math
+
+        si = cfg.si
+        n = cfg.n
+        self.n = n
+        self.length_um = cfg.length_um
+        self.kappa_max = cfg.kappa_max
+        # slew step per cycle (1e-4 1/m), at least one unit
+        self.step = max(1, int(cfg.rate_max * tick_ms / 1000.0 + 0.5))
+        ld = si["length"] * si["tendon_radius"]
+        if ld * si["kappa_max"] * 1e6 > _MAX_DL_UM:
+            raise ValueError("length * tendon_radius * kappa_max too large for fixed point")
+        sig = [float(a) for a in si["tendon_angles"]]
+        # tendon map: dl_i [um] = -(A_i kx + B_i ky), kx in 1e-4 1/m -> A_i = l d cos(s_i) * 100
+        ca = [ld * 100.0 * math.cos(s) for s in sig]
+        cb = [ld * 100.0 * math.sin(s) for s in sig]
+        self.q_t = fxp.q_for(ca + cb)
+        self.ta = array("i", [fxp.to_q(c, self.q_t) for c in ca])
+        self.tb = array("i", [fxp.to_q(c, self.q_t) for c in cb])
+        # least-squares inverse: P = (M^T M)^-1 M^T with rows M_i = (cos s_i, sin s_i)
+        sxx = sum(math.cos(s) ** 2 for s in sig)
+        syy = sum(math.sin(s) ** 2 for s in sig)
+        sxy = sum(math.cos(s) * math.sin(s) for s in sig)
+        det = sxx * syy - sxy * sxy
+        if abs(det) < 1e-6:
+            raise ValueError("tendon_angles are degenerate: curvature is not observable")
+        px = [(syy * math.cos(s) - sxy * math.sin(s)) / det for s in sig]
+        py = [(sxx * math.sin(s) - sxy * math.cos(s)) / det for s in sig]
+        # kx [1e-4 1/m] = sum_i Px_i / (l d 100) * (-dl_i [um])
+        kx = [p / (ld * 100.0) for p in px]
+        ky = [p / (ld * 100.0) for p in py]
+        self.q_i = fxp.q_for(kx + ky)
+        self.ix = array("i", [fxp.to_q(c, self.q_i) for c in kx])
+        self.iy = array("i", [fxp.to_q(c, self.q_i) for c in ky])
+        # spool: angle [1e-4 rad] = -dl [um] / (100 r); back: dl [um] = -angle * 100 r
+        r = si["spool_radius"]
+        self.q_s = fxp.q_for([1.0 / (100.0 * r)])
+        self.spool_fwd = fxp.to_q(1.0 / (100.0 * r), self.q_s)
+        self.q_b = fxp.q_for([100.0 * r])
+        self.spool_back = fxp.to_q(100.0 * r, self.q_b)
+        self.zero = array("i", cfg.zero)
+        self.dir = array("b", cfg.direction)
+        self.amin = array("i", cfg.min_angle)
+        self.amax = array("i", cfg.max_angle)
+        # state (all ints / preallocated arrays)
+        self.tx = 0  # target curvature vector after kappa clamp (1e-4 1/m)
+        self.ty = 0
+        self.cx = 0  # commanded curvature vector after the slew limit
+        self.cy = 0
+        self.servo_target = array("i", [0] * n)  # raw servo angles (1e-4 rad)
+        self.tendon_cmd = array("i", [0] * n)  # commanded tendon lengths (um)
+        self.tendon = array("i", [0] * n)  # measured tendon lengths (um)
+        self.joint = array("i", [0] * n)  # measured spool angles dir*(raw-zero) (1e-4 rad)
+        self.mx = 0  # measured curvature vector
+        self.my = 0
+        self.kappa = 0  # measured kappa, phi
+        self.phi = 0
+
+    # ---- forward ---------------------------------------------------------------------------
+    def set_target(self, kappa, phi):
+        """Take a (kappa, phi) setpoint (ints); return CLAMP_KAPPA if |kappa| was limited."""
+        flags = 0
+        if kappa < 0:
+            kappa = -kappa
+            phi += fxp.ANGLE_PI
+        if kappa > self.kappa_max:
+            kappa = self.kappa_max
+            flags = CLAMP_KAPPA
+        if phi > 1000000000 or phi < -1000000000:
+            phi = 0  # nonsense from the wire; kappa magnitude is already bounded
+        self.tx = mulq(kappa, cos_q14(phi), 14)
+        self.ty = mulq(kappa, sin_q14(phi), 14)
+        return flags
+
+    def update(self):
+        """One cycle: slew (kx, ky) towards the target, compute servo targets; return clamp bits."""
+        flags = 0
+        dx = self.tx - self.cx
+        dy = self.ty - self.cy
+        st = self.step
+        h = st >> 1
+        if -h <= dx <= h and -h <= dy <= h:
+            self.cx = self.tx
+            self.cy = self.ty
+        else:
+            psi = atan2_e4(dy, dx)
+            c = cos_q14(psi)
+            s = sin_q14(psi)
+            mag = mulq(dx, c, 14) + mulq(dy, s, 14)
+            if mag <= st:
+                self.cx = self.tx
+                self.cy = self.ty
+            else:
+                self.cx += mulq(st, c, 14)
+                self.cy += mulq(st, s, 14)
+                flags = CLAMP_RATE
+        return flags | self._servo_targets()
+
+    def _servo_targets(self):
+        flags = 0
+        cx = self.cx
+        cy = self.cy
+        qt = self.q_t
+        qs = self.q_s
+        ta = self.ta
+        tb = self.tb
+        for i in range(self.n):
+            dl = -(mulq(cx, ta[i], qt) + mulq(cy, tb[i], qt))
+            self.tendon_cmd[i] = self.length_um + dl
+            a = mulq(-dl, self.spool_fwd, qs)  # spool angle, + = tendon wound in
+            rel = a if self.dir[i] > 0 else -a
+            if rel < self.amin[i]:
+                rel = self.amin[i]
+                flags = CLAMP_SERVO
+            elif rel > self.amax[i]:
+                rel = self.amax[i]
+                flags = CLAMP_SERVO
+            self.servo_target[i] = self.zero[i] + rel
+        return flags
+
+    # ---- backward --------------------------------------------------------------------------
+    def measure(self, positions):
+        """Servo positions (raw, 1e-4 rad, array) -> tendon lengths, (kx, ky), kappa, phi."""
+        qb = self.q_b
+        qi = self.q_i
+        sx = 0
+        sy = 0
+        for i in range(self.n):
+            rel = positions[i] - self.zero[i]
+            a = rel if self.dir[i] > 0 else -rel
+            self.joint[i] = a
+            dl = -mulq(a, self.spool_back, qb)
+            self.tendon[i] = self.length_um + dl
+            sx += mulq(-dl, self.ix[i], qi)
+            sy += mulq(-dl, self.iy[i], qi)
+        self.mx = sx
+        self.my = sy
+        if -_PHI_HOLD_EPS < sx < _PHI_HOLD_EPS and -_PHI_HOLD_EPS < sy < _PHI_HOLD_EPS:
+            # about straight: kappa from the larger component, phi held
+            ax = sx if sx >= 0 else -sx
+            ay = sy if sy >= 0 else -sy
+            self.kappa = ax if ax > ay else ay
+            return
+        phi = atan2_e4(sy, sx)
+        self.kappa = mulq(sx, cos_q14(phi), 14) + mulq(sy, sin_q14(phi), 14)
+        self.phi = phi
+
+    def hold_here(self, positions):
+        """Stop where the mechanism is: targets := measured servo positions and curvature."""
+        self.measure(positions)
+        self.tx = self.cx = self.mx
+        self.ty = self.cy = self.my
+        for i in range(self.n):
+            self.servo_target[i] = positions[i]

@@ -1,0 +1,674 @@
+"""The segment coordinator: chain forwarding, message handling, safety, and the control tick.
+
+Two entry points, both allocation-free in steady state (proved by tests/device with heap_lock):
+
+* ``poll()``: read both UARTs, feed the frame readers, forward / process every complete frame
+  (chain rules of docs/architecture.md "Link protocol");
+* ``tick(now_ms)``: one control cycle: read servos, detect faults, measure (kappa, phi), run the
+  watchdog, step MC -> SC -> servos, downstream presence, ALIVE, queued EVENTs.
+
+Safety states (docs/firmware.md): boot hold (no motion before the first SYNC), HOLD (message or
+servo fault; left only by a SYNC with ``2: 1``), watchdog (no SYNC/HEARTBEAT for watchdog_ms:
+hold; cleared by the next SYNC). Whenever motion stops, the targets become the measured servo
+positions, and when it starts again the curvature is slew-limited from the measured one.
+"""
+
+try:
+    from micropython import const
+except ImportError:  # CPython
+
+    def const(x):
+        return x
+
+
+from array import array
+
+import config
+import sc as scmod
+from mechanism import Mechanism
+from servos import FAULT_NONE, FAULT_STALL
+
+from protocol import cbor
+from protocol import device as pd
+from protocol.constants import (
+    EV_BOOT,
+    EV_DOWNSTREAM_DOWN,
+    EV_DOWNSTREAM_UP,
+    EV_LIMIT_CLAMPED,
+    EV_SERVO_FAULT,
+    EV_WATCHDOG_CLEARED,
+    EV_WATCHDOG_TRIPPED,
+    FLAG_BCAST,
+    FLAG_LOCAL,
+    FLAG_UP,
+    FLAGS_KNOWN,
+    HEADER_LEN,
+    MAX_ENCODED,
+    MAX_FRAME,
+    T_ALIVE,
+    T_DESCRIPTOR,
+    T_DISCOVER,
+    T_ERROR,
+    T_HEARTBEAT,
+    T_HOLD,
+    T_PARAM_GET,
+    T_PARAM_SET,
+    T_PARAM_VALUE,
+    T_SYNC,
+    VERSION_MAX,
+    VERSION_MIN,
+)
+from protocol.frame import FrameReader, forward_into, frame_into
+
+ST_HOLD = const(0x01)
+ST_WATCHDOG = const(0x02)
+ST_SERVO_FAULT = const(0x04)
+ST_CLAMPED = const(0x08)
+ST_DOWNSTREAM = const(0x10)
+ST_UNCONFIGURED = const(0x20)
+
+_TMASK = const(0x3FFFFFFF)
+_HALF = const(0x20000000)
+ALIVE_MS = const(50)  # send ALIVE upstream after this much upstream silence
+DOWN_TIMEOUT_MS = const(150)  # downstream neighbour absent after this much silence
+EVENT_GAP_MS = const(20)  # min spacing of EVENTs (protocol constants EVENT_MIN_INTERVAL_MS)
+CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
+STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
+STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
+STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
+_EVQ = const(16)  # event queue length
+_RXBUF = const(256)
+
+# parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
+P_WATCHDOG_MS = const(0)
+P_KAPPA_MAX = const(1)
+P_KAPPA_RATE_MAX = const(2)
+P_SC = const(3)
+P_SC_GAIN = const(4)
+P_FAULTS = const(5)
+P_FRAMES_OK = const(6)
+P_CRC_ERRORS = const(7)
+P_FRAMING_ERRORS = const(8)
+P_DROPPED = const(9)
+P_UID = const(10)
+P_STATUS = const(11)
+P_SERVO_FAULTS = const(12)
+P_CYCLE_US = const(13)
+P_OVERRUNS = const(14)
+P_POSITION = const(15)
+P_CONFIG_ERROR = const(16)
+P_MEM_FREE = const(17)
+P_EVENTS_LOST = const(18)
+P_SERVO_TARGETS = const(19)
+
+PARAM_NAMES = (
+    "watchdog_ms",
+    "kappa_max",
+    "kappa_rate_max",
+    "sc",
+    "sc_gain",
+    "faults",
+    "frames_ok",
+    "crc_errors",
+    "framing_errors",
+    "dropped",
+    "uid",
+    "status",
+    "servo_faults",
+    "cycle_us",
+    "overruns",
+    "position",
+    "config_error",
+    "mem_free",
+    "events_lost",
+    "servo_targets",
+)
+
+
+def _diff(a, b):
+    """a - b for ms stamps wrapping at 2**30, in (-2**29, 2**29]."""
+    d = (a - b) & _TMASK
+    if d > _HALF:
+        d -= _TMASK + 1
+    return d
+
+
+class Segment:
+    """One segment: ``hal`` (uarts, clock), ``cfg`` (config.Config), ``bus`` (servo driver)."""
+
+    def __init__(self, hal, cfg, bus, tick_ms=5):
+        self.hal = hal
+        self.cfg = cfg
+        self.bus = bus
+        self.tick_ms = tick_ms
+        self.n = cfg.n
+        self.uid = cfg.uid_override or hal.uid()
+        self.mc = Mechanism(cfg, tick_ms)
+        si = cfg.si
+        self.sc = scmod.SimpleControllers(cfg.n, cfg.sc, si["sc_gain"], si["servo_speed"], tick_ms)
+        self.watchdog_ms = cfg.watchdog_ms
+        self.kappa_max_si = float(si["kappa_max"])
+        self.rate_max_si = float(si["kappa_rate_max"])
+        # receive side
+        self.rxu = bytearray(_RXBUF)
+        self.rxd = bytearray(_RXBUF)
+        self.rd_up = FrameReader()
+        self.rd_dn = FrameReader()
+        # transmit side: scratch raw frame + one wire buffer, written with write(buf, n)
+        # (stream write with a length: no slice object, which would be a heap allocation)
+        self.raw = bytearray(MAX_FRAME)
+        self.wire = bytearray(MAX_ENCODED + 8)
+        self.sync_out = [0, 0, 0, 0]
+        # counters
+        self.dropped = 0  # good CRC but not acceptable (direction, flags, version, malformed)
+        self.events_lost = 0
+        self.overruns = 0
+        self.cycle_us = 0
+        self.cycle_us_max = 0
+        # safety state
+        self.armed = False  # boot hold until the first SYNC
+        self.hold = False
+        self.wd_armed = False
+        self.wd_tripped = False
+        self.moving = False
+        self.fault_bits = 0  # latched servo faults (bit per servo)
+        self.clamped = 0  # clamp bits of the last cycle (CLAMPED status bit)
+        self.sp_clamp = 0  # clamp bits of the last setpoint (kappa_max)
+        self.clamp_pending = 0
+        self.position = 0
+        now = hal.ticks_ms()
+        self.now = now
+        self.last_feed = now
+        self.last_clamp_ev = now - CLAMP_EVENT_MS
+        self.last_up_tx = now
+        self.last_down_rx = now
+        self.down_present = False
+        self.last_event = now - EVENT_GAP_MS
+        self.stall_ref = array("i", [0] * cfg.n)
+        self.stall_t = array("i", [now] * cfg.n)
+        self.prev_fault = bytearray(cfg.n)
+        # event queue (ring of code, detail)
+        self.evq = array("i", [0] * (2 * _EVQ))
+        self.ev_head = 0
+        self.ev_len = 0
+        # start in a safe hold at the measured position
+        bus.poll(now)
+        self.mc.hold_here(bus.pos)
+        self.sc.reset(bus.pos)
+        for i in range(cfg.n):
+            self.stall_ref[i] = bus.pos[i]
+        if cfg.error:
+            print("[segment]", cfg.error)
+        self.event(EV_BOOT, 0)
+
+    # ---- output helpers --------------------------------------------------------------------
+    def _up(self, end):
+        self.hal.up.write(self.wire, end)
+        self.last_up_tx = self.now
+
+    def event(self, code, detail):
+        """Queue an EVENT (sent from ``tick``, at most one per EVENT_GAP_MS)."""
+        if self.ev_len >= _EVQ:
+            self.events_lost += 1
+            return
+        j = ((self.ev_head + self.ev_len) % _EVQ) * 2
+        self.evq[j] = code
+        self.evq[j + 1] = detail
+        self.ev_len += 1
+
+    def _reply(self, mtype, seq, obj):
+        """Slow path: CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it."""
+        try:
+            end = cbor.dumps_into(obj, self.raw, HEADER_LEN)
+        except (IndexError, ValueError, TypeError):
+            # too long for one frame (or not encodable): say so instead of going silent
+            end = cbor.dumps_into({0: 2, 1: mtype, 2: "reply does not fit a frame"}, self.raw, 5)
+            mtype = T_ERROR
+        self._up(frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire))
+
+    def _error(self, seq, code, mtype, text):
+        self._reply(T_ERROR, seq, {0: code, 1: mtype, 2: text})
+
+    def status(self):
+        s = self.clamped and ST_CLAMPED
+        if self.hold or not self.armed:
+            s |= ST_HOLD
+        if self.wd_tripped:
+            s |= ST_WATCHDOG
+        if self.fault_bits:
+            s |= ST_SERVO_FAULT
+        if self.down_present:
+            s |= ST_DOWNSTREAM
+        if self.cfg.unconfigured or self.cfg.error:
+            s |= ST_UNCONFIGURED
+        return s
+
+    def _send_state(self, cycle, seq):
+        mc = self.mc
+        end = pd.state_frame(
+            self.raw,
+            self.wire,
+            seq,
+            cycle,
+            self.now,
+            mc.kappa,
+            mc.phi,
+            mc.tendon,
+            self.n,
+            mc.joint,
+            self.n,
+            self.status(),
+            mc.mx,
+            mc.my,
+        )
+        self._up(end)
+
+    # ---- receiving -------------------------------------------------------------------------
+    def poll(self):
+        """Handle everything waiting on both ports; return the number of bytes read."""
+        self.now = self.hal.ticks_ms()
+        total = 0
+        rx = self.rxu
+        rd = self.rd_up
+        n = self.hal.up.readinto(rx)
+        while n:
+            total += n
+            pos = 0
+            while pos < n:
+                pos = rd.scan(rx, pos, n)
+                if rd.ready:
+                    self._from_up(rd)
+            n = self.hal.up.readinto(rx) if n == _RXBUF else 0
+        rx = self.rxd
+        rd = self.rd_dn
+        n = self.hal.down.readinto(rx)
+        while n:
+            total += n
+            pos = 0
+            while pos < n:
+                pos = rd.scan(rx, pos, n)
+                if rd.ready:
+                    self._from_down(rd)
+            n = self.hal.down.readinto(rx) if n == _RXBUF else 0
+        return total
+
+    def _from_up(self, r):
+        flags = r.flags
+        if flags & FLAG_UP:
+            self.dropped += 1  # travels towards the host but came from the host side
+            return
+        if flags & ~FLAGS_KNOWN & 0xFF:
+            self.dropped += 1
+            self._error(r.seq, 5, r.mtype, "unknown flag bits 0x%02x" % flags)
+            return
+        if not pd.version_supported(r.ver):
+            self.dropped += 1
+            self._reply(
+                T_ERROR,
+                r.seq,
+                {
+                    0: 3,
+                    1: r.mtype,
+                    2: "supported protocol versions %d..%d" % (VERSION_MIN, VERSION_MAX),
+                    3: [VERSION_MIN, VERSION_MAX],
+                },
+            )
+            return
+        hop = r.hop
+        rt = pd.route(flags, hop)
+        if rt & 3 == pd.FWD_DOWN:
+            # forward first (low latency down the chain); payload bytes stay intact
+            end = forward_into(r.raw, r.raw_len, pd.next_hop(flags, hop), self.wire)
+            self.hal.down.write(self.wire, end)
+            r.raw[2] = hop  # restore our view of the header (CRC no longer needed)
+        if rt & 4:
+            self._process(r, flags, hop)
+
+    def _from_down(self, r):
+        self.last_down_rx = self.now
+        if not self.down_present:
+            self.down_present = True
+            self.event(EV_DOWNSTREAM_UP, 0)
+        flags = r.flags
+        if flags & FLAG_LOCAL:
+            return  # ALIVE (or any link-local frame) from the neighbour: consumed
+        if flags & FLAG_UP:
+            end = forward_into(r.raw, r.raw_len, r.hop + 1, self.wire)
+            self._up(end)
+            return
+        self.dropped += 1  # a host-bound frame must carry FLAG_UP
+
+    # ---- processing ------------------------------------------------------------------------
+    def _process(self, r, flags, hop):
+        t = r.mtype
+        raw = r.raw
+        pe = r.payload_end
+        seq = r.seq
+        if t == T_SYNC:
+            if flags & FLAG_BCAST:
+                self.position = hop
+            out = self.sync_out
+            res = pd.decode_sync(raw, HEADER_LEN, pe, self.position, out)
+            if res < 0:
+                self.dropped += 1
+                self._error(seq, 5, t, "malformed SYNC")
+                return
+            self._on_sync(res, out, seq)
+        elif t == T_HEARTBEAT:
+            if flags & FLAG_BCAST:
+                self.position = hop
+            c = pd.decode_cycle(raw, HEADER_LEN, pe)
+            if c < 0:
+                self.dropped += 1
+                self._error(seq, 5, t, "malformed HEARTBEAT")
+                return
+            self.last_feed = self.now
+            self.wd_armed = True
+            self._send_state(c, seq)
+        elif t == T_DISCOVER:
+            if flags & FLAG_BCAST:
+                self.position = hop
+            if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
+                self.dropped += 1
+                self._error(seq, 5, t, "malformed DISCOVER")
+                return
+            self._reply(T_DESCRIPTOR, seq, self.descriptor_payload())
+        elif t == T_HOLD:
+            if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
+                self.dropped += 1
+                self._error(seq, 5, t, "malformed HOLD")
+                return
+            self.enter_hold()
+        elif t == T_PARAM_GET or t == T_PARAM_SET:
+            self._param(t, raw, pe, seq)
+        elif t == T_ALIVE:
+            return  # link-local keep-alive from the host side: nothing to do
+        else:
+            self.dropped += 1
+            self._error(seq, 1, t, "unknown or non-request message type 0x%02x" % t)
+
+    def _on_sync(self, res, out, seq):
+        self.last_feed = self.now
+        self.wd_armed = True
+        if self.wd_tripped:
+            self.wd_tripped = False
+            self.event(EV_WATCHDOG_CLEARED, 0)
+        if out[3] and self.hold:
+            self._try_resume()
+        self.armed = True
+        if self._may_move():
+            if not self.moving:
+                self._start_moving()
+            if res == pd.OK:
+                c = self.mc.set_target(out[1], out[2])
+                self.sp_clamp = c
+                self.clamped |= c
+                self.clamp_pending |= c
+        self._send_state(out[0], seq)
+
+    def _try_resume(self):
+        bus = self.bus
+        for i in range(self.n):
+            f = bus.fault[i]
+            if f != FAULT_NONE and f != FAULT_STALL:
+                return False  # the driver still reports the fault: stay in hold
+        self.fault_bits = 0
+        for i in range(self.n):
+            self.prev_fault[i] = 0
+        self.hold = False
+        return True
+
+    def _may_move(self):
+        return self.armed and not self.hold and not self.wd_tripped
+
+    def _start_moving(self):
+        self.moving = True
+        pos = self.bus.pos
+        self.mc.hold_here(pos)
+        self.sc.reset(pos)
+        for i in range(self.n):
+            self.stall_ref[i] = pos[i]
+            self.stall_t[i] = self.now
+
+    def _stop_moving(self):
+        self.moving = False
+        pos = self.bus.pos
+        self.mc.hold_here(pos)
+        self.sc.reset(pos)
+
+    def enter_hold(self):
+        """HOLD message or fault: stop where we are; only a SYNC with resume leaves it."""
+        self.hold = True
+        if self.moving:
+            self._stop_moving()
+
+    # ---- control tick ----------------------------------------------------------------------
+    def tick(self, now):
+        """One control cycle at time ``now`` (ms since boot)."""
+        t0 = self.hal.ticks_us()
+        self.now = now
+        bus = self.bus
+        mc = self.mc
+        bus.poll(now)
+        self._faults(now)
+        mc.measure(bus.pos)
+        if self.wd_armed and not self.wd_tripped:
+            if _diff(now, self.last_feed) > self.watchdog_ms:
+                self.wd_tripped = True
+                self.event(EV_WATCHDOG_TRIPPED, _diff(now, self.last_feed))
+        if self.moving and not self._may_move():
+            self._stop_moving()
+        if self.moving:
+            f = mc.update()
+            self.clamped = self.sp_clamp | f
+            self.clamp_pending |= f
+            bus.command(self.sc.step(mc.servo_target), now)
+        elif bus.enabled:
+            bus.command(mc.servo_target, now)  # keep holding the measured position
+        bus.request(now)
+        # chain housekeeping
+        if self.down_present and _diff(now, self.last_down_rx) > DOWN_TIMEOUT_MS:
+            self.down_present = False
+            self.event(EV_DOWNSTREAM_DOWN, 0)
+        if self.clamp_pending and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS:
+            self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
+            self.clamp_pending = 0
+            self.last_clamp_ev = now
+        if self.ev_len and _diff(now, self.last_event) >= EVENT_GAP_MS:
+            j = self.ev_head * 2
+            end = pd.event_frame(self.raw, self.wire, 0, self.evq[j], self.evq[j + 1], now)
+            self._up(end)
+            self.ev_head = (self.ev_head + 1) % _EVQ
+            self.ev_len -= 1
+            self.last_event = now
+        elif _diff(now, self.last_up_tx) >= ALIVE_MS:
+            self._up(pd.alive_frame(self.raw, self.wire, 0))
+        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
+        self.cycle_us = us
+        if us > self.cycle_us_max:
+            self.cycle_us_max = us
+
+    def _faults(self, now):
+        bus = self.bus
+        fb = bus.feedback
+        moving = self.moving
+        for i in range(self.n):
+            f = bus.fault[i]
+            if fb and moving and f == FAULT_NONE:
+                p = bus.pos[i]
+                e = self.sc.cmd[i] - p
+                d = p - self.stall_ref[i]
+                if -STALL_TOL <= e <= STALL_TOL or d > STALL_MOVE or d < -STALL_MOVE:
+                    self.stall_ref[i] = p
+                    self.stall_t[i] = now
+                elif _diff(now, self.stall_t[i]) > STALL_MS:
+                    f = FAULT_STALL
+            if f != FAULT_NONE and self.prev_fault[i] == FAULT_NONE:
+                self.fault_bits |= 1 << i
+                self.event(EV_SERVO_FAULT, i)
+                self.enter_hold()
+            self.prev_fault[i] = f
+
+    # ---- slow path -------------------------------------------------------------------------
+    def descriptor(self):
+        """Descriptor dict with the contract's names (SI floats)."""
+        si = self.cfg.si
+        return {
+            "uid": self.uid,
+            "fw_version": config.FW_VERSION,
+            "protocol_version": 1,
+            "model": si["model"],
+            "length": float(si["length"]),
+            "tendon_angles": [float(a) for a in si["tendon_angles"]],
+            "tendon_radius": float(si["tendon_radius"]),
+            "spool_radius": float(si["spool_radius"]),
+            "kappa_max": self.kappa_max_si,
+            "kappa_rate_max": self.rate_max_si,
+            "mass": float(si["mass"]),
+            "backbone_radius": float(si["backbone_radius"]),
+            "name": si["name"],
+            "servo_driver": si["servo_driver"],
+            "watchdog_ms": self.watchdog_ms,
+            "downstream_present": self.down_present,
+        }
+
+    def descriptor_payload(self):
+        """DESCRIPTOR payload: int keys 0..15 of the contract, SI floats."""
+        d = self.descriptor()
+        return {
+            0: d["uid"],
+            1: d["fw_version"],
+            2: d["protocol_version"],
+            3: d["model"],
+            4: d["length"],
+            5: d["tendon_angles"],
+            6: d["tendon_radius"],
+            7: d["spool_radius"],
+            8: d["kappa_max"],
+            9: d["kappa_rate_max"],
+            10: d["mass"],
+            11: d["backbone_radius"],
+            12: d["name"],
+            13: d["servo_driver"],
+            14: d["watchdog_ms"],
+            15: d["downstream_present"],
+        }
+
+    def _param(self, t, raw, pe, seq):
+        try:
+            req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
+        except ValueError as e:
+            req = "CBOR: %s" % (e,)
+        err = None
+        if not isinstance(req, dict):
+            err = req if isinstance(req, str) else "payload is not a map"
+        elif not isinstance(req.get(0), int) or isinstance(req.get(0), bool):
+            err = "key 0 (param_id) must be an int"
+        elif 15 in req and not isinstance(req[15], str):
+            err = "key 15 (uid) must be text"
+        elif t == T_PARAM_SET and 1 not in req:
+            err = "key 1 (value) missing"
+        if err is not None:
+            self.dropped += 1
+            self._error(seq, 5, t, err)
+            return
+        uid = req.get(15)
+        if uid is not None and uid.lower() != self.uid:
+            self._error(seq, 6, t, "identity mismatch: this segment is %s" % self.uid)
+            return
+        pid = req[0]
+        if not 0 <= pid < len(PARAM_NAMES):
+            self._error(seq, 4, t, "unknown parameter %d (0..%d)" % (pid, len(PARAM_NAMES) - 1))
+            return
+        try:
+            if t == T_PARAM_SET:
+                self.set_param(pid, req[1])
+            value = self.get_param(pid)
+        except ValueError as e:
+            self._error(seq, 2, t, "%s: %s" % (PARAM_NAMES[pid], e))
+            return
+        self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
+
+    def get_param(self, pid):
+        if pid == P_WATCHDOG_MS:
+            return self.watchdog_ms
+        if pid == P_KAPPA_MAX:
+            return self.kappa_max_si
+        if pid == P_KAPPA_RATE_MAX:
+            return self.rate_max_si
+        if pid == P_SC:
+            return self.sc.name
+        if pid == P_SC_GAIN:
+            return float(self.sc.gain)
+        if pid == P_FAULTS:
+            f = getattr(self.bus, "faults_text", None)
+            return f() if f else "none"
+        if pid == P_FRAMES_OK:
+            return self.rd_up.ok + self.rd_dn.ok
+        if pid == P_CRC_ERRORS:
+            return self.rd_up.crc_error + self.rd_dn.crc_error
+        if pid == P_FRAMING_ERRORS:
+            u = self.rd_up
+            d = self.rd_dn
+            return u.framing_error + u.oversize + d.framing_error + d.oversize
+        if pid == P_DROPPED:
+            return self.dropped
+        if pid == P_UID:
+            return self.uid
+        if pid == P_STATUS:
+            return self.status()
+        if pid == P_SERVO_FAULTS:
+            return [self.bus.fault[i] for i in range(self.n)]
+        if pid == P_CYCLE_US:
+            return self.cycle_us_max
+        if pid == P_OVERRUNS:
+            return self.overruns
+        if pid == P_POSITION:
+            return self.position
+        if pid == P_CONFIG_ERROR:
+            return self.cfg.error or ""
+        if pid == P_MEM_FREE:
+            import gc
+
+            return gc.mem_free() if hasattr(gc, "mem_free") else -1
+        if pid == P_EVENTS_LOST:
+            return self.events_lost
+        if pid == P_SERVO_TARGETS:
+            return [self.mc.servo_target[i] for i in range(self.n)]
+        raise ValueError("unknown parameter")
+
+    def set_param(self, pid, v):
+        """Change a run-time parameter (SI units); ValueError with the reason if refused."""
+        num = not isinstance(v, bool) and isinstance(v, (int, float))
+        if pid == P_WATCHDOG_MS:
+            if not num or int(v) != v or not 10 <= v <= 60000:
+                raise ValueError("must be an int 10..60000 (ms)")
+            self.watchdog_ms = int(v)
+        elif pid == P_KAPPA_MAX:
+            top = float(self.cfg.si["kappa_max"])
+            if not num or not 0.0 <= v <= top:
+                raise ValueError("must be 0..%g 1/m (the flashed limit)" % top)
+            self.kappa_max_si = float(v)
+            self.mc.kappa_max = int(v * config.KAPPA_SCALE + 0.5)
+        elif pid == P_KAPPA_RATE_MAX:
+            top = float(self.cfg.si["kappa_rate_max"])
+            if not num or not 0.0 < v <= top:
+                raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
+            self.rate_max_si = float(v)
+            self.mc.step = max(1, int(v * config.KAPPA_SCALE * self.tick_ms / 1000.0 + 0.5))
+        elif pid == P_SC:
+            if not isinstance(v, str):
+                raise ValueError("must be text: one of %s" % ", ".join(scmod.STRATEGIES))
+            self.sc.set_strategy(v)
+            self.sc.reset(self.bus.pos if not self.moving else self.sc.cmd)
+        elif pid == P_SC_GAIN:
+            if not num or not 0.01 <= v <= 1.0:
+                raise ValueError("must be 0.01..1.0")
+            self.sc.gain = float(v)
+            self.sc.set_strategy(self.sc.name)
+        elif pid == P_FAULTS:
+            if not isinstance(v, str):
+                raise ValueError("must be text 'IDX:KIND,...' or 'none'")
+            self.bus.set_faults(v)
+        else:
+            raise ValueError("read-only")

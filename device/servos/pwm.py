@@ -1,0 +1,61 @@
+"""Hobby PWM servos (ESP32, open loop): raw angle -> pulse width, 50 Hz.
+
+Calibration (config key ``pwm``, all optional): ``pins`` (GPIO per servo, default 25, 26, 27),
+``freq`` (Hz, 50), ``min_us``/``max_us`` (pulse at the ends of the travel, 500/2500),
+``range`` (rad of travel between min_us and max_us, pi). Raw angle 0 is the centre pulse.
+Position "feedback" is the last command (``feedback = False``: no stall or fault detection).
+No pulse is output before the first command, so the servos stay limp in the boot hold.
+"""
+
+from array import array
+
+import fxp
+
+from servos import ServoBus
+
+_DEFAULT = {"pins": [25, 26, 27], "freq": 50, "min_us": 500, "max_us": 2500, "range": 3.14159265}
+
+
+class PwmBus(ServoBus):
+    feedback = False
+    name = "pwm"
+
+    def __init__(self, cfg, hal):
+        ServoBus.__init__(self, cfg.n)
+        p = dict(_DEFAULT)
+        if cfg.si.get("pwm"):
+            p.update(cfg.si["pwm"])
+        pins = p["pins"]
+        if len(pins) < cfg.n:
+            raise ValueError("pwm.pins lists %d pins for %d servos" % (len(pins), cfg.n))
+        if not (0 < p["min_us"] < p["max_us"] < 20000) or p["range"] <= 0:
+            raise ValueError("pwm calibration: need 0 < min_us < max_us < 20000 and range > 0")
+        self.freq = int(p["freq"])
+        self.centre_ns = int((p["min_us"] + p["max_us"]) * 500)
+        self.min_ns = int(p["min_us"] * 1000)
+        self.max_ns = int(p["max_us"] * 1000)
+        ns_per_e4 = (p["max_us"] - p["min_us"]) * 1000.0 / (p["range"] * 10000.0)
+        self.q = fxp.q_for([ns_per_e4])
+        self.k = fxp.to_q(ns_per_e4, self.q)
+        self.pins = pins
+        self.pwm = None
+        self.hal = hal
+        for i in range(cfg.n):
+            self.pos[i] = cfg.zero[i]
+        self.pulse_ns = array("i", [self.centre_ns] * cfg.n)
+
+    def _send(self, targets, now_ms):
+        if self.pwm is None:  # first command: create the outputs (no pulses during boot hold)
+            self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
+        for i in range(self.n):
+            ns = self.centre_ns + fxp.mulq(targets[i], self.k, self.q)
+            if ns < self.min_ns:
+                ns = self.min_ns
+            elif ns > self.max_ns:
+                ns = self.max_ns
+            self.pulse_ns[i] = ns
+            self.pwm[i].duty_ns(ns)
+            self.pos[i] = targets[i]
+
+    def _refresh(self, now_ms):
+        pass  # open loop: pos is the last command, no faults observable
