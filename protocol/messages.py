@@ -189,7 +189,7 @@ def decode_map(payload) -> dict:
 
 
 def _get(d: dict, key: int, name: str, kind: str, required: bool = True):
-    """Field ``key`` of kind "int", "num", "str", "bool", "intlist", "numlist"."""
+    """Field ``key`` of kind "int", "uint", "num", "str", "bool", "intlist", "numlist"."""
     if key not in d:
         if required:
             raise MalformedError("missing key %d (%s)" % (key, name))
@@ -198,6 +198,8 @@ def _get(d: dict, key: int, name: str, kind: str, required: bool = True):
     ok = False
     if kind == "int":
         ok = _is_int(v)
+    elif kind == "uint":
+        ok = _is_int(v) and v >= 0
     elif kind == "num":
         ok = _is_num(v)
     elif kind == "str":
@@ -210,7 +212,7 @@ def _get(d: dict, key: int, name: str, kind: str, required: bool = True):
         ok = isinstance(v, list) and all(_is_num(x) for x in v)
     if not ok:
         raise MalformedError("key %d (%s) has the wrong type: %r" % (key, name, v))
-    if kind == "int":
+    if kind == "int" or kind == "uint":
         _check_wire_int(v, name)
     elif kind == "intlist":
         for x in v:
@@ -252,7 +254,7 @@ def encode_sync(seq: int, cycle: int, setpoints_si, resume: bool = False) -> byt
 def decode_sync(payload) -> dict:
     """SYNC payload -> ``{cycle, setpoints: [(kappa 1/m, phi rad) | None], resume}``."""
     d = decode_map(payload)
-    cycle = _get(d, 0, "cycle", "int")
+    cycle = _get(d, 0, "cycle", "uint")
     flat = d.get(1)
     if not isinstance(flat, list) or len(flat) % 2:
         raise MalformedError("SYNC key 1 must be a list of kappa/phi pairs")
@@ -280,7 +282,7 @@ def encode_heartbeat(seq: int, cycle: int) -> bytes:
 
 def decode_heartbeat(payload) -> dict:
     """HEARTBEAT payload -> ``{cycle}``."""
-    return {"cycle": _get(decode_map(payload), 0, "cycle", "int")}
+    return {"cycle": _get(decode_map(payload), 0, "cycle", "uint")}
 
 
 def param_get_payload(param_id: int, uid=None) -> dict:
@@ -308,7 +310,7 @@ def decode_param_get(payload) -> dict:
     """PARAM_GET payload -> ``{param_id, uid (None if absent)}``."""
     d = decode_map(payload)
     return {
-        "param_id": _get(d, 0, "param_id", "int"),
+        "param_id": _get(d, 0, "param_id", "uint"),
         "uid": _get(d, 15, "uid", "str", False),
     }
 
@@ -373,7 +375,7 @@ def decode_empty(payload) -> dict:
 _DESC_KINDS = (
     "str",  # uid
     "str",  # fw_version
-    "int",  # protocol_version
+    "uint",  # protocol_version
     "str",  # model
     "num",  # length
     "numlist",  # tendon_angles
@@ -385,7 +387,7 @@ _DESC_KINDS = (
     "num",  # backbone_radius
     "str",  # name
     "str",  # servo_driver
-    "int",  # watchdog_ms
+    "uint",  # watchdog_ms
     "bool",  # downstream_present
 )
 _DESC_REQUIRED = 4  # uid, fw_version, protocol_version, model are mandatory
@@ -412,7 +414,7 @@ def descriptor_payload(desc: dict) -> dict:
         if kind == "str":
             if not isinstance(v, str):
                 raise BadValueError("%s must be text" % name)
-        elif kind == "int":
+        elif kind == "uint":
             v = _uint(v, name)
         elif kind == "num":
             v = _finite(v, name)
@@ -490,13 +492,11 @@ def decode_state(payload, position=None) -> dict:
     """STATE payload -> SI dict ``{position, cycle, t_ms, kappa, phi, kx, ky, tendon_lengths,
     servo_angles, status: set of names, raw_status}``."""
     d = decode_map(payload)
-    raw_status = _get(d, 6, "status", "int")
-    if raw_status < 0:
-        raise BadValueError("status must not be negative")
+    raw_status = _get(d, 6, "status", "uint")
     return {
         "position": position,
-        "cycle": _get(d, 0, "cycle", "int"),
-        "t_ms": _get(d, 1, "t_ms", "int"),
+        "cycle": _get(d, 0, "cycle", "uint"),
+        "t_ms": _get(d, 1, "t_ms", "uint"),
         "kappa": _get(d, 2, "kappa", "int") / KAPPA_SCALE,
         "phi": _get(d, 3, "phi", "int") / ANGLE_SCALE,
         "kx": _get(d, 7, "kx", "int") / KAPPA_SCALE,
@@ -522,7 +522,7 @@ def encode_param_value(seq: int, param_id: int, value) -> bytes:
 def decode_param_value(payload) -> dict:
     """PARAM_VALUE payload -> ``{param_id, value}``."""
     d = decode_map(payload)
-    return {"param_id": _get(d, 0, "param_id", "int"), "value": _value(d)}
+    return {"param_id": _get(d, 0, "param_id", "uint"), "value": _value(d)}
 
 
 def encode_event(seq: int, code: int, detail: int, t_ms: int) -> bytes:
@@ -534,12 +534,12 @@ def encode_event(seq: int, code: int, detail: int, t_ms: int) -> bytes:
 def decode_event(payload) -> dict:
     """EVENT payload -> ``{code, name, detail, t_ms}`` (name "UNKNOWN_<n>" for new codes)."""
     d = decode_map(payload)
-    code = _get(d, 0, "code", "int")
+    code = _get(d, 0, "code", "uint")
     return {
         "code": code,
         "name": EVENT_NAMES.get(code, "UNKNOWN_%d" % code),
         "detail": _get(d, 1, "detail", "int"),
-        "t_ms": _get(d, 2, "t_ms", "int"),
+        "t_ms": _get(d, 2, "t_ms", "uint"),
     }
 
 
@@ -569,7 +569,7 @@ def encode_version_error(seq: int, offending_type: int) -> bytes:
 def decode_error(payload) -> dict:
     """ERROR payload -> ``{code, name, offending_type, text, versions ((min, max) or None)}``."""
     d = decode_map(payload)
-    code = _get(d, 0, "code", "int")
+    code = _get(d, 0, "code", "uint")
     versions = d.get(3)
     if versions is not None:
         if not (isinstance(versions, list) and len(versions) == 2 and all(map(_is_int, versions))):
@@ -578,7 +578,7 @@ def decode_error(payload) -> dict:
     return {
         "code": code,
         "name": ERROR_NAMES.get(code, "UNKNOWN_%d" % code),
-        "offending_type": _get(d, 1, "offending type", "int"),
+        "offending_type": _get(d, 1, "offending type", "uint"),
         "text": _get(d, 2, "text", "str", False) or "",
         "versions": versions,
     }
