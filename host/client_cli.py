@@ -26,14 +26,18 @@ class CliError(Exception):
 
 
 # --------------------------------------------------------------------------- registration
-def _common(p: argparse.ArgumentParser) -> None:
+def _common(p: argparse.ArgumentParser, nested: bool = False) -> None:
+    """--url/--token/--timeout; ``nested`` parsers must not overwrite the parent's values."""
+    kw: dict[str, Any] = {"default": argparse.SUPPRESS} if nested else {}
     p.add_argument(
         "--url",
-        default=None,
         help=f"daemon API URL (default ${ENV_URL} or ws://127.0.0.1:8765)",
+        **({"default": None} | kw),
     )
-    p.add_argument("--token", default=None, help=f"API token (default ${ENV_TOKEN})")
-    p.add_argument("--timeout", type=float, default=5.0, help="reply timeout, s (default 5)")
+    p.add_argument("--token", help=f"API token (default ${ENV_TOKEN})", **({"default": None} | kw))
+    p.add_argument(
+        "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -86,14 +90,14 @@ def register(subparsers: Any) -> None:
     csub = p.add_subparsers(dest="action", metavar="ACTION")
     p.set_defaults(func=cmd_controllers, action="list")
     lp = csub.add_parser("list", help="list controllers and their state (default)")
-    _common(lp)
+    _common(lp, nested=True)
     lp.add_argument("--json", action="store_true")
     sp = csub.add_parser("switch", help="activate --start and deactivate --stop together")
-    _common(sp)
+    _common(sp, nested=True)
     sp.add_argument("--start", action="append", default=[], help="controller to activate")
     sp.add_argument("--stop", action="append", default=[], help="controller to deactivate")
     hp = csub.add_parser("hand-back", help="end a manual (cFFC) takeover, restart what it stopped")
-    _common(hp)
+    _common(hp, nested=True)
     hp.add_argument("--manual", default=None, help="manual controller (default: the one active)")
     for q in (lp, sp, hp):
         q.set_defaults(func=cmd_controllers)
@@ -470,13 +474,17 @@ def cmd_controllers(args: argparse.Namespace) -> int:
         if getattr(args, "json", False):
             print(json.dumps(ctrls, indent=2))
             return 0
-        print(f"{'name':<12} {'type':<6} {'state':<10} claims")
+        print(f"{'name':<12} {'type':<6} {'state':<10} {'joints':<30} claimed")
         for ctl in ctrls:
-            claims = ctl.get("claims") or ctl.get("command_interfaces") or []
-            print(
+            claims = ctl.get("claimed_interfaces") or []
+            joints = ", ".join(map(str, ctl.get("joints") or [])) or "-"
+            line = (
                 f"{str(ctl.get('name')):<12} {str(ctl.get('type')):<6} "
-                f"{str(ctl.get('state')):<10} {', '.join(map(str, claims)) or '-'}"
+                f"{str(ctl.get('state')):<10} {joints:<30} {', '.join(map(str, claims)) or '-'}"
             )
+            if ctl.get("error"):
+                line += f"  error: {ctl['error']}"
+            print(line)
         return 0
 
     return _run(args, body)

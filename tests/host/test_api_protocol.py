@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import os
 import queue
 import socket
@@ -77,10 +78,20 @@ class FacadeStub:
     def status(self) -> dict:
         if self.fail_status:
             raise ZeroDivisionError("boom")
-        return {"state": "running", "segments": 1, "nan": float("nan")}
+        return {
+            "state": "connected",
+            "robot": "stub",
+            "port": "loop://",
+            "rate_hz": 100.0,
+            "segments": ["s1"],
+            "hwi": "active",
+            "active_controllers": ["jtc"],
+            "joint_states": {"s1": {"kappa": 2.0, "phi": math.pi / 2, "valid": True}},
+            "nan": float("nan"),
+        }
 
     def topology(self) -> dict:
-        return {"bendables": ["s1"]}
+        return {"robot": "stub", "expected": ["s1"], "controlled": ["s1"]}
 
     def loop_stats(self) -> dict:
         return {"rate_hz": 100.0}
@@ -95,6 +106,12 @@ class FacadeStub:
         return {"active": start}
 
     def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
+        for p in points:
+            for name, target in p["segments"].items():
+                if name != "s1":
+                    raise ValueError(f"bendable {name!r} is not commanded by 'jtc'")
+                if target.get("kappa", 0.0) > 10.0:
+                    raise ValueError("kappa exceeds kappa_max 10 1/m (goal rejected)")
         gid = f"g{len(self.goals) + 1}"
         duration = points[-1]["time_from_start"]
         self.goals[gid] = {"t0": time.monotonic(), "duration": duration}
@@ -104,7 +121,14 @@ class FacadeStub:
         g = self.goals[gid]
         progress = min(1.0, (time.monotonic() - g["t0"]) / g["duration"])
         state = "succeeded" if progress >= 1.0 else "executing"
-        return {"id": gid, "state": state, "progress": progress, "done": progress >= 1.0}
+        return {
+            "id": gid,
+            "state": state,
+            "progress": progress,
+            "done": progress >= 1.0,
+            "reason": "",
+            "final_error": {"s1": 0.001},
+        }
 
     def cancel_trajectory(self, gid: str) -> bool:
         return gid in self.goals
@@ -249,13 +273,13 @@ def test_daemon_exception_becomes_internal_error_not_a_crash(server, stub):
         assert "ZeroDivisionError" in reply["error"]["message"]
         stub.fail_status = False
         status = rpc(ws, {"id": 2, "op": "status"})["result"]
-        assert status["state"] == "running"
+        assert status["state"] == "connected"
         assert status["nan"] is None  # non-finite numbers are sent as null (strict JSON)
 
 
 def test_valid_ops_reach_the_facade_with_canonical_params(server, stub):
     with connect(server.url) as c:
-        assert c.topology() == {"bendables": ["s1"]}
+        assert c.topology()["controlled"] == ["s1"]
         assert c.loop_stats() == {"rate_hz": 100.0}
         assert c.controllers() == [{"name": "jtc", "state": "active"}]
         c.switch(start=["ffc"], stop=["jtc"])
@@ -397,7 +421,7 @@ def test_token_is_checked_on_connect(stub):
         with pytest.raises(ApiAuthError, match="token is required"):
             connect(url, token="")
         with connect(url, token="correct-horse-battery") as c:
-            assert c.status()["state"] == "running"
+            assert c.status()["state"] == "connected"
         assert srv.stats()["auth_failures"] == 2
     finally:
         srv.stop()

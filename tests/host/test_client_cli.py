@@ -1,0 +1,214 @@
+"""Client CLI (`ucr status|watch|move|trajectory|controllers|teleop`): exit codes, one-line errors,
+human output in degrees. Uses the in-memory facade from test_api_protocol.py behind a real API
+server; the real daemon is exercised in test_api_e2e.py."""
+
+from __future__ import annotations
+
+import importlib.util
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from host.api.server import ApiServer
+from tools.cli import main as ucr
+
+pytestmark = pytest.mark.timeout(60)
+ROOT = Path(__file__).resolve().parents[2]
+
+_spec = importlib.util.spec_from_file_location(
+    "_api_protocol_stub", Path(__file__).with_name("test_api_protocol.py")
+)
+_mod = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_mod)
+FacadeStub = _mod.FacadeStub
+
+
+def free_url() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"ws://127.0.0.1:{s.getsockname()[1]}"
+
+
+@pytest.fixture
+def url():
+    stub = FacadeStub()
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    yield srv.url
+    srv.stop()
+    stub.close()
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    rc = ucr(list(argv))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+# ------------------------------------------------------------------ daemon not running
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["status"],
+        ["watch", "--count", "1"],
+        ["move", "--segment", "s1", "--kappa", "1", "--phi", "0", "--duration", "1"],
+        ["controllers"],
+        ["controllers", "switch", "--start", "ffc"],
+        ["teleop", "--keyboard"],
+    ],
+)
+def test_daemon_not_running_is_one_clear_line_and_exit_1(capsys, argv):
+    url = free_url()
+    rc, out, err = run(capsys, *argv, "--url", url)
+    assert rc == 1
+    assert err.strip() == f"ucr: cannot reach the daemon at {url}: is `ucr daemon` running?"
+
+
+def test_no_traceback_from_a_real_process_when_daemon_is_down():
+    url = free_url()
+    proc = subprocess.run(
+        [sys.executable, "-m", "tools.cli", "status", "--url", url],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 1
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "is `ucr daemon` running?" in proc.stderr
+
+
+def test_bad_url_and_wrong_token_are_one_line_errors(capsys):
+    rc, _, err = run(capsys, "status", "--url", "http://nope")
+    assert rc == 1 and "bad URL" in err and err.count("\n") == 1
+    stub = FacadeStub()
+    srv = ApiServer(stub, "127.0.0.1", 0, token="s3cret-token").start()
+    try:
+        rc, _, err = run(capsys, "status", "--url", srv.url, "--token", "wrong-token")
+        assert rc == 1 and "wrong token" in err and err.count("\n") == 1
+        rc, out, _ = run(capsys, "status", "--url", srv.url, "--token", "s3cret-token")
+        assert rc == 0 and "s1" in out
+    finally:
+        srv.stop()
+        stub.close()
+
+
+# ------------------------------------------------------------------ commands against a server
+def test_status_shows_segments_in_degrees(capsys, url):
+    rc, out, _ = run(capsys, "status", "--url", url)
+    assert rc == 0
+    assert "daemon: connected" in out
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("s1"))
+    assert "2.000 1/m" in line and "90.0°" in line
+
+
+def test_watch_prints_count_lines_of_joint_states(capsys, url):
+    rc, out, _ = run(capsys, "watch", "--url", url, "--count", "3", "--rate", "50")
+    assert rc == 0
+    lines = out.strip().splitlines()
+    assert len(lines) == 3 and all("s1 κ=" in ln and "φ=" in ln for ln in lines)
+
+
+def test_move_waits_for_the_result_with_progress(capsys, url):
+    rc, out, _ = run(
+        capsys,
+        "move",
+        "--url",
+        url,
+        "--segment",
+        "s1",
+        "--kappa",
+        "3",
+        "--phi",
+        "45",
+        "--duration",
+        "0.3",
+    )
+    assert rc == 0
+    assert "accepted" in out and "progress" in out and "succeeded" in out
+
+
+def test_move_refused_by_the_daemon_exits_1_with_its_reason(capsys, url):
+    rc, _, err = run(
+        capsys, "move", "--url", url, "--segment", "s1", "--kappa", "30", "--duration", "1"
+    )
+    assert rc == 1
+    assert err.strip() == "ucr: rejected: kappa exceeds kappa_max 10 1/m (goal rejected)"
+
+
+def test_move_checks_its_arguments_before_connecting(capsys):
+    rc, _, err = run(capsys, "move", "--segment", "s1", "--kappa", "-1", "--url", free_url())
+    assert rc == 2 and "--kappa must be >= 0" in err
+    rc, _, err = run(capsys, "move", "--segment", "s1", "--kappa", "1", "--duration", "0")
+    assert rc == 2 and "--duration" in err
+
+
+TRAJ_YAML = """\
+controller: jtc
+waypoints:
+  - t: 0.2
+    segments:
+      s1: {kappa: 2.0, phi_deg: 90}
+  - t: 0.4
+    segments:
+      s1: {kx: 0.0, ky: 0.0}
+"""
+
+
+def test_trajectory_file_is_checked_and_sent(capsys, url, tmp_path):
+    f = tmp_path / "wave.yaml"
+    f.write_text(TRAJ_YAML)
+    rc, out, _ = run(capsys, "trajectory", str(f), "--check")
+    assert rc == 0 and "2 waypoints over 0.4 s for s1: ok" in out
+    rc, out, _ = run(capsys, "trajectory", str(f), "--url", url)
+    assert rc == 0 and "succeeded" in out
+    f.write_text(TRAJ_YAML.replace("s1:", "s9:"))
+    rc, out, err = run(capsys, "trajectory", str(f), "--url", url)
+    assert rc == 1 and "s9 not controlled by the daemon (controlled: s1)" in err
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("waypoints: [{t: 1, segments: {s1: {kappa: -2}}}]", "waypoint[0].segments.s1.kappa"),
+        (
+            "waypoints: [{t: 2, segments: {s1: {kappa: 1}}}, {t: 1, segments: {s1: {kappa: 1}}}]",
+            "increase strictly",
+        ),
+        ("waypoints: [{t: 1, segments: {s1: {kappa: 1, phi: 0, phi_deg: 3}}}]", "not both"),
+        ("speed: 3\nwaypoints: []", "unknown top-level key"),
+        ("waypoints: [{t: 1, segments: {s1: {kappa: 1}}}", "not valid YAML"),
+        ("- just text", "expected a mapping"),
+    ],
+)
+def test_bad_trajectory_file_is_reported_with_file_and_waypoint(capsys, tmp_path, text, needle):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    rc, _, err = run(capsys, "trajectory", str(f), "--check")
+    assert rc == 1
+    assert str(f) in err and needle in err and err.count("\n") == 1
+
+
+def test_trajectory_json_file_and_missing_file(capsys, tmp_path):
+    f = tmp_path / "t.json"
+    f.write_text('[{"time_from_start": 1.0, "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}]')
+    assert run(capsys, "trajectory", str(f), "--check")[0] == 0
+    rc, _, err = run(capsys, "trajectory", str(tmp_path / "none.yaml"), "--check")
+    assert rc == 1 and "cannot read" in err
+
+
+def test_controllers_list_and_switch(capsys, url):
+    rc, out, _ = run(capsys, "controllers", "--url", url)
+    assert rc == 0 and "jtc" in out and "active" in out
+    assert run(capsys, "controllers", "--url", url, "list")[0] == 0
+    assert run(capsys, "controllers", "list", "--url", url)[0] == 0
+    rc, out, _ = run(
+        capsys, "controllers", "switch", "--url", url, "--start", "ffc", "--stop", "jtc"
+    )
+    assert rc == 0
+    rc, _, err = run(capsys, "controllers", "switch", "--url", url, "--start", "nope")
+    assert rc == 1 and "unknown controller 'nope'" in err
+    rc, _, err = run(capsys, "controllers", "switch", "--url", url)
+    assert rc == 2
