@@ -396,6 +396,14 @@ class _Checker:
                         f"{where}: hardware param model={model_name!r} is not a known model "
                         f"(available: {', '.join(available)})",
                     )
+            for pname in control.hardware_params:
+                target, sep, _ = pname.rpartition("/")
+                if sep and target not in robot.bendables and target not in robot.joints:
+                    self.error(
+                        self.line((*ckey, "param", pname), cline),
+                        f"{where}: hardware param {pname!r} names {target!r}, which is neither "
+                        f"a bendable nor a joint (bendables: {_names(robot.bendables)})",
+                    )
             for j_index, cjoint in enumerate(control.joints):
                 jkey = (*ckey, "joint", j_index)
                 jline = self.line(jkey, cjoint.line)

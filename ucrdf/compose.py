@@ -4,7 +4,8 @@ Each descriptor (the host-side decoded DESCRIPTOR dict of docs/architecture.md: 
 length, tendon_angles, tendon_radius, spool_radius, kappa_max, kappa_rate_max, mass,
 backbone_radius, name, servo_driver, …``) becomes one bendable, chained from the base link:
 ``base -> <seg1>_tip -> <seg2>_tip -> …``, with a ros2_control block whose kappa/phi interfaces
-are bounded by each segment's own limits. The result is checked before it is returned, so a
+are bounded by each segment's own limits and whose ``<hardware>`` pins each segment's unique id
+(``<param name="<bendable>/uid">``). The result is checked before it is returned, so a
 descriptor with impossible values is reported, never written.
 """
 
@@ -109,7 +110,7 @@ def robot_from_descriptors(
     )
     parent = "base"
     models: list[str] = []
-    uids: list[str] = []
+    uids: dict[str, str] = {}
     for k, (desc, seg) in enumerate(zip(descriptors, names, strict=True), start=1):
         where = f"descriptor {k} ({seg})"
         missing = [key for key in REQUIRED_KEYS if key not in desc]
@@ -145,8 +146,8 @@ def robot_from_descriptors(
             driver = "pwm"
         models.append(model_type)
         uid = desc.get("uid")
-        if isinstance(uid, str) and uid:
-            uids.append(uid)
+        if isinstance(uid, str) and uid.strip():
+            uids[seg] = uid.strip().lower()
 
         tip = f"{seg}_tip"
         robot.links[tip] = Link(name=tip)
@@ -187,8 +188,9 @@ def robot_from_descriptors(
         raise UcrdfError(Diagnostic(source, 0, p) for p in problems)
     if len(set(models)) == 1:
         control.hardware_params = {"model": models[0], **control.hardware_params}
-    if len(uids) == len(descriptors):
-        control.hardware_params["uids"] = ",".join(uids)
+    # pin each segment's identity: the daemon refuses a chain whose uids differ
+    for seg, uid in uids.items():
+        control.hardware_params[f"{seg}/uid"] = uid
     robot.ros2_control.append(control)
     diagnostics = check(robot)
     if diagnostics:

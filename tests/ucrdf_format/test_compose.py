@@ -61,7 +61,9 @@ def test_three_descriptors_compose_write_parse_and_check_clean(tmp_path):
         "model": "pcc",
         "port": "auto",
         "baudrate": "921600",
-        "uids": "a4cf12000000,a4cf12000001,a4cf12000002",
+        "seg0/uid": "a4cf12000000",
+        "seg1/uid": "a4cf12000001",
+        "seg2/uid": "a4cf12000002",
     }
     kappa = control.joints[1].command_interfaces[0]
     assert kappa.name == "kappa" and kappa.params["max"] == KAPPA_MAX and kappa.params["min"] == 0

@@ -270,6 +270,14 @@ CASES = [
         1,
     ),
     (
+        "hardware-param-for-unknown-bendable",
+        '<param name="model">pcc</param>',
+        '<param name="model">pcc</param>\n      <param name="sag/uid">a4cf</param>',
+        "hardware param 'sag/uid' names 'sag', which is neither a bendable nor a joint",
+        '<param name="sag/uid">',
+        1,
+    ),
+    (
         "model-without-backbone",
         '        <backbone length="0.3" radius="0.002"/>\n',
         "",
