@@ -11,6 +11,7 @@ nesting deeper than ``MAX_DEPTH`` and trailing bytes, raising ``MalformedError``
 walks a buffer in place: both allocate nothing, for the device hot path.
 """
 
+import math
 import struct
 
 from protocol.errors import MalformedError
@@ -222,26 +223,60 @@ def _head(out, major, arg):
         raise ValueError("CBOR int out of range (|n| >= 2**64)")
 
 
+def _half_bits(f32):
+    """IEEE half bits of the float32 with bits ``f32`` if exactly representable, else -1.
+
+    Done by hand: struct's "e" on MicroPython mis-rounds half subnormals.
+    """
+    sign = (f32 >> 16) & 0x8000
+    exp = (f32 >> 23) & 0xFF
+    mant = f32 & 0x7FFFFF
+    if exp == 0xFF:
+        return sign | 0x7C00 if mant == 0 else -1  # infinity (NaN is handled by the caller)
+    if exp == 0:
+        return sign if mant == 0 else -1  # zero; float32 subnormals are below half's range
+    e = exp - 127
+    if -14 <= e <= 15:
+        return sign | ((e + 15) << 10) | (mant >> 13) if mant & 0x1FFF == 0 else -1
+    if -24 <= e < -14:  # half subnormal: m * 2**-24
+        sig = mant | 0x800000
+        shift = -e - 1
+        return sign | (sig >> shift) if sig & ((1 << shift) - 1) == 0 else -1
+    return -1
+
+
+def _half_value(h):
+    """Float value of IEEE half bits ``h``."""
+    exp = (h >> 10) & 0x1F
+    mant = h & 0x3FF
+    if exp == 0:
+        v = math.ldexp(mant, -24)
+    elif exp == 0x1F:
+        v = math.inf if mant == 0 else math.nan
+    else:
+        v = math.ldexp(mant | 0x400, exp - 25)
+    return -v if h & 0x8000 else v
+
+
 def _float(out, x):
     if x != x:  # NaN: canonical half-precision quiet NaN
         out.extend(b"\xf9\x7e\x00")
         return
     try:
-        h = struct.pack(">e", x)
-        if struct.unpack(">e", h)[0] == x:
-            out.append(0xF9)
-            out.extend(h)
-            return
-    except (OverflowError, ValueError):
-        pass
-    try:
         f = struct.pack(">f", x)
-        if struct.unpack(">f", f)[0] == x:
-            out.append(0xFA)
-            out.extend(f)
-            return
+        exact32 = struct.unpack(">f", f)[0] == x
     except (OverflowError, ValueError):
-        pass
+        exact32 = False
+    if exact32:
+        h = _half_bits(struct.unpack(">I", f)[0])
+        if h >= 0:
+            out.append(0xF9)
+            out.append(h >> 8)
+            out.append(h & 0xFF)
+            return
+        out.append(0xFA)
+        out.extend(f)
+        return
     out.append(0xFB)
     out.extend(struct.pack(">d", x))
 
@@ -365,7 +400,7 @@ class _Dec:
                 return None
             if ai == 25:
                 p = self.take(2)
-                return struct.unpack(">e", bytes(buf[p : p + 2]))[0]
+                return _half_value((buf[p] << 8) | buf[p + 1])
             if ai == 26:
                 p = self.take(4)
                 return struct.unpack(">f", bytes(buf[p : p + 4]))[0]

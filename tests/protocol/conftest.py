@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import struct
 import sys
 from pathlib import Path
 
@@ -44,9 +45,20 @@ def approx_equal(a, b, rel: float = 1e-12) -> bool:
 # --------------------------------------------------------------------------------------------
 # random messages and corrupted streams (seeded, so the VM batch is reproducible)
 # --------------------------------------------------------------------------------------------
+def random_float_vector(rng: random.Random, i: int) -> dict:
+    """cbor.dumps of random float16/32/64 bit patterns, passed as exact float64 bits."""
+    xs = []
+    for _ in range(50):
+        width = rng.choice((2, 4, 8))
+        x = struct.unpack({2: ">e", 4: ">f", 8: ">d"}[width], rng.randbytes(width))[0]
+        if not math.isnan(x):
+            xs.append({"$f64": struct.pack(">d", x).hex()})
+    return {"name": f"random_{i}_floats", "call": "cbor.dumps", "args": [xs]}
+
+
 def random_vectors(rng: random.Random, n: int) -> list[dict]:
     """Random message descriptions in the vector format (no expected results)."""
-    out = []
+    out = [random_float_vector(rng, n + i) for i in range(20)]
     for i in range(n):
         kind = rng.choice(["sync", "state", "param", "event", "error", "descriptor", "dstate"])
         seq = rng.randrange(256)

@@ -6,6 +6,7 @@ interpreters and compare the JSON results. ``main(in_path, out_path)`` is the VM
 """
 
 import json
+import struct
 
 from protocol import cbor, cobs, crc
 from protocol import device as D
@@ -50,6 +51,8 @@ def norm(v):
         return sorted(v)
     if isinstance(v, (bytes, bytearray)):
         return _hex(v)
+    if isinstance(v, float) and (v != v or v - v != 0):
+        return {"$float": "nan" if v != v else ("inf" if v > 0 else "-inf")}  # JSON has none
     return v
 
 
@@ -70,10 +73,13 @@ def _device_sync(wire, positions):
 
 
 def _arg(a):
-    """JSON has no NaN/inf: {"$float": "nan" | "inf" | "-inf"} stands for them in vectors."""
+    """JSON has no NaN/inf: {"$float": "nan" | "inf" | "-inf"} stands for them in vectors;
+    {"$f64": "<16 hex digits>"} is an exact float64 bit pattern (no decimal parsing involved)."""
     if isinstance(a, dict):
         if "$float" in a:
             return float(a["$float"])
+        if "$f64" in a:
+            return struct.unpack(">d", _unhex(a["$f64"]))[0]
         out = {}
         for k in a:
             out[k] = _arg(a[k])
@@ -117,7 +123,9 @@ def run_vector(v):
             wire = _unhex(args[0])
         elif call == "cbor.dumps":
             res["hex"] = _hex(cbor.dumps(args[0]))
-            res["decoded"] = norm(cbor.loads(cbor.dumps(args[0])))
+            back = cbor.loads(cbor.dumps(args[0]))
+            res["decoded"] = norm(back)
+            res["same"] = back == args[0]
             return res
         elif call == "cobs.encode":
             enc = cobs.encode(_unhex(args[0]))
