@@ -1,0 +1,124 @@
+"""IK: round trips FK -> IK -> FK, limits respected, rigid joints, orientation targets, honest
+failures."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ucrdf.fk import ConfigError, RobotKinematics
+from ucrdf.ik import IKSolver, solve_ik
+
+from .conftest import KAPPA_MAX, chain_robot, hybrid_robot
+
+ROBOT3 = chain_robot(3)
+KIN3 = RobotKinematics(ROBOT3)
+SOLVER3 = IKSolver(KIN3)
+
+segment = st.tuples(st.floats(0.0, KAPPA_MAX), st.floats(-math.pi, math.pi))
+
+
+def within_limits(config, kin):
+    for name, model in kin.models.items():
+        if config[name]["kappa"] > model.spec.limits.kappa_max * (1 + 1e-9):
+            return False
+    return True
+
+
+@settings(max_examples=60, deadline=None)
+@given(segs=st.tuples(segment, segment, segment))
+def test_round_trip_fk_ik_fk(segs):
+    cfg = {f"seg{i + 1}": {"kappa": k, "phi": p} for i, (k, p) in enumerate(segs)}
+    target = KIN3.fk(cfg)["link3"][:3, 3]
+    res = SOLVER3.solve(target)
+    assert res.success, res.message
+    reached = KIN3.fk(res.config)["link3"][:3, 3]
+    assert np.linalg.norm(reached - target) <= 1e-4
+    assert res.residual == pytest.approx(np.linalg.norm(reached - target), abs=1e-12)
+    assert within_limits(res.config, KIN3)
+
+
+def test_straight_target_and_initial_guess():
+    res = solve_ik(ROBOT3, [0.0, 0.0, 3 * 0.316])
+    assert res.success and res.residual <= 1e-4
+    cfg = {"seg1": {"kappa": 2.0, "phi": 1.0}, "seg2": {"kappa": 1.0, "phi": 0.0}}
+    target = KIN3.fk(cfg)["link3"][:3, 3]
+    res = SOLVER3.solve(target, initial=cfg)
+    assert res.success and res.iterations == 0  # already there
+
+
+def test_unreachable_target_reports_failure_with_residual():
+    res = solve_ik(ROBOT3, [2.0, 0.0, 0.0])
+    assert not res.success
+    assert res.residual > 1.0
+    assert "no solution" in res.message
+    assert within_limits(res.config, KIN3)  # the best effort still respects the limits
+
+
+def test_targets_beyond_kappa_max_are_not_reached_by_cheating():
+    """A point reachable only with a bend past kappa_max must fail, not violate the limit."""
+    one = chain_robot(1)
+    kin = RobotKinematics(one)
+    big = chain_robot(1, kappa_max=2 * KAPPA_MAX)
+    target = RobotKinematics(big).fk({"seg1": {"kappa": 1.8 * KAPPA_MAX}})["link1"][:3, 3]
+    res = solve_ik(one, target)
+    assert not res.success
+    assert res.config["seg1"]["kappa"] <= KAPPA_MAX * (1 + 1e-9)
+    assert np.linalg.norm(kin.fk(res.config)["link1"][:3, 3] - target) == pytest.approx(
+        res.residual
+    )
+
+
+def test_hybrid_robot_uses_rigid_joints_within_their_limits():
+    robot = hybrid_robot()
+    kin = RobotKinematics(robot)
+    cfg = {"j1": 1.0, "j2": 0.5, "j3": 0.12, "wrist1": {"kappa": 6.0, "phi": 0.3}}
+    target = kin.fk(cfg)["tool"][:3, 3]
+    res = solve_ik(robot, target, initial={"j3": 0.05})
+    assert res.success, res.message
+    assert 0.0 <= res.config["j3"] <= 0.2 and -1.5 <= res.config["j2"] <= 1.5
+    assert np.linalg.norm(kin.fk(res.config)["tool"][:3, 3] - target) <= 1e-4
+
+
+def test_orientation_target():
+    cfg = {"seg1": {"kappa": 1.0, "phi": 0.5}, "seg2": {"kappa": 2.5, "phi": -2.0},
+           "seg3": {"kappa": 2.0, "phi": 1.0}}  # fmt: skip
+    goal = KIN3.fk(cfg)["link3"]
+    res = SOLVER3.solve(goal[:3, 3], target_rot=goal[:3, :3])
+    assert res.success, res.message
+    got = KIN3.fk(res.config)["link3"]
+    assert np.linalg.norm(got[:3, 3] - goal[:3, 3]) <= 1e-4
+    assert res.rotation_residual <= 1e-3
+    assert np.abs(got[:3, :3] - goal[:3, :3]).max() <= 2e-3
+
+
+def test_tip_choice_and_input_errors():
+    res = solve_ik(ROBOT3, KIN3.fk(
+        {"seg1": {"kappa": 2.0, "phi": 0.0}})["link1"][:3, 3], tip="link1")  # fmt: skip
+    assert res.success and res.tip == "link1"
+    with pytest.raises(ConfigError, match="not in the robot"):
+        solve_ik(ROBOT3, [0, 0, 0.5], tip="nope")
+    with pytest.raises(ConfigError, match="root link"):
+        solve_ik(ROBOT3, [0, 0, 0.5], tip="base")
+    with pytest.raises(ConfigError, match="three finite numbers"):
+        solve_ik(ROBOT3, [0, float("nan"), 0.5])
+    with pytest.raises(ConfigError, match="not a rotation"):
+        solve_ik(ROBOT3, [0, 0, 0.5], target_rot=np.ones((3, 3)))
+    robot = chain_robot(2)
+    robot.links["side"] = robot.links["link1"].__class__("side")
+    from ucrdf.model import Joint
+
+    robot.joints["side_j"] = Joint("side_j", "fixed", "link1", "side")
+    with pytest.raises(ConfigError, match="2 end links"):
+        solve_ik(robot, [0, 0, 0.5])
+
+
+def test_phi_is_held_for_straight_segments_off_the_path():
+    robot = chain_robot(2, initial={"seg1": (0.0, 1.25)})
+    res = solve_ik(robot, [0.0, 0.0, 2 * 0.316], tip="link2")
+    assert res.success
+    assert res.iterations == 0 and res.config["seg1"] == {"kappa": 0.0, "phi": 1.25}
