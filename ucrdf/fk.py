@@ -21,6 +21,7 @@ import numpy as np
 from ucrdf.model import Joint, Robot
 from ucrdf.models import create
 from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError
+from ucrdf.models.pcc import PCCModel, pcc_transforms
 
 Config = Mapping[str, "Mapping[str, float] | float"]
 
@@ -114,6 +115,8 @@ class RobotKinematics:
             el.name for el in self.order if el.kind == "joint" and el.joint_type in _MOVABLE
         ]
         self.defaults = self._initial_values()
+        self._pcc = [n for n, m in self.models.items() if type(m) is PCCModel]
+        self._pcc_len = np.array([self.models[n].length for n in self._pcc])
 
     @staticmethod
     def _joint_element(j: Joint) -> Element:
@@ -218,10 +221,19 @@ class RobotKinematics:
         """FK from model coordinates (e.g. PCC (kx, ky)) without checks: the fast path."""
         joints = joints or {}
         frames = {self.root: np.eye(4)}
+        local: dict[str, np.ndarray] = {}
+        if self._pcc:  # every PCC segment in one batched call
+            q = np.array([coords[name] for name in self._pcc], dtype=float).reshape(-1, 2)
+            for name, t in zip(self._pcc, pcc_transforms(q[:, 0], q[:, 1], self._pcc_len),
+                               strict=True):  # fmt: skip
+                local[name] = t
         for el in self.order:
             t = frames[el.parent] @ el.origin
             if el.kind == "bendable":
-                t = t @ el.model.transform_coordinates(coords[el.name])
+                seg = local.get(el.name)
+                if seg is None:
+                    seg = el.model.transform_coordinates(coords[el.name])
+                t = t @ seg
             elif el.joint_type in _MOVABLE:
                 t = t @ joint_motion(el, joints.get(el.name, 0.0))
             frames[el.child] = t

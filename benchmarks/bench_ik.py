@@ -1,0 +1,70 @@
+"""IK success rate and time for 3-segment position targets sampled from the reachable workspace.
+
+Targets are FK of configurations drawn uniformly from each segment's curvature disc
+(|k| <= kappa_max), so every target is reachable. Each solve starts from the straight robot (the
+ros2_control initial values), as a user's first request would.
+
+Run: .venv/bin/python benchmarks/bench_ik.py [COUNT]   (prints figures; goal from issue 2)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from ucrdf.fk import RobotKinematics  # noqa: E402
+from ucrdf.ik import IKSolver  # noqa: E402
+from ucrdf.parser import load  # noqa: E402
+
+GOAL_SUCCESS = 0.99
+GOAL_MEDIAN_S = 2e-3
+
+
+def main(count: int = 1000) -> None:
+    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
+    kin = RobotKinematics(robot)
+    solver = IKSolver(kin)
+    rng = np.random.default_rng(1)
+    times, iterations, restarts = [], [], []
+    ok = 0
+    worst = 0.0
+    for _ in range(count):
+        config = {}
+        for name, model in kin.models.items():
+            kmax = model.spec.limits.kappa_max
+            config[name] = {"kappa": kmax * math.sqrt(rng.random()),
+                            "phi": rng.uniform(-math.pi, math.pi)}  # fmt: skip
+        target = kin.fk(config)[solver.tip][:3, 3]
+        t0 = time.perf_counter()
+        result = solver.solve(target)
+        times.append(time.perf_counter() - t0)
+        iterations.append(result.iterations)
+        restarts.append(result.restarts)
+        if result.success:
+            ok += 1
+            check = np.linalg.norm(kin.fk(result.config)[solver.tip][:3, 3] - target)
+            worst = max(worst, check)
+    success = ok / count
+    median = float(np.median(times))
+    p95 = float(np.percentile(times, 95))
+    print(f"IK benchmark: {count} reachable position targets, 3-segment robot "
+          f"({robot.name}), tol 1e-4 m")  # fmt: skip
+    print(f"  success rate  {success * 100:7.2f} %   goal >= {GOAL_SUCCESS * 100:.0f} %"
+          f"   ratio {success / GOAL_SUCCESS:.3f}")  # fmt: skip
+    print(f"  median time   {median * 1e3:7.3f} ms  goal <= {GOAL_MEDIAN_S * 1e3:.0f} ms"
+          f"   ratio (goal/measured) {GOAL_MEDIAN_S / median:.1f}")  # fmt: skip
+    print(f"  p95 time      {p95 * 1e3:7.3f} ms   max {max(times) * 1e3:.2f} ms")
+    print(f"  iterations    median {np.median(iterations):.0f}, max {max(iterations)}; "
+          f"solves needing a restart: {sum(1 for r in restarts if r)}")  # fmt: skip
+    print(f"  worst position error of a reported success (re-checked by FK): {worst:.2e} m")
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
