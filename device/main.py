@@ -50,7 +50,8 @@ def run(tick_ms=TICK_MS):
 
     import micropython
 
-    micropython.alloc_emergency_exception_buf(128)
+    if hasattr(micropython, "alloc_emergency_exception_buf"):  # not on the unix port
+        micropython.alloc_emergency_exception_buf(128)
     hal, seg = build(tick_ms)
     gc.collect()
     print("[main] segment %s up, %d Hz" % (seg.uid, 1000 // tick_ms))

@@ -432,9 +432,12 @@ class Segment:
 
     def _stop_moving(self):
         self.moving = False
-        pos = self.bus.pos
+        bus = self.bus
+        pos = bus.pos
         self.mc.hold_here(pos)
         self.sc.reset(pos)
+        if bus.enabled:
+            bus.command(self.mc.servo_target, self.now)  # stop now, not at the next tick
 
     def enter_hold(self):
         """HOLD message or fault: stop where we are; only a SYNC with resume leaves it."""

@@ -1,0 +1,217 @@
+"""Segment safety on the MicroPython VM: boot hold, slew from the measured pose, watchdog, HOLD,
+servo faults of every kind (stall, no reply, overload), injected at boot or at run time."""
+
+from __future__ import annotations
+
+import math
+
+from protocol import messages as M
+from tests.device.conftest import decode, frames
+
+SYNC_BENT = M.encode_sync(1, 1, [(2.0, 0.5)]).hex()
+
+
+def _states(msgs):
+    return [m for m in msgs if m["type"] == "STATE"]
+
+
+def _events(msgs):
+    return [m["name"] for m in msgs if m["type"] == "EVENT"]
+
+
+def test_boot_holds_until_the_first_sync_then_slews_from_the_measured_pose(vm):
+    hb = M.encode_heartbeat(1, 10).hex()
+    sync = M.encode_sync(2, 11, [(2.0, math.pi / 2)]).hex()
+    r = vm(
+        f"""
+import config, servos, mechanism
+from segment import Segment
+hal = vmkit.LoopHal()
+cfg = config.Config({{'watchdog_ms': 10000}})
+bus = servos.make('emulated', cfg, hal)
+# the segment wakes up bent at (2 1/m, phi 0): e.g. it was powered off while bent
+pre = mechanism.Mechanism(cfg, 5)
+pre.set_target(20000, 0)
+pre.cx = pre.tx
+pre.cy = pre.ty
+pre._servo_targets()
+for i in range(3):
+    bus.true_pos[i] = pre.servo_target[i]
+seg = Segment(hal, cfg, bus, 5)
+start = list(bus.true_pos)
+hal.up.feed(bytes.fromhex('{hb}'))
+vmkit.run(hal, seg, 500)
+R['after_boot'] = [list(bus.true_pos), start, bus.enabled]
+R['hb'] = vmkit.hexs(hal.up.take())
+hal.up.feed(bytes.fromhex('{sync}'))
+vmkit.run(hal, seg, 5)
+R['first'] = [seg.mc.cx, seg.mc.cy, seg.mc.step]
+vmkit.run(hal, seg, 1500)
+R['end'] = [seg.mc.mx, seg.mc.my, seg.status()]
+"""
+    )
+    pos, start, enabled = r["after_boot"]
+    assert pos == start and not enabled  # no motion, no output in the boot hold
+    st = _states(decode(r["hb"]))
+    assert st and "HOLD" in st[0]["status"] and st[0]["kappa"] > 1.99
+    cx, cy, step = r["first"]
+    # first commanded vector: one slew step from the measured (2, 0), not from straight
+    assert math.hypot(cx - 20000, cy) <= step + 2
+    mx, my, status = r["end"]
+    assert math.hypot(mx, my - 20000) <= 30 and status & 1 == 0
+
+
+def test_watchdog_trips_holds_and_clears_on_the_next_sync(vm):
+    hb = M.encode_heartbeat(3, 2).hex()
+    sync2 = M.encode_sync(4, 3, [(3.0, -1.0)]).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 100}})
+hal.up.feed(bytes.fromhex('{SYNC_BENT}'))
+vmkit.run(hal, seg, 40)
+for _ in range(4):            # heartbeats every 50 ms keep it alive
+    hal.up.feed(bytes.fromhex('{hb}'))
+    vmkit.run(hal, seg, 50)
+R['alive'] = [seg.wd_tripped, vmkit.hexs(hal.up.take())]
+vmkit.run(hal, seg, 105)       # silence > watchdog_ms
+R['trip_t'] = hal.t
+pos = list(seg.bus.true_pos)
+hal.up.feed(bytes.fromhex('{hb}'))   # a heartbeat does not clear a tripped watchdog
+vmkit.run(hal, seg, 300)
+R['held'] = [pos, list(seg.bus.true_pos), seg.wd_tripped, vmkit.hexs(hal.up.take())]
+hal.up.feed(bytes.fromhex('{sync2}'))
+vmkit.run(hal, seg, 10)
+R['after'] = [seg.wd_tripped, vmkit.hexs(hal.up.take())]
+for _ in range(30):
+    hal.up.feed(bytes.fromhex('{sync2}'))
+    vmkit.run(hal, seg, 50)
+    hal.up.discard()
+R['moved'] = [seg.wd_tripped, seg.mc.kappa, seg.mc.phi]
+"""
+    )
+    tripped, out = r["alive"]
+    assert not tripped and "WATCHDOG_TRIPPED" not in _events(decode(out))
+    pos_then, pos_later, tripped, out = r["held"]
+    msgs = decode(out)
+    assert tripped and _events(msgs).count("WATCHDOG_TRIPPED") == 1
+    # held: at most the settling of the servos' first-order lag after the trip
+    assert max(abs(a - b) for a, b in zip(pos_then, pos_later, strict=True)) <= 2
+    assert "WATCHDOG" in _states(msgs)[-1]["status"]
+    still, out = r["after"]
+    msgs = decode(out)
+    assert not still and "WATCHDOG_CLEARED" in _events(msgs)
+    assert "WATCHDOG" not in _states(msgs)[0]["status"]
+    still, kappa, phi = r["moved"]
+    assert not still and abs(kappa - 30000) <= 30 and abs(phi + 10000) <= 30
+
+
+def test_hold_message_stops_motion_until_a_sync_with_resume(vm):
+    hold = M.encode_hold(5).hex()
+    go = M.encode_sync(6, 5, [(3.0, 1.0)]).hex()
+    go_resume = M.encode_sync(7, 6, [(3.0, 1.0)], resume=True).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make()
+hal.up.feed(bytes.fromhex('{SYNC_BENT}'))
+vmkit.run(hal, seg, 100)
+hal.up.feed(bytes.fromhex('{hold}'))
+vmkit.run(hal, seg, 10)
+pos = list(seg.bus.true_pos)
+hal.up.feed(bytes.fromhex('{go}'))
+vmkit.run(hal, seg, 300)
+R['held'] = [pos, list(seg.bus.true_pos), seg.status(), vmkit.hexs(hal.down.take())]
+for _ in range(30):
+    hal.up.feed(bytes.fromhex('{go_resume}'))
+    vmkit.run(hal, seg, 50)
+    hal.up.discard()
+R['resumed'] = [seg.status(), seg.mc.kappa, seg.mc.phi]
+"""
+    )
+    pos, later, status, down = r["held"]
+    assert pos == later and status & 1
+    assert any(f.mtype == 0x06 and f.hop == 1 for f in frames(down))  # HOLD forwarded
+    status, kappa, phi = r["resumed"]
+    assert status & 1 == 0 and abs(kappa - 30000) <= 30 and abs(phi - 10000) <= 30
+
+
+FAULT_RUN = """
+hal, seg = vmkit.make({{'watchdog_ms': 10000}}, faults={boot!r})
+hal.up.feed(bytes.fromhex('{sync}'))
+vmkit.run(hal, seg, 60)
+hal.up.feed(bytes.fromhex('{inject}'))
+vmkit.run(hal, seg, 20)
+vmkit.run(hal, seg, 400)
+pos = list(seg.bus.pos)
+tgt = list(seg.mc.servo_target)
+vmkit.run(hal, seg, 100)
+R['fault'] = [seg.status(), list(seg.bus.fault), pos, list(seg.bus.pos), tgt,
+              list(seg.mc.servo_target), vmkit.hexs(hal.up.take())]
+hal.up.feed(bytes.fromhex('{resume}'))
+vmkit.run(hal, seg, 50)
+R['refused'] = seg.status()
+hal.up.feed(bytes.fromhex('{clear}'))
+vmkit.run(hal, seg, 20)
+R['up'] = vmkit.hexs(hal.up.take())
+for _ in range(30):
+    hal.up.feed(bytes.fromhex('{resume}'))
+    vmkit.run(hal, seg, 50)
+    hal.up.discard()
+R['cleared'] = [seg.status(), seg.mc.kappa]
+"""
+
+
+def _fault_case(vm, kind, at_boot):
+    sync = M.encode_sync(1, 1, [(3.0, 0.3)]).hex()
+    inject = (
+        M.encode_heartbeat(2, 2).hex()
+        if at_boot
+        else M.encode_param_set(2, 0, 5, "1:" + kind).hex()
+    )
+    resume = M.encode_sync(3, 3, [(3.0, 0.3)], resume=True).hex()
+    clear = M.encode_param_set(4, 0, 5, "none").hex()
+    code = FAULT_RUN.format(
+        boot=("1:" + kind) if at_boot else None,
+        sync=sync,
+        inject=inject,
+        resume=resume,
+        clear=clear,
+    )
+    return vm(code)
+
+
+def _check_fault(r, kind, expected_code):
+    status, faults, pos, later, tgt, tgt_later, out = r["fault"]
+    msgs = decode(out)
+    ev = [m for m in msgs if m["type"] == "EVENT" and m["name"] == "SERVO_FAULT"]
+    assert [e["detail"] for e in ev] == [1], kind
+    assert status & 0x04 and status & 0x01, kind  # SERVO_FAULT + HOLD
+    assert faults[1] == expected_code, kind
+    assert tgt == tgt_later, kind  # targets frozen while held
+    if kind != "disconnected":
+        assert max(abs(a - b) for a, b in zip(pos, later, strict=True)) <= 5, kind
+    if kind == "stuck":
+        assert r["refused"] & 0x01 == 0  # a stall is retried on resume (not a persistent flag)
+    else:
+        assert r["refused"] & 0x05 == 0x05, kind  # persistent fault: resume refused
+    status, kappa = r["cleared"]
+    assert status & 0x05 == 0, kind
+    assert abs(kappa - 30000) <= 40, kind
+
+
+def test_servo_faults_injected_at_run_time_are_detected_reported_and_held(vm):
+    for kind, code in (("disconnected", 1), ("overload", 3)):
+        _check_fault(_fault_case(vm, kind, at_boot=False), kind, code)
+
+
+def test_stuck_servo_is_detected_as_a_stall_while_moving(vm):
+    r = _fault_case(vm, "stuck", at_boot=True)
+    status, faults, pos, later, tgt, tgt_later, out = r["fault"]
+    ev = [m for m in decode(out) if m["type"] == "EVENT" and m["name"] == "SERVO_FAULT"]
+    assert [e["detail"] for e in ev] == [1]
+    assert status & 0x05 == 0x05
+    assert r["cleared"][0] & 0x05 == 0 and abs(r["cleared"][1] - 30000) <= 40
+
+
+def test_fault_injected_at_boot_holds_from_the_start(vm):
+    r = _fault_case(vm, "overload", at_boot=True)
+    _check_fault(r, "overload", 3)
