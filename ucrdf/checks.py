@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import ucrdf.models as registry
 from ucrdf.errors import Diagnostic
-from ucrdf.model import Bendable, ControlJoint, Interface, Joint, Robot
+from ucrdf.model import Bendable, ControlJoint, Inertial, Interface, Joint, Robot
 from ucrdf.models.base import CurvatureModel, ModelError
 
 # Key of a line-number table entry: ("bendable", name, "limits"), ("ros2_control", 0, "joint", 2)…
@@ -89,7 +89,8 @@ class _Checker:
             )
         for link in robot.links.values():
             if link.inertial is not None:
-                self.inertial(link.inertial.mass, f"link {link.name!r}", link.line)
+                line = self.line(("link", link.name, "inertial"), link.line)
+                self.inertial(link.inertial, f"link {link.name!r}", line)
         for joint in robot.joints.values():
             self.joint(joint)
         for bendable in robot.bendables.values():
@@ -192,9 +193,13 @@ class _Checker:
                 aline = self.line(("joint", joint.name, "axis"), line)
                 self.error(aline, f"{where}: axis {joint.axis} has no direction (zero length)")
 
-    def inertial(self, mass: float, where: str, line: int) -> None:
+    def inertial(self, inertial: Inertial, where: str, line: int) -> None:
+        mass = inertial.mass
         if not math.isfinite(mass) or mass < 0:
             self.error(line, f"{where}: mass must be a finite value >= 0 kg, got {mass}")
+        values = (*inertial.origin.xyz, *inertial.origin.rpy, *inertial.inertia)
+        if not all(map(math.isfinite, values)):
+            self.error(line, f"{where}: <inertial> has a non-finite origin or inertia value")
 
     # -- bendables -----------------------------------------------------------------------------
     def bendable(self, b: Bendable) -> None:
@@ -204,7 +209,7 @@ class _Checker:
         if not all(map(math.isfinite, (*b.origin.xyz, *b.origin.rpy))):
             self.error(b.line, f"{where}: origin has a non-finite value")
         if b.inertial is not None:
-            self.inertial(b.inertial.mass, where, self.line((*key, "inertial"), b.line))
+            self.inertial(b.inertial, where, self.line((*key, "inertial"), b.line))
 
         sound = True
         bb = spec.backbone

@@ -278,6 +278,22 @@ CASES = [
         1,
     ),
     (
+        "negative-mass",
+        '  <link name="arm"/>',
+        '  <link name="arm">\n    <inertial><mass value="-2"/></inertial>\n  </link>',
+        "link 'arm': mass must be a finite value >= 0 kg, got -2.0",
+        "<inertial>",
+        1,
+    ),
+    (
+        "non-finite-inertia",
+        '  <link name="arm"/>',
+        '  <link name="arm">\n  <inertial><inertia ixx="INF"/><mass value="1"/></inertial></link>',
+        "link 'arm': <inertial> has a non-finite origin or inertia value",
+        "<inertial>",
+        1,
+    ),
+    (
         "model-without-backbone",
         '        <backbone length="0.3" radius="0.002"/>\n',
         "",
