@@ -76,7 +76,7 @@ def check_bind(host: str | None, token: str | None) -> None:
         shown = host or "all interfaces"
         raise ApiServerError(
             f"refusing to listen on {shown} without a token: other machines could move the "
-            "robot. Give a token (--api-token or $UCR_API_TOKEN) or listen on 127.0.0.1."
+            "robot. Set api.token in the daemon config (8+ characters) or bind 127.0.0.1."
         )
     if token is not None and (len(token) < 8 or not token.isprintable() or " " in token):
         raise ApiServerError("the API token must be at least 8 printable characters, no spaces")
@@ -340,7 +340,11 @@ class ApiServer:
         if session.ffc_active:
             # Stop its cFFC input at once rather than waiting for the daemon's deadman.
             zeros = {name: (0.0, 0.0) for name in session.ffc_active}
-            await self._call_quiet(self.daemon.ffc_input, zeros)
+            try:
+                await self._call(self.daemon.ffc_input, zeros)
+            except Exception:  # noqa: BLE001 - e.g. a segment gone meanwhile: try one by one
+                for name in sorted(session.ffc_active):
+                    await self._call_quiet(self.daemon.ffc_input, {name: (0.0, 0.0)})
 
     async def _call(self, fn: Any, *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._pool, fn, *args)
@@ -403,12 +407,16 @@ class ApiServer:
             return await self._call(d.cancel_trajectory, p["goal"])
         if op == "ffc.input":
             rates = p["rates"]
-            result = await self._call(d.ffc_input, rates)
-            for name, (x, y) in rates.items():
-                if x or y:
-                    session.ffc_active.add(name)
-                else:
-                    session.ffc_active.discard(name)
+            # Remember before calling: if the call fails half-way the input may still be set,
+            # and a disconnect must then zero it.
+            before = set(session.ffc_active)
+            session.ffc_active.update(n for n, (x, y) in rates.items() if x or y)
+            try:
+                result = await self._call(d.ffc_input, rates)
+            except ValueError:
+                session.ffc_active = before  # refused: the daemon did not take this input
+                raise
+            session.ffc_active.difference_update(n for n, (x, y) in rates.items() if not (x or y))
             return result
         if op == "subscribe":
             return await self._subscribe(session, p["kinds"], p["max_rate"])
@@ -515,7 +523,7 @@ def _classify(exc: Exception) -> tuple[str, str]:
         return code, str(exc)
     if isinstance(exc, LookupError):
         return S.NOT_FOUND, str(exc.args[0]) if exc.args else type(exc).__name__
-    if isinstance(exc, ValueError | TypeError):
+    if isinstance(exc, ValueError):
         return S.REJECTED, str(exc)
     if any(c.__name__ == "DaemonError" for c in type(exc).__mro__):
         return S.UNAVAILABLE, str(exc)
