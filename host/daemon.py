@@ -24,7 +24,7 @@ import math
 import queue
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -109,7 +109,8 @@ class Daemon:
         self.hwi: HardwareInterface | None = None
         self.cm: ControllerManager | None = None
         self.arb = Arbitrator()
-        self._goal_owner: dict[str, str] = {}
+        # goal id -> (Goal, controller name); kept across rebuilds, which recreate controllers
+        self._goals: OrderedDict[str, tuple[Any, str]] = OrderedDict()
         self.descriptors: list[dict] = []
         self.comparison: Comparison | None = None
         self.cut: dict[str, Any] | None = None
@@ -296,7 +297,7 @@ class Daemon:
                 segment_t_ms=ev.get("t_ms"),
                 source="segment",
             )
-            if name in _TOPOLOGY_EVENTS and reason is None:
+            if reason is None and self._is_news(name, ev.get("position")):
                 reason = f"{name} from position {ev.get('position')}"
         if reason is None:
             limit = self.cfg.watchdog.missed_cycles
@@ -329,6 +330,17 @@ class Daemon:
                     "segments_held", message=msg + "; controllers re-held, resuming", segments=held
                 )
         return reason
+
+    def _is_news(self, event: str, position: Any) -> bool:
+        """Whether a segment event contradicts the topology we know (duplicates are not)."""
+        if event not in _TOPOLOGY_EVENTS:
+            return False
+        if event == "BOOT" or not isinstance(position, int):
+            return True
+        last = len(self.descriptors) - 1
+        if event == "DOWNSTREAM_DOWN":
+            return position < last  # we believed a segment was behind it
+        return position >= last  # DOWNSTREAM_UP: we believed it was the tip
 
     def _hotplug(self, reason: str, t_detect: float) -> None:
         """Abort, hold, rediscover, rebuild — the loop thread, without restarting."""
@@ -625,7 +637,9 @@ class Daemon:
                     )
                 raise ControllerError(f"controller {ctrl.name!r} is not active")
             goal = ctrl.send_goal(points, time.monotonic())
-            self._goal_owner[goal.id] = ctrl.name
+            self._goals[goal.id] = (goal, ctrl.name)
+            while len(self._goals) > 500:
+                self._goals.popitem(last=False)
             return goal.id
 
     def _jtc(self, controller: str | None) -> Any:
@@ -645,22 +659,23 @@ class Daemon:
     def trajectory_status(self, goal_id: str) -> dict[str, Any]:
         """Progress and result of a goal (GoalNotFound if unknown)."""
         with self._lock:
-            ctrl = self._goal_ctrl(goal_id)
-            return ctrl.status_of(goal_id)
+            return self._goal(goal_id)[0].status()
 
     def cancel_trajectory(self, goal_id: str) -> dict[str, Any]:
-        """Cancel a running goal (decelerates to rest); returns its status."""
+        """Cancel a running goal (decelerates to rest); returns its status + ``canceled``."""
         with self._lock:
-            ctrl = self._goal_ctrl(goal_id)
-            canceled = ctrl.cancel(goal_id, time.monotonic())
-            return {**ctrl.status_of(goal_id), "canceled": canceled}
+            goal, name = self._goal(goal_id)
+            ctrl = self.cm.controllers.get(name)
+            canceled = False
+            if ctrl is not None and ctrl.has_goal(goal.id):
+                canceled = ctrl.cancel(goal.id, time.monotonic())
+            return {**goal.status(), "canceled": canceled}
 
-    def _goal_ctrl(self, goal_id: str) -> Any:
-        name = self._goal_owner.get(str(goal_id))
-        ctrl = self.cm.controllers.get(name) if name else None
-        if ctrl is None or not ctrl.has_goal(str(goal_id)):
+    def _goal(self, goal_id: str) -> tuple[Any, str]:
+        entry = self._goals.get(str(goal_id))
+        if entry is None:
             raise GoalNotFound(f"unknown goal id {goal_id!r}")
-        return ctrl
+        return entry
 
     def ffc_input(self, rates: dict[str, Any]) -> dict[str, Any]:
         """Stream cFFC stick input {bendable: [x, y]} (deflections in [-1, 1]).
@@ -688,7 +703,7 @@ class Daemon:
             self._emit_event(
                 "manual_takeover",
                 message=f"{ctrl.name!r} took over from {takeover['preempted']}",
-                **{k: v for k, v in takeover.items() if k != "t"},
+                **{k: v for k, v in takeover.items() if k not in ("t", "event")},
             )
         return {"accepted": True, "controller": ctrl.name, "takeover": takeover}
 
@@ -704,7 +719,7 @@ class Daemon:
         self._emit_event(
             "hand_back",
             message=f"{manual!r} handed back; restarted {rec['restarted']}",
-            **{k: v for k, v in rec.items() if k != "t"},
+            **{k: v for k, v in rec.items() if k not in ("t", "event")},
         )
         return rec
 
