@@ -252,12 +252,12 @@ class RobotKinematics:
         for name, model in self.models.items():
             el = self.elements[name]
             base = frames[el.parent] @ el.origin
-            local = np.array(
-                [
-                    model.transform_coordinates(coords[name], s)
-                    for s in np.linspace(0.0, model.length, samples)
-                ]
-            )
+            arc = np.linspace(0.0, model.length, samples)
+            if type(model) is PCCModel:
+                q = coords[name]
+                local = pcc_transforms(q[0], q[1], arc)
+            else:
+                local = np.array([model.transform_coordinates(coords[name], s) for s in arc])
             out[name] = base @ local
         return out
 
