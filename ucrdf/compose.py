@@ -57,7 +57,10 @@ def _number(desc: Mapping[str, Any], key: str, where: str, problems: list[str]) 
 def _segment_names(descriptors: Sequence[Mapping[str, Any]]) -> list[str]:
     """The descriptor's own name when it is a usable identifier given to exactly one segment,
     else ``segment_<k>`` (k = 1-based chain position); never clashing with another name."""
-    given = [d.get("name") if isinstance(d.get("name"), str) else "" for d in descriptors]
+    given = [
+        d["name"] if isinstance(d, Mapping) and isinstance(d.get("name"), str) else ""
+        for d in descriptors
+    ]
     counts = Counter(given)
     names: list[str] = []
     taken: set[str] = {"base"}
@@ -113,6 +116,9 @@ def robot_from_descriptors(
     uids: dict[str, str] = {}
     for k, (desc, seg) in enumerate(zip(descriptors, names, strict=True), start=1):
         where = f"descriptor {k} ({seg})"
+        if not isinstance(desc, Mapping):
+            problems.append(f"descriptor {k}: expected a dict, got {type(desc).__name__}")
+            continue
         missing = [key for key in REQUIRED_KEYS if key not in desc]
         if missing:
             problems.append(f"{where}: missing {', '.join(missing)}")

@@ -100,7 +100,12 @@ def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]
             [Diagnostic(source, line, f"root element is <{root.tag}>, expected <robot>")]
         )
     xsd = schema()
-    if not xsd.validate(root):
+    try:
+        valid = xsd.validate(root)
+    except etree.XMLSchemaValidateError as exc:  # libxml2 internal failure: still no traceback
+        line = root.sourceline or 0
+        raise UcrdfError([Diagnostic(source, line, f"schema validation failed: {exc}")]) from None
+    if not valid:
         raise UcrdfError(
             Diagnostic(source, err.line, _clean_schema_message(err.message))
             for err in xsd.error_log
@@ -111,8 +116,10 @@ def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]
 
 
 def _parse_xml(data: bytes, source: str) -> etree._Element:
+    # internal entities (declared in the document) expand; a reference to an external one is a
+    # syntax error ("Entity 'x' not defined"), so a description never reads files or the network
     parser = etree.XMLParser(
-        resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False
+        resolve_entities="internal", no_network=True, load_dtd=False, huge_tree=False
     )
     try:
         root = etree.fromstring(data, parser)

@@ -99,11 +99,12 @@ def test_missing_and_invalid_values_are_all_reported():
     del bad["kappa_max"]
     worse = descriptor(2, length="long", tendon_angles=[])
     with pytest.raises(UcrdfError) as info:
-        robot_from_descriptors([descriptor(0), bad, worse])
+        robot_from_descriptors([descriptor(0), bad, worse, None])  # type: ignore[list-item]
     text = str(info.value)
     assert "descriptor 2 (seg1): missing kappa_max" in text
     assert "descriptor 3 (seg2): length must be a finite number, got 'long'" in text
     assert "descriptor 3 (seg2): tendon_angles must be a non-empty list" in text
+    assert "descriptor 4: expected a dict, got NoneType" in text
 
 
 def test_physically_impossible_descriptor_is_rejected_by_the_checks():
