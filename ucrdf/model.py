@@ -59,7 +59,7 @@ class Inertial:
 
 @dataclass
 class Geometry:
-    """A visual or collision element, kept as the XML text it came from (we do not interpret meshes).
+    """A visual or collision element, kept as the XML text it came from (meshes not interpreted).
 
     ``kind`` is "visual" or "collision"; ``xml`` is the serialised element, normalised by the parser
     so that round trips compare equal.
@@ -129,8 +129,9 @@ class CurvatureLimits:
 
 @dataclass
 class Backbone:
-    """``<backbone>``: the elastic core. length (m), radius (m), Young's modulus (Pa) and/or bending
-    stiffness EI (N m^2). If only one of the two is given, the other follows from EI = E*pi*r^4/4."""
+    """``<backbone>``: the elastic core. length (m), radius (m), Young's modulus (Pa) and/or
+    bending stiffness EI (N m^2). If only one of the two is given, the other follows from
+    EI = E*pi*r^4/4."""
 
     length: float
     radius: float = 0.0
