@@ -245,9 +245,22 @@ class RobotKinematics:
         """Per bendable: (samples, 4, 4) frames along its backbone, base to tip, root frame."""
         if samples < 2:
             raise ConfigError(f"samples must be >= 2, got {samples}")
-        bend, joints = self.resolve(config, strict=strict)
-        coords = {n: self.models[n].to_coordinates(c) for n, c in bend.items()}
-        frames = self.fk_coordinates(coords, joints)
+        coords, joints = self.coordinates(config, strict=strict)
+        return self.backbone_frames_coordinates(coords, joints, samples)
+
+    def backbone_frames_coordinates(
+        self,
+        coords: Mapping[str, np.ndarray],
+        joints: Mapping[str, float] | None = None,
+        samples: int = 20,
+        frames: Mapping[str, np.ndarray] | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Unchecked fast path of :meth:`backbone_frames` from model coordinates; pass ``frames``
+        (from :meth:`fk_coordinates` of the same state) to skip recomputing the link frames."""
+        if samples < 2:
+            raise ConfigError(f"samples must be >= 2, got {samples}")
+        if frames is None:
+            frames = self.fk_coordinates(coords, joints)
         out: dict[str, np.ndarray] = {}
         for name, model in self.models.items():
             el = self.elements[name]

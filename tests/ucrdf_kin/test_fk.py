@@ -120,6 +120,10 @@ def test_backbone_frames_run_from_parent_to_child():
     assert np.allclose(curves["wrist2"][-1], frames["w2"])
     steps = np.linalg.norm(np.diff(curves["wrist1"][:, :3, 3], axis=0), axis=1)
     assert np.allclose(steps, steps[0])  # equal arc steps give equal chords on a circle
+    kin = RobotKinematics(robot)
+    coords, joints = kin.coordinates(cfg)
+    fast = kin.backbone_frames_coordinates(coords, joints, 9)
+    assert all(np.allclose(fast[n], curves[n]) for n in curves)
 
 
 def test_example_robot_file_if_present():
