@@ -24,16 +24,24 @@ class BufUart:
         self.out = bytearray(_CAP)
         self.ow = 0
         self.lost = 0
+        self.gate = -1  # >= 0: only bytes before this input offset are readable (allow())
+        self.total = 0  # bytes written so far
 
     def feed(self, data):
-        if self.r == self.w:
+        if self.r == self.w and self.gate < 0:
             self.r = self.w = 0
         n = len(data)
         self.inbuf[self.w : self.w + n] = data
         self.w += n
 
+    def allow(self, n):
+        """Make ``n`` more fed bytes readable (gated mode, no allocation)."""
+        if self.gate < 0:
+            self.gate = self.r
+        self.gate += n
+
     def readinto(self, buf):
-        n = self.w - self.r
+        n = (self.w if self.gate < 0 else self.gate) - self.r
         if n <= 0:
             return None
         m = len(buf)
@@ -49,6 +57,7 @@ class BufUart:
     def write(self, buf, n=-1):
         if n < 0:
             n = len(buf)
+        self.total += n
         o = self.ow
         dst = self.out
         if o + n > _CAP:
