@@ -160,6 +160,19 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
         axis = joint.axis if joint.type not in ("fixed",) else None
         _joint_el(root, joint.name, joint.type, joint.parent, joint.child, joint.origin.xyz,
                   joint.origin.rpy, axis, limit)  # fmt: skip
+    taken = set(robot.links) | set(robot.joints)
+    for b in robot.bendables.values():
+        made = {f"{b.name}_{x}" for x in ("twist_link", "tip", "twist")}
+        for k in range(subdivisions):
+            made |= {f"{b.name}_u{k}_link_x", f"{b.name}_s{k}", f"{b.name}_u{k}_x",
+                     f"{b.name}_u{k}_y"}  # fmt: skip
+        clash = sorted(made & taken)
+        if clash:
+            raise ConfigError(
+                f"cannot export bendable {b.name!r}: generated name(s) {', '.join(clash)} already "
+                "used by a link or joint of the robot"
+            )
+        taken |= made
     for b in robot.bendables.values():
         model = kin.models[b.name]
         n = subdivisions

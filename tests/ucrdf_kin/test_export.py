@@ -9,6 +9,7 @@ import yourdfpy
 
 from ucrdf.export import export_urdf, exported_tip_error, urdf_joint_positions
 from ucrdf.fk import ConfigError, RobotKinematics
+from ucrdf.model import Joint
 
 from .conftest import chain_robot, hybrid_robot
 
@@ -77,6 +78,11 @@ def test_hybrid_export_keeps_rigid_joints(tmp_path):
     assert np.linalg.norm(urdf.get_transform("tool", "world")[:3, 3] - exact[:3, 3]) < 1e-4
 
 
-def test_bad_subdivisions():
+def test_bad_subdivisions_and_name_clashes():
     with pytest.raises(ConfigError, match="subdivisions"):
         export_urdf(chain_robot(1), 0)
+    robot = chain_robot(1)
+    robot.links["seg1_s1"] = robot.links["base"].__class__("seg1_s1")
+    robot.joints["j"] = Joint("j", "fixed", "link1", "seg1_s1")
+    with pytest.raises(ConfigError, match="seg1_s1 already used"):
+        export_urdf(robot, 4)

@@ -19,6 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ucrdf.model import CurvatureLimits
 from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError, Variable, wrap_angle
 
 #: theta^2 below which the series are used (theta < 0.25 rad). Five terms keep the truncation
@@ -213,7 +214,9 @@ class PCCModel(CurvatureModel):
         return self.backbone_frames(config, samples)[:, :3, 3]
 
 
-def project_disc(kx: float, ky: float, limits, full_circle: bool = True) -> tuple[float, float]:
+def project_disc(
+    kx: float, ky: float, limits: CurvatureLimits, full_circle: bool = True
+) -> tuple[float, float]:
     """(kx, ky) moved to the nearest point with kappa <= kappa_max and, when the limits restrict
     phi, phi in [phi_min, phi_max] (the nearer bound is taken for angles outside)."""
     kmax = limits.kappa_max
