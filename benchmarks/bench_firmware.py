@@ -1,0 +1,146 @@
+"""Firmware figures on the MicroPython VM (unix port, ESP32-sized heap): microseconds per control
+tick, per processed SYNC (decode + forward + STATE), per forwarded upstream frame, per full cycle,
+heap bytes allocated per cycle (goal 0) and the heap left after boot.
+
+Run: .venv/bin/python benchmarks/bench_firmware.py [--cycles N]
+The unix port on a PC is much faster than an ESP32 (240 MHz Xtensa): expect roughly 10-30x
+longer times on the board; the 5 ms tick budget column shows the headroom on this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from protocol import messages as M  # noqa: E402
+from tools import mpvm  # noqa: E402
+
+VM_CODE = """
+import gc, json, time, micropython
+import vmkit
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+SYNC = bytes.fromhex('{sync}')
+STATE = bytes.fromhex('{state}')
+hal.up.feed(SYNC)
+hal.down.feed(STATE)
+N = {cycles}
+
+def rewind(u, n):
+    u.r = 0
+    u.gate = n
+
+def only_tick():
+    for i in range(N):
+        hal.t += 5
+        seg.tick(hal.t)
+        hal.up.discard()
+
+def only_sync():
+    for i in range(N):
+        rewind(hal.up, len(SYNC))
+        seg.poll()
+        hal.up.discard()
+        hal.down.discard()
+
+def only_forward():
+    for i in range(N):
+        rewind(hal.down, len(STATE))
+        seg.poll()
+        hal.up.discard()
+
+def full():
+    for i in range(N):
+        rewind(hal.up, len(SYNC))
+        rewind(hal.down, len(STATE))
+        hal.t += 5
+        seg.poll()
+        seg.tick(hal.t)
+        hal.up.discard()
+        hal.down.discard()
+
+def timed(f):
+    best = None
+    for _ in range(5):
+        t0 = time.ticks_us()
+        f()
+        dt = time.ticks_diff(time.ticks_us(), t0) / N
+        best = dt if best is None or dt < best else best
+    return best
+
+R = {{}}
+full()   # warm up, and start moving
+gc.collect()
+R['tick_us'] = timed(only_tick)
+R['sync_us'] = timed(only_sync)
+R['forward_us'] = timed(only_forward)
+R['cycle_us'] = timed(full)
+gc.collect()
+gc.disable()
+a0 = gc.mem_alloc()
+full()
+a1 = gc.mem_alloc()
+gc.enable()
+R['heap_bytes_per_cycle'] = (a1 - a0) / N
+micropython.heap_lock()
+try:
+    full()
+    R['heap_lock_ok'] = True
+except MemoryError:
+    R['heap_lock_ok'] = False
+micropython.heap_unlock()
+gc.collect()
+R['heap_free'] = gc.mem_free()
+R['heap_used'] = gc.mem_alloc()
+print('@@' + json.dumps(R))
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cycles", type=int, default=500, help="cycles per measurement (default 500)")
+    args = ap.parse_args()
+    if args.cycles < 1:
+        ap.error("--cycles must be >= 1")
+    sync = M.encode_sync(1, 42, [(2.0, 0.5), (1.0, -0.5), (0.5, 2.0)])
+    state = M.encode_state(
+        3,
+        cycle=42,
+        t_ms=100,
+        kappa=0.5,
+        phi=0.1,
+        tendon_lengths=[0.3, 0.31, 0.32],
+        servo_angles=[0.1, -0.2, 0.3],
+        status=16,
+        kx=0.49,
+        ky=0.05,
+    )
+    code = VM_CODE.format(sync=sync.hex(), state=state.hex(), cycles=args.cycles)
+    paths = [mpvm.REPO, mpvm.REPO / "device", mpvm.REPO / "tests" / "device"]
+    try:
+        out = mpvm.run_code(code, paths=paths, timeout=300)
+    except (RuntimeError, FileNotFoundError) as e:
+        print(f"bench_firmware: the VM run failed: {e}", file=sys.stderr)
+        return 1
+    line = next(x for x in out.splitlines() if x.startswith("@@"))
+    r = json.loads(line[2:])
+    tick_budget = 5000.0
+    print(f"MicroPython VM (unix port), heap {mpvm.ESP32_HEAP}, {args.cycles} cycles, best of 5")
+    print(f"  control tick (servos, MC, SC, safety)    {r['tick_us']:8.1f} us")
+    print(f"  SYNC processed (decode, forward, STATE)  {r['sync_us']:8.1f} us")
+    print(f"  upstream frame forwarded (hop+1, CRC)    {r['forward_us']:8.1f} us")
+    print(f"  full cycle (SYNC + forward + tick)       {r['cycle_us']:8.1f} us")
+    print(f"  full cycle / 5 ms tick budget            {r['cycle_us'] / tick_budget:8.3%}")
+    print(f"  heap bytes allocated per cycle           {r['heap_bytes_per_cycle']:8.1f} (goal 0)")
+    print(f"  full cycle under heap_lock               {'ok' if r['heap_lock_ok'] else 'FAILED'}")
+    print(f"  heap used after boot + run               {r['heap_used']:8d} bytes")
+    print(f"  heap free                                {r['heap_free']:8d} bytes")
+    return 0 if r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0 else 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
