@@ -14,6 +14,7 @@ element; for robots built in code (``ucrdf.compose``) the lines fall back to 0.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 
 import ucrdf.models as registry
@@ -284,9 +285,18 @@ class _Checker:
         try:
             self.models[b.name] = cls(b.model)
         except ModelError as exc:
-            self.error(
-                self.line((*key, "limits"), mline), f"{where}: model {b.model.type!r}: {exc}"
-            )
+            # point at the <param> the message names last ("…, got: name"), else at <limits>
+            line = self.line((*key, "limits"), mline)
+            text = str(exc)
+            named = {
+                p: m.start()
+                for p in b.model.params
+                for m in re.finditer(rf"\b{re.escape(p)}\b", text)
+            }
+            if named:
+                culprit = max(named, key=lambda p: named[p])
+                line = self.line((*key, "param", culprit), mline)
+            self.error(line, f"{where}: model {b.model.type!r}: {exc}")
         except Exception as exc:  # noqa: BLE001 - plugin bug: report, never traceback
             self.error(
                 mline, f"{where}: model {b.model.type!r} failed on these parameters: {exc!r}"

@@ -354,3 +354,33 @@ def test_all_semantic_errors_are_collected_not_just_the_first():
         line_of(text, '<joint name="j9">'),
     } <= lines
     assert [d.line for d in diagnostics] == sorted(d.line for d in diagnostics)
+
+
+PPC = edit(
+    '<model type="pcc">\n        <limits kappa_max="3.0" kappa_rate_max="5.0"/>',
+    '<model type="ppc">\n        <param name="steps" value="32"/>\n'
+    '        <limits kappa_max="3.0" kappa_rate_max="5.0" kappa_slope_max="4.0"/>',
+)
+
+
+def test_model_params_extra_limits_and_extra_variables_reach_the_plugin():
+    text = edit(
+        '<state_interface name="kappa"/>',
+        '<state_interface name="kappa"/><command_interface name="kappa_x_slope"/>',
+        PPC,
+    )
+    robot = parse_string(text)
+    spec = robot.bendables["seg"].model
+    assert spec.params == {"steps": 32.0} and spec.limits.extra == {"kappa_slope_max": 4.0}
+
+
+def test_a_parameter_the_model_rejects_is_reported_at_its_line():
+    text = edit(
+        '<param name="steps" value="32"/>',
+        '<param name="steps" value="32"/>\n        <param name="wobble" value="1"/>',
+        PPC,
+    )
+    diagnostics = diagnostics_of(text)
+    (diag,) = [d for d in diagnostics if "wobble" in d.message]
+    assert diag.line == line_of(text, '<param name="wobble"')
+    assert diag.message.startswith("bendable 'seg': model 'ppc': ")
