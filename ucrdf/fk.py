@@ -181,8 +181,12 @@ class RobotKinematics:
                 if strict:
                     bend[name] = model.check_config(merged)
                 else:
+                    unknown_vars = sorted(set(given) - _var_names(model))
+                    if unknown_vars:
+                        raise ModelError(f"unknown variable(s) {', '.join(unknown_vars)}")
                     bend[name] = {
-                        v.name: float(merged.get(v.name, v.default)) for v in model.variables()
+                        v.name: _finite(merged.get(v.name, v.default), v.name)
+                        for v in model.variables()
                     }
             except ModelError as exc:
                 raise ConfigError(f"bendable {name!r}: {exc}") from None
@@ -276,6 +280,12 @@ class RobotKinematics:
 
 
 _MOVABLE = ("revolute", "continuous", "prismatic")
+
+
+def _finite(value: object, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ModelError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
 
 
 def _var_names(model: CurvatureModel) -> set[str]:

@@ -143,3 +143,17 @@ def test_commands_on_the_example_robot(capsys):
     assert code == 0, err
     tip = np.array(json.loads(out)["segment_3_tip"])
     assert np.linalg.norm(tip[:3, 3] - [0.2, 0.1, 0.8]) <= 1e-4
+
+
+def test_ucr_dispatcher_exposes_the_kinematics_commands(capsys):
+    """The commands are reachable through the real ``ucr`` entry point (tools.cli)."""
+    path = ROBOTS_DIR / "softrobot3.ucrdf"
+    if not path.exists():
+        pytest.skip("robots/softrobot3.ucrdf not written yet")
+    from tools.cli import main
+
+    code = main(["fk", str(path), "--config", '{"segment_2": {"kappa": 1.0, "phi": 0.0}}'])
+    frames = json.loads(capsys.readouterr().out)
+    assert code == 0 and frames["segment_1_tip"][2][3] == pytest.approx(0.316)
+    assert main(["fk", str(path), "--config", '{"segment_2": 1}']) == 1
+    assert "needs an object of variables" in capsys.readouterr().err

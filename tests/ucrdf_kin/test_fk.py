@@ -99,6 +99,11 @@ def test_rigid_joint_errors():
         robot_fk(robot, {"j1": "x"})
     # the host may pass measured values slightly past a limit: strict=False accepts them
     RobotKinematics(robot).fk({"j3": 0.21}, strict=False)
+    # ... but never unknown names or non-numbers
+    with pytest.raises(ConfigError, match="unknown variable"):
+        RobotKinematics(robot).fk({"wrist1": {"kapa": 1.0}}, strict=False)
+    with pytest.raises(ConfigError, match="finite number"):
+        RobotKinematics(robot).fk({"wrist1": {"kappa": None}}, strict=False)
 
 
 def test_broken_model_is_reported_with_the_bendable_name():
