@@ -178,6 +178,18 @@ class _Printer(threading.Thread):
         self.js: dict | None = None
         self.tf: dict | None = None
         self.topologies: list[dict] = []
+        self._last_event: dict[tuple, float] = {}
+
+    def _quiet(self, msg: dict) -> bool:
+        """Repeated segment events (e.g. LIMIT_CLAMPED on every step) print once per 2 s."""
+        if msg.get("source") != "segment":
+            return False
+        key = (msg["event"], msg.get("position"))
+        now = time.monotonic()
+        if now - self._last_event.get(key, -1e9) < 2.0:
+            return True
+        self._last_event[key] = now
+        return False
 
     def run(self) -> None:
         import queue  # noqa: PLC0415
@@ -194,6 +206,8 @@ class _Printer(threading.Thread):
                     self.js = msg
                 elif kind == "transforms":
                     self.tf = msg
+                elif kind == "event" and self._quiet(msg):
+                    pass
                 elif kind == "event":
                     print(
                         f"[{time.monotonic() - self.t0:5.1f}s] event {msg['event']}: "

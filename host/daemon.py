@@ -292,6 +292,7 @@ class Daemon:
             name = ev.get("name", "")
             self._emit_event(
                 name.lower(),
+                message=self._describe_event(ev),
                 position=ev.get("position"),
                 detail=ev.get("detail"),
                 segment_t_ms=ev.get("t_ms"),
@@ -330,6 +331,26 @@ class Daemon:
                     "segments_held", message=msg + "; controllers re-held, resuming", segments=held
                 )
         return reason
+
+    def _describe_event(self, ev: dict) -> str:
+        """One readable line for a segment EVENT (which segment, what happened)."""
+        pos, name, detail = ev.get("position"), ev.get("name", ""), ev.get("detail")
+        who = f"position {pos}"
+        if isinstance(pos, int) and pos < len(self.descriptors):
+            who = f"{self.descriptors[pos].get('name') or '?'} (position {pos})"
+        if name == "LIMIT_CLAMPED" and isinstance(detail, int):
+            bits = [b for i, b in enumerate(("kappa", "rate", "servo range")) if detail >> i & 1]
+            what = f"setpoint clamped by the segment ({', '.join(bits) or detail})"
+        else:
+            what = {
+                "DOWNSTREAM_UP": "a segment appeared on its downstream port",
+                "DOWNSTREAM_DOWN": "its downstream neighbour went silent",
+                "WATCHDOG_TRIPPED": f"watchdog tripped (detail {detail}): holding",
+                "WATCHDOG_CLEARED": "watchdog cleared",
+                "SERVO_FAULT": f"servo {detail} reports a fault",
+                "BOOT": "booted",
+            }.get(name, f"{name} (detail {detail})")
+        return f"{who}: {what}"
 
     def _is_news(self, event: str, position: Any) -> bool:
         """Whether a segment event contradicts the topology we know (duplicates are not)."""

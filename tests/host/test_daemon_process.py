@@ -1,0 +1,149 @@
+"""HWI lifecycle on a real link, and `ucr daemon` as a process: SIGTERM holds and exits 0; a
+killed daemon leaves every segment holding within its watchdog time. Own emulated chain (the
+daemon process needs the port exclusively)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from host.config import bendable_limits
+from host.hwi import ACTIVE, INACTIVE, UNCONFIGURED, HardwareInterface, LifecycleError
+from host.link import ChainLink
+from tests.host.conftest import REPO, ROBOT_FILE, emulated_configs, wait_for
+from tools.emulator import EmulatedChain
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture(scope="module")
+def chain(robot3):
+    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
+        with ChainLink(ch.host_port) as link:  # wait until the segments answer
+            assert wait_for(lambda: len(link.discover(timeout=0.3)) == 3, 15.0, 0.1)
+        yield ch
+
+
+def _kappas(link: ChainLink) -> list[float]:
+    return [s["kappa"] for s in link.heartbeat(timeout=0.2)]
+
+
+def test_hwi_lifecycle_commands_never_written_while_inactive(chain, robot3):
+    with ChainLink(chain.host_port) as link:
+        link.discover(timeout=0.5)
+        hwi = HardwareInterface(bendable_limits(robot3), link, reply_timeout=0.1)
+        assert hwi.state == UNCONFIGURED
+        with pytest.raises(LifecycleError, match="readable once the HWI is configured"):
+            hwi.get_state("segment_1/kappa")
+        with pytest.raises(LifecycleError):
+            hwi.write()
+        with pytest.raises(LifecycleError, match="expected inactive"):
+            hwi.activate()
+        hwi.configure()
+        assert hwi.state == INACTIVE
+        assert hwi.get_state("segment_2/kappa") == pytest.approx(0.0, abs=1e-3)
+        with pytest.raises(LifecycleError, match="not active"):
+            hwi.set_command("segment_1/kappa", 1.0)
+        # even a command smuggled into the interface is not sent while inactive
+        hwi.command["segment_1/kappa"] = 2.0
+        for _ in range(30):
+            hwi.write()
+            hwi.read()
+            time.sleep(0.01)
+        assert hwi.get_state("segment_1/kappa") == pytest.approx(0.0, abs=1e-3)
+        hwi.activate()  # commands restart from the measured state: no jump
+        assert hwi.state == ACTIVE and hwi.command["segment_1/kappa"] == pytest.approx(0, abs=1e-3)
+        hwi.set_command("segment_1/kappa", 0.5)
+        hwi.set_command("segment_3/kappa", 99.0)  # clamped to the declared max
+        assert hwi.command["segment_3/kappa"] == pytest.approx(hwi.limits["segment_3"].kappa_max)
+        hwi.set_command("segment_3/kappa", 0.0)
+        for _ in range(40):
+            hwi.write()
+            hwi.read()
+            time.sleep(0.01)
+        assert hwi.get_state("segment_1/kappa") == pytest.approx(0.5, abs=0.01)
+        hwi.deactivate()
+        hwi.cleanup()
+        assert hwi.state == UNCONFIGURED
+        hwi.configure()
+        with pytest.raises(KeyError, match="no state interface 'segment_9/kappa'"):
+            hwi.get_state("segment_9/kappa")
+        link.sync([(0.0, 0.0)] * 3, timeout=0.1)
+
+
+def _start(chain, *extra: str) -> subprocess.Popen:
+    cmd = [
+        sys.executable,
+        "-m",
+        "tools.cli",
+        "daemon",
+        "--robot",
+        str(ROBOT_FILE),
+        "--port",
+        chain.host_port,
+        "--no-api",
+        *extra,
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    lines = []
+    end = time.monotonic() + 20
+    while time.monotonic() < end:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if "daemon running" in line:
+            return proc
+    proc.kill()
+    proc.wait()
+    pytest.fail("daemon did not start:\n" + "".join(lines))
+
+
+def test_sigterm_stops_into_hold_and_exits_cleanly(chain):
+    proc = _start(chain)
+    try:
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    assert "segments told to HOLD" in out and "Traceback" not in out
+    with ChainLink(chain.host_port) as link:
+        link.discover(timeout=0.5)
+        states = link.heartbeat(timeout=0.2)
+    assert all(s is not None and "HOLD" in s["status"] for s in states), states
+
+
+def test_killed_daemon_leaves_every_segment_holding_within_its_watchdog(chain):
+    proc = _start(chain)
+    try:
+        time.sleep(0.5)
+        proc.kill()
+        t_kill = time.monotonic()
+        proc.wait(5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    with ChainLink(chain.host_port) as link:  # only listens: sends nothing, feeds no watchdog
+        time.sleep(0.6)
+        events = link.events()
+    tripped = {e["position"]: e["t"] - t_kill for e in events if e["name"] == "WATCHDOG_TRIPPED"}
+    assert set(tripped) == {0, 1, 2}, events
+    watchdog_s = 0.2  # tools.segment_config default watchdog_ms
+    assert max(tripped.values()) <= watchdog_s + 0.15, tripped
