@@ -1,0 +1,362 @@
+"""Link protocol benchmark: bytes on the wire, implied cycle rates, encode/decode times.
+
+Prints:
+1. wire bytes per SYNC (host -> all) and per STATE (one segment -> host) for N = 1, 3, 8,
+   typical and worst-case values (CBOR ints grow with magnitude);
+2. implied max cycle rate at 115200 / 921600 / 2000000 baud (10 bits per byte), a cycle being one
+   SYNC down + N STATEs up, for the chain's full-duplex links;
+3. the same for micro-ROS / Micro XRCE-DDS and Dynamixel Protocol 2.0 sync write + sync read,
+   byte counts computed from their published frame formats (see REFERENCES below);
+4. encode/decode time per message on CPython and on the MicroPython unix VM.
+
+Run: ``.venv/bin/python benchmarks/bench_protocol.py`` (``--quick`` for fewer timing loops).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import timeit
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from protocol import device as D  # noqa: E402
+from protocol import frame as F  # noqa: E402
+from protocol import messages as M  # noqa: E402
+from protocol.constants import HEADER_LEN, MAX_ENCODED, MAX_FRAME  # noqa: E402
+
+BAUDS = (115200, 921600, 2000000)
+NS = (1, 3, 8)
+BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
+
+REFERENCES = """\
+Reference byte counts (computed here from the published frame formats, not measured):
+- Micro XRCE-DDS / micro-ROS serial transport (eProsima Micro-XRCE-DDS docs, "Custom Serial
+  Transport"): HDLC-like frame FLAG(1) SADD(1) RADD(1) LEN(2) payload CRC(2) = 7 bytes, plus the
+  XRCE message header (4) + submessage header (4) + WRITE_DATA request/object ids (4) = 12 bytes
+  ("only 19 bytes" best case, byte stuffing of 0x7E/0x7D neglected, best-effort stream: no
+  ACKNACK/HEARTBEAT traffic counted). Topic data in XCDR: SYNC equivalent = uint32 cycle +
+  sequence<int32> (4-byte length + 2N x 4); STATE equivalent = uint32 cycle, uint32 t_ms,
+  int32 kappa, phi, sequence<int32> tendons(3), sequence<int32> servos(3), uint8 status (+3 pad),
+  int32 kx, ky = 60 bytes.
+- Dynamixel Protocol 2.0 (ROBOTIS e-Manual, "Protocol 2.0"): instruction packet = header
+  FF FF FD 00 (4) + ID (1) + LEN (2) + INST (1) + params + CRC16 (2) = 10 + params; status packet
+  = 11 + data (INST 0x55 + ERR). Sync Write of 8 bytes (two int32 setpoints) to N devices:
+  params = addr(2) + len(2) + N x (ID + 8). Sync Read of the 49-byte STATE content (same fields as
+  fixed-width ints): instruction params = addr(2) + len(2) + N IDs, then N status packets of
+  11 + 49. One half-duplex bus, so every byte is serialised; Return Delay Time (default 250 x
+  2 us per reply on X-series) and byte stuffing are not counted (best case).
+"""
+
+
+# --------------------------------------------------------------------------------------------
+# wire sizes
+# --------------------------------------------------------------------------------------------
+def _sync_bytes(n: int, worst: bool) -> int:
+    if worst:  # every int needs a 4-byte argument, cycle near 2**30
+        sps = [(99.0, -3.0)] * n
+        return len(M.encode_sync(255, 2**30 - 1, sps))
+    sps = [(12.3456, 1.2345)] * n  # kappa 123456 (5 bytes), phi 12345 (3 bytes)
+    return len(M.encode_sync(17, 123456, sps))
+
+
+def _state_bytes(worst: bool) -> int:
+    if worst:
+        big = 2**30 - 1
+        raw = bytearray(MAX_FRAME)
+        out = bytearray(MAX_ENCODED)
+        return D.state_frame(
+            raw, out, 255, big, big, big, -big, [big] * 3, 3, [-big] * 3, 3, 63, big, -big
+        )
+    return len(
+        M.encode_state(
+            17,
+            cycle=123456,
+            t_ms=7_654_321,
+            kappa=12.3456,
+            phi=1.2345,
+            tendon_lengths=[0.1183, 0.1201, 0.1216],
+            servo_angles=[-0.52, 0.31, 0.21],
+            status=16,
+        )
+    )
+
+
+def xrce_sync(n: int) -> int:
+    return 19 + 4 + 4 + 8 * n
+
+
+def xrce_state() -> int:
+    return 19 + 60
+
+
+def dxl_sync_write(n: int) -> int:
+    return 10 + 4 + n * (1 + 8)
+
+
+def dxl_sync_read(n: int) -> int:
+    return (10 + 4 + n) + n * (11 + 49)
+
+
+# --------------------------------------------------------------------------------------------
+# cycle model
+# --------------------------------------------------------------------------------------------
+def chain_cycle_time(n: int, b_sync: int, b_state: int, baud: int, proc_s: float = 0.0) -> float:
+    """Time from the host starting a SYNC until it holds all N STATEs, store-and-forward chain.
+
+    Each segment re-sends a frame only after receiving it whole (the CRC must be checked before
+    forwarding). Links are full duplex: SYNC going down and STATEs going up overlap. Segment k
+    forwards the SYNC first, then answers after ``proc_s``. Upstream links are FIFO.
+    """
+    byte_t = BITS_PER_BYTE / baud
+    t_sync = b_sync * byte_t
+    t_state = b_state * byte_t
+    # ready[k]: list of times at which frames are ready to be sent on upstream link k
+    arrivals: list[float] = []  # frames fully arrived at segment k from below (for link k)
+    for k in range(n - 1, -1, -1):
+        own = (k + 1) * t_sync + proc_s
+        queue = sorted([own] + arrivals)
+        free = 0.0
+        done = []
+        for ready in queue:
+            start = max(ready, free)
+            free = start + t_state
+            done.append(free)
+        arrivals = done  # these arrive whole at segment k-1 (or the host when k == 0)
+    return max(arrivals)
+
+
+def pipelined_rate(n: int, b_sync: int, b_state: int, baud: int) -> float:
+    """Throughput bound when the host pipelines cycles: the busiest link direction decides."""
+    busiest = max(b_sync, n * b_state)
+    return baud / BITS_PER_BYTE / busiest
+
+
+def print_wire_tables() -> None:
+    print("== bytes on the wire (COBS + CRC + delimiter included)")
+    print(
+        f"{'N':>3} {'SYNC typ':>9} {'SYNC worst':>11} {'STATE typ':>10} {'STATE worst':>12}"
+        f" {'cycle typ':>10} {'cycle worst':>12}"
+    )
+    st_t, st_w = _state_bytes(False), _state_bytes(True)
+    for n in NS:
+        sy_t, sy_w = _sync_bytes(n, False), _sync_bytes(n, True)
+        print(
+            f"{n:>3} {sy_t:>9} {sy_w:>11} {st_t:>10} {st_w:>12} {sy_t + n * st_t:>10}"
+            f" {sy_w + n * st_w:>12}"
+        )
+    print()
+    print("== implied max cycle rate [Hz], typical values; chain links are full duplex")
+    print("   'seq' = host waits for all N STATEs before the next SYNC (store-and-forward,")
+    print("   processing time 0); 'pipe' = host pipelines cycles, busiest link direction decides")
+    hdr = f"{'protocol':<26}{'N':>3}{'down B':>8}{'up B':>7}"
+    for b in BAUDS:
+        hdr += f"{b:>10} seq{'':>1}{'pipe':>8}"
+    print(hdr)
+    for n in NS:
+        sy, st = _sync_bytes(n, False), st_t
+        row = f"{'ucr CBOR (this)':<26}{n:>3}{sy:>8}{n * st:>7}"
+        for b in BAUDS:
+            row += (
+                f"{1 / chain_cycle_time(n, sy, st, b):>14.0f}{pipelined_rate(n, sy, st, b):>8.0f}"
+            )
+        print(row)
+    for n in NS:
+        sy, st = xrce_sync(n), xrce_state()
+        row = f"{'micro-ROS/XRCE-DDS serial':<26}{n:>3}{sy:>8}{n * st:>7}"
+        for b in BAUDS:
+            row += (
+                f"{1 / chain_cycle_time(n, sy, st, b):>14.0f}{pipelined_rate(n, sy, st, b):>8.0f}"
+            )
+        print(row)
+    for n in NS:
+        down, up = dxl_sync_write(n) + (10 + 4 + n), n * (11 + 49)
+        row = f"{'Dynamixel 2.0 sync w+r':<26}{n:>3}{down:>8}{up:>7}"
+        for b in BAUDS:
+            rate = b / BITS_PER_BYTE / (down + up)  # half-duplex bus: everything serialised
+            row += f"{rate:>14.0f}{rate:>8.0f}"
+        print(row)
+    print("   (Dynamixel is one half-duplex bus: seq == pipe; its 'down' = sync write +")
+    print("    sync read instruction)")
+    print()
+    print(REFERENCES)
+
+
+# --------------------------------------------------------------------------------------------
+# timing
+# --------------------------------------------------------------------------------------------
+def _cpython_timings(loops: int) -> list[tuple[str, float]]:
+    sps3 = [(12.3456, 1.2345)] * 3
+    sync3 = M.encode_sync(17, 123456, sps3)
+    state = M.encode_state(
+        17,
+        cycle=123456,
+        t_ms=7_654_321,
+        kappa=12.3456,
+        phi=1.2345,
+        tendon_lengths=[0.1183, 0.1201, 0.1216],
+        servo_angles=[-0.52, 0.31, 0.21],
+        status=16,
+    )
+    desc = M.encode_descriptor(
+        {
+            "uid": "24a1600c3b5e",
+            "fw_version": "0.1.0",
+            "protocol_version": 1,
+            "model": "pcc",
+            "length": 0.12,
+            "tendon_angles": [0.0, 2.0944, 4.1888],
+            "kappa_max": 20.0,
+        }
+    )
+    reader = F.FrameReader()
+    raw = bytearray(MAX_FRAME)
+    out = bytearray(MAX_ENCODED)
+    fr_sync = F.decode_frame(sync3)
+    sraw = bytearray(fr_sync.raw())
+    slots = [0, 0, 0, 0]
+    fwd = bytearray(F.decode_frame(state).raw())
+
+    def host_decode_state() -> None:
+        for f in reader.feed(state):
+            M.decode_message(f)
+
+    def host_encode_sync_own() -> None:
+        M.use_cbor2(False)
+        M.encode_sync(17, 123456, sps3)
+        M.use_cbor2(True)
+
+    cases = [
+        ("host encode_sync N=3 (cbor2)", lambda: M.encode_sync(17, 123456, sps3)),
+        ("host encode_sync N=3 (own codec)", host_encode_sync_own),
+        ("host feed + decode STATE", host_decode_state),
+        ("host decode DESCRIPTOR", lambda: M.decode_message(F.decode_frame(desc))),
+        (
+            "dev state_frame (3 tendons)",
+            lambda: D.state_frame(
+                raw,
+                out,
+                1,
+                123456,
+                7654321,
+                123456,
+                12345,
+                [118300, 120100, 121600],
+                3,
+                [-5200, 3100, 2100],
+                3,
+                16,
+                40613,
+                116581,
+            ),
+        ),
+        (
+            "dev decode_sync N=3 pos 2",
+            lambda: D.decode_sync(sraw, HEADER_LEN, len(sraw) - 2, 2, slots),
+        ),
+        ("dev scan one STATE frame", lambda: reader.scan(state, 0, len(state))),
+        ("dev forward_into STATE", lambda: F.forward_into(fwd, len(fwd), 1, out)),
+    ]
+    res = []
+    for name, fn in cases:
+        t = min(timeit.repeat(fn, number=loops, repeat=3)) / loops
+        res.append((name, t * 1e6))
+    return res
+
+
+MP_CODE = r"""
+import time
+from protocol import messages as M, frame as F, device as D
+from protocol.constants import HEADER_LEN, MAX_FRAME, MAX_ENCODED
+LOOPS = %d
+sps3 = [(12.3456, 1.2345)] * 3
+sync3 = M.encode_sync(17, 123456, sps3)
+state = M.encode_state(17, cycle=123456, t_ms=7654321, kappa=12.3456, phi=1.2345,
+    tendon_lengths=[0.1183, 0.1201, 0.1216], servo_angles=[-0.52, 0.31, 0.21], status=16)
+desc = M.encode_descriptor({"uid": "24a1600c3b5e", "fw_version": "0.1.0", "protocol_version": 1,
+    "model": "pcc", "length": 0.12, "tendon_angles": [0.0, 2.0944, 4.1888], "kappa_max": 20.0})
+reader = F.FrameReader()
+raw = bytearray(MAX_FRAME)
+out = bytearray(MAX_ENCODED)
+sraw = bytearray(F.decode_frame(sync3).raw())
+slots = [0, 0, 0, 0]
+fwd = bytearray(F.decode_frame(state).raw())
+tl = [118300, 120100, 121600]
+sv = [-5200, 3100, 2100]
+ns = len(sraw) - 2
+nst = len(state)
+nfwd = len(fwd)
+
+def c0():
+    M.encode_sync(17, 123456, sps3)
+def c1():
+    for f in reader.feed(state):
+        M.decode_message(f)
+def c2():
+    M.decode_message(F.decode_frame(desc))
+def c3():
+    D.state_frame(raw, out, 1, 123456, 7654321, 123456, 12345, tl, 3, sv, 3, 16, 40613, 116581)
+def c4():
+    D.decode_sync(sraw, HEADER_LEN, ns, 2, slots)
+def c5():
+    reader.scan(state, 0, nst)
+def c6():
+    F.forward_into(fwd, nfwd, 1, out)
+
+for name, fn in (("host encode_sync N=3 (own codec)", c0), ("host feed + decode STATE", c1),
+                 ("host decode DESCRIPTOR", c2), ("dev state_frame (3 tendons)", c3),
+                 ("dev decode_sync N=3 pos 2", c4), ("dev scan one STATE frame", c5),
+                 ("dev forward_into STATE", c6)):
+    best = None
+    for _ in range(3):
+        t0 = time.ticks_us()
+        for _ in range(LOOPS):
+            fn()
+        dt = time.ticks_diff(time.ticks_us(), t0)
+        best = dt if best is None or dt < best else best
+    print("%%s|%%.2f" %% (name, best / LOOPS))
+"""
+
+
+def _mp_timings(loops: int) -> list[tuple[str, float]]:
+    from tools.mpvm import run_code
+
+    out = run_code(MP_CODE % loops, timeout=600)
+    res = []
+    for line in out.strip().splitlines():
+        name, _, us = line.partition("|")
+        res.append((name, float(us)))
+    return res
+
+
+def print_timings(loops: int) -> None:
+    cp = dict(_cpython_timings(loops))
+    try:
+        mp = dict(_mp_timings(max(loops // 5, 50)))
+    except (OSError, RuntimeError) as e:
+        print(f"MicroPython VM timing skipped: {e}")
+        mp = {}
+    print("== encode/decode time per message [us] (this machine; an ESP32 at 240 MHz is")
+    print("   typically 10-30x slower than the unix VM on a PC)")
+    print(f"{'operation':<36}{'CPython':>10}{'MicroPython VM':>16}{'MP/CPy':>8}")
+    for name in dict.fromkeys([*cp, *mp]):
+        c = cp.get(name)
+        m = mp.get(name)
+        ratio = f"{m / c:>8.1f}" if c and m else f"{'':>8}"
+        cs = f"{c:>10.2f}" if c is not None else f"{'-':>10}"
+        ms = f"{m:>16.2f}" if m is not None else f"{'-':>16}"
+        print(f"{name:<36}{cs}{ms}{ratio}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer timing loops")
+    args = ap.parse_args()
+    print_wire_tables()
+    print_timings(300 if args.quick else 3000)
+
+
+if __name__ == "__main__":
+    main()
