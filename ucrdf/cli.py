@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import sys
 from typing import TYPE_CHECKING
 
@@ -54,7 +55,11 @@ def run_check(args: argparse.Namespace) -> int:
         print(f"{args.file}: {count} error{'s' if count != 1 else ''}", file=sys.stderr)
         return 1
     if not args.quiet:
-        print(summary(robot))
+        try:
+            print(summary(robot), flush=True)
+        except BrokenPipeError:  # e.g. `ucr check FILE | head`: the reader left, not an error
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # keep the interpreter's final flush quiet
     return 0
 
 

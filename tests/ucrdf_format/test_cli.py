@@ -75,3 +75,24 @@ def test_quiet_check_prints_nothing(tmp_path):
     good.write_text(VALID)
     result = ucr("check", "-q", str(good))
     assert (result.returncode, result.stdout, result.stderr) == (0, "", "")
+
+
+def test_closed_pipe_is_not_a_traceback():
+    """`ucr check FILE | head`: the reader is gone before ucr writes; ucr must exit quietly."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "check", str(ROBOTS / "hybrid_arm.ucrdf")],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        proc.stdout.close()  # the reader exits before ucr has started up
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert "Traceback" not in err
+    assert proc.returncode == 0
