@@ -186,7 +186,7 @@ class Segment:
         self.last_event = now - EVENT_GAP_MS
         self.stall_ref = array("i", [0] * cfg.n)
         self.stall_t = array("i", [now] * cfg.n)
-        self.prev_fault = bytearray(cfg.n)
+        self.prev_fault = bytearray(cfg.n)  # current fault code per servo (driver or stall)
         # event queue (ring of code, detail)
         self.evq = array("i", [0] * (2 * _EVQ))
         self.ev_head = 0
@@ -621,7 +621,7 @@ class Segment:
         if pid == P_STATUS:
             return self.status()
         if pid == P_SERVO_FAULTS:
-            return [self.bus.fault[i] for i in range(self.n)]
+            return [self.prev_fault[i] for i in range(self.n)]  # incl. stalls found here
         if pid == P_CYCLE_US:
             return self.cycle_us_max
         if pid == P_OVERRUNS:
