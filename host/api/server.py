@@ -455,7 +455,9 @@ class ApiServer:
                 for session in list(self._sessions):
                     if session.goals:
                         await self._poll_goals(session)
-            await asyncio.sleep(self.poll_interval)
+            busy = any(s.subs or s.goals for s in self._sessions)
+            # Nothing to forward: wake up less often (the Pi has better things to do).
+            await asyncio.sleep(self.poll_interval if busy else 10 * self.poll_interval)
 
     def _drain(self, session: _Session, sub: _Subscription, now: float) -> None:
         q = sub.queue

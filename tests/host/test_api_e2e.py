@@ -5,6 +5,7 @@ disconnect cleanup and malformed requests that must not disturb the control loop
 from __future__ import annotations
 
 import json
+import math
 import socket
 import time
 from pathlib import Path
@@ -244,3 +245,35 @@ def test_cli_move_against_the_real_daemon(rig, client, capsys):
     assert js["phi"] == pytest.approx(-1.5708, abs=0.02)
     assert ucr(["status", "--url", srv.url]) == 0
     assert "segment_2" in capsys.readouterr().out
+
+
+def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp_path):
+    from tools.cli import main as ucr
+
+    _, srv = rig
+    rec = tmp_path / "stick.jsonl"
+    rec.write_text(
+        json.dumps({"t": 0.0, "rates": {"segment_1": [-1.0, 0.0]}})
+        + "\n"
+        + json.dumps({"t": 0.4, "stop": True})
+        + "\n"
+    )
+    before = client.status()["joint_states"]["segment_1"]
+    try:
+        rc = ucr(["teleop", "--url", srv.url, "--replay", str(rec)])
+        out, err = capsys.readouterr()
+        assert rc == 0, err
+        assert "teleop ended (end" in out and "1 stops sent" in out
+        assert "hand-back" in out  # tells the user how to give control back
+        time.sleep(0.4)
+        after = client.status()["joint_states"]["segment_1"]
+        kx_before = before["kappa"] * math.cos(before["phi"])
+        kx_after = after["kappa"] * math.cos(after["phi"])
+        assert kx_after < kx_before - 0.1  # stick left -> curvature vector moved towards -x
+        bad = tmp_path / "bad.jsonl"
+        bad.write_text('{"t": 0, "rates": {"no_such": [0.5, 0]}}\n')
+        rc = ucr(["teleop", "--url", srv.url, "--replay", str(bad)])
+        _, err = capsys.readouterr()
+        assert rc == 1 and "no_such not controlled by the daemon" in err
+    finally:
+        ensure_jtc(client)
