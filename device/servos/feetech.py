@@ -59,8 +59,10 @@ class FeetechBus(ServoBus):
         spe4 = b["steps_per_rev"] / (2 * 3.141592653589793 * 10000.0)  # steps per 1e-4 rad
         self.q_f = fxp.q_for([spe4])
         self.k_f = fxp.to_q(spe4, self.q_f)
-        self.q_b = fxp.q_for([1.0 / spe4])
-        self.k_b = fxp.to_q(1.0 / spe4, self.q_b)
+        # back: 1e-4 rad per step in 1/256 (|steps - centre| < 2**16 keeps the product < 2**30)
+        self.k_b = int(256.0 / spe4 + 0.5)
+        if self.k_b >= 1 << 14:
+            raise ValueError("bus.steps_per_rev too small")
         self.uart = hal.servo_uart(b)
         n = cfg.n
         self.tx = bytearray(8 + 3 * n)  # sync write
@@ -170,7 +172,7 @@ class FeetechBus(ServoBus):
                     ld = buf[d + 4] | (buf[d + 5] << 8)
                 if steps & 0x8000:  # sign-magnitude (multi-turn modes)
                     steps = -(steps & 0x7FFF)
-                self.pos[k] = fxp.mulq(steps - self.centre, self.k_b, self.q_b)
+                self.pos[k] = ((steps - self.centre) * self.k_b + 128) >> 8
                 self.load[k] = -(ld & 0x3FF) if ld & 0x400 else ld & 0x3FF
                 self.voltage[k] = buf[d + 6]
                 self.temperature[k] = buf[d + 7]

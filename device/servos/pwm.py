@@ -9,8 +9,6 @@ No pulse is output before the first command, so the servos stay limp in the boot
 
 from array import array
 
-import fxp
-
 from servos import ServoBus
 
 _DEFAULT = {"pins": [25, 26, 27], "freq": 50, "min_us": 500, "max_us": 2500, "range": 3.14159265}
@@ -30,13 +28,17 @@ class PwmBus(ServoBus):
             raise ValueError("pwm.pins lists %d pins for %d servos" % (len(pins), cfg.n))
         if not (0 < p["min_us"] < p["max_us"] < 20000) or p["range"] <= 0:
             raise ValueError("pwm calibration: need 0 < min_us < max_us < 20000 and range > 0")
+        if p["max_us"] - p["min_us"] > 4000:
+            raise ValueError("pwm calibration: max_us - min_us must be at most 4000")
         self.freq = int(p["freq"])
         self.centre_ns = int((p["min_us"] + p["max_us"]) * 500)
         self.min_ns = int(p["min_us"] * 1000)
         self.max_ns = int(p["max_us"] * 1000)
         ns_per_e4 = (p["max_us"] - p["min_us"]) * 1000.0 / (p["range"] * 10000.0)
-        self.q = fxp.q_for([ns_per_e4])
-        self.k = fxp.to_q(ns_per_e4, self.q)
+        # ns = centre + raw * ns_per_e4 with the slope in 1/256 ns and raw first limited to half
+        # the range: |raw * slope| <= (max_us - min_us) * 1000 / 2 * 256 <= 5.2e8 < 2**30
+        self.half = int(p["range"] * 5000.0)
+        self.k256 = int(ns_per_e4 * 256.0 + 0.5)
         self.pins = pins
         self.pwm = None
         self.hal = hal
@@ -47,8 +49,14 @@ class PwmBus(ServoBus):
     def _send(self, targets, now_ms):
         if self.pwm is None:  # first command: create the outputs (no pulses during boot hold)
             self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
+        h = self.half
         for i in range(self.n):
-            ns = self.centre_ns + fxp.mulq(targets[i], self.k, self.q)
+            raw = targets[i]
+            if raw > h:
+                raw = h
+            elif raw < -h:
+                raw = -h
+            ns = self.centre_ns + ((raw * self.k256 + 128) >> 8)
             if ns < self.min_ns:
                 ns = self.min_ns
             elif ns > self.max_ns:
