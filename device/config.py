@@ -93,7 +93,7 @@ class Config:
             raise ValueError("name must be a non-empty string")
         _num(cfg, "length", 1e-3, _MAX_LENGTH)
         _num(cfg, "tendon_radius", 1e-4, 0.5)
-        _num(cfg, "spool_radius", 1e-4, 0.5)
+        _num(cfg, "spool_radius", 1e-4, 0.15)
         _num(cfg, "kappa_max", 0.0, _MAX_KAPPA)
         _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
         _num(cfg, "mass", 0.0, 1e3)
@@ -175,7 +175,11 @@ def load(path="config.json", default_driver="emulated"):
         return Config(None, default_driver)
     try:
         data = json.loads(text)
-        return Config(data, default_driver)
+        cfg = Config(data, default_driver)
+        import mechanism
+
+        mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
+        return cfg
     except (ValueError, TypeError, KeyError) as e:
         c = Config(None, default_driver)
         c.error = "config.json rejected: %s" % (e,)
