@@ -1,0 +1,508 @@
+"""Host side of the segment chain: frames over a serial port, requests matched to replies.
+
+``ChainLink`` opens any pyserial URL (``/dev/ttyUSB0``, an emulated chain's pty, ``socket://``),
+runs one reader thread that turns bytes into CRC-checked frames (``protocol.frame.FrameReader``)
+and hands replies to the waiting request by ``seq`` and source position (the hop count of an
+upstream frame). Unsolicited EVENT frames go to a queue drained by :meth:`ChainLink.events`.
+Requests are serialised by a lock, so the daemon's loop thread and other threads may share one
+link. Wire values are fixed-point ints; this module converts to and from SI (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import serial
+
+from protocol import constants as C
+from protocol.cbor import loads
+from protocol.errors import ProtocolError
+from protocol.frame import Frame, FrameReader, encode_frame
+
+
+class LinkError(OSError):
+    """The chain link failed: port cannot be opened, vanished, or a segment answered ERROR."""
+
+
+class LinkTimeoutError(LinkError, TimeoutError):
+    """No (complete) answer within the timeout."""
+
+
+class SegmentError(LinkError):
+    """A segment answered a request with an ERROR frame (``code``, ``code_name``, ``text``)."""
+
+    def __init__(self, position: int, code: int, offending_type: int | None, text: str) -> None:
+        self.position = position
+        self.code = code
+        self.code_name = C.ERROR_NAMES.get(code, f"error {code}")
+        self.offending_type = offending_type
+        self.text = text
+        super().__init__(f"segment {position} answered {self.code_name}: {text}")
+
+
+def _status_names(bits: int) -> set[str]:
+    return {name for bit, name in C.STATUS_NAMES if bits & bit}
+
+
+def _fixed(value: float, scale: int, what: str) -> int:
+    """SI float -> wire int, refusing NaN/inf and values outside the small-int range."""
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{what} must be a finite number, got {value!r}")
+    n = round(value * scale)
+    if not -C.INT_LIMIT < n < C.INT_LIMIT:
+        raise ValueError(f"{what} {value!r} is out of the wire range")
+    return n
+
+
+def decode_descriptor(payload: dict, position: int) -> dict:
+    """DESCRIPTOR payload (int keys) -> host dict with the contract's names and ``position``."""
+    if not isinstance(payload, dict):
+        raise ProtocolError("DESCRIPTOR payload is not a map")
+    out: dict[str, Any] = {name: None for name in C.DESCRIPTOR_KEYS}
+    extra = {}
+    for key, value in payload.items():
+        if isinstance(key, int) and 0 <= key < len(C.DESCRIPTOR_KEYS):
+            out[C.DESCRIPTOR_KEYS[key]] = value
+        else:
+            extra[key] = value
+    if extra:
+        out["extra"] = extra
+    out["position"] = position
+    return out
+
+
+def decode_state(payload: dict, position: int) -> dict:
+    """STATE payload (fixed-point ints) -> SI dict (contract: docs/architecture.md)."""
+    if not isinstance(payload, dict):
+        raise ProtocolError("STATE payload is not a map")
+
+    def num(key: int, scale: int) -> float | None:
+        v = payload.get(key)
+        return None if v is None else v / scale
+
+    raw_status = int(payload.get(C.KS_STATUS, 0))
+    return {
+        "position": position,
+        "cycle": payload.get(C.KS_CYCLE),
+        "t_ms": payload.get(C.KS_T_MS),
+        "kappa": num(C.KS_KAPPA, C.KAPPA_SCALE),
+        "phi": num(C.KS_PHI, C.ANGLE_SCALE),
+        "kx": num(C.KS_KX, C.KAPPA_SCALE),
+        "ky": num(C.KS_KY, C.KAPPA_SCALE),
+        "tendon_lengths": [v / C.LENGTH_SCALE for v in payload.get(C.KS_TENDONS, [])],
+        "servo_angles": [v / C.ANGLE_SCALE for v in payload.get(C.KS_SERVOS, [])],
+        "status": _status_names(raw_status),
+        "raw_status": raw_status,
+    }
+
+
+def make_sync_payload(
+    cycle: int, setpoints: list[tuple[float, float]], *, resume: bool = False
+) -> dict:
+    """SYNC payload for SI setpoints [(kappa 1/m, phi rad), …] in chain order."""
+    flat: list[int] = []
+    for i, sp in enumerate(setpoints):
+        try:
+            kappa, phi = sp
+        except (TypeError, ValueError):
+            raise ValueError(f"setpoint {i} must be a (kappa, phi) pair, got {sp!r}") from None
+        flat.append(_fixed(kappa, C.KAPPA_SCALE, f"setpoint {i} kappa"))
+        flat.append(_fixed(phi, C.ANGLE_SCALE, f"setpoint {i} phi"))
+    payload: dict[int, Any] = {C.K_CYCLE: cycle, C.K_SETPOINTS: flat}
+    if resume:
+        payload[C.K_RESUME] = 1
+    return payload
+
+
+class _Collector:
+    """Replies to one request: by position, of the accepted types; ERRORs kept aside."""
+
+    def __init__(self, seq: int, types: tuple[int, ...]) -> None:
+        self.seq = seq
+        self.types = types
+        self.replies: dict[int, Frame] = {}
+        self.errors: dict[int, Frame] = {}
+
+
+class ChainLink:
+    """Client of one segment chain (see module docstring). Close it, or use it as a context manager.
+
+    ``baudrate`` in bit/s; ``url`` anything ``serial.serial_for_url`` opens.
+    """
+
+    def __init__(self, url: str, baudrate: int = 921600, *, exclusive: bool = True) -> None:
+        try:
+            self._ser = serial.serial_for_url(
+                url, baudrate=baudrate, timeout=0.02, exclusive=exclusive
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LinkError(f"cannot open chain port {url!r}: {exc}") from exc
+        self.url = url
+        self.baudrate = baudrate
+        try:
+            self._ser.reset_input_buffer()  # stale bytes from before we opened the port
+        except (serial.SerialException, OSError):
+            pass
+        self._reader = FrameReader()
+        self._cond = threading.Condition()
+        self._call_lock = threading.RLock()
+        self._write_lock = threading.Lock()
+        self._collector: _Collector | None = None
+        self._events: deque[dict] = deque(maxlen=1024)
+        self._seq = 0
+        self._cycle = 0
+        self._expected: int | None = None
+        self._error: BaseException | None = None
+        self._closed = False
+        self._counters = {
+            "tx_frames": 0,
+            "tx_bytes": 0,
+            "rx_bytes": 0,
+            "timeouts": 0,
+            "unmatched": 0,
+            "error_replies": 0,
+            "bad_payloads": 0,
+            "alive": 0,
+            "events": 0,
+            "events_dropped": 0,
+        }
+        self._thread = threading.Thread(target=self._read_loop, name="ucr-link-reader", daemon=True)
+        self._thread.start()
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def __enter__(self) -> ChainLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the reader thread and close the port (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._ser.cancel_read()
+        except (AttributeError, serial.SerialException, OSError):
+            pass
+        self._thread.join(timeout=1.0)
+        try:
+            self._ser.close()
+        except (serial.SerialException, OSError):
+            pass
+        with self._cond:
+            self._cond.notify_all()
+
+    # -- reader thread --------------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        ser = self._ser
+        while not self._closed:
+            try:
+                data = ser.read(ser.in_waiting or 1)
+            except (serial.SerialException, OSError, TypeError) as exc:
+                if not self._closed:
+                    self._error = exc
+                with self._cond:
+                    self._cond.notify_all()
+                return
+            if not data:
+                continue
+            frames = self._reader.feed(data)
+            with self._cond:
+                self._counters["rx_bytes"] += len(data)
+                for frame in frames:
+                    self._dispatch(frame)
+                if frames:
+                    self._cond.notify_all()
+
+    def _dispatch(self, frame: Frame) -> None:
+        """Route one good frame (called with the condition held)."""
+        if not frame.flags & C.FLAG_UP:
+            self._counters["unmatched"] += 1  # a downstream frame reaching the host: echo/loop
+            return
+        if frame.flags & C.FLAG_LOCAL:
+            if frame.mtype == C.T_ALIVE:
+                self._counters["alive"] += 1
+            else:
+                self._counters["unmatched"] += 1
+            return
+        position = frame.hop
+        if frame.mtype == C.T_EVENT:
+            self._on_event(frame, position)
+            return
+        col = self._collector
+        if col is None or frame.seq != col.seq:
+            self._counters["unmatched"] += 1
+            return
+        if frame.mtype == C.T_ERROR:
+            self._counters["error_replies"] += 1
+            col.errors[position] = frame
+        elif frame.mtype in col.types:
+            col.replies[position] = frame
+        else:
+            self._counters["unmatched"] += 1
+
+    def _on_event(self, frame: Frame, position: int) -> None:
+        try:
+            payload = loads(frame.payload) if frame.payload else {}
+            code = int(payload.get(C.KE_CODE))
+        except (ProtocolError, TypeError, ValueError, AttributeError):
+            self._counters["bad_payloads"] += 1
+            return
+        if len(self._events) == self._events.maxlen:
+            self._counters["events_dropped"] += 1
+        self._counters["events"] += 1
+        self._events.append(
+            {
+                "position": position,
+                "code": code,
+                "name": C.EVENT_NAMES.get(code, f"EVENT_{code}"),
+                "detail": payload.get(C.KE_DETAIL),
+                "t_ms": payload.get(C.KE_T_MS),
+                "t": time.monotonic(),
+            }
+        )
+
+    # -- requests -------------------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise LinkError("link is closed")
+        if self._error is not None:
+            raise LinkError(f"chain port {self.url!r} failed: {self._error}") from self._error
+
+    def _send(
+        self, flags: int, hop: int, mtype: int, payload: Any, types: tuple[int, ...]
+    ) -> _Collector:
+        self._check_open()
+        with self._cond:
+            self._seq = (self._seq + 1) & 0xFF
+            col = _Collector(self._seq, types)
+            self._collector = col
+        wire = encode_frame(flags, hop, mtype, col.seq, payload)
+        with self._write_lock:
+            try:
+                self._ser.write(wire)
+            except (serial.SerialException, OSError) as exc:
+                raise LinkError(f"write to {self.url!r} failed: {exc}") from exc
+        with self._cond:
+            self._counters["tx_frames"] += 1
+            self._counters["tx_bytes"] += len(wire)
+        return col
+
+    def _wait(self, col: _Collector, timeout: float, done) -> None:
+        end = time.monotonic() + timeout
+        with self._cond:
+            while not done(col):
+                left = end - time.monotonic()
+                if left <= 0 or self._closed or self._error is not None:
+                    break
+                self._cond.wait(left)
+            if self._collector is col:
+                self._collector = None
+        if self._error is not None:
+            self._check_open()
+
+    def _payload(self, frame: Frame) -> Any:
+        try:
+            return loads(frame.payload) if frame.payload else {}
+        except ProtocolError:
+            self._counters["bad_payloads"] += 1
+            return None
+
+    def _raise_error(self, position: int, frame: Frame) -> None:
+        payload = self._payload(frame) or {}
+        raise SegmentError(
+            position,
+            int(payload.get(C.KR_CODE, 0)),
+            payload.get(C.KR_TYPE),
+            str(payload.get(C.KR_TEXT, "")),
+        )
+
+    def discover(self, timeout: float = 0.5) -> list[dict]:
+        """Broadcast DISCOVER; descriptors in chain order (with ``position``).
+
+        Stops as soon as the tip (``downstream_present`` false) and every position before it have
+        answered, else after ``timeout`` s with the contiguous answers from position 0. Raises
+        :class:`LinkError` if a segment's answer is missing between others (a lost reply).
+        """
+        with self._call_lock:
+            col = self._send(C.FLAG_BCAST, 0, C.T_DISCOVER, {}, (C.T_DESCRIPTOR,))
+            tip: list[int] = []
+
+            def done(c: _Collector) -> bool:
+                for pos in list(c.replies):
+                    if pos in tip:
+                        continue
+                    p = self._payload(c.replies[pos])
+                    if isinstance(p, dict) and p.get(C.KD_DOWNSTREAM_PRESENT) is False:
+                        tip.append(pos)
+                return bool(tip) and all(i in c.replies for i in range(min(tip) + 1))
+
+            self._wait(col, timeout, done)
+            descs = []
+            for pos in sorted(col.replies):
+                payload = self._payload(col.replies[pos])
+                if payload is None:
+                    continue
+                try:
+                    descs.append(decode_descriptor(payload, pos))
+                except ProtocolError:
+                    self._counters["bad_payloads"] += 1
+            if tip:
+                descs = [d for d in descs if d["position"] <= min(tip)]
+            positions = [d["position"] for d in descs]
+            if positions != list(range(len(positions))):
+                self._counters["timeouts"] += 1
+                raise LinkError(f"incomplete discovery: answers from positions {positions}")
+            if not tip:
+                self._counters["timeouts"] += 1
+            self._expected = len(descs)
+            return descs
+
+    def _cyclic(
+        self, mtype: int, payload: dict, expected: int, timeout: float
+    ) -> list[dict | None]:
+        col = self._send(C.FLAG_BCAST, 0, mtype, payload, (C.T_STATE,))
+        self._wait(col, timeout, lambda c: all(i in c.replies for i in range(expected)))
+        states: list[dict | None] = []
+        for pos in range(expected):
+            frame = col.replies.get(pos)
+            payload_in = self._payload(frame) if frame is not None else None
+            if payload_in is None:
+                states.append(None)
+                continue
+            try:
+                states.append(decode_state(payload_in, pos))
+            except (ProtocolError, TypeError, ValueError):
+                self._counters["bad_payloads"] += 1
+                states.append(None)
+        if any(s is None for s in states):
+            self._counters["timeouts"] += 1
+        return states
+
+    def _next_cycle(self) -> int:
+        self._cycle = (self._cycle + 1) % C.TIME_WRAP
+        return self._cycle
+
+    def sync(
+        self,
+        setpoints: list[tuple[float, float]],
+        timeout: float = 0.1,
+        *,
+        expected: int | None = None,
+        resume: bool = False,
+    ) -> list[dict | None]:
+        """Broadcast one SYNC with (kappa 1/m, phi rad) per position; STATE (SI) per position.
+
+        Waits until ``expected`` positions (default: the number of setpoints) answered or
+        ``timeout`` s passed; a missing answer is None. ``resume`` ends a HOLD.
+        """
+        with self._call_lock:
+            payload = make_sync_payload(self._next_cycle(), setpoints, resume=resume)
+            n = len(setpoints) if expected is None else expected
+            return self._cyclic(C.T_SYNC, payload, n, timeout)
+
+    def heartbeat(self, timeout: float = 0.1, *, expected: int | None = None) -> list[dict | None]:
+        """Broadcast HEARTBEAT (feeds watchdogs); STATE per position (default: last discovery)."""
+        with self._call_lock:
+            n = expected if expected is not None else (self._expected or 0)
+            return self._cyclic(C.T_HEARTBEAT, {C.K_CYCLE: self._next_cycle()}, n, timeout)
+
+    def hold(self, position: int | None = None) -> None:
+        """HOLD every segment (broadcast) or the one at ``position``; no reply is expected."""
+        with self._call_lock:
+            if position is None:
+                self._send(C.FLAG_BCAST, 0, C.T_HOLD, {}, ())
+            else:
+                self._send(0, self._position(position), C.T_HOLD, {}, ())
+            with self._cond:
+                self._collector = None
+
+    @staticmethod
+    def _position(position: int) -> int:
+        if not isinstance(position, int) or not 0 <= position <= 255:
+            raise ValueError(f"position must be an int 0..255, got {position!r}")
+        return position
+
+    def _addressed(self, position: int, mtype: int, payload: dict, timeout: float) -> Any:
+        with self._call_lock:
+            col = self._send(0, self._position(position), mtype, payload, (C.T_PARAM_VALUE,))
+            self._wait(col, timeout, lambda c: position in c.replies or position in c.errors)
+            if position in col.errors:
+                self._raise_error(position, col.errors[position])
+            frame = col.replies.get(position)
+            if frame is None:
+                self._counters["timeouts"] += 1
+                raise LinkTimeoutError(
+                    f"no answer from segment {position} within {timeout * 1000:.0f} ms"
+                )
+            payload_in = self._payload(frame)
+            if not isinstance(payload_in, dict) or C.K_VALUE not in payload_in:
+                raise LinkError(f"segment {position} sent a malformed PARAM_VALUE")
+            return payload_in[C.K_VALUE]
+
+    def param_get(
+        self, position: int, param_id: int, uid: str | None = None, *, timeout: float = 0.2
+    ) -> Any:
+        """Read parameter ``param_id`` of the segment at ``position`` (verified by ``uid``)."""
+        payload: dict[int, Any] = {C.K_PARAM_ID: param_id}
+        if uid is not None:
+            payload[C.K_UID] = uid
+        return self._addressed(position, C.T_PARAM_GET, payload, timeout)
+
+    def param_set(
+        self,
+        position: int,
+        param_id: int,
+        value: Any,
+        uid: str | None = None,
+        *,
+        timeout: float = 0.2,
+    ) -> Any:
+        """Write a parameter; returns the value the segment stored (its echo)."""
+        payload: dict[int, Any] = {C.K_PARAM_ID: param_id, C.K_VALUE: value}
+        if uid is not None:
+            payload[C.K_UID] = uid
+        return self._addressed(position, C.T_PARAM_SET, payload, timeout)
+
+    def send_raw(self, data: bytes) -> None:
+        """Write raw bytes on the port (tests: garbage, hand-made frames)."""
+        self._check_open()
+        with self._write_lock:
+            self._ser.write(bytes(data))
+
+    def events(self) -> list[dict]:
+        """Unsolicited events received so far, oldest first (the queue is drained)."""
+        with self._cond:
+            out = list(self._events)
+            self._events.clear()
+            return out
+
+    @property
+    def stats(self) -> dict:
+        """Counters: frames ok, crc/framing errors, oversize, timeouts, unmatched, tx/rx."""
+        with self._cond:
+            out = dict(self._counters)
+            r = self._reader
+            out.update(
+                frames_ok=r.ok,
+                crc_errors=r.crc_error,
+                framing_errors=r.framing_error,
+                oversize=r.oversize,
+            )
+            return out
+
+
+__all__ = [
+    "ChainLink",
+    "LinkError",
+    "LinkTimeoutError",
+    "SegmentError",
+    "decode_descriptor",
+    "decode_state",
+    "make_sync_payload",
+]

@@ -1,0 +1,137 @@
+"""Per-segment configuration (the flashed ``config.json``) derived from the robot's U(C)RDF.
+
+The U(C)RDF is the single source of truth: geometry (backbone length and radius), tendon layout,
+servo calibration and limits of one ``<bendable>`` become the JSON file a segment reads at boot
+(keys and units: docs/architecture.md, "Segment configuration").
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from ucrdf.model import Bendable, Robot
+
+#: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
+#: ten to twenty missed cycles.
+DEFAULT_WATCHDOG_MS = 200
+#: Curvature rate limit (1/m/s) when the model's <limits> gives none (the firmware's default).
+DEFAULT_KAPPA_RATE_MAX = 10.0
+
+CONFIG_KEYS = (
+    "name",
+    "length",
+    "tendon_angles",
+    "tendon_radius",
+    "spool_radius",
+    "kappa_max",
+    "kappa_rate_max",
+    "mass",
+    "backbone_radius",
+    "model",
+    "servo_driver",
+    "servos",
+    "watchdog_ms",
+)
+
+
+class SegmentConfigError(ValueError):
+    """The robot description cannot produce a segment configuration (message says why)."""
+
+
+def _watchdog_ms(robot: Robot, bendable: Bendable) -> int:
+    """``watchdog_ms`` from the bendable's model params, else a ros2_control hardware param."""
+    value: object = bendable.model.params.get("watchdog_ms")
+    if value is None:
+        for rc in robot.ros2_control:
+            if "watchdog_ms" in rc.hardware_params:
+                value = rc.hardware_params["watchdog_ms"]
+                break
+    if value is None:
+        return DEFAULT_WATCHDOG_MS
+    try:
+        ms = float(value)
+    except (TypeError, ValueError):
+        raise SegmentConfigError(f"watchdog_ms must be a number of ms, got {value!r}") from None
+    if not 10 <= ms <= 60000:
+        raise SegmentConfigError(f"watchdog_ms {ms:g} is outside 10..60000 ms")
+    return int(round(ms))
+
+
+def config_for(robot: Robot, bendable_name: str) -> dict:
+    """The configuration dict (SI units, contract keys) of bendable ``bendable_name``."""
+    bendable = robot.bendables.get(bendable_name)
+    if bendable is None:
+        names = ", ".join(robot.bendables) or "none"
+        raise SegmentConfigError(
+            f"robot {robot.name!r} has no bendable {bendable_name!r} (bendables: {names})"
+        )
+    act = bendable.actuation
+    if act is None or not act.angles:
+        raise SegmentConfigError(
+            f"bendable {bendable_name!r} has no tendon <actuation>: a segment needs tendon angles, "
+            "tendon radius, spool radius and servos to be configured"
+        )
+    if act.type != "tendon":
+        raise SegmentConfigError(
+            f"bendable {bendable_name!r}: actuation type {act.type!r} is not supported by the "
+            "segment firmware (only 'tendon')"
+        )
+    for what, v in (("tendon radius", act.radius), ("spool radius", act.spool_radius)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise SegmentConfigError(f"bendable {bendable_name!r}: {what} must be > 0 m, got {v!r}")
+    if act.servos and len(act.servos) != len(act.angles):
+        raise SegmentConfigError(
+            f"bendable {bendable_name!r}: {len(act.servos)} servos for {len(act.angles)} tendons"
+        )
+    servos = [
+        {
+            "id": s.id,
+            "zero_offset": s.zero_offset,
+            "direction": s.direction,
+            "min_angle": s.min_angle,
+            "max_angle": s.max_angle,
+        }
+        for s in act.servos
+    ] or [
+        {"id": i, "zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
+        for i in range(len(act.angles))
+    ]
+    limits = bendable.model.limits
+    rate = limits.kappa_rate_max if limits.kappa_rate_max is not None else DEFAULT_KAPPA_RATE_MAX
+    return {
+        "name": bendable.name,
+        "length": bendable.model.backbone.length,
+        "tendon_angles": list(act.angles),
+        "tendon_radius": act.radius,
+        "spool_radius": act.spool_radius,
+        "kappa_max": limits.kappa_max,
+        "kappa_rate_max": rate,
+        "mass": bendable.inertial.mass if bendable.inertial is not None else 0.0,
+        "backbone_radius": bendable.model.backbone.radius,
+        "model": bendable.model.type,
+        "servo_driver": act.driver,
+        "servos": servos,
+        "watchdog_ms": _watchdog_ms(robot, bendable),
+    }
+
+
+def configs(robot: Robot) -> list[dict]:
+    """Configuration of every bendable, in document order (for an emulated chain of the robot)."""
+    return [config_for(robot, name) for name in robot.bendables]
+
+
+def dumps_config(config: dict) -> str:
+    """The file text: stable key order, one trailing newline."""
+    return json.dumps(config, indent=1) + "\n"
+
+
+def write_config(robot: Robot, name: str, path: str | os.PathLike) -> Path:
+    """Write bendable ``name``'s configuration to ``path`` (a file or a directory)."""
+    target = Path(path)
+    if target.is_dir():
+        target = target / "config.json"
+    target.write_text(dumps_config(config_for(robot, name)))
+    return target
