@@ -61,8 +61,22 @@ def client(rig):
     c.close()
 
 
+def joint(c, name: str, timeout: float = 3.0) -> dict:
+    """Measured joint state of one segment; waits out a moment where it is not valid (e.g. the
+    daemon rebuilding after a segment missed replies on a heavily loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        st = c.status()
+        js = st["joint_states"].get(name)
+        if js is not None and js["valid"] and st["state"] == "connected":
+            return js
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no valid state for {name}: {st}")
+        time.sleep(0.02)
+
+
 def kappa_of(c, name: str) -> float:
-    return c.status()["joint_states"][name]["kappa"]
+    return joint(c, name)["kappa"]
 
 
 def ensure_jtc(c) -> None:
@@ -105,10 +119,10 @@ def test_trajectory_through_the_client_reaches_the_goal(client):
     result = client.send_trajectory(points, progress=seen.append, timeout=20)
     assert result["state"] == "succeeded", result
     assert len(seen) >= 5 and seen[-1]["progress"] == pytest.approx(1.0)
-    js = client.status()["joint_states"]
-    assert js["segment_1"]["kappa"] == pytest.approx(3.0, abs=0.05)
-    assert js["segment_1"]["phi"] == pytest.approx(0.5, abs=0.02)
-    assert js["segment_3"]["kappa"] == pytest.approx(1.5, abs=0.05)
+    s1, s3 = joint(client, "segment_1"), joint(client, "segment_3")
+    assert s1["kappa"] == pytest.approx(3.0, abs=0.05)
+    assert s1["phi"] == pytest.approx(0.5, abs=0.02)
+    assert s3["kappa"] == pytest.approx(1.5, abs=0.05)
 
 
 def test_trajectory_beyond_limits_is_rejected_and_nothing_moves(client):
@@ -240,7 +254,7 @@ def test_cli_move_against_the_real_daemon(rig, client, capsys):
     out, err = capsys.readouterr()
     assert rc == 0, err
     assert "succeeded" in out
-    js = client.status()["joint_states"]["segment_2"]
+    js = joint(client, "segment_2")
     assert js["kappa"] == pytest.approx(1.5, abs=0.05)
     assert js["phi"] == pytest.approx(-1.5708, abs=0.02)
     assert ucr(["status", "--url", srv.url]) == 0
@@ -258,15 +272,17 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         + json.dumps({"t": 0.4, "stop": True})
         + "\n"
     )
-    before = client.status()["joint_states"]["segment_1"]
+    before = joint(client, "segment_1")
+    changes = client.status()["topology_changes"]
     try:
         rc = ucr(["teleop", "--url", srv.url, "--replay", str(rec)])
         out, err = capsys.readouterr()
         assert rc == 0, err
         assert "teleop ended (end" in out and "1 stops sent" in out
-        assert "hand-back" in out  # tells the user how to give control back
+        if client.status()["topology_changes"] == changes:  # a rebuild resets the takeover
+            assert "hand-back" in out  # tells the user how to give control back
         time.sleep(0.4)
-        after = client.status()["joint_states"]["segment_1"]
+        after = joint(client, "segment_1")
         kx_before = before["kappa"] * math.cos(before["phi"])
         kx_after = after["kappa"] * math.cos(after["phi"])
         assert kx_after < kx_before - 0.1  # stick left -> curvature vector moved towards -x
