@@ -27,7 +27,7 @@ from ucrdf.model import Robot
 from ucrdf.models.pcc import _A, _B, _C, _DA, _DB, SERIES_T, PCCModel, project_disc
 
 #: A start point is abandoned when this many iterations have not halved its error.
-STALL_ITERATIONS = 15
+STALL_ITERATIONS = 30
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 
@@ -200,8 +200,9 @@ class _Chain:
             self.ops.append(("const", const))
         self.size = n
 
-    def evaluate(self, q: list[float], want_rot: bool):
-        """Tip transform and the Jacobian rows (3 or 6 lists of length size)."""
+    def evaluate(self, q: list[float], want_rot: bool, rot_weight: float = 1.0):
+        """Tip transform and the Jacobian rows (3, or 6 with the angular rows scaled by
+        ``rot_weight`` m/rad, each a list of length size)."""
         tw = _IDENTITY
         cols: list[tuple] = []  # (Rb*jv, Rb*jw, p_end) per coordinate
         for op in self.ops:
@@ -270,9 +271,9 @@ class _Chain:
             rows[1].append(lin[1])
             rows[2].append(lin[2])
             if want_rot:
-                rows[3].append(w[0])
-                rows[4].append(w[1])
-                rows[5].append(w[2])
+                rows[3].append(rot_weight * w[0])
+                rows[4].append(rot_weight * w[1])
+                rows[5].append(rot_weight * w[2])
         return tw, rows
 
     def active(self, q: list[float], dq: list[float]) -> list[tuple[int, float, float | None]]:
@@ -354,16 +355,20 @@ class IKSolver:
         self.chain = _Chain(self.kin, self.tip)
         if self.chain.size == 0:
             raise ConfigError(f"no bendable or movable joint between the root and {self.tip!r}")
+        self._has_joints = any(kind in ("rev", "pri") for kind, *_ in self.chain.names)
         #: m per rad: orientation errors are scaled by this to be comparable with positions
         self.rot_weight = rot_weight
 
     def _seeds(self, first: list[float], count: int, rng: random.Random):
         yield list(first)
-        for _ in range(count):
+        for i in range(count):
+            # every second seed keeps the segments nearly straight (scale 0.1): with rigid joints on
+            # the path this finds targets at full stretch, where bent starts crawl along a valley
+            scale = 0.1 if (i % 2 and self._has_joints) else 1.0
             q = []
             for kind, name, _start, _size in self.chain.names:
                 if kind == "pcc":
-                    kmax = self.kin.models[name].spec.limits.kappa_max
+                    kmax = self.kin.models[name].spec.limits.kappa_max * scale
                     r = kmax * math.sqrt(rng.random())
                     a = rng.uniform(-math.pi, math.pi)
                     q += [r * math.cos(a), r * math.sin(a)]
@@ -389,7 +394,7 @@ class IKSolver:
         initial: Config | None = None,
         tol: float = 1e-4,
         rot_tol: float = 1e-3,
-        max_iter: int = 60,
+        max_iter: int = 150,
         restarts: int = 12,
         seed: int = 0,
     ) -> IKResult:
@@ -466,7 +471,7 @@ class IKSolver:
                 e += [w * ev[0], w * ev[1], w * ev[2]]
             return e, perr, rerr
 
-        tw, rows = chain.evaluate(q, want_rot)
+        tw, rows = chain.evaluate(q, want_rot, w)
         e, perr, rerr = errors(tw)
         cost = sum(x * x for x in e)
         mu = 1e-3
@@ -500,7 +505,7 @@ class IKSolver:
                             dq2[i], dq2[i + 1] = dq2[i] * tx, dq2[i] * ty
                     dq = dq2
             qn = chain.project([a + b for a, b in zip(q, dq, strict=True)])
-            twn, rowsn = chain.evaluate(qn, want_rot)
+            twn, rowsn = chain.evaluate(qn, want_rot, w)
             en, perrn, rerrn = errors(twn)
             costn = sum(x * x for x in en)
             if costn < cost:
@@ -560,7 +565,7 @@ def solve_ik(
     initial: Config | None = None,
     tol: float = 1e-4,
     rot_tol: float = 1e-3,
-    max_iter: int = 60,
+    max_iter: int = 150,
     restarts: int = 12,
 ) -> IKResult:
     """Configuration that puts link ``tip`` (default: the one end link) at ``target_xyz`` (m,

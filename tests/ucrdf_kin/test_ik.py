@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from ucrdf.fk import ConfigError, RobotKinematics
 from ucrdf.ik import IKSolver, solve_ik
 
-from .conftest import KAPPA_MAX, chain_robot, hybrid_robot
+from .conftest import KAPPA_MAX, ROBOTS_DIR, chain_robot, hybrid_robot
 
 ROBOT3 = chain_robot(3)
 KIN3 = RobotKinematics(ROBOT3)
@@ -84,9 +84,10 @@ def test_hybrid_robot_uses_rigid_joints_within_their_limits():
     assert np.linalg.norm(kin.fk(res.config)["tool"][:3, 3] - target) <= 1e-4
 
 
-def test_orientation_target():
-    cfg = {"seg1": {"kappa": 1.0, "phi": 0.5}, "seg2": {"kappa": 2.5, "phi": -2.0},
-           "seg3": {"kappa": 2.0, "phi": 1.0}}  # fmt: skip
+@settings(max_examples=25, deadline=None)
+@given(segs=st.tuples(segment, segment, segment))
+def test_orientation_target_round_trip(segs):
+    cfg = {f"seg{i + 1}": {"kappa": k, "phi": p} for i, (k, p) in enumerate(segs)}
     goal = KIN3.fk(cfg)["link3"]
     res = SOLVER3.solve(goal[:3, 3], target_rot=goal[:3, :3])
     assert res.success, res.message
@@ -94,6 +95,41 @@ def test_orientation_target():
     assert np.linalg.norm(got[:3, 3] - goal[:3, 3]) <= 1e-4
     assert res.rotation_residual <= 1e-3
     assert np.abs(got[:3, :3] - goal[:3, :3]).max() <= 2e-3
+    assert res.iterations <= 60  # Gauss-Newton-like convergence, not a slow crawl
+
+
+@settings(max_examples=25, deadline=None)
+@given(data=st.data())
+def test_example_hybrid_arm_round_trip(data):
+    """The rigid arm with a continuum wrist from robots/ (joints near their stretched, singular
+    poses included)."""
+    path = ROBOTS_DIR / "hybrid_arm.ucrdf"
+    if not path.exists():
+        pytest.skip("robots/hybrid_arm.ucrdf not written yet")
+    kin = _hybrid_file_kin(path)
+    cfg = {}
+    for name, model in kin.models.items():
+        kmax = model.spec.limits.kappa_max
+        cfg[name] = {"kappa": data.draw(st.floats(0.0, kmax)), "phi": data.draw(st.floats(-3, 3))}
+    for name in kin.movable_joints:
+        el = kin.elements[name]
+        cfg[name] = data.draw(st.floats(max(el.lower, -3.0), min(el.upper, 3.0)))
+    solver = IKSolver(kin)
+    target = kin.fk(cfg)[solver.tip][:3, 3]
+    res = solver.solve(target)
+    assert res.success, res.message
+    assert np.linalg.norm(kin.fk(res.config)[solver.tip][:3, 3] - target) <= 1e-4
+
+
+_KIN_CACHE: dict = {}
+
+
+def _hybrid_file_kin(path):
+    if path not in _KIN_CACHE:
+        from ucrdf.parser import load
+
+        _KIN_CACHE[path] = RobotKinematics(load(path))
+    return _KIN_CACHE[path]
 
 
 def test_tip_choice_and_input_errors():
