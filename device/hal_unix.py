@@ -94,8 +94,14 @@ class Hal:
         return time.ticks_diff(a, b)
 
     def wait(self, ms):
-        """Sleep up to ``ms`` milliseconds, returning early when a UART has input."""
-        for _ in self.poller.ipoll(ms):
+        """Sleep up to ``ms`` milliseconds, returning early when a UART has input.
+
+        A pty whose other end is closed reports POLLHUP at once and forever; then sleep the full
+        time instead of spinning (the link is down until the emulator reconnects it).
+        """
+        for _, ev in self.poller.ipoll(ms):
+            if ev & (select.POLLHUP | select.POLLERR):
+                time.sleep_ms(ms)
             break
 
     def servo_uart(self, bus_cfg):
