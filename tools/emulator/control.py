@@ -1,0 +1,190 @@
+"""Line commands that control a running emulated chain (``ucr emulate`` stdin and unix socket)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+from pathlib import Path
+
+from tools.emulator.chain import EmulatedChain, EmulatorError
+
+HELP = """commands (k = link/segment position, 0 = the one next to the host):
+  status                 links (plug, baud, latency, corruption, counters) and segments
+  unplug k | plug k      pull / plug the cable between segment k and its upstream side
+  baud k RATE|off        throttle link k to RATE bit/s (10 bits per byte), or remove the throttle
+  latency k SECONDS      add a fixed delay to link k (both ways)
+  corrupt k RATE         corrupt each byte on link k with probability RATE (0..1)
+  restart k              reboot segment k (kill its process; it restarts)
+  off k | on k           power segment k off / on
+  silence on|off         the host's bytes stop reaching segment 0 (watchdog test)
+  inject k HEX           put raw bytes (hex) on link k, travelling down
+  repl k                 last lines segment k printed on its REPL
+  help                   this text"""
+
+
+def _k(chain: EmulatedChain, word: str) -> int:
+    try:
+        k = int(word)
+    except ValueError:
+        raise EmulatorError(f"position must be an integer, got {word!r}") from None
+    if not 0 <= k < chain.n:
+        raise EmulatorError(f"position must be 0..{chain.n - 1}, got {k}")
+    return k
+
+
+def _float(word: str, what: str) -> float:
+    try:
+        return float(word)
+    except ValueError:
+        raise EmulatorError(f"{what} must be a number, got {word!r}") from None
+
+
+def status_text(chain: EmulatedChain) -> str:
+    st = chain.stats()
+    lines = [f"host port: {st['host_port']}" + ("  (host silenced)" if st["host_silenced"] else "")]
+    for link, seg in zip(st["links"], st["segments"], strict=True):
+        d = link["down"]
+        u = link["up"]
+        baud = f"{d['baud']} bd" if d["baud"] else "unthrottled"
+        lines.append(
+            f"link {link['index']}: {'plugged' if link['plugged'] else 'UNPLUGGED'}, {baud}, "
+            f"latency {d['latency_s'] * 1000:g} ms, corrupt {d['corrupt_rate']:g}; "
+            f"down {d['bytes_out']} B (dropped {d['dropped']}, corrupted {d['corrupted']}), "
+            f"up {u['bytes_out']} B (dropped {u['dropped']}, corrupted {u['corrupted']})"
+        )
+        state = "running" if seg["running"] else ("off" if not seg["powered"] else "restarting")
+        lines.append(
+            f"  segment {seg['index']}: uid {seg['uid']}, {state}, pid {seg['pid']}, "
+            f"restarts {seg['restarts']}, REPL {seg['repl_port']}"
+        )
+    return "\n".join(lines)
+
+
+def execute(chain: EmulatedChain, line: str) -> str:
+    """Run one command line; return the answer text (errors start with 'error:')."""
+    words = line.split()
+    if not words:
+        return ""
+    cmd, args = words[0].lower(), words[1:]
+    try:
+        if cmd in ("help", "?"):
+            return HELP
+        if cmd == "status":
+            return status_text(chain)
+        need = {
+            "unplug": 1,
+            "plug": 1,
+            "baud": 2,
+            "latency": 2,
+            "corrupt": 2,
+            "restart": 1,
+            "off": 1,
+            "on": 1,
+            "silence": 1,
+            "inject": 2,
+            "repl": 1,
+        }
+        if cmd not in need:
+            return f"error: unknown command {cmd!r} (try 'help')"
+        if len(args) != need[cmd]:
+            return f"error: {cmd} takes {need[cmd]} argument(s) (try 'help')"
+        if cmd == "silence":
+            if args[0] not in ("on", "off"):
+                return "error: silence on|off"
+            if args[0] == "on":
+                chain.kill_host_link()
+            else:
+                chain.restore_host_link()
+            return f"host silence {args[0]}"
+        k = _k(chain, args[0])
+        if cmd == "unplug":
+            chain.unplug(k)
+            return f"link {k} unplugged"
+        if cmd == "plug":
+            chain.plug(k)
+            return f"link {k} plugged"
+        if cmd == "baud":
+            if args[1].lower() in ("off", "none", "0"):
+                chain.set_link(k, baud=None)
+                return f"link {k} unthrottled"
+            try:
+                rate = int(args[1])
+            except ValueError:
+                return f"error: baud must be an integer or 'off', got {args[1]!r}"
+            chain.set_link(k, baud=rate)
+            return f"link {k} throttled to {rate} bit/s"
+        if cmd == "latency":
+            chain.set_link(k, latency=_float(args[1], "latency"))
+            return f"link {k} latency {args[1]} s"
+        if cmd == "corrupt":
+            chain.set_link(k, corrupt_rate=_float(args[1], "rate"))
+            return f"link {k} corrupts bytes with probability {args[1]}"
+        if cmd == "restart":
+            chain.restart(k)
+            return f"segment {k} restarted"
+        if cmd == "off":
+            chain.power_off(k)
+            return f"segment {k} off"
+        if cmd == "on":
+            chain.power_on(k)
+            return f"segment {k} on"
+        if cmd == "inject":
+            try:
+                data = bytes.fromhex(args[1])
+            except ValueError:
+                return f"error: not hex: {args[1]!r}"
+            chain.inject(k, data)
+            return f"{len(data)} bytes injected on link {k}"
+        if cmd == "repl":
+            return chain.repl_output(k)[-2000:]
+    except EmulatorError as exc:
+        return f"error: {exc}"
+    return f"error: unhandled command {cmd!r}"
+
+
+class ControlSocket:
+    """A unix socket server: one command per line, each answer followed by an empty line."""
+
+    def __init__(self, chain: EmulatedChain, path: str | os.PathLike) -> None:
+        self.chain = chain
+        self.path = Path(path)
+        if self.path.exists():
+            if not self.path.is_socket():
+                raise EmulatorError(f"{self.path} exists and is not a socket")
+            self.path.unlink()
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._sock.bind(str(self.path))
+        self._sock.listen(4)
+        self._closed = False
+        self._thread = threading.Thread(
+            target=self._serve, name="ucr-emulator-control", daemon=True
+        )
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._closed:
+            try:
+                conn, _ = self._sock.accept()
+            except OSError:
+                return
+            threading.Thread(target=self._client, args=(conn,), daemon=True).start()
+
+    def _client(self, conn: socket.socket) -> None:
+        with conn, conn.makefile("rwb") as f:
+            for raw in f:
+                line = raw.decode(errors="replace").strip()
+                if line in ("quit", "exit"):
+                    return
+                f.write((execute(self.chain, line) + "\n\n").encode())
+                f.flush()
+
+    def close(self) -> None:
+        self._closed = True
+        try:
+            self._sock.close()
+        finally:
+            try:
+                self.path.unlink()
+            except OSError:
+                pass

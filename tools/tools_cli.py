@@ -1,0 +1,179 @@
+"""``ucr emulate`` (an emulated segment chain) and ``ucr flash`` (flash a segment over its REPL)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    em = subparsers.add_parser(
+        "emulate",
+        help="run an emulated segment chain (real firmware on the MicroPython VM, pty links)",
+        description="Start N emulated segments linked through pseudo-terminals; print the host "
+        "port and each segment's REPL pty; run until Ctrl-C or SIGTERM. Commands on stdin "
+        "(and on --control-socket) change links at run time: type 'help'.",
+    )
+    em.add_argument("n", nargs="?", type=int, help="number of segments (default: the robot's)")
+    em.add_argument(
+        "--robot", type=Path, help="U(C)RDF file: segment k is configured from its k-th bendable"
+    )
+    em.add_argument("--baud", type=int, help="throttle every link to this rate (bit/s)")
+    em.add_argument("--latency", type=float, help="added delay on every link (s)")
+    em.add_argument("--corrupt", type=float, help="byte corruption probability on every link")
+    em.add_argument("--workdir", type=Path, help="keep segment directories here (default: temp)")
+    em.add_argument(
+        "--keep",
+        action="store_true",
+        help="reuse existing segment directories in "
+        "--workdir (e.g. flashed ones) instead of repopulating them",
+    )
+    em.add_argument("--control-socket", type=Path, help="also accept commands on this unix socket")
+    em.add_argument("--no-stdin", action="store_true", help="do not read commands from stdin")
+    em.set_defaults(func=cmd_emulate)
+
+    fl = subparsers.add_parser(
+        "flash",
+        help="flash a segment: firmware, protocol and its configuration from the robot file",
+        description="Copy device/ firmware, protocol/ and the segment's config.json (generated "
+        "from the U(C)RDF) with mpremote's raw REPL, verify every file by SHA-256 on the board, "
+        "then reset it. Works on a real ESP32 and on an emulated segment's REPL pty.",
+    )
+    fl.add_argument("--port", required=True, help="serial port of the segment's USB REPL")
+    fl.add_argument("--robot", required=True, type=Path, help="U(C)RDF file of the robot")
+    fl.add_argument("--segment", required=True, help="name of the <bendable> this segment is")
+    fl.add_argument("--mpy", action="store_true", help="precompile modules with mpy-cross")
+    fl.add_argument("--no-reset", action="store_true", help="do not reset the board afterwards")
+    fl.add_argument(
+        "--servo-driver",
+        help="override the robot's servo driver (e.g. 'emulated' for an emulated segment)",
+    )
+    fl.set_defaults(func=cmd_flash)
+
+
+def _error(text: str) -> int:
+    print(f"ucr: error: {text}", file=sys.stderr)
+    return 2
+
+
+def _load_robot(path: Path):
+    from ucrdf.errors import UcrdfError  # noqa: PLC0415 - keeps `ucr --help` fast
+    from ucrdf.parser import load  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    try:
+        return load(path), None
+    except UcrdfError as exc:
+        return None, str(exc)
+
+
+def cmd_flash(args: argparse.Namespace) -> int:
+    from tools.flash import FlashError, flash  # noqa: PLC0415 - keeps `ucr --help` fast
+    from tools.segment_config import SegmentConfigError, config_for  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    robot, err = _load_robot(args.robot)
+    if robot is None:
+        return _error(err or "cannot load robot")
+    try:
+        config = config_for(robot, args.segment)
+    except SegmentConfigError as exc:
+        return _error(str(exc))
+    if args.servo_driver:
+        config["servo_driver"] = args.servo_driver
+    try:
+        flash(
+            args.port,
+            config,
+            mpy=args.mpy,
+            reset=not args.no_reset,
+            log=lambda s: print(s, flush=True),
+        )
+    except FlashError as exc:
+        return _error(str(exc))
+    return 0
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from tools.emulator import EmulatedChain, EmulatorError  # noqa: PLC0415 - keeps `ucr --help` fast
+    from tools.emulator.control import ControlSocket, execute  # noqa: PLC0415 - keeps `ucr --help` fast
+    from tools.segment_config import SegmentConfigError, configs  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    configs_list = None
+    n = args.n
+    if args.robot is not None:
+        robot, err = _load_robot(args.robot)
+        if robot is None:
+            return _error(err or "cannot load robot")
+        try:
+            configs_list = configs(robot)
+        except SegmentConfigError as exc:
+            return _error(str(exc))
+        for cfg in configs_list:
+            cfg["servo_driver"] = "emulated"  # there are no real servos in the emulator
+        if n is None:
+            n = len(configs_list)
+        elif n != len(configs_list):
+            return _error(
+                f"{args.robot} has {len(configs_list)} bendables but {n} segments were asked for"
+            )
+    if n is None:
+        return _error("give the number of segments or --robot")
+    if not 1 <= n <= 64:
+        return _error(f"number of segments must be 1..64, got {n}")
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    control = None
+    try:
+        with EmulatedChain(n, args.workdir, config_for=configs_list, reuse_dirs=args.keep) as chain:
+            try:
+                settings = {}
+                if args.baud is not None:
+                    settings["baud"] = args.baud
+                if args.latency is not None:
+                    settings["latency"] = args.latency
+                if args.corrupt is not None:
+                    settings["corrupt_rate"] = args.corrupt
+                if settings:
+                    chain.set_all_links(**settings)
+            except EmulatorError as exc:
+                return _error(str(exc))
+            print(f"host port: {chain.host_port}")
+            for k in range(n):
+                print(
+                    f"segment {k}: REPL {chain.repl_port(k)}  uid {chain.uid(k)}  "
+                    f"dir {chain.segment_dir(k)}"
+                )
+            if args.control_socket:
+                control = ControlSocket(chain, args.control_socket)
+                print(f"control socket: {args.control_socket}")
+            print(
+                "running; Ctrl-C or SIGTERM stops it"
+                + ("" if args.no_stdin else "; type 'help' for commands"),
+                flush=True,
+            )
+            if args.no_stdin or sys.stdin is None:
+                threading.Event().wait()
+            else:
+                for line in sys.stdin:
+                    if line.strip() in ("quit", "exit"):
+                        break
+                    answer = execute(chain, line)
+                    if answer:
+                        print(answer, flush=True)
+                else:
+                    threading.Event().wait()  # stdin closed (background run): keep running
+    except KeyboardInterrupt:
+        pass
+    except EmulatorError as exc:
+        return _error(str(exc))
+    finally:
+        if control is not None:
+            control.close()
+        signal.signal(signal.SIGTERM, previous)
+    print("emulator stopped", flush=True)
+    return 0
