@@ -31,8 +31,13 @@ def build(tick_ms=TICK_MS):
     halmod = _hal_module()
     cfg = config.load("config.json", halmod.DEFAULT_DRIVER)
     hal = halmod.Hal(cfg.si.get("pins"))
+    driver = cfg.driver
+    if halmod.PLATFORM == "unix" and driver != "emulated":
+        # the unix port emulates the board: its servos, whatever their family, are simulated
+        print("[main] servo_driver %r runs as 'emulated' on the unix port" % driver)
+        driver = "emulated"
     try:
-        bus = servos.make(cfg.driver, cfg, hal)
+        bus = servos.make(driver, cfg, hal)
     except Exception as e:  # noqa: BLE001 - any driver failure: keep the chain alive
         print("[main] servo driver %r failed: %s" % (cfg.driver, e))
         bus = servos.OfflineBus(cfg.n, str(e))
