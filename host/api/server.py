@@ -304,7 +304,18 @@ class ApiServer:
         try:
             async for frame in ws:
                 reply = await self._serve_frame(session, frame)
-                await ws.send(S.encode(reply))
+                try:
+                    text = S.encode(reply)
+                except (TypeError, ValueError) as exc:  # a result JSON cannot carry
+                    log.error("API: cannot encode the reply to %s: %s", reply.get("id"), exc)
+                    text = S.encode(
+                        S.error_reply(
+                            reply.get("id"),
+                            S.INTERNAL,
+                            f"internal error: result not encodable ({exc})",
+                        )
+                    )
+                await ws.send(text)
         except ConnectionClosed:
             pass
         finally:
@@ -447,14 +458,17 @@ class ApiServer:
         next_status = 0.0
         while True:
             now = time.monotonic()
-            for session in list(self._sessions):
-                for sub in list(session.subs.values()):
-                    self._drain(session, sub, now)
-            if now >= next_status:
-                next_status = now + self.status_interval
+            try:
                 for session in list(self._sessions):
-                    if session.goals:
-                        await self._poll_goals(session)
+                    for sub in list(session.subs.values()):
+                        self._drain(session, sub, now)
+                if now >= next_status:
+                    next_status = now + self.status_interval
+                    for session in list(self._sessions):
+                        if session.goals:
+                            await self._poll_goals(session)
+            except Exception:  # noqa: BLE001 - the pump must outlive any one bad message
+                log.exception("API: forwarding failed")
             busy = any(s.subs or s.goals for s in self._sessions)
             # Nothing to forward: wake up less often (the Pi has better things to do).
             await asyncio.sleep(self.poll_interval if busy else 10 * self.poll_interval)
@@ -474,9 +488,14 @@ class ApiServer:
                 continue  # the daemon sent more than asked for
             if not sub.admit(kind, now):
                 continue
-            sub.sent += 1
             push = {"push": "stream", "sub": sub.sid, "dropped": sub.dropped, "msg": msg}
-            session.push_stream(sub, S.encode(push))
+            try:
+                text = S.encode(push)
+            except (TypeError, ValueError) as exc:
+                log.warning("API: dropped a %s message that JSON cannot carry: %s", kind, exc)
+                continue
+            sub.sent += 1
+            session.push_stream(sub, text)
 
     async def _poll_goals(self, session: _Session) -> None:
         for goal, last in list(session.goals.items()):

@@ -94,6 +94,8 @@ class FacadeStub:
         return {"robot": "stub", "expected": ["s1"], "controlled": ["s1"]}
 
     def loop_stats(self) -> dict:
+        if self.fail_status:
+            return {"rate_hz": object()}  # something JSON cannot carry
         return {"rate_hz": 100.0}
 
     def controllers(self) -> list[dict]:
@@ -275,6 +277,21 @@ def test_daemon_exception_becomes_internal_error_not_a_crash(server, stub):
         status = rpc(ws, {"id": 2, "op": "status"})["result"]
         assert status["state"] == "connected"
         assert status["nan"] is None  # non-finite numbers are sent as null (strict JSON)
+
+
+def test_unencodable_daemon_data_gives_an_error_and_streams_go_on(server, stub):
+    with connect(server.url) as c:
+        sub = c.subscribe(["joint_states"])
+        stub.fail_status = True
+        stub.publish({"kind": "joint_states", "t": 0.0, "bad": object()})
+        with pytest.raises(ApiError) as info:
+            c.loop_stats()
+        assert info.value.code == schema.INTERNAL and "not encodable" in info.value.message
+        stub.fail_status = False
+        time.sleep(0.1)
+        got = [sub.get(timeout=2) for _ in range(5)]
+        assert all(m is not None and "bad" not in m for m in got)
+        assert c.loop_stats() == {"rate_hz": 100.0}
 
 
 def test_valid_ops_reach_the_facade_with_canonical_params(server, stub):
