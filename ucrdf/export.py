@@ -1,21 +1,26 @@
 """Export a U(C)RDF robot to plain URDF for tools that only know rigid joints (RViz, yourdfpy).
 
-Each bendable of length l becomes a pseudo-rigid-body chain of N subdivisions of length h = l/N:
+Each bendable ``<b>`` of length l becomes a pseudo-rigid-body (PRB) chain of N subdivisions of
+length h = l/N:
 
     parent --[h/2]--> U_0 --[h]--> U_1 --[h]--> ... U_{N-1} --[h/2]--> twist --> child
 
-U_k is a universal joint, two revolute joints ``<b>_u<k>_x`` (about x) then ``<b>_u<k>_y`` (about
-y), sitting at the middle of subdivision k. The straight link after U_k stands for the chord
-between the middles of subdivisions k and k+1, whose direction is the backbone tangent at
-s = (k+1)h; U_k is therefore set so that the chain's z axis equals that tangent. Two joints cannot
-also follow the (zero) torsion exactly, so a last revolute joint ``<b>_twist`` about z removes the
-residual roll and the child link frame gets exactly the model's tip orientation; its position
-converges as O(1/N^2) (docs/kinematics.md gives figures).
+U_k is a universal joint, two revolute joints ``<b>_prb<k>_rx`` (about x) then ``<b>_prb<k>_ry``
+(about y; the link between them is ``<b>_prb<k>_cross``, the link after them ``<b>_prb<k>``),
+sitting at the middle of subdivision k. The straight link after U_k stands for the chord between
+the middles of subdivisions k and k+1, whose direction is the backbone tangent at s = (k+1)h; U_k
+is therefore set so that the chain's z axis equals that tangent. Two joints cannot also follow the
+(zero) torsion exactly, so a last joint ``<b>_prb_twist`` about z (after the fixed ``<b>_prb_end``
+and link ``<b>_prb_end_link``) removes the residual roll and the child link frame gets exactly the
+model's tip orientation; its position converges as O(1/N^2) (docs/kinematics.md gives figures).
 
 ``export_urdf(robot, N)`` writes movable joints (zero = straight); :func:`urdf_joint_positions`
 gives their values for a configuration. ``export_urdf(robot, N, config)`` bakes the configuration
 into fixed joints instead (a static snapshot). Rigid joints, links, inertials, visuals and
-collisions are copied; a bendable's mass is spread evenly over its subdivision links.
+collisions are copied. A bendable's mass is spread evenly over its subdivision links, each with
+its centre of mass at the subdivision's middle and 1/N of the segment's inertia tensor (an
+approximation, good for display and rough dynamics). Generated names that clash with the robot's
+own links or joints are refused with a clear error.
 """
 
 from __future__ import annotations
@@ -94,9 +99,9 @@ def urdf_joint_positions(
     for name, model in kin.models.items():
         angles, twist = subdivision_angles(model, coords[name], subdivisions)
         for k, (a, b) in enumerate(angles):
-            out[f"{name}_u{k}_x"] = a
-            out[f"{name}_u{k}_y"] = b
-        out[f"{name}_twist"] = twist
+            out[f"{name}_prb{k}_rx"] = a
+            out[f"{name}_prb{k}_ry"] = b
+        out[f"{name}_prb_twist"] = twist
     return out
 
 
@@ -109,9 +114,16 @@ def _origin_el(parent: etree._Element, xyz, rpy=(0.0, 0.0, 0.0)) -> None:
     etree.SubElement(parent, "origin", xyz=_vec(xyz), rpy=_vec(rpy))
 
 
-def _inertial_el(parent: etree._Element, inertial: Inertial, scale: float = 1.0) -> None:
+def _inertial_el(
+    parent: etree._Element, inertial: Inertial, scale: float = 1.0, at_frame: bool = False
+) -> None:
+    """Copy of ``inertial`` with mass and inertia times ``scale``; ``at_frame`` puts the centre
+    of mass at the link frame (used for the subdivisions of a bendable)."""
     el = etree.SubElement(parent, "inertial")
-    _origin_el(el, inertial.origin.xyz, inertial.origin.rpy)
+    if at_frame:
+        _origin_el(el, (0.0, 0.0, 0.0), inertial.origin.rpy)
+    else:
+        _origin_el(el, inertial.origin.xyz, inertial.origin.rpy)
     etree.SubElement(el, "mass", value=_fmt(inertial.mass * scale))
     names = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     etree.SubElement(
@@ -162,10 +174,10 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
                   joint.origin.rpy, axis, limit)  # fmt: skip
     taken = set(robot.links) | set(robot.joints)
     for b in robot.bendables.values():
-        made = {f"{b.name}_{x}" for x in ("twist_link", "tip", "twist")}
+        made = {f"{b.name}_prb_{x}" for x in ("end_link", "end", "twist")}
         for k in range(subdivisions):
-            made |= {f"{b.name}_u{k}_link_x", f"{b.name}_s{k}", f"{b.name}_u{k}_x",
-                     f"{b.name}_u{k}_y"}  # fmt: skip
+            made |= {f"{b.name}_prb{k}_cross", f"{b.name}_prb{k}", f"{b.name}_prb{k}_rx",
+                     f"{b.name}_prb{k}_ry"}  # fmt: skip
         clash = sorted(made & taken)
         if clash:
             raise ConfigError(
@@ -187,12 +199,12 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
         base = b.origin.matrix() @ Origin((0.0, 0.0, h / 2)).matrix()
         xyz, rpy = tuple(base[:3, 3]), _rpy(base[:3, :3])
         for k, (a, bb) in enumerate(angles):
-            mid = f"{b.name}_u{k}_link_x"
-            sub = f"{b.name}_s{k}"
+            mid = f"{b.name}_prb{k}_cross"
+            sub = f"{b.name}_prb{k}"
             etree.SubElement(root, "link", name=mid)
             sub_el = etree.SubElement(root, "link", name=sub)
             if b.inertial is not None:
-                _inertial_el(sub_el, b.inertial, 1.0 / n)
+                _inertial_el(sub_el, b.inertial, 1.0 / n, at_frame=True)
             if radius > 0.0:
                 vis = etree.SubElement(sub_el, "visual")
                 _origin_el(vis, (0.0, 0.0, 0.0))
@@ -200,23 +212,25 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
                 etree.SubElement(geo, "cylinder", radius=_fmt(radius), length=_fmt(h))
             if baked:
                 r_x = (base[:3, :3] if k == 0 else np.eye(3)) @ _rot_x(a)
-                _joint_el(root, f"{b.name}_u{k}_x", "fixed", parent, mid, xyz, _rpy(r_x))
-                _joint_el(root, f"{b.name}_u{k}_y", "fixed", mid, sub, rpy=_rpy(_rot_y(bb)))
+                _joint_el(root, f"{b.name}_prb{k}_rx", "fixed", parent, mid, xyz, _rpy(r_x))
+                _joint_el(root, f"{b.name}_prb{k}_ry", "fixed", mid, sub, rpy=_rpy(_rot_y(bb)))
             else:
                 lim = {"lower": -amax, "upper": amax, "effort": 0.0, "velocity": 0.0}
-                _joint_el(root, f"{b.name}_u{k}_x", "revolute", parent, mid, xyz,
+                _joint_el(root, f"{b.name}_prb{k}_rx", "revolute", parent, mid, xyz,
                           rpy if k == 0 else (0.0, 0.0, 0.0), (1, 0, 0), lim)  # fmt: skip
-                _joint_el(root, f"{b.name}_u{k}_y", "revolute", mid, sub, axis=(0, 1, 0), limit=lim)
+                _joint_el(
+                    root, f"{b.name}_prb{k}_ry", "revolute", mid, sub, axis=(0, 1, 0), limit=lim
+                )
             parent = sub
             xyz = (0.0, 0.0, h)
-        tw_link = f"{b.name}_twist_link"
+        tw_link = f"{b.name}_prb_end_link"
         etree.SubElement(root, "link", name=tw_link)
         if baked:
-            _joint_el(root, f"{b.name}_tip", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
-            _joint_el(root, f"{b.name}_twist", "fixed", tw_link, b.child, rpy=(0.0, 0.0, twist))
+            _joint_el(root, f"{b.name}_prb_end", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
+            _joint_el(root, f"{b.name}_prb_twist", "fixed", tw_link, b.child, rpy=(0.0, 0.0, twist))
         else:
-            _joint_el(root, f"{b.name}_tip", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
-            _joint_el(root, f"{b.name}_twist", "continuous", tw_link, b.child, axis=(0, 0, 1))
+            _joint_el(root, f"{b.name}_prb_end", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
+            _joint_el(root, f"{b.name}_prb_twist", "continuous", tw_link, b.child, axis=(0, 0, 1))
     return etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="utf-8").decode()
 
 
@@ -240,13 +254,13 @@ def exported_tip_error(
             t = t @ Origin((0.0, 0.0, h / 2)).matrix()
             for k in range(subdivisions):
                 r = np.eye(4)
-                r[:3, :3] = _rot_x(q[f"{el.name}_u{k}_x"]) @ _rot_y(q[f"{el.name}_u{k}_y"])
+                r[:3, :3] = _rot_x(q[f"{el.name}_prb{k}_rx"]) @ _rot_y(q[f"{el.name}_prb{k}_ry"])
                 t = t @ r
                 step = np.eye(4)
                 step[2, 3] = h if k < subdivisions - 1 else h / 2
                 t = t @ step
             tw = np.eye(4)
-            c, s = math.cos(q[f"{el.name}_twist"]), math.sin(q[f"{el.name}_twist"])
+            c, s = math.cos(q[f"{el.name}_prb_twist"]), math.sin(q[f"{el.name}_prb_twist"])
             tw[:2, :2] = [[c, -s], [s, c]]
             t = t @ tw
         frames[el.child] = t

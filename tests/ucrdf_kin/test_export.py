@@ -11,7 +11,7 @@ from ucrdf.export import export_urdf, exported_tip_error, urdf_joint_positions
 from ucrdf.fk import ConfigError, RobotKinematics
 from ucrdf.model import Joint
 
-from .conftest import chain_robot, hybrid_robot
+from .conftest import ROBOTS_DIR, chain_robot, hybrid_robot
 
 CFG3 = {
     "seg1": {"kappa": 3.0, "phi": 0.3},
@@ -66,6 +66,23 @@ def test_fixed_pose_export_and_straight_zero(tmp_path):
     assert np.allclose(movable.get_transform("link3", "base")[:3, 3], [0, 0, 3 * 0.316])
 
 
+def test_example_robots_export_and_load(tmp_path):
+    """Every example robot in robots/ exports (no generated-name clashes) and loads."""
+    from ucrdf.parser import load as load_ucrdf
+
+    files = sorted(ROBOTS_DIR.glob("*.ucrdf"))
+    if not files:
+        pytest.skip("no example robots yet")
+    for path in files:
+        robot = load_ucrdf(path)
+        urdf = load(tmp_path, export_urdf(robot, 3), path.stem + ".urdf")
+        assert set(robot.links) <= set(urdf.link_map), path.name
+        mass = sum(link.inertial.mass for link in urdf.robot.links if link.inertial is not None)
+        expected = sum(x.inertial.mass for x in [*robot.links.values(), *robot.bendables.values()]
+                       if x.inertial is not None)  # fmt: skip
+        assert mass == pytest.approx(expected), path.name
+
+
 def test_hybrid_export_keeps_rigid_joints(tmp_path):
     robot = hybrid_robot()
     urdf = load(tmp_path, export_urdf(robot, 16))
@@ -82,7 +99,7 @@ def test_bad_subdivisions_and_name_clashes():
     with pytest.raises(ConfigError, match="subdivisions"):
         export_urdf(chain_robot(1), 0)
     robot = chain_robot(1)
-    robot.links["seg1_s1"] = robot.links["base"].__class__("seg1_s1")
-    robot.joints["j"] = Joint("j", "fixed", "link1", "seg1_s1")
-    with pytest.raises(ConfigError, match="seg1_s1 already used"):
+    robot.links["seg1_prb1"] = robot.links["base"].__class__("seg1_prb1")
+    robot.joints["j"] = Joint("j", "fixed", "link1", "seg1_prb1")
+    with pytest.raises(ConfigError, match="seg1_prb1 already used"):
         export_urdf(robot, 4)
