@@ -268,9 +268,14 @@ def _cpython_timings(loops: int) -> list[tuple[str, float]]:
 
 MP_CODE = r"""
 import time
-from protocol import messages as M, frame as F, device as D
+from protocol import messages as M, frame as F, device as D, crc, cobs
 from protocol.constants import HEADER_LEN, MAX_FRAME, MAX_ENCODED
 LOOPS = %d
+if %s:  # pure-Python loops instead of the viper ones (protocol/_fast.py)
+    crc._fast_crc = None
+    cobs._fast_enc = None
+    cobs._fast_dec = None
+    F._collect = None
 sps3 = [(12.3456, 1.2345)] * 3
 sync3 = M.encode_sync(17, 123456, sps3)
 state = M.encode_state(17, cycle=123456, t_ms=7654321, kappa=12.3456, phi=1.2345,
@@ -320,10 +325,10 @@ for name, fn in (("host encode_sync N=3 (own codec)", c0), ("host feed + decode 
 """
 
 
-def _mp_timings(loops: int) -> list[tuple[str, float]]:
+def _mp_timings(loops: int, pure: bool = False) -> list[tuple[str, float]]:
     from tools.mpvm import run_code
 
-    out = run_code(MP_CODE % loops, timeout=600)
+    out = run_code(MP_CODE % (loops, pure), timeout=600)
     res = []
     for line in out.strip().splitlines():
         name, _, us = line.partition("|")
@@ -335,19 +340,19 @@ def print_timings(loops: int) -> None:
     cp = dict(_cpython_timings(loops))
     try:
         mp = dict(_mp_timings(max(loops // 5, 50)))
+        mpp = dict(_mp_timings(max(loops // 5, 50), pure=True))
     except (OSError, RuntimeError) as e:
         print(f"MicroPython VM timing skipped: {e}")
-        mp = {}
-    print("== encode/decode time per message [us] (this machine; an ESP32 at 240 MHz is")
-    print("   typically 10-30x slower than the unix VM on a PC)")
-    print(f"{'operation':<36}{'CPython':>10}{'MicroPython VM':>16}{'MP/CPy':>8}")
+        mp, mpp = {}, {}
+    print("== encode/decode time per message [us] on this PC (an ESP32 will be slower; not")
+    print("   measured here). 'MP viper' = the unix VM with the")
+    print("   machine-code byte loops of protocol/_fast.py (default), 'MP pure' = without them")
+    print(f"{'operation':<36}{'CPython':>9}{'MP viper':>10}{'MP pure':>9}{'pure/viper':>11}")
     for name in dict.fromkeys([*cp, *mp]):
-        c = cp.get(name)
-        m = mp.get(name)
-        ratio = f"{m / c:>8.1f}" if c and m else f"{'':>8}"
-        cs = f"{c:>10.2f}" if c is not None else f"{'-':>10}"
-        ms = f"{m:>16.2f}" if m is not None else f"{'-':>16}"
-        print(f"{name:<36}{cs}{ms}{ratio}")
+        vals = [cp.get(name), mp.get(name), mpp.get(name)]
+        cells = [f"{v:>9.2f}" if v is not None else f"{'-':>9}" for v in vals]
+        ratio = f"{vals[2] / vals[1]:>11.1f}" if vals[1] and vals[2] else f"{'':>11}"
+        print(f"{name:<36}{cells[0]}{cells[1]:>10}{cells[2]}{ratio}")
 
 
 def main() -> None:

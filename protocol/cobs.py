@@ -8,9 +8,14 @@ and ``decode`` are host conveniences. For inputs below 254 bytes the overhead is
 def encode_into(src, start, end, dst, off):
     """COBS-encode ``src[start:end]`` into ``dst`` at ``off``; return the end offset in ``dst``.
 
-    ``dst`` needs ``end - start + 1 + (end - start) // 254`` bytes from ``off``. No delimiter is
-    written. Allocates nothing.
+    ``dst`` needs ``end - start + 1 + (end - start) // 254`` bytes from ``off`` (IndexError
+    otherwise). No delimiter is written. Allocates nothing.
     """
+    n = end - start
+    if start < 0 or n < 0 or end > len(src) or off < 0 or off + n + 1 + n // 254 > len(dst):
+        raise IndexError("COBS encode range outside the buffers")
+    if _fast_enc is not None:
+        return _fast_enc(src, start, end, dst, off)
     code_pos = off
     out = off + 1
     code = 1
@@ -38,9 +43,13 @@ def decode_into(src, start, end, dst, off):
     """Decode COBS ``src[start:end]`` (no delimiter) into ``dst`` at ``off``.
 
     Returns the decoded length, or -1 when the input is not valid COBS (a 0x00 inside, or a code
-    byte pointing past the end). ``dst`` may be ``src`` with ``off <= start`` (in place).
-    Allocates nothing.
+    byte pointing past the end). ``dst`` may be ``src`` with ``off <= start`` (in place) and
+    needs ``end - start - 1`` bytes from ``off`` (IndexError otherwise). Allocates nothing.
     """
+    if start < 0 or start > end or end > len(src) or off < 0 or off + end - start - 1 > len(dst):
+        raise IndexError("COBS decode range outside the buffers")
+    if _fast_dec is not None:
+        return _fast_dec(src, start, end, dst, off)
     i = start
     o = off
     while i < end:
@@ -80,3 +89,23 @@ def decode(data):
     if m < 0:
         raise ValueError("invalid COBS data")
     return bytes(out[:m])
+
+
+# Machine-code loops on MicroPython ports with the viper emitter (protocol/_fast.py), checked
+# against the pure versions once. Set to None to force the pure-Python loops.
+_fast_enc = None
+_fast_dec = None
+try:
+    from protocol import _fast
+
+    _t = bytearray(8)
+    if (
+        _fast.cobs_encode(b"\x11\x22\x00\x33", 0, 4, _t, 0) == 5
+        and _t[:5] == b"\x03\x11\x22\x02\x33"
+    ):
+        if _fast.cobs_decode(_t, 0, 5, _t, 0) == 4 and _t[:4] == b"\x11\x22\x00\x33":
+            _fast_enc = _fast.cobs_encode
+            _fast_dec = _fast.cobs_decode
+    del _t
+except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
+    pass

@@ -230,16 +230,29 @@ class FrameReader:
         cap = len(buf)
         n = self.n
         i = start
+        if start < 0 or end > len(data):
+            raise IndexError("scan range outside the data")
+        fast = _collect is not None and cap <= 510 and end < 0x80000
         while i < end:
-            b = data[i]
-            i += 1
-            if b != 0:
-                if n < cap:
-                    buf[n] = b
-                    n += 1
-                else:
+            if fast:
+                r = _collect(data, i, end, buf, n | (cap << 10))
+                i = r >> 10
+                n = r & 0x1FF
+                if n > cap:
                     self.over = True
-                continue
+                    n = cap
+                if not (r & 0x200):
+                    break
+            else:
+                b = data[i]
+                i += 1
+                if b != 0:
+                    if n < cap:
+                        buf[n] = b
+                        n += 1
+                    else:
+                        self.over = True
+                    continue
             # delimiter
             if self.over:
                 self.oversize += 1
@@ -306,3 +319,11 @@ class FrameReader:
             "framing_error": self.framing_error,
             "oversize": self.oversize,
         }
+
+
+# Machine-code byte collector on MicroPython ports with the viper emitter (protocol/_fast.py).
+# Set to None to force the pure-Python loop.
+try:
+    from protocol._fast import collect as _collect
+except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
+    _collect = None

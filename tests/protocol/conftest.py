@@ -244,14 +244,17 @@ def _raw_hex(wire: bytes) -> str:
     return F.decode_frame(wire).raw().hex()
 
 
-def run_mp_job(job: dict, tmp: Path, heap: str = "16m") -> dict:
-    """Run mp_runner.main on the MicroPython VM with ``job``; return its JSON results."""
+def run_mp_job(job: dict, tmp: Path, heap: str = "16m", pure: bool = False) -> dict:
+    """Run mp_runner.main on the MicroPython VM with ``job``; return its JSON results.
+
+    ``pure``: switch off the viper loops first (tests the pure-Python loops on the VM).
+    """
     from tools.mpvm import run_code
 
     inp = tmp / "job.json"
     outp = tmp / "result.json"
     inp.write_text(json.dumps(job))
-    code = f"import mp_runner\nmp_runner.main({str(inp)!r}, {str(outp)!r})\n"
+    code = f"import mp_runner\nmp_runner.main({str(inp)!r}, {str(outp)!r}, {pure!r})\n"
     run_code(code, heap=heap, paths=[REPO, HERE], timeout=120)
     return json.loads(outp.read_text())
 
@@ -274,3 +277,10 @@ def mp_batch(tmp_path_factory):
     }
     res = run_mp_job(job, tmp_path_factory.mktemp("mp"))
     return job, res
+
+
+@pytest.fixture(scope="session")
+def mp_batch_pure(mp_batch, tmp_path_factory):
+    """The same job on the VM with the viper loops switched off."""
+    job, _ = mp_batch
+    return run_mp_job(job, tmp_path_factory.mktemp("mp_pure"), pure=True)

@@ -216,11 +216,26 @@ def decode_payloads(payloads):
     return out
 
 
-def main(in_path, out_path):
+def use_pure_loops():
+    """Switch off the viper loops (protocol/_fast.py) so the pure-Python ones run."""
+    crc._fast_crc = None
+    cobs._fast_enc = None
+    cobs._fast_dec = None
+    F._collect = None
+
+
+def fast_loops_active():
+    """True when the viper loops are in use (MicroPython with the viper emitter)."""
+    return crc._fast_crc is not None and cobs._fast_enc is not None and F._collect is not None
+
+
+def main(in_path, out_path, pure=False):
     """VM entry: read {"vectors", "streams", "payloads"} JSON, write the results as JSON."""
+    if pure:
+        use_pure_loops()
     with open(in_path) as f:
         job = json.load(f)
-    res = {}
+    res = {"fast": fast_loops_active()}
     if "vectors" in job:
         res["vectors"] = [run_vector(v) for v in job["vectors"]]
     if "streams" in job:

@@ -8,9 +8,10 @@ from conftest import HERE, REPO
 from tools.mpvm import run_code
 
 
-@pytest.fixture(scope="module")
-def alloc_report() -> dict[str, str]:
-    out = run_code("import mp_alloc\nmp_alloc.main()\n", paths=[REPO, HERE], timeout=60)
+@pytest.fixture(scope="module", params=["viper", "pure"])
+def alloc_report(request) -> dict[str, str]:
+    pure = request.param == "pure"
+    out = run_code(f"import mp_alloc\nmp_alloc.main(20, {pure})\n", paths=[REPO, HERE], timeout=60)
     report = {}
     for line in out.splitlines():
         name, _, rest = line.partition(" ")
@@ -37,6 +38,11 @@ def test_device_path_allocates_nothing(alloc_report: dict[str, str], check: str)
 
 def test_allocation_is_detected_by_the_harness(alloc_report: dict[str, str]) -> None:
     assert alloc_report["control_allocates"].startswith("ALLOC")
+
+
+def test_both_loop_variants_are_exercised(alloc_report: dict[str, str], request) -> None:
+    pure = request.node.callspec.params["alloc_report"] == "pure"
+    assert alloc_report["fast"] == str(not pure)
 
 
 def test_receive_cycle_really_processed_frames(alloc_report: dict[str, str]) -> None:

@@ -68,3 +68,12 @@ def test_random_payloads_never_raise_on_both(mp_batch) -> None:
     for a, b in zip(cp, res["payloads"], strict=True):
         assert not any(isinstance(x, str) and x.startswith("RAISED") for x in a), a
         assert a == b
+
+
+def test_viper_loops_active_on_the_vm_and_equal_to_pure_loops(mp_batch, mp_batch_pure) -> None:
+    """The machine-code CRC/COBS/collector give exactly the pure-Python results."""
+    _, fast = mp_batch
+    assert fast["fast"] is True
+    assert mp_batch_pure["fast"] is False
+    for key in ("vectors", "streams", "payloads"):
+        assert fast[key] == mp_batch_pure[key], key
