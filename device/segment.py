@@ -31,6 +31,14 @@ from servos import FAULT_NONE, FAULT_STALL
 from protocol import cbor
 from protocol import device as pd
 from protocol.constants import (
+    ALIVE_SILENCE_MS,
+    DOWNSTREAM_TIMEOUT_MS,
+    ERR_BAD_VALUE,
+    ERR_IDENTITY_MISMATCH,
+    ERR_MALFORMED,
+    ERR_UNKNOWN_PARAM,
+    ERR_UNKNOWN_TYPE,
+    ERR_UNSUPPORTED_VERSION,
     EV_BOOT,
     EV_DOWNSTREAM_DOWN,
     EV_DOWNSTREAM_UP,
@@ -38,6 +46,7 @@ from protocol.constants import (
     EV_SERVO_FAULT,
     EV_WATCHDOG_CLEARED,
     EV_WATCHDOG_TRIPPED,
+    EVENT_MIN_INTERVAL_MS,
     FLAG_BCAST,
     FLAG_LOCAL,
     FLAG_UP,
@@ -45,6 +54,12 @@ from protocol.constants import (
     HEADER_LEN,
     MAX_ENCODED,
     MAX_FRAME,
+    ST_CLAMPED,
+    ST_DOWNSTREAM,
+    ST_HOLD,
+    ST_SERVO_FAULT,
+    ST_UNCONFIGURED,
+    ST_WATCHDOG,
     T_ALIVE,
     T_DESCRIPTOR,
     T_DISCOVER,
@@ -60,18 +75,8 @@ from protocol.constants import (
 )
 from protocol.frame import FrameReader, forward_into, frame_into
 
-ST_HOLD = const(0x01)
-ST_WATCHDOG = const(0x02)
-ST_SERVO_FAULT = const(0x04)
-ST_CLAMPED = const(0x08)
-ST_DOWNSTREAM = const(0x10)
-ST_UNCONFIGURED = const(0x20)
-
 _TMASK = const(0x3FFFFFFF)
 _HALF = const(0x20000000)
-ALIVE_MS = const(50)  # send ALIVE upstream after this much upstream silence
-DOWN_TIMEOUT_MS = const(150)  # downstream neighbour absent after this much silence
-EVENT_GAP_MS = const(20)  # min spacing of EVENTs (protocol constants EVENT_MIN_INTERVAL_MS)
 CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
 STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
 STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
@@ -183,7 +188,7 @@ class Segment:
         self.last_up_tx = now
         self.last_down_rx = now
         self.down_present = False
-        self.last_event = now - EVENT_GAP_MS
+        self.last_event = now - EVENT_MIN_INTERVAL_MS
         self.stall_ref = array("i", [0] * cfg.n)
         self.stall_t = array("i", [now] * cfg.n)
         self.prev_fault = bytearray(cfg.n)  # current fault code per servo (driver or stall)
@@ -207,7 +212,7 @@ class Segment:
         self.last_up_tx = self.now
 
     def event(self, code, detail):
-        """Queue an EVENT (sent from ``tick``, at most one per EVENT_GAP_MS)."""
+        """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS)."""
         if self.ev_len >= _EVQ:
             self.events_lost += 1
             return
@@ -222,7 +227,9 @@ class Segment:
             end = cbor.dumps_into(obj, self.raw, HEADER_LEN)
         except (IndexError, ValueError, TypeError):
             # too long for one frame (or not encodable): say so instead of going silent
-            end = cbor.dumps_into({0: 2, 1: mtype, 2: "reply does not fit a frame"}, self.raw, 5)
+            end = cbor.dumps_into(
+                {0: ERR_BAD_VALUE, 1: mtype, 2: "reply does not fit a frame"}, self.raw, HEADER_LEN
+            )
             mtype = T_ERROR
         self._up(frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire))
 
@@ -299,7 +306,7 @@ class Segment:
             return
         if flags & ~FLAGS_KNOWN & 0xFF:
             self.dropped += 1
-            self._error(r.seq, 5, r.mtype, "unknown flag bits 0x%02x" % flags)
+            self._error(r.seq, ERR_MALFORMED, r.mtype, "unknown flag bits 0x%02x" % flags)
             return
         if not pd.version_supported(r.ver):
             self.dropped += 1
@@ -307,7 +314,7 @@ class Segment:
                 T_ERROR,
                 r.seq,
                 {
-                    0: 3,
+                    0: ERR_UNSUPPORTED_VERSION,
                     1: r.mtype,
                     2: "supported protocol versions %d..%d" % (VERSION_MIN, VERSION_MAX),
                     3: [VERSION_MIN, VERSION_MAX],
@@ -351,7 +358,7 @@ class Segment:
             res = pd.decode_sync(raw, HEADER_LEN, pe, self.position, out)
             if res < 0:
                 self.dropped += 1
-                self._error(seq, 5, t, "malformed SYNC")
+                self._error(seq, ERR_MALFORMED, t, "malformed SYNC")
                 return
             self._on_sync(res, out, seq)
         elif t == T_HEARTBEAT:
@@ -360,7 +367,7 @@ class Segment:
             c = pd.decode_cycle(raw, HEADER_LEN, pe)
             if c < 0:
                 self.dropped += 1
-                self._error(seq, 5, t, "malformed HEARTBEAT")
+                self._error(seq, ERR_MALFORMED, t, "malformed HEARTBEAT")
                 return
             self.last_feed = self.now
             self.wd_armed = True
@@ -370,13 +377,13 @@ class Segment:
                 self.position = hop
             if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
                 self.dropped += 1
-                self._error(seq, 5, t, "malformed DISCOVER")
+                self._error(seq, ERR_MALFORMED, t, "malformed DISCOVER")
                 return
             self._reply(T_DESCRIPTOR, seq, self.descriptor_payload())
         elif t == T_HOLD:
             if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
                 self.dropped += 1
-                self._error(seq, 5, t, "malformed HOLD")
+                self._error(seq, ERR_MALFORMED, t, "malformed HOLD")
                 return
             self.enter_hold()
         elif t == T_PARAM_GET or t == T_PARAM_SET:
@@ -385,7 +392,7 @@ class Segment:
             return  # link-local keep-alive from the host side: nothing to do
         else:
             self.dropped += 1
-            self._error(seq, 1, t, "unknown or non-request message type 0x%02x" % t)
+            self._error(seq, ERR_UNKNOWN_TYPE, t, "unknown or non-request message type 0x%02x" % t)
 
     def _on_sync(self, res, out, seq):
         self.last_feed = self.now
@@ -470,21 +477,21 @@ class Segment:
             bus.command(mc.servo_target, now)  # keep holding the measured position
         bus.request(now)
         # chain housekeeping
-        if self.down_present and _diff(now, self.last_down_rx) > DOWN_TIMEOUT_MS:
+        if self.down_present and _diff(now, self.last_down_rx) > DOWNSTREAM_TIMEOUT_MS:
             self.down_present = False
             self.event(EV_DOWNSTREAM_DOWN, 0)
         if self.clamp_pending and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS:
             self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
             self.clamp_pending = 0
             self.last_clamp_ev = now
-        if self.ev_len and _diff(now, self.last_event) >= EVENT_GAP_MS:
+        if self.ev_len and _diff(now, self.last_event) >= EVENT_MIN_INTERVAL_MS:
             j = self.ev_head * 2
             end = pd.event_frame(self.raw, self.wire, 0, self.evq[j], self.evq[j + 1], now)
             self._up(end)
             self.ev_head = (self.ev_head + 1) % _EVQ
             self.ev_len -= 1
             self.last_event = now
-        elif _diff(now, self.last_up_tx) >= ALIVE_MS:
+        elif _diff(now, self.last_up_tx) >= ALIVE_SILENCE_MS:
             self._up(pd.alive_frame(self.raw, self.wire, 0))
         us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
         self.cycle_us = us
@@ -573,22 +580,29 @@ class Segment:
             err = "key 1 (value) missing"
         if err is not None:
             self.dropped += 1
-            self._error(seq, 5, t, err)
+            self._error(seq, ERR_MALFORMED, t, err)
             return
         uid = req.get(15)
         if uid is not None and uid.lower() != self.uid:
-            self._error(seq, 6, t, "identity mismatch: this segment is %s" % self.uid)
+            self._error(
+                seq, ERR_IDENTITY_MISMATCH, t, "identity mismatch: this segment is %s" % self.uid
+            )
             return
         pid = req[0]
         if not 0 <= pid < len(PARAM_NAMES):
-            self._error(seq, 4, t, "unknown parameter %d (0..%d)" % (pid, len(PARAM_NAMES) - 1))
+            self._error(
+                seq,
+                ERR_UNKNOWN_PARAM,
+                t,
+                "unknown parameter %d (0..%d)" % (pid, len(PARAM_NAMES) - 1),
+            )
             return
         try:
             if t == T_PARAM_SET:
                 self.set_param(pid, req[1])
             value = self.get_param(pid)
         except ValueError as e:
-            self._error(seq, 2, t, "%s: %s" % (PARAM_NAMES[pid], e))
+            self._error(seq, ERR_BAD_VALUE, t, "%s: %s" % (PARAM_NAMES[pid], e))
             return
         self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
 
