@@ -245,6 +245,10 @@ def _half_bits(f32):
     return -1
 
 
+_INF = float("inf")
+_NAN = float("nan")
+
+
 def _half_value(h):
     """Float value of IEEE half bits ``h``."""
     exp = (h >> 10) & 0x1F
@@ -252,7 +256,7 @@ def _half_value(h):
     if exp == 0:
         v = math.ldexp(mant, -24)
     elif exp == 0x1F:
-        v = math.inf if mant == 0 else math.nan
+        v = _INF if mant == 0 else _NAN
     else:
         v = math.ldexp(mant | 0x400, exp - 25)
     return -v if h & 0x8000 else v

@@ -265,9 +265,9 @@ def mp_batch(tmp_path_factory):
     rng = random.Random(20261121)
     job = {
         "vectors": load_vectors() + random_vectors(rng, 300),
-        "streams": make_streams(7, 250),
+        "streams": make_streams(7, 800),
         "payloads": [
-            bytes(rng.randrange(256) for _ in range(rng.randrange(40))).hex() for _ in range(300)
+            bytes(rng.randrange(256) for _ in range(rng.randrange(40))).hex() for _ in range(600)
         ]
         + [
             bytes([0xA2, 0x00, rng.randrange(256), 0x01, 0x80 | rng.randrange(32)]).hex()
