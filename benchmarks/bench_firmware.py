@@ -40,6 +40,14 @@ def only_tick():
         seg.tick(hal.t)
         hal.up.discard()
 
+def slewing_tick():
+    for i in range(N):
+        if i % 50 == 0:   # a far target every 50 ticks: the slew limit is always active
+            seg.mc.set_target(30000, 31416 if (i // 50) & 1 else 0)
+        hal.t += 5
+        seg.tick(hal.t)
+        hal.up.discard()
+
 def only_sync():
     for i in range(N):
         rewind(hal.up, len(SYNC))
@@ -76,6 +84,7 @@ R = {{}}
 full()   # warm up, and start moving
 gc.collect()
 R['tick_us'] = timed(only_tick)
+R['slew_tick_us'] = timed(slewing_tick)
 R['sync_us'] = timed(only_sync)
 R['forward_us'] = timed(only_forward)
 R['cycle_us'] = timed(full)
@@ -86,6 +95,7 @@ full()
 a1 = gc.mem_alloc()
 gc.enable()
 R['heap_bytes_per_cycle'] = (a1 - a0) / N
+R['heap_lock_ok'] = False   # key created before the lock: inserting it would allocate
 micropython.heap_lock()
 try:
     full()
@@ -131,6 +141,7 @@ def main() -> int:
     tick_budget = 5000.0
     print(f"MicroPython VM (unix port), heap {mpvm.ESP32_HEAP}, {args.cycles} cycles, best of 5")
     print(f"  control tick (servos, MC, SC, safety)    {r['tick_us']:8.1f} us")
+    print(f"  control tick while slew-limiting         {r['slew_tick_us']:8.1f} us")
     print(f"  SYNC processed (decode, forward, STATE)  {r['sync_us']:8.1f} us")
     print(f"  upstream frame forwarded (hop+1, CRC)    {r['forward_us']:8.1f} us")
     print(f"  full cycle (SYNC + forward + tick)       {r['cycle_us']:8.1f} us")
