@@ -46,11 +46,13 @@ class ApiConfig:
 @dataclass
 class WatchdogConfig:
     """Link supervision. ``reply_timeout_s``: how long one SYNC/HEARTBEAT waits for the states;
-    ``missed_cycles``: consecutive cycles a segment may stay silent before the host treats the
-    topology as changed; reconnect back-off bounds for a vanished adapter; discovery timeout."""
+    ``missed_cycles`` and ``silence_s``: a segment silent for at least that many consecutive
+    cycles *and* that long (s) counts as gone (the time bound keeps fast loops from reacting to
+    one late reply); reconnect back-off bounds for a vanished adapter; discovery timeout."""
 
     reply_timeout_s: float = 0.02
     missed_cycles: int = 3
+    silence_s: float = 0.08
     reconnect_min_s: float = 0.1
     reconnect_max_s: float = 2.0
     discover_timeout_s: float = 0.3

@@ -42,6 +42,7 @@ from ucrdf.parser import load
 log = logging.getLogger("ucr.daemon")
 
 KINDS = ("joint_states", "transforms", "event", "topology")
+_DESCRIPTOR_BYTES = 200  # a DESCRIPTOR frame on the wire, bytes (upper estimate)
 _TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
 
 
@@ -115,6 +116,8 @@ class Daemon:
         self.comparison: Comparison | None = None
         self.cut: dict[str, Any] | None = None
         self.topology_changes = 0
+        self.stalls = 0
+        self._silent = False
         self.hotplug_log: deque[dict] = deque(maxlen=20)
         self.recent_events: deque[dict] = deque(maxlen=50)
         self._state = RobotState.zeros([])
@@ -188,8 +191,16 @@ class Daemon:
         self.stop()
 
     # -- building ----------------------------------------------------------------------------
-    def _discover(self) -> list[dict]:
-        return self.link.discover(timeout=self.cfg.watchdog.discover_timeout_s)
+    def _discover(self, quick: bool = False) -> list[dict]:
+        """DISCOVER. ``quick`` (after a hot-plug) bounds the wait by what the line needs: the new
+        tip may still believe its lost neighbour is present for 150 ms, so the link would
+        otherwise wait the whole configured timeout for an answer that will never come."""
+        timeout = self.cfg.watchdog.discover_timeout_s
+        if quick:
+            n = max(len(self.descriptors), 1) + 1
+            line_s = 2 * n * _DESCRIPTOR_BYTES * 10 / self.cfg.baudrate
+            timeout = min(timeout, max(0.08, line_s + 0.04))
+        return self.link.discover(timeout=timeout)
 
     def _adopt(self, descs: list[dict], cmp: Comparison) -> None:
         try:
@@ -264,7 +275,7 @@ class Daemon:
         state = self._robot_state_from(hwi, now)
         reason = self._supervise(hwi, state, events)
         if reason is not None:
-            self._hotplug(reason, now)
+            self._hotplug(reason, now, verify=self._silent)
             return None
         with self._lock:
             dt = now - self._t_last if self._t_last else self.period
@@ -288,6 +299,7 @@ class Daemon:
     ) -> str | None:
         """SMCS: return a reason when the topology changed; handle unexpected HOLDs."""
         reason = None
+        self._silent = False
         for ev in events:
             name = ev.get("name", "")
             self._emit_event(
@@ -301,11 +313,13 @@ class Daemon:
             if reason is None and self._is_news(name, ev.get("position")):
                 reason = f"{name} from position {ev.get('position')}"
         if reason is None:
-            limit = self.cfg.watchdog.missed_cycles
+            wd = self.cfg.watchdog
+            limit = max(wd.missed_cycles, math.ceil(wd.silence_s / self.period))
             silent = [i for i, m in enumerate(hwi.missing) if m >= limit]
             if silent:
                 names = ", ".join(f"{hwi.names[i]} (position {i})" for i in silent)
                 reason = f"no STATE from {names} for {limit} cycles"
+                self._silent = True
         if reason is None and hwi.raw_states and self.descriptors:
             tip = hwi.raw_states[-1]
             known_tip = self.descriptors[len(hwi.names) - 1]
@@ -363,18 +377,41 @@ class Daemon:
             return position < last  # we believed a segment was behind it
         return position >= last  # DOWNSTREAM_UP: we believed it was the tip
 
-    def _hotplug(self, reason: str, t_detect: float) -> None:
-        """Abort, hold, rediscover, rebuild — the loop thread, without restarting."""
-        log.warning("topology change: %s", reason)
-        self.topology_changes += 1
-        with self._lock:
-            aborted = self._abort_goals(f"topology changed: {reason}")
+    def _hotplug(self, reason: str, t_detect: float, verify: bool = False) -> None:
+        """Hold, rediscover, abort, rebuild — in the loop thread, without restarting.
+
+        ``verify`` (silent segments, no event): if discovery finds the very same chain, the
+        silence was a stall (late replies, a loaded host): resume without aborting anything.
+        """
+        aborted: list[str] = []
+        if not verify:
+            log.warning("topology change: %s", reason)
+            with self._lock:
+                aborted = self._abort_goals(f"topology changed: {reason}")
         try:
             self.link.hold()
-            descs = self._discover()
+            descs = self._discover(quick=True)
         except OSError as exc:
             self._link_lost(exc)
             return
+        if verify and self.hwi is not None:
+            same = [d.get("uid") for d in descs] == [d.get("uid") for d in self.descriptors]
+            if same and descs:
+                self.hwi.missing = [0] * len(self.hwi.names)
+                self.hwi.resume_pending = True
+                self.stalls += 1
+                self._emit_event(
+                    "link_stall",
+                    message=f"{reason}, but the chain is unchanged: resumed",
+                    reason=reason,
+                    stall_s=round(time.monotonic() - t_detect, 4),
+                )
+                log.warning("stall: %s; chain unchanged, resumed", reason)
+                return
+            log.warning("topology change: %s", reason)
+            with self._lock:
+                aborted = self._abort_goals(f"topology changed: {reason}")
+        self.topology_changes += 1
         if not descs:
             self._lost_chain(f"{reason}; no segment answers DISCOVER")
             return
@@ -561,6 +598,7 @@ class Daemon:
                 "running_goals": goals,
                 "manual_control": sorted(self.arb.takeovers),
                 "topology_changes": self.topology_changes,
+                "stalls": self.stalls,
                 "uptime_s": time.monotonic() - self._t_started if self._t_started else 0.0,
                 "joint_states": {
                     n: {"kappa": st.kappa[i], "phi": st.phi[i], "valid": st.valid[i]}

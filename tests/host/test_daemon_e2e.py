@@ -62,6 +62,21 @@ def straighten(daemon, t=0.8):
     assert wait_for(lambda: daemon.trajectory_status(gid)["done"], 10.0)
 
 
+def windowed_speed(t, kx, ky, window: float = 0.1) -> np.ndarray:
+    """|d(kx, ky)/dt| (1/m/s) over windows of >= ``window`` s. Host receive times jitter by a
+    few ms, so sample-to-sample differences would exaggerate; a command jump would drive the
+    segment at its slew limit for much longer than one window."""
+    out = []
+    j = 0
+    for i in range(len(t)):
+        while j < len(t) and t[j] - t[i] < window:
+            j += 1
+        if j == len(t):
+            break
+        out.append(math.hypot(kx[j] - kx[i], ky[j] - ky[i]) / (t[j] - t[i]))
+    return np.array(out)
+
+
 def record(q: queue.Queue, seconds: float) -> list[dict]:
     out, end = [], time.monotonic() + seconds
     while time.monotonic() < end:
@@ -132,8 +147,8 @@ def test_limits_never_exceeded_even_when_asked(ready):
     kx = np.array([m["kx"][i] for m in msgs])
     ky = np.array([m["ky"][i] for m in msgs])
     assert np.hypot(kx, ky).max() <= kmax + 1e-3
-    speed = np.hypot(np.diff(kx), np.diff(ky)) / np.diff(t)
-    assert speed.max() <= rate * 1.15
+    speed = windowed_speed(t, kx, ky)
+    assert speed.max() <= rate * 1.1
     assert np.hypot(kx[-1], ky[-1]) == pytest.approx(kmax, abs=0.02)
 
 
@@ -160,7 +175,7 @@ def test_replacing_a_trajectory_midway_has_no_jump(ready):
     t = np.array([m["t"] for m in msgs])
     kx = np.array([m["kx"][i] for m in msgs])
     ky = np.array([m["ky"][i] for m in msgs])
-    speed = np.hypot(np.diff(kx), np.diff(ky)) / np.diff(t)
+    speed = windowed_speed(t, kx, ky)
     # Both goals peak below ~2.6 1/m/s. A jump in the command would drive the segment at its
     # slew limit (kappa_rate_max = 5 1/m/s) right after the replacement.
     assert speed.max() < 0.7 * rate, speed.max()

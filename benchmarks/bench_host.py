@@ -1,0 +1,343 @@
+"""Host daemon benchmark: cycle compute time, loop jitter, hot-plug latency, round trip.
+
+Prints:
+1. host cycle time (µs, compute only, no I/O wait) of the daemon's real control step
+   (read → supervise → cJTC/cJSB/cRSP update → command interfaces) for 3 and 8 segments, on a
+   replayed STATE set (no bus, so only the host's own work is timed). Goal: ≤ 100 µs for 3.
+2. loop period/jitter/overruns of the daemon driving the emulated 3-segment chain (real firmware
+   on the MicroPython VM) at 100 and 500 Hz.
+3. hot-plug latency on the emulated chain: unplug the tip (and the middle) segment, plug it back;
+   detection = first cycle that noticed, recovery = new HWI/controllers running ("controllable").
+   Goals: detected ≤ 250 ms, controllable ≤ 500 ms.
+4. command → state round trip (one SYNC down, every STATE back) over emulated links throttled to
+   115200 and 921600 baud, as a ratio to the line-rate floor of a store-and-forward chain
+   (``bench_protocol.chain_cycle_time`` with the measured frame sizes). Goal ≤ 1.3×.
+
+The emulator runs in this process (proxy threads) and the segments are MicroPython processes on
+the same cores, so figures 2–4 include that load. Run: ``.venv/bin/python benchmarks/bench_host.py``
+(``--quick`` for shorter runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import numpy as np  # noqa: E402
+
+from host.config import DaemonConfig  # noqa: E402
+from host.daemon import Daemon  # noqa: E402
+from host.link import ChainLink  # noqa: E402
+from tools.emulator import EmulatedChain  # noqa: E402
+from tools.segment_config import config_for  # noqa: E402
+from ucrdf.compose import robot_from_descriptors  # noqa: E402
+from ucrdf.parser import load  # noqa: E402
+
+ROBOT = REPO / "robots" / "softrobot3.ucrdf"
+
+
+def fmt(v: float) -> str:
+    return f"{v:8.1f}"
+
+
+# -- 1. cycle compute time ---------------------------------------------------------------------
+
+
+class ReplayLink:
+    """Answers discover/sync/heartbeat instantly with fixed descriptors and STATEs, so the
+    daemon's step can be timed without any I/O. A benchmark fixture, not a firmware model."""
+
+    def __init__(self, descriptors: list[dict]):
+        self.descs = descriptors
+        self.states = [
+            {
+                "position": i,
+                "cycle": 0,
+                "t_ms": 0,
+                "kappa": 1.0,
+                "phi": 0.3,
+                "kx": math.cos(0.3),
+                "ky": math.sin(0.3),
+                "tendon_lengths": [0.3] * 3,
+                "servo_angles": [0.0] * 3,
+                "status": {"DOWNSTREAM"},
+                "raw_status": 16,
+            }
+            for i in range(len(descriptors))
+        ]
+        self.states[-1]["status"] = set()
+        self.stats = {}
+
+    def discover(self, timeout: float = 0.5) -> list[dict]:
+        return [dict(d) for d in self.descs]
+
+    def sync(self, setpoints, timeout=0.1, *, expected=None, resume=False):
+        return self.states
+
+    def heartbeat(self, timeout=0.1, *, expected=None):
+        return self.states
+
+    def hold(self, position=None) -> None:
+        pass
+
+    def events(self) -> list[dict]:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
+def descriptors_for(robot) -> list[dict]:
+    out = []
+    names = list(robot.bendables)
+    for i, n in enumerate(names):
+        b = robot.bendables[n]
+        out.append(
+            {
+                "position": i,
+                "uid": f"bench{i:04x}",
+                "fw_version": "bench",
+                "protocol_version": 1,
+                "model": b.model.type,
+                "length": b.length,
+                "tendon_angles": list(b.actuation.angles),
+                "tendon_radius": b.actuation.radius,
+                "spool_radius": b.actuation.spool_radius,
+                "kappa_max": b.model.limits.kappa_max,
+                "kappa_rate_max": b.model.limits.kappa_rate_max,
+                "mass": 0.3,
+                "backbone_radius": 0.003,
+                "name": n,
+                "servo_driver": "emulated",
+                "watchdog_ms": 200,
+                "downstream_present": i < len(names) - 1,
+            }
+        )
+    return out
+
+
+def robot_with(n: int):
+    base = descriptors_for(load(ROBOT))[0]
+    descs = [
+        {
+            **base,
+            "position": i,
+            "uid": f"bench{i:04x}",
+            "name": f"segment_{i + 1}",
+            "downstream_present": i < n - 1,
+        }
+        for i in range(n)
+    ]
+    return robot_from_descriptors(descs, f"bench{n}"), descs
+
+
+def cycle_time(n: int, controllers: list[str], cycles: int) -> dict[str, float]:
+    robot, descs = robot_with(n)
+    cfg = DaemonConfig(port="replay://", active=controllers)
+    d = Daemon(robot, cfg, link_factory=lambda url, baud: ReplayLink(descs))
+    d.start()
+    d.loop.stop()  # time the step by hand, in this thread
+    names = d.hwi.names
+    if "jtc" in controllers:
+        pts = [
+            {
+                "time_from_start": 1000.0 + k,
+                "segments": {nm: {"kappa": 1.0 + 0.1 * k, "phi": 0.2 * k} for nm in names},
+            }
+            for k in range(5)
+        ]
+        d.send_trajectory(pts)
+    samples = []
+    for _ in range(cycles):
+        c = d._step()
+        if c is not None:
+            samples.append(c * 1e6)
+    d.stop(hold=False)
+    a = np.array(samples)
+    return {
+        "mean": a.mean(),
+        "p50": float(np.percentile(a, 50)),
+        "p99": float(np.percentile(a, 99)),
+        "max": a.max(),
+    }
+
+
+# -- 2–4: emulated chain -----------------------------------------------------------------------
+
+
+def emulated_chain(robot):
+    names = list(robot.bendables)
+    return EmulatedChain(
+        len(names), config_for=lambda k: {**config_for(robot, names[k]), "servo_driver": "emulated"}
+    )
+
+
+def wait_segments(link_url: str, n: int, timeout: float = 15.0) -> None:
+    end = time.monotonic() + timeout
+    with ChainLink(link_url) as link:
+        while time.monotonic() < end:
+            try:
+                if len(link.discover(timeout=0.3)) == n:
+                    return
+            except OSError:
+                pass
+            time.sleep(0.1)
+    raise RuntimeError("emulated segments did not answer")
+
+
+def loop_jitter(chain, robot, rate: float, seconds: float) -> dict:
+    d = Daemon(robot, DaemonConfig(port=chain.host_port, rate_hz=rate))
+    d.start()
+    try:
+        names = d.hwi.names
+        d.send_trajectory(
+            [
+                {
+                    "time_from_start": seconds,
+                    "segments": {n: {"kappa": 1.5, "phi": 1.0} for n in names},
+                }
+            ]
+        )
+        d.loop.stats.reset()
+        time.sleep(seconds)
+        s = d.loop_stats()
+    finally:
+        d.stop()
+    return s
+
+
+def hotplug(chain, robot, k: int, reps: int) -> list[dict]:
+    """Unplug link k then plug it back, ``reps`` times; latencies in ms."""
+    d = Daemon(robot, DaemonConfig(port=chain.host_port))
+    d.start()
+    out = []
+    try:
+        for _ in range(reps):
+            for action, want in (("unplug", k), ("plug", len(robot.bendables))):
+                time.sleep(0.5)
+                n_log = len(d.hotplug_log)
+                t0 = time.monotonic()
+                getattr(chain, action)(k)
+                end = t0 + 5.0
+                while time.monotonic() < end and (
+                    len(d.hotplug_log) == n_log or len(d.hwi.names if d.hwi else []) != want
+                ):
+                    time.sleep(0.002)
+                entry = d.hotplug_log[-1]
+                out.append(
+                    {
+                        "action": action,
+                        "detect_ms": (entry["t"] - t0) * 1e3,
+                        "ready_ms": (entry["t"] + entry["rebuild_s"] - t0) * 1e3,
+                        "segments": len(entry["segments"]),
+                    }
+                )
+    finally:
+        d.stop()
+    return out
+
+
+def round_trip(chain, n: int, baud: int | None, cycles: int) -> dict:
+    from bench_protocol import chain_cycle_time
+
+    chain.set_all_links(baud=baud)
+    try:
+        with ChainLink(chain.host_port, baudrate=baud or 921600) as link:
+            link.discover(timeout=0.5)
+            sps = [(1.0, 0.5)] * n
+            link.sync(sps, timeout=0.5, resume=True)
+            s0 = link.stats
+            times = []
+            for _ in range(cycles):
+                t = time.perf_counter()
+                states = link.sync(sps, timeout=0.5)
+                times.append(time.perf_counter() - t)
+                assert all(s is not None for s in states)
+                time.sleep(0.002)
+            s1 = link.stats
+    finally:
+        chain.set_all_links(baud=None)
+    b_sync = (s1["tx_bytes"] - s0["tx_bytes"]) / cycles
+    b_state = (s1["rx_bytes"] - s0["rx_bytes"]) / cycles / n
+    floor = chain_cycle_time(n, round(b_sync), round(b_state), baud) if baud else float("nan")
+    med = statistics.median(times)
+    return {
+        "baud": baud,
+        "median_ms": med * 1e3,
+        "p99_ms": float(np.percentile(times, 99)) * 1e3,
+        "floor_ms": floor * 1e3,
+        "ratio": med / floor if baud else float("nan"),
+        "sync_bytes": b_sync,
+        "state_bytes": b_state,
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    cycles = 2000 if args.quick else 10000
+
+    print("1. host cycle time, compute only (µs)   mean      p50      p99      max")
+    for n in (3, 8):
+        for ctrls in (["jtc", "jsb", "rsp"], ["jtc"]):
+            r = cycle_time(n, ctrls, cycles)
+            label = f"{n} segments, {'+'.join(ctrls):12s}"
+            print(
+                f"   {label:36s}{fmt(r['mean'])} {fmt(r['p50'])} {fmt(r['p99'])} "
+                f"{fmt(r['max'])}" + ("   (goal mean <= 100)" if n == 3 and len(ctrls) == 3 else "")
+            )
+    robot = load(ROBOT)
+    chain = emulated_chain(robot)
+    try:
+        wait_segments(chain.host_port, 3)
+        secs = 2.0 if args.quick else 5.0
+        print(
+            "2. loop on the emulated 3-segment chain   period mean  jitter p99  jitter max  "
+            "compute p99  overruns/cycles"
+        )
+        for rate in (100.0, 500.0):
+            s = loop_jitter(chain, robot, rate, secs)
+            print(
+                f"   {rate:5.0f} Hz {' ' * 27}{s['period_us']['mean']:9.0f} µs "
+                f"{s['jitter_us']['p99']:8.0f} µs {s['jitter_us']['max']:8.0f} µs "
+                f"{s['compute_us']['p99']:9.0f} µs   {s['overruns']}/{s['cycles']}"
+            )
+        print("3. hot-plug on the emulated chain (ms)    detected   controllable   segments")
+        reps = 1 if args.quick else 3
+        for k, label in ((2, "tip (segment 3)"), (1, "middle (segment 2)")):
+            res = hotplug(chain, robot, k, reps)
+            for action in ("unplug", "plug"):
+                rows = [r for r in res if r["action"] == action]
+                det = max(r["detect_ms"] for r in rows)
+                rdy = max(r["ready_ms"] for r in rows)
+                print(
+                    f"   {action:6s} {label:32s}{det:8.0f}   {rdy:10.0f}        "
+                    f"{rows[-1]['segments']}   (worst of {len(rows)}; goals 250 / 500)"
+                )
+        print(
+            "4. command -> state round trip, 3 segments   median    p99   line-rate floor  "
+            "ratio   bytes SYNC/STATE"
+        )
+        for baud in (115200, 921600):
+            r = round_trip(chain, 3, baud, 100 if args.quick else 300)
+            print(
+                f"   {baud:7d} baud {' ' * 26}{r['median_ms']:6.2f} ms {r['p99_ms']:6.2f} ms "
+                f"{r['floor_ms']:8.2f} ms   {r['ratio']:5.2f}x   {r['sync_bytes']:.0f}/"
+                f"{r['state_bytes']:.0f}   (goal <= 1.3x)"
+            )
+    finally:
+        chain.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
