@@ -310,3 +310,22 @@ def test_transforms_are_published_with_fk_of_every_frame(ready):
     assert set(m["frames"]) >= {"base", "segment_1_tip", "segment_2_tip", "segment_3_tip"}
     assert m["tip"]["xyz"][2] == pytest.approx(3 * 0.316, abs=0.01)  # straight: tip on z
     assert len(m["backbones"]["segment_1"]) == 12
+
+
+def test_port_failure_reopens_the_port_and_recovers(ready):
+    """The OS closes the device under the daemon (an adapter pulled out): the link fails, the
+    daemon reports it, reopens the port with back-off and rebuilds."""
+    d = ready
+    q = d.subscribe(["event"])
+    try:
+        d.link._ser.close()  # what the kernel does to a vanished USB adapter's file
+        assert wait_for(lambda: d.status()["state"] == "reconnecting", 3.0)
+        assert wait_for(
+            lambda: d.status()["state"] == "connected" and d.status()["segments"] == NAMES, 8.0
+        )
+        msgs = record(q, 0.1)
+    finally:
+        d.unsubscribe(q)
+    events = [m["event"] for m in msgs]
+    assert "link_lost" in events and "link_restored" in events
+    straighten(d)

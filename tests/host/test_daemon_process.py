@@ -147,3 +147,28 @@ def test_killed_daemon_leaves_every_segment_holding_within_its_watchdog(chain):
     assert set(tripped) == {0, 1, 2}, events
     watchdog_s = 0.2  # tools.segment_config default watchdog_ms
     assert max(tripped.values()) <= watchdog_s + 0.15, tripped
+
+
+def test_mismatch_is_explained_and_adopt_writes_the_chain_as_found(chain, tmp_path):
+    from host.config import DaemonConfig
+    from host.daemon import Daemon, TopologyError
+    from ucrdf.parser import load
+
+    two = REPO / "robots" / "softrobot2.ucrdf"
+    d = Daemon(two, DaemonConfig(port=chain.host_port))
+    with pytest.raises(TopologyError) as ei:
+        d.start()
+    msg = str(ei.value)
+    assert "chain has 3 segment(s), softrobot2.ucrdf declares 2: extra at position(s) 2" in msg
+    assert "--adopt" in msg
+    out = tmp_path / "adopted.ucrdf"
+    d = Daemon(two, DaemonConfig(port=chain.host_port), adopt=True, adopt_path=out)
+    d.start()
+    try:
+        assert d.status()["segments"] == ["segment_1", "segment_2", "segment_3"]
+        assert d.topology()["ok"]
+    finally:
+        d.stop()
+    adopted = load(out)
+    assert list(adopted.bendables) == ["segment_1", "segment_2", "segment_3"]
+    assert adopted.bendables["segment_3"].length == pytest.approx(0.316)
