@@ -1,0 +1,186 @@
+"""EmulatedChain plumbing with a tiny MicroPython echo firmware (independent of device/).
+
+Each segment's main.py echoes what arrives on its upstream UART with bit 5 flipped, so the host
+port shows exactly what the links did to the bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import pytest
+import serial
+
+from tools.emulator import EmulatedChain, EmulatorError
+from tools.emulator.control import execute
+from tools.mpvm import micropython_binary
+
+ECHO_MAIN = """
+import os, termios, time
+f = open(os.getenv("UCR_UP_PORT"), "r+b")
+a = termios.tcgetattr(f.fileno())
+a[6][6] = 0
+a[6][5] = 0
+termios.tcsetattr(f.fileno(), termios.TCSANOW, a)
+print("echo up", os.getenv("UCR_UID"))
+buf = bytearray(256)
+while True:
+    n = f.readinto(buf)
+    if n:
+        f.write(bytes(b ^ 0x20 for b in buf[:n]))
+    else:
+        time.sleep_ms(1)
+"""
+
+
+@pytest.fixture(scope="module")
+def echo_chain(tmp_path_factory):
+    fw = tmp_path_factory.mktemp("echo_fw")
+    (fw / "main.py").write_text(ECHO_MAIN)
+    with EmulatedChain(
+        2,
+        firmware_dir=fw,
+        protocol_dir=None,
+        config_for=[{"name": "a"}, None],
+        uids=["aa01", "aa02"],
+    ) as chain:
+        port = serial.serial_for_url(chain.host_port, timeout=1.0)
+        deadline = time.monotonic() + 10
+        while "echo up" not in chain.repl_output(0) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        yield chain, port
+        port.close()
+
+
+def roundtrip(port: serial.Serial, data: bytes) -> bytes:
+    port.reset_input_buffer()
+    port.write(data)
+    return port.read(len(data))
+
+
+def test_segment_directory_is_its_flash(echo_chain) -> None:
+    chain, _ = echo_chain
+    assert (chain.segment_dir(0) / "main.py").is_file()
+    assert (chain.segment_dir(0) / "config.json").read_text().strip().startswith("{")
+    assert not (chain.segment_dir(1) / "config.json").exists()
+    assert "echo up aa01" in chain.repl_output(0)
+
+
+def test_host_port_reaches_segment_zero(echo_chain) -> None:
+    chain, port = echo_chain
+    assert roundtrip(port, b"hello") == b"HELLO"
+
+
+def test_throttled_link_takes_ten_bits_per_byte(echo_chain) -> None:
+    chain, port = echo_chain
+    chain.set_link(0, baud=9600)
+    try:
+        t0 = time.monotonic()
+        assert roundtrip(port, b"x" * 96) == b"X" * 96
+        elapsed = time.monotonic() - t0
+    finally:
+        chain.set_link(0, baud=None)
+    # 96 bytes * 10 bits / 9600 = 0.1 s each way, pipelined through the echo
+    assert 0.1 <= elapsed < 0.6
+
+
+def test_unplugged_link_drops_bytes_both_ways_and_counts_them(echo_chain) -> None:
+    chain, port = echo_chain
+    chain.unplug(0)
+    try:
+        port.timeout = 0.2
+        assert roundtrip(port, b"abc") == b""
+    finally:
+        chain.plug(0)
+        port.timeout = 1.0
+    assert chain.stats()["links"][0]["down"]["dropped"] >= 3
+    assert roundtrip(port, b"ok") == b"OK"
+
+
+def test_corruption_is_counted_per_byte(echo_chain) -> None:
+    chain, port = echo_chain
+    chain.set_link(0, corrupt_rate=0.2, direction="down", seed=1)
+    try:
+        out = roundtrip(port, b"a" * 200)
+    finally:
+        chain.set_link(0, corrupt_rate=0.0)
+    wrong = sum(c != ord("A") for c in out)
+    assert wrong == chain.stats()["links"][0]["down"]["corrupted"] > 0
+
+
+def test_killed_process_restarts_as_a_board_reboots(echo_chain) -> None:
+    chain, port = echo_chain
+    pid = chain.pid(0)
+    os.kill(pid, signal.SIGKILL)
+    chain.wait_restarts(0, 1)
+    assert chain.pid(0) != pid
+    deadline = time.monotonic() + 10
+    while roundtrip(port, b"z") != b"Z":
+        assert time.monotonic() < deadline, chain.repl_output(0)
+
+
+def test_ctrl_c_on_the_repl_pty_interrupts_main_and_gives_the_raw_repl(echo_chain) -> None:
+    chain, _ = echo_chain
+    with serial.serial_for_url(chain.repl_port(1), timeout=0.2) as repl:
+        repl.write(b"\r\x03")
+        time.sleep(0.2)
+        repl.write(b"\r\x01")
+        got = b""
+        deadline = time.monotonic() + 5
+        while b"raw REPL; CTRL-B to exit\r\n>" not in got and time.monotonic() < deadline:
+            got += repl.read(256)
+        assert b"KeyboardInterrupt" in got and b"raw REPL; CTRL-B to exit\r\n>" in got
+        repl.write(b"print(6*7)\x04")
+        got = b""
+        while b"\x04>" not in got and time.monotonic() < deadline:
+            got += repl.read(256)
+        assert got.startswith(b"OK42")
+        restarts = chain.stats()["segments"][1]["restarts"]
+        repl.write(b"\x04")  # soft reset in the raw REPL ends a unix-port process
+    chain.wait_restarts(1, restarts + 1)
+
+
+def test_control_commands(echo_chain) -> None:
+    chain, _ = echo_chain
+    assert execute(chain, "baud 1 115200") == "link 1 throttled to 115200 bit/s"
+    assert chain.stats()["links"][1]["up"]["baud"] == 115200
+    assert execute(chain, "baud 1 off") == "link 1 unthrottled"
+    assert "UNPLUGGED" in (execute(chain, "unplug 1") and execute(chain, "status"))
+    execute(chain, "plug 1")
+    assert execute(chain, "corrupt 0 2").startswith("error:")
+    assert execute(chain, "unplug 7").startswith("error:")
+    assert execute(chain, "frobnicate").startswith("error: unknown command")
+    assert execute(chain, "latency 0 0.001").startswith("link 0 latency")
+    chain.set_link(0, latency=0.0)
+
+
+def test_bad_arguments_are_refused(tmp_path) -> None:
+    with pytest.raises(EmulatorError):
+        EmulatedChain(0)
+    with pytest.raises(EmulatorError, match="no main.py"):
+        EmulatedChain(1, firmware_dir=tmp_path)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_close_stops_processes_and_removes_the_temporary_workdir(tmp_path) -> None:
+    fw = tmp_path / "fw"
+    fw.mkdir()
+    (fw / "main.py").write_text("import time\nwhile True:\n    time.sleep_ms(50)\n")
+    chain = EmulatedChain(2, firmware_dir=fw, protocol_dir=None)
+    pids = [chain.pid(0), chain.pid(1)]
+    workdir, host = chain.workdir, chain.host_port
+    chain.close()
+    assert not any(_alive(p) for p in pids)  # stopped and reaped
+    assert not workdir.exists()
+    assert micropython_binary()
+    with pytest.raises(serial.SerialException):
+        serial.serial_for_url(host, timeout=0.1).read(1)

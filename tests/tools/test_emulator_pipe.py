@@ -1,0 +1,83 @@
+"""Pipe: one direction of an emulated link, on plain byte streams with an explicit clock."""
+
+from __future__ import annotations
+
+import pytest
+
+from tools.emulator import Pipe
+
+
+def drain(pipe: Pipe, until: float, step: float = 1e-4) -> list[tuple[float, bytes]]:
+    out, t = [], 0.0
+    while t <= until:
+        data = pipe.due(t)
+        if data:
+            out.append((t, data))
+        t += step
+    return out
+
+
+def test_unthrottled_bytes_pass_at_once_in_order() -> None:
+    pipe = Pipe("p")
+    pipe.feed(b"abc", 1.0)
+    pipe.feed(b"def", 1.0)
+    assert pipe.due(1.0) == b"abcdef"
+    assert pipe.bytes_out == 6 and pipe.next_deadline() is None
+
+
+def test_throttle_takes_ten_bits_per_byte_and_keeps_order() -> None:
+    pipe = Pipe("p")
+    pipe.configure(baud=10_000)  # 1 ms per byte
+    pipe.feed(bytes(range(50)), 0.0)
+    pipe.feed(b"\xaa" * 10, 0.001)  # queued behind the first burst
+    chunks = drain(pipe, 0.1)
+    data = b"".join(d for _, d in chunks)
+    assert data == bytes(range(50)) + b"\xaa" * 10
+    first_done = next(t for t, _ in chunks if t >= 0.0499)
+    assert chunks[-1][0] == pytest.approx(0.060, abs=2e-4)
+    assert first_done == pytest.approx(0.050, abs=2e-4)
+    assert chunks[0][0] > 0.0  # nothing arrives before its bytes were on the wire
+
+
+def test_latency_delays_every_byte() -> None:
+    pipe = Pipe("p")
+    pipe.configure(latency_s=0.005)
+    pipe.feed(b"x", 1.0)
+    assert pipe.due(1.004) == b""
+    assert pipe.due(1.005) == b"x"
+
+
+def test_corruption_changes_and_counts_bytes_reproducibly() -> None:
+    outs = []
+    for _ in range(2):
+        pipe = Pipe("p", seed=3)
+        pipe.configure(corrupt_rate=0.1)
+        payload = bytes(1000)
+        pipe.feed(payload, 0.0)
+        out = pipe.due(0.0)
+        changed = sum(a != b for a, b in zip(out, payload, strict=True))
+        assert changed == pipe.corrupted
+        assert 50 < changed < 150
+        outs.append(out)
+    assert outs[0] == outs[1]  # seeded
+
+
+def test_unplugged_pipe_drops_and_counts_including_bytes_in_flight() -> None:
+    pipe = Pipe("p")
+    pipe.configure(baud=1000)
+    pipe.feed(b"12345", 0.0)
+    pipe.set_enabled(False)
+    pipe.feed(b"678", 0.0)
+    assert pipe.dropped == 8 and drain(pipe, 0.1, 1e-3) == []
+    pipe.set_enabled(True)
+    pipe.configure(baud=None)
+    pipe.feed(b"9", 1.0)
+    assert pipe.due(1.0) == b"9"
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"baud": 0}, {"baud": -5}, {"latency_s": -1.0}, {"corrupt_rate": 1.5}]
+)
+def test_bad_settings_are_refused(kwargs) -> None:
+    with pytest.raises(ValueError):
+        Pipe("p").configure(**kwargs)
