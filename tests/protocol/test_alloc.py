@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import HERE, REPO
+from protocol_testkit import HERE, REPO
 
 from tools.mpvm import run_code
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import cbor2
 import mp_runner
-from conftest import approx_equal
+from protocol_testkit import approx_equal
 
 
 def test_random_messages_identical_bytes_on_both_interpreters(mp_batch) -> None:

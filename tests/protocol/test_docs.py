@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from conftest import REPO, load_vectors
+from protocol_testkit import REPO, load_vectors
 
 from protocol import cobs
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import random
 
 import pytest
-from conftest import corrupt, make_stream, sample_wires
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from protocol_testkit import corrupt, make_stream, sample_wires
 
 from protocol import cobs
 from protocol.constants import MAX_ENCODED, MAX_FRAME, MAX_PAYLOAD

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import mp_runner
 import pytest
-from conftest import approx_equal, load_vectors
+from protocol_testkit import approx_equal, load_vectors
 
 VECTORS = load_vectors()
 CHECKED = ("hex", "decoded", "device", "error")
