@@ -215,3 +215,37 @@ def test_stuck_servo_is_detected_as_a_stall_while_moving(vm):
 def test_fault_injected_at_boot_holds_from_the_start(vm):
     r = _fault_case(vm, "overload", at_boot=True)
     _check_fault(r, "overload", 3)
+
+
+def test_clamping_sets_the_status_bit_and_limit_events_are_rate_limited(vm):
+    far = M.encode_sync(1, 1, [(9.0, 0.0)]).hex()  # beyond kappa_max 3.31 1/m
+    near = M.encode_sync(2, 2, [(0.5, 0.0)]).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 10000}})
+out = []
+for _ in range(50):            # 500 ms of SYNCs asking for too much curvature
+    hal.up.feed(bytes.fromhex('{far}'))
+    vmkit.run(hal, seg, 10)
+    out.append(vmkit.hexs(hal.up.take()))
+R['far'] = out
+R['far_status'] = seg.status()
+for _ in range(100):
+    hal.up.feed(bytes.fromhex('{near}'))
+    vmkit.run(hal, seg, 10)
+    hal.up.discard()
+hal.up.feed(bytes.fromhex('{near}'))
+vmkit.run(hal, seg, 10)
+R['near_status'] = seg.status()
+""",
+        heap="512k",  # room for the collected wire output (test data, not the firmware)
+    )
+    msgs = [m for h in r["far"] for m in decode(h)]
+    ev = [m for m in msgs if m["type"] == "EVENT" and m["name"] == "LIMIT_CLAMPED"]
+    assert 4 <= len(ev) <= 6  # about one per 100 ms over 500 ms, not one per cycle
+    gaps = [b["t_ms"] - a["t_ms"] for a, b in zip(ev, ev[1:], strict=False)]
+    assert min(gaps) >= 100 - 20, gaps  # queued every 100 ms; sending may wait 20 ms (spacing)
+    assert ev[0]["detail"] & 0b011 == 0b011  # kappa clamped and rate limited
+    st = [sorted(m["status"]) for m in msgs if m["type"] == "STATE"]
+    assert all("CLAMPED" in s for s in st), st
+    assert r["far_status"] & 0x08 and not r["near_status"] & 0x08
