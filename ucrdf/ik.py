@@ -28,6 +28,8 @@ from ucrdf.models.pcc import _A, _B, _C, _DA, _DB, SERIES_T, PCCModel, project_d
 
 #: A start point is abandoned when this many iterations have not halved its error.
 STALL_ITERATIONS = 30
+#: After all start points, the best one continues for this many times max_iter (no stall rule).
+POLISH_FACTOR = 4
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 
@@ -426,6 +428,16 @@ class IKSolver:
                 best = (cost, q, perr, rerr)
             if perr <= tol and (not want_rot or rerr <= rot_tol):
                 break
+        if not (best[2] <= tol and (not want_rot or best[3] <= rot_tol)):
+            # polish: the best start point gets a long run without the stall rule (targets at a
+            # singular boundary, e.g. an arm at full stretch, converge steadily but slowly)
+            budget = POLISH_FACTOR * max_iter
+            q, cost, perr, rerr, it = self._descend(
+                list(best[1]), target, rt, want_rot, w, tol, rot_tol, budget, stall=None
+            )
+            total += it
+            if cost < best[0]:
+                best = (cost, q, perr, rerr)
         _cost, q, perr, rerr = best
         success = perr <= tol and (not want_rot or rerr <= rot_tol)
         config: dict[str, dict[str, float] | float] = {n: dict(c) for n, c in bend.items()}
@@ -450,7 +462,7 @@ class IKSolver:
         return IKResult(success, config, perr, total, msg, rerr if want_rot else None,
                         self.tip, tries - 1, out_coords)  # fmt: skip
 
-    def _descend(self, q, target, rt, want_rot, w, tol, rot_tol, max_iter):
+    def _descend(self, q, target, rt, want_rot, w, tol, rot_tol, max_iter, stall=STALL_ITERATIONS):
         chain = self.chain
         gx, gy, gz = target
 
@@ -517,7 +529,7 @@ class IKSolver:
                     break  # no descent direction left: stuck here
             if cost < 0.5 * ref_cost:
                 ref_cost, ref_it = cost, it
-            elif it - ref_it >= STALL_ITERATIONS:
+            elif stall is not None and it - ref_it >= stall:
                 break  # stalled: let the caller restart elsewhere
         return q, cost, perr, rerr, it
 
