@@ -124,18 +124,6 @@ def wrap_angle(a):
     return a
 
 
-def isqrt(n):
-    """Integer square root floor(sqrt(n)) for 0 <= n < 2**30 (Newton iteration, no floats)."""
-    if n <= 0:
-        return 0
-    x = n
-    y = (x + 1) >> 1
-    while y < x:
-        x = y
-        y = (x + n // x) >> 1
-    return x
-
-
 def q_for(coeffs, limit=65535):
     """Largest Q shift in 12..27 so every |c| * 2**q stays below ``limit`` (boot time, floats ok).
 
