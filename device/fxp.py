@@ -7,8 +7,8 @@ small int on a 32-bit ESP32 as well (no heap object, no allocation). Units:
 * trigonometric values: Q14 (16384 = 1.0).
 
 Accuracy (checked by tests/device against numpy): ``sin_q14``/``cos_q14`` within 1e-4 of the true
-value for every angle; ``atan2_e4`` within 2e-4 rad whenever max(|x|, |y|) >= 64.
-Products go through ``mulq``, which splits the factor so no partial product exceeds 2**29.
+value for every angle; ``atan2_e4`` within 1.2e-4 rad (result resolution 1e-4 rad).
+Products go through ``mulq``, which splits the factor so no partial product exceeds 2**28.
 """
 
 try:
