@@ -328,6 +328,8 @@ def build_files(
     else:
         files = [(p, src.read_bytes()) for p, src in sources]
     files.append(("config.json", (json.dumps(config, indent=1) + "\n").encode()))
+    # main.py last: a flash interrupted half-way never boots a new main.py with old modules.
+    files.sort(key=lambda f: Path(f[0]).name in KEEP_SOURCE)
     return files
 
 

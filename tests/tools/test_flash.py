@@ -1,0 +1,125 @@
+"""`ucr flash` against an emulated segment's REPL pty: copy, verify, reset, rediscover."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import serial
+
+from host.link import ChainLink
+from tools.emulator import EmulatedChain
+from tools.flash import Flasher, FlashError, flash
+
+REPO = Path(__file__).resolve().parents[2]
+ROBOT = REPO / "robots" / "softrobot3.ucrdf"
+
+
+def discover_one(link: ChainLink, timeout: float = 15.0) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        descs = link.discover(timeout=0.3)
+        if descs:
+            return descs[0]
+        time.sleep(0.1)
+    raise AssertionError("segment did not answer DISCOVER")
+
+
+@pytest.fixture(scope="module")
+def one_segment():
+    with EmulatedChain(1) as chain:
+        link = ChainLink(chain.host_port)
+        discover_one(link)
+        yield chain, link
+        link.close()
+
+
+def _robot_with_changed_kappa_max(tmp_path: Path, value: float) -> Path:
+    text = ROBOT.read_text()
+    start = text.index('<bendable name="segment_2">')
+    head, tail = text[:start], text[start:]
+    tail = re.sub(r'kappa_max="[0-9.]+"', f'kappa_max="{value}"', tail, count=1)
+    path = tmp_path / "robot.ucrdf"
+    path.write_text(head + tail)
+    return path
+
+
+def _ucr(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "tools.cli", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_ucr_flash_installs_the_segments_configuration(one_segment, tmp_path) -> None:
+    chain, link = one_segment
+    assert discover_one(link)["name"] == "segment"  # firmware defaults before
+    robot = _robot_with_changed_kappa_max(tmp_path, 3.5)
+    restarts = chain.stats()["segments"][0]["restarts"]
+    proc = _ucr(
+        "flash", "--port", chain.repl_port(0), "--robot", str(robot), "--segment", "segment_2"
+    )
+    assert proc.returncode == 0, proc.stderr
+    total = re.search(r"\[\s*1/(\d+)\] \S+", proc.stdout).group(1)
+    assert f"[{total}/{total}] main.py" in proc.stdout  # progress per file, main.py last
+    assert "verified" in proc.stdout and "config.json" in proc.stdout
+    chain.wait_restarts(0, restarts + 1)
+    desc = discover_one(link)
+    assert desc["name"] == "segment_2"
+    assert desc["kappa_max"] == pytest.approx(3.5)
+    assert desc["kappa_rate_max"] == pytest.approx(5.0)
+    assert desc["tendon_radius"] == pytest.approx(0.06)
+
+
+def test_flash_precompiled_mpy_boots_and_runs(one_segment) -> None:
+    chain, link = one_segment
+    restarts = chain.stats()["segments"][0]["restarts"]
+    lines: list[str] = []
+    config = {"name": "precompiled", "watchdog_ms": 250}
+    flash(chain.repl_port(0), config, mpy=True, log=lines.append)
+    chain.wait_restarts(0, restarts + 1)
+    seg = chain.segment_dir(0)
+    assert (seg / "protocol" / "frame.mpy").is_file()
+    assert not (seg / "protocol" / "frame.py").exists()
+    assert (seg / "main.py").is_file()
+    desc = discover_one(link)
+    assert desc["name"] == "precompiled" and desc["watchdog_ms"] == 250
+    assert any("verified" in line for line in lines)
+
+
+def test_missing_port_is_a_clear_error(tmp_path) -> None:
+    proc = _ucr(
+        "flash", "--port", "/dev/ttyUSB_nope", "--robot", str(ROBOT), "--segment", "segment_1"
+    )
+    assert proc.returncode == 2
+    assert "does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_unknown_segment_is_a_clear_error() -> None:
+    proc = _ucr("flash", "--port", "/dev/null", "--robot", str(ROBOT), "--segment", "nope")
+    assert proc.returncode == 2 and "no bendable 'nope'" in proc.stderr
+
+
+def test_busy_port_is_a_clear_error(one_segment) -> None:
+    chain, _ = one_segment
+    with serial.Serial(chain.repl_port(0), exclusive=True):
+        with pytest.raises(FlashError, match="busy"):
+            flash(chain.repl_port(0), {}, log=lambda s: None)
+
+
+def test_a_device_that_is_not_a_micropython_repl_is_a_clear_error() -> None:
+    master, slave = os.openpty()  # a serial device that never answers
+    try:
+        with pytest.raises(FlashError, match="did not answer like a MicroPython REPL"):
+            Flasher(os.ttyname(slave), connect_timeout=1.0, log=lambda s: None)
+    finally:
+        os.close(master)
+        os.close(slave)
