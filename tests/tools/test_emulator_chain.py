@@ -50,6 +50,7 @@ def echo_chain(tmp_path_factory):
         deadline = time.monotonic() + 10
         while "echo up" not in chain.repl_output(0) and time.monotonic() < deadline:
             time.sleep(0.02)
+        assert "echo up" in chain.repl_output(0), chain.repl_output(0)
         yield chain, port
         port.close()
 

@@ -1,0 +1,143 @@
+"""ChainLink against a scripted fake chain on a pty: matching, decoding, errors, stats."""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+
+import pytest
+
+from host.link import (
+    ChainLink,
+    LinkError,
+    LinkTimeoutError,
+    SegmentError,
+    decode_state,
+    make_sync_payload,
+)
+from protocol import constants as C
+from protocol.cbor import loads
+from protocol.frame import FrameReader, encode_frame
+
+UP = C.FLAG_UP
+
+
+class FakeChain:
+    """Answers like two segments: DISCOVER, HEARTBEAT, PARAM_GET (position 1 answers ERROR)."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        self.path = os.ttyname(self.slave)
+        self.stop = False
+        self.received: list = []
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def send(self, hop: int, mtype: int, seq: int, payload, flags: int = UP) -> None:
+        os.write(self.master, encode_frame(flags, hop, mtype, seq, payload))
+
+    def run(self) -> None:
+        reader = FrameReader()
+        while not self.stop:
+            try:
+                data = os.read(self.master, 512)
+            except OSError:
+                return
+            for f in reader.feed(data):
+                self.received.append(f)
+                body = loads(f.payload) if f.payload else {}
+                if f.mtype == C.T_DISCOVER:
+                    self.send(0, C.T_EVENT, 0, {0: C.EV_BOOT, 1: 0, 2: 5})
+                    self.send(1, C.T_DESCRIPTOR, f.seq, {0: "b1", 12: "two", 15: False})
+                    self.send(0, C.T_DESCRIPTOR, f.seq, {0: "a0", 12: "one", 15: True})
+                elif f.mtype == C.T_HEARTBEAT:
+                    self.send(0, C.T_STATE, (f.seq + 1) & 0xFF, {0: 99})  # stale seq: ignored
+                    self.send(0, C.T_ALIVE, 0, {}, flags=UP | C.FLAG_LOCAL)
+                    self.send(0, C.T_STATE, f.seq, {0: body[0], 2: 12345, 3: -5000, 6: 0x11})
+                elif f.mtype == C.T_PARAM_GET and f.hop == 1:
+                    self.send(1, C.T_ERROR, f.seq, {0: C.ERR_UNKNOWN_PARAM, 1: f.mtype, 2: "no"})
+                elif f.mtype == C.T_PARAM_GET and f.hop == 0:
+                    self.send(0, C.T_PARAM_VALUE, f.seq, {0: body[0], 1: 42})
+
+    def close(self) -> None:
+        self.stop = True
+        os.close(self.master)
+        os.close(self.slave)
+
+
+@pytest.fixture
+def fake():
+    chain = FakeChain()
+    link = ChainLink(chain.path)
+    yield chain, link
+    link.close()
+    chain.close()
+
+
+def test_discover_sorts_by_source_position_and_stops_at_the_tip(fake) -> None:
+    chain, link = fake
+    descs = link.discover(timeout=2.0)
+    assert [(d["position"], d["uid"], d["name"]) for d in descs] == [
+        (0, "a0", "one"),
+        (1, "b1", "two"),
+    ]
+    assert descs[1]["downstream_present"] is False
+    assert [e["name"] for e in link.events()] == ["BOOT"]
+    assert link.events() == []  # drained
+
+
+def test_heartbeat_matches_by_seq_and_decodes_to_si(fake) -> None:
+    chain, link = fake
+    states = link.heartbeat(timeout=0.5, expected=1)
+    s = states[0]
+    assert s["kappa"] == pytest.approx(1.2345) and s["phi"] == pytest.approx(-0.5)
+    assert s["status"] == {"HOLD", "DOWNSTREAM"} and s["raw_status"] == 0x11
+    stats = link.stats
+    assert stats["unmatched"] == 1 and stats["alive"] == 1 and stats["frames_ok"] >= 3
+
+
+def test_missing_answers_are_none_and_counted_as_timeouts(fake) -> None:
+    chain, link = fake
+    states = link.heartbeat(timeout=0.1, expected=2)
+    assert states[0] is not None and states[1] is None
+    assert link.stats["timeouts"] == 1
+
+
+def test_param_errors_and_timeouts_raise_typed_exceptions(fake) -> None:
+    chain, link = fake
+    assert link.param_get(0, 6) == 42
+    with pytest.raises(SegmentError) as info:
+        link.param_get(1, 99)
+    assert info.value.code_name == "UNKNOWN_PARAM" and isinstance(info.value, OSError)
+    with pytest.raises(LinkTimeoutError):
+        link.param_set(2, 0, 5, timeout=0.05)
+
+
+def test_sync_payload_is_fixed_point_and_refuses_non_finite_values() -> None:
+    p = make_sync_payload(7, [(1.5, -math.pi / 2), (0.0, 0.0)], resume=True)
+    assert p == {0: 7, 1: [15000, -15708, 0, 0], 2: 1}
+    for bad in ([(math.nan, 0.0)], [(1.0, math.inf)], [(1e9, 0.0)], [(1.0,)]):
+        with pytest.raises(ValueError):
+            make_sync_payload(1, bad)
+
+
+def test_decode_state_converts_lengths_and_angles() -> None:
+    s = decode_state(
+        {0: 3, 1: 10, 2: 20000, 3: 10000, 4: [316000], 5: [-20000], 6: 0x20, 7: 10806, 8: 16829}, 4
+    )
+    assert s["position"] == 4 and s["tendon_lengths"] == [0.316] and s["servo_angles"] == [-2.0]
+    assert s["kappa"] == 2.0 and s["status"] == {"UNCONFIGURED"}
+
+
+def test_opening_a_missing_port_raises_link_error() -> None:
+    with pytest.raises(LinkError) as info:
+        ChainLink("/dev/ttyUSB_does_not_exist")
+    assert isinstance(info.value, OSError)
+
+
+def test_closed_link_refuses_requests(fake) -> None:
+    chain, link = fake
+    link.close()
+    with pytest.raises(LinkError, match="closed"):
+        link.discover()
