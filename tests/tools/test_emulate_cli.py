@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -71,12 +72,7 @@ def test_emulate_robot_with_control_socket_and_sigterm(tmp_path) -> None:
                 status = "".join(iter(lambda: f.readline(), "\n"))
                 assert "link 0: plugged, 921600 bd" in status and "link 1: UNPLUGGED" in status
             assert [d["position"] for d in link.discover(timeout=0.5)] == [0]
-            pids = [
-                int(w.split()[1].rstrip(","))
-                for w in status.splitlines()
-                if "pid" in w
-                for w in [w[w.index("pid") :]]
-            ]
+            pids = [int(p) for p in re.findall(r"pid (\d+)", status)]
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err
