@@ -134,6 +134,9 @@ class _Session:
         self.outbox_size = outbox_size
         self.wakeup = asyncio.Event()
         self.closed = False
+        self.tokens = 0.0  # request budget (token bucket), refilled at max_request_rate
+        self.t_refill = time.monotonic()
+        self.throttled = 0
 
     def push_stream(self, sub: _Subscription, text: str) -> None:
         if len(self.stream) >= self.outbox_size:
@@ -176,6 +179,7 @@ class ApiServer:
         poll_interval: float = 0.005,
         status_interval: float = 0.05,
         workers: int = 2,
+        max_request_rate: float = 500.0,
     ) -> None:
         check_bind(host, token)
         self.daemon = daemon
@@ -187,6 +191,8 @@ class ApiServer:
         self.outbox_size = outbox_size
         self.poll_interval = poll_interval
         self.status_interval = status_interval
+        self.max_request_rate = max_request_rate
+        self.request_burst = max(1.0, max_request_rate / 5)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ucr-api-call")
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -244,6 +250,7 @@ class ApiServer:
             "clients": len(sessions),
             "subscriptions": sum(len(s.subs) for s in sessions),
             "dropped": sum(sub.dropped for s in sessions for sub in s.subs.values()),
+            "throttled": sum(s.throttled for s in sessions),
         }
 
     def _run(self) -> None:
@@ -297,12 +304,14 @@ class ApiServer:
     # ------------------------------------------------------------------ connection
     async def _handle(self, ws: ServerConnection) -> None:
         session = _Session(ws, self.outbox_size)
+        session.tokens = self.request_burst
         self._sessions.add(session)
         self.counters["connections"] += 1
         log.info("API: client %s connected", session.peer)
         sender = asyncio.create_task(self._sender(session))
         try:
             async for frame in ws:
+                await self._throttle(session)
                 reply = await self._serve_frame(session, frame)
                 try:
                     text = S.encode(reply)
@@ -325,6 +334,22 @@ class ApiServer:
             self._sessions.discard(session)
             await self._cleanup(session)
             log.info("API: client %s gone", session.peer)
+
+    async def _throttle(self, session: _Session) -> None:
+        """Pace a client above ``max_request_rate`` requests/s by reading its requests later
+        (TCP back-pressure), so one flooding client cannot load the daemon; nothing is refused."""
+        now = time.monotonic()
+        session.tokens = min(
+            self.request_burst,
+            session.tokens + (now - session.t_refill) * self.max_request_rate,
+        )
+        session.t_refill = now
+        if session.tokens < 1.0:
+            session.throttled += 1
+            await asyncio.sleep((1.0 - session.tokens) / self.max_request_rate)
+            session.tokens = 1.0
+            session.t_refill = time.monotonic()
+        session.tokens -= 1.0
 
     async def _sender(self, session: _Session) -> None:
         """Send pushes in order: trajectory progress first, then stream messages."""

@@ -393,6 +393,23 @@ def test_slow_subscriber_gets_drops_and_does_not_block_others(stub):
         srv.stop()
 
 
+def test_request_flood_is_paced_not_refused(stub):
+    srv = ApiServer(stub, "127.0.0.1", 0, max_request_rate=500).start()  # burst 100
+    try:
+        with ws_connect(srv.url) as ws:
+            t0 = time.monotonic()
+            for i in range(300):
+                ws.send(json.dumps({"id": i, "op": "ping"}))
+            replies = [json.loads(ws.recv(timeout=10)) for _ in range(300)]
+            elapsed = time.monotonic() - t0
+            assert [r["id"] for r in replies] == list(range(300))
+            assert all(r["ok"] for r in replies)
+            assert elapsed >= 0.9 * (300 - 100) / 500  # paced at ~500 requests/s
+            assert srv.stats()["throttled"] > 0
+    finally:
+        srv.stop()
+
+
 def test_client_raises_connection_error_when_server_goes_away(stub):
     srv = ApiServer(stub, "127.0.0.1", 0).start()
     c = connect(srv.url)
