@@ -105,7 +105,8 @@ class Subscription:
             self._cond.notify_all()
 
     def get(self, timeout: float | None = None) -> dict | None:
-        """Next message, or None after ``timeout`` s; raises if the connection is gone."""
+        """Next message, or None after ``timeout`` s. Raises StopIteration once the subscription
+        is closed, and the connection's :class:`ApiConnectionError` if the connection broke."""
         deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
             while not self._buf:
