@@ -1,7 +1,7 @@
 """API benchmark: request round trip, publish->client latency, and what API load does to the
 control loop's jitter. Runs the real daemon on an emulated 3-segment chain.
 
-    .venv/bin/python -m host.api.bench [--seconds 4]
+    .venv/bin/python benchmarks/bench_api.py [--seconds 4]
 
 Prints figures (µs / ms) and ratios; asserts nothing (the machine may be shared and noisy).
 The "flood" phase shows the per-connection pacing (``max_request_rate``, 500 requests/s).
@@ -19,7 +19,7 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -132,8 +132,7 @@ def main(argv: list[str] | None = None) -> int:
                 gen = subprocess.Popen(
                     [
                         sys.executable,
-                        "-m",
-                        "host.api.bench",
+                        str(Path(__file__).resolve()),
                         "--load-client",
                         srv.url,
                         "--period",
