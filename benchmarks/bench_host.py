@@ -33,6 +33,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 import numpy as np  # noqa: E402
 
+import host.daemon as hd  # noqa: E402
 from host.config import DaemonConfig  # noqa: E402
 from host.daemon import Daemon  # noqa: E402
 from host.link import ChainLink  # noqa: E402
@@ -139,6 +140,22 @@ def robot_with(n: int):
     return robot_from_descriptors(descs, f"bench{n}"), descs
 
 
+class SimClock:
+    """Stands in for the ``time`` module inside host.daemon: monotonic() advances one period per
+    tick(); perf_counter() stays real, so compute time is measured for real."""
+
+    def __init__(self, t0: float, period: float):
+        self.t, self.period = t0, period
+        self.perf_counter = time.perf_counter
+        self.sleep = time.sleep
+
+    def tick(self) -> None:
+        self.t += self.period
+
+    def monotonic(self) -> float:
+        return self.t
+
+
 def cycle_time(n: int, controllers: list[str], cycles: int) -> dict[str, float]:
     robot, descs = robot_with(n)
     cfg = DaemonConfig(port="replay://", active=controllers)
@@ -155,11 +172,19 @@ def cycle_time(n: int, controllers: list[str], cycles: int) -> dict[str, float]:
             for k in range(5)
         ]
         d.send_trajectory(pts)
+    # Simulated clock: each step is one 100 Hz period later, so the broadcasters publish at
+    # their configured rates (cJSB 50 Hz, cRSP 20 Hz) exactly as in a running daemon.
+    clock = SimClock(time.monotonic(), 0.01)
+    real_time, hd.time = hd.time, clock
     samples = []
-    for _ in range(cycles):
-        c = d._step()
-        if c is not None:
-            samples.append(c * 1e6)
+    try:
+        for _ in range(cycles):
+            clock.tick()
+            c = d._step()
+            if c is not None:
+                samples.append(c * 1e6)
+    finally:
+        hd.time = real_time
     d.stop(hold=False)
     a = np.array(samples)
     return {

@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import sys
 import threading
 import time
 from collections import OrderedDict, deque
@@ -42,6 +43,7 @@ from ucrdf.parser import load
 log = logging.getLogger("ucr.daemon")
 
 KINDS = ("joint_states", "transforms", "event", "topology")
+SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while the daemon runs (s)
 _DESCRIPTOR_BYTES = 200  # a DESCRIPTOR frame on the wire, bytes (upper estimate)
 _TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
 
@@ -132,6 +134,10 @@ class Daemon:
     def start(self) -> Daemon:
         """Open the port, discover, compare, build, start the loop. Raises DaemonError."""
         self._stopping = False
+        # The loop thread shares the GIL with the link reader (and, in the demo, the emulator):
+        # a shorter switch interval bounds how long it waits for it (default 5 ms).
+        if sys.getswitchinterval() > SWITCH_INTERVAL_S:
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
             self.link = self._link_factory(self.port, self.cfg.baudrate)
         except OSError as exc:
@@ -493,7 +499,8 @@ class Daemon:
                 self.link = self._link_factory(self.port, self.cfg.baudrate)
             descs = self._discover()
         except OSError as exc:
-            self._close_link() if "cannot open" not in str(exc) else None
+            if self.link is not None:
+                self._close_link()  # reopen from scratch next time
             self.link_error = str(exc)
             self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
             self._reconnect_at = now + self._backoff

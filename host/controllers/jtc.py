@@ -102,6 +102,7 @@ class CurvatureTrajectory:
         self.ends = np.cumsum(self.durations).tolist()
         self.duration = self.ends[-1]
         self.final = self.positions[-1]
+        self._final_list = self.final.tolist()
 
     def _build(self) -> None:
         P, d = self.positions, self.durations
@@ -135,6 +136,17 @@ class CurvatureTrajectory:
             speed = np.hypot(vel[:, 0, :], vel[:, 1, :]).max(axis=1)  # (J,)
             out[i] = float((speed / self.rate_max).max())
         return out
+
+    def position(self, t: float) -> list[list[float]]:
+        """Position only (J lists of [kx, ky]) at absolute time ``t``: the per-cycle fast path."""
+        tau = t - self.t0
+        if tau >= self.duration:
+            return self._final_list
+        tau = max(tau, 0.0)
+        i = bisect.bisect_right(self.ends, tau)
+        s = tau - (self.ends[i - 1] if i > 0 else 0.0)
+        s2 = s * s
+        return (self.coeffs[i] @ (1.0, s, s2, s2 * s, s2 * s2, s2 * s2 * s)).tolist()
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration (each (J, 2)) at absolute time ``t``."""
@@ -224,6 +236,7 @@ class JointTrajectoryController(Controller):
         self.stop_time = self._float_param("stop_time", lo=0.01)
         lim = [ctx.limits[j] for j in self.joints]
         self._kmax = np.array([b.kappa_max for b in lim])
+        self._kmax_list = self._kmax.tolist()
         self._rate = np.array([b.kappa_rate_max for b in lim]) * self.rate_margin
         self._index = {j: i for i, j in enumerate(self.joints)}
         self._state_index: list[int] = [ctx.names.index(j) for j in self.joints]
@@ -406,24 +419,22 @@ class JointTrajectoryController(Controller):
     def update(self, state: RobotState, dt: float) -> Commands | None:
         self._last_state = state
         t = state.t
-        if self._traj is not None:
-            p, _, _ = self._traj.sample(t)
-        else:
-            p = self._hold
+        p = self._traj.position(t) if self._traj is not None else self._hold.tolist()
         g = self._goal
         if g is not None:
             self._check_goal(g, state, p, t)
             if self._goal is None and g.state == "aborted":
-                p = self._hold  # held at the measured position by _check_goal
+                p = self._hold.tolist()  # held at the measured position by _check_goal
         out: Commands = {}
+        kmax = self._kmax_list
         for i, j in enumerate(self.joints):
-            kx, ky, clamped = clamp_radial(float(p[i, 0]), float(p[i, 1]), self._kmax[i])
+            kx, ky, clamped = clamp_radial(p[i][0], p[i][1], kmax[i])
             self._clamped += clamped
             out[j] = (kx, ky)
         return out
 
     # -- internals ---------------------------------------------------------------------------
-    def _check_goal(self, g: Goal, state: RobotState, desired: np.ndarray, t: float) -> None:
+    def _check_goal(self, g: Goal, state: RobotState, desired: list[list[float]], t: float) -> None:
         tr = g.trajectory
         assert tr is not None
         tau = t - tr.t0
@@ -432,7 +443,7 @@ class JointTrajectoryController(Controller):
         for i, j in enumerate(self.joints):
             si = self._state_index[i]
             if state.valid[si]:
-                errs[j] = math.hypot(state.kx[si] - desired[i, 0], state.ky[si] - desired[i, 1])
+                errs[j] = math.hypot(state.kx[si] - desired[i][0], state.ky[si] - desired[i][1])
         if tau < tr.duration:
             if errs:
                 worst = max(errs, key=errs.get)

@@ -112,11 +112,17 @@ class RobotStatePublisher(Controller):
         for name, model in self.kin.models.items():
             el = self.kin.elements[name]
             base = frames[el.parent] @ el.origin
-            pts = [
-                (base @ model.transform_coordinates(coords[name], float(s)))[:3, 3]
-                for s in self._s[name]
-            ]
-            backbones[name] = [[float(v) for v in p] for p in pts]
+            try:  # batched for PCC: one call for all samples
+                local = model.backbone_curve(model.from_coordinates(coords[name]), self.samples)
+            except ModelError:  # measured slightly beyond a limit: sample one by one, unchecked
+                local = np.array(
+                    [
+                        model.transform_coordinates(coords[name], float(s))[:3, 3]
+                        for s in self._s[name]
+                    ]
+                )
+            pts = local @ base[:3, :3].T + base[:3, 3]
+            backbones[name] = pts.round(6).tolist()
         return {
             "kind": "transforms",
             "t": state.t,
