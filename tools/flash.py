@@ -127,7 +127,9 @@ def check_port(port: str) -> None:
             "`.venv/bin/python -m serial.tools.list_ports`)"
         )
     try:
-        ser = serial.serial_for_url(port, baudrate=115200, exclusive=True)
+        # exclusive (flock) is what reveals a port someone else holds; URLs do not support it
+        kwargs = {} if "://" in port else {"exclusive": True}
+        ser = serial.serial_for_url(port, baudrate=115200, **kwargs)
     except serial.SerialException as exc:
         text = str(exc)
         if "lock" in text.lower() or "busy" in text.lower() or "Errno 16" in text:
@@ -155,7 +157,7 @@ class Flasher:
         check_port(port)
         self._TransportError = TransportError
         try:
-            self.t = SerialTransport(port, baudrate=baudrate, exclusive=True)
+            self.t = SerialTransport(port, baudrate=baudrate, exclusive="://" not in port)
         except TransportError as exc:
             raise FlashError(f"cannot open port {port}: {exc}") from exc
         # mpremote reads a pty with read(1) and no serial timeout: a silent device would block it

@@ -151,8 +151,9 @@ def test_host_silence_makes_every_segment_hold_within_its_watchdog_time(chain3) 
     trips = {e["position"]: e for e in seen if e["name"] == "WATCHDOG_TRIPPED"}
     assert sorted(trips) == [0, 1, 2], seen
     for e in trips.values():
-        # watchdog 200 ms, plus one 5 ms tick and event pacing (20 ms per event per segment)
-        assert e["t"] - t0 < 0.2 + 0.1, (e, t0)
+        # watchdog 200 ms after the last SYNC (just before t0); margin for one 5 ms tick, event
+        # pacing (20 ms per event per segment) and a loaded 2-core CI machine
+        assert 0.15 < e["t"] - t0 < 0.2 + 0.15, (e, t0)
     states = link.heartbeat(timeout=0.2, expected=3)
     assert all("WATCHDOG" in s["status"] for s in states)
     sync_until(link, targets, lambda st: all("WATCHDOG" not in s["status"] for s in st))
