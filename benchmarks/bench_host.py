@@ -352,6 +352,11 @@ def main() -> int:
             "4. command -> state round trip, 3 segments   median    p99   line-rate floor  "
             "ratio   bytes SYNC/STATE"
         )
+        r = round_trip(chain, 3, None, 100 if args.quick else 300)
+        print(
+            f"   unthrottled (processing only) {' ' * 10}{r['median_ms']:6.2f} ms "
+            f"{r['p99_ms']:6.2f} ms   (segments + emulator + host, no line time)"
+        )
         for baud in (115200, 921600):
             r = round_trip(chain, 3, baud, 100 if args.quick else 300)
             print(
