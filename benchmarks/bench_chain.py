@@ -80,7 +80,7 @@ def main() -> int:
             f"{t[int(0.9 * (len(t) - 1))] * 1e3:7.2f} ms"
         )
     print("SYNC -> all STATEs round trip on throttled links, median over", args.repeat, "runs")
-    for n in (1, 3):
+    for n in (1, 3, 8):
         for baud in (115200, 921600):
             t, floor = bench_roundtrip(n, baud, args.repeat)
             med = statistics.median(t)

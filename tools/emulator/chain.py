@@ -133,6 +133,8 @@ class _Segment:
         self.started_at = 0.0
         self.restarts = 0
         self.exit_codes: list[int] = []
+        self.spawn_errors: list[str] = []
+        self.retry_at = 0.0
         self.log = RingLog()
         self.repl_inner: PtyEnd
         self.repl_outer: PtyEnd
@@ -284,11 +286,15 @@ class EmulatedChain:
         while not self._closing.wait(0.02):
             for seg in self._segments:
                 with self._proxy._lock:
-                    proc = seg.proc
-                    if proc is None or not seg.powered or proc.poll() is None:
-                        continue
                     if self._closing.is_set():
                         return
+                    proc = seg.proc
+                    if proc is None:
+                        if seg.powered and seg.retry_at and time.monotonic() >= seg.retry_at:
+                            self._respawn(seg)  # an earlier start failed
+                        continue
+                    if not seg.powered or proc.poll() is None:
+                        continue
                     seg.exit_codes.append(proc.returncode)
                     # A process that dies right after starting (broken firmware) is retried slowly.
                     quick = time.monotonic() - seg.started_at < 0.5
@@ -300,8 +306,18 @@ class EmulatedChain:
                 with self._proxy._lock:
                     if self._closing.is_set() or not seg.powered or seg.proc is not None:
                         continue
-                    seg.restarts += 1
-                    self._spawn(seg)
+                    self._respawn(seg)
+
+    def _respawn(self, seg: _Segment) -> None:
+        """Start the segment again (counted); a failed start is retried 0.5 s later."""
+        seg.restarts += 1
+        seg.retry_at = 0.0
+        try:
+            self._spawn(seg)
+        except OSError as exc:  # e.g. fork failed under memory pressure
+            seg.proc = None
+            seg.spawn_errors.append(str(exc))
+            seg.retry_at = time.monotonic() + 0.5
 
     # -- public API -----------------------------------------------------------------------------
     def __enter__(self) -> EmulatedChain:
@@ -482,6 +498,7 @@ class EmulatedChain:
                         "powered": seg.powered,
                         "restarts": seg.restarts,
                         "exit_codes": list(seg.exit_codes),
+                        "spawn_errors": list(seg.spawn_errors),
                     }
                     for seg in self._segments
                 ],
