@@ -166,6 +166,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                     if answer:
                         print(answer, flush=True)
                 else:
+                    if sys.stdin.isatty():
+                        print(
+                            "stdin closed; still running (Ctrl-C or SIGTERM stops it)", flush=True
+                        )
                     threading.Event().wait()  # stdin closed (background run): keep running
     except KeyboardInterrupt:
         pass

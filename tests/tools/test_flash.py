@@ -123,3 +123,28 @@ def test_a_device_that_is_not_a_micropython_repl_is_a_clear_error() -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_mpremote_cli_with_resume_works_on_the_running_firmware(one_segment) -> None:
+    chain, link = one_segment
+    discover_one(link)
+    proc = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "mpremote"),
+            "connect",
+            chain.repl_port(0),
+            "resume",
+            "exec",
+            "import sys; print(sys.implementation.name, sys.platform)",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "micropython linux"
+    # mpremote left the board at the REPL, firmware stopped: the chain's segment is silent now,
+    # as on a real board, until it is reset.
+    assert link.discover(timeout=0.3) == []
+    chain.restart(0)
+    assert discover_one(link)["position"] == 0
