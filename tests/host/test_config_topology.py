@@ -7,11 +7,11 @@ import copy
 import math
 
 import pytest
+from daemon_helpers import ROBOT_FILE, wait_for
 
 from host.config import ConfigError, DaemonConfig, bendable_limits, load_config, parse_config
 from host.loop import FixedRateLoop
 from host.topology import adopted_path, chain_bendables, compare, truncate
-from tests.host.conftest import ROBOT_FILE, wait_for
 from tools.cli import main
 
 

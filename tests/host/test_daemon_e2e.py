@@ -10,11 +10,11 @@ import time
 
 import numpy as np
 import pytest
+from daemon_helpers import emulated_configs, start_daemon, wait_for
 
 from host.config import DaemonConfig
 from host.controllers.base import ControllerError
 from host.daemon import Daemon, GoalNotFound
-from tests.host.conftest import emulated_configs, start_daemon, wait_for
 from tools.emulator import EmulatedChain
 
 pytestmark = pytest.mark.timeout(120)

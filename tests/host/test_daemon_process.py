@@ -11,11 +11,11 @@ import sys
 import time
 
 import pytest
+from daemon_helpers import REPO, ROBOT_FILE, emulated_configs, wait_for
 
 from host.config import bendable_limits
 from host.hwi import ACTIVE, INACTIVE, UNCONFIGURED, HardwareInterface, LifecycleError
 from host.link import ChainLink
-from tests.host.conftest import REPO, ROBOT_FILE, emulated_configs, wait_for
 from tools.emulator import EmulatedChain
 
 pytestmark = pytest.mark.timeout(120)

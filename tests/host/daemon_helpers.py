@@ -1,0 +1,41 @@
+"""Helpers shared by the host daemon tests (imported as ``daemon_helpers``: pytest puts this
+directory on sys.path): the demo robot file, emulated-chain configurations, waiting."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+ROBOT_FILE = REPO / "robots" / "softrobot3.ucrdf"
+
+
+def emulated_configs(robot):
+    """Per-position segment config from the U(C)RDF, with the emulated servo driver."""
+    from tools.segment_config import config_for
+
+    names = list(robot.bendables)
+    return lambda k: {**config_for(robot, names[k]), "servo_driver": "emulated"}
+
+
+def wait_for(cond, timeout: float, step: float = 0.01) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(step)
+    return bool(cond())
+
+
+def start_daemon(daemon, timeout: float = 15.0):
+    """Start a daemon, retrying while the emulated segments are still booting."""
+    from host.daemon import DaemonError
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            return daemon.start()
+        except DaemonError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.2)
