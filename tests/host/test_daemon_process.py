@@ -172,3 +172,40 @@ def test_mismatch_is_explained_and_adopt_writes_the_chain_as_found(chain, tmp_pa
     adopted = load(out)
     assert list(adopted.bendables) == ["segment_1", "segment_2", "segment_3"]
     assert adopted.bendables["segment_3"].length == pytest.approx(0.316)
+
+
+def test_segment_not_in_the_description_is_reported_and_held(chain):
+    """Start on a 2-segment description with segment 3 unplugged; plugging it in is noticed,
+    reported as an extra segment, and the daemon keeps controlling the two it knows."""
+    from daemon_helpers import start_daemon
+
+    from host.config import DaemonConfig
+    from host.daemon import Daemon
+
+    chain.unplug(2)
+    d = Daemon(REPO / "robots" / "softrobot2.ucrdf", DaemonConfig(port=chain.host_port))
+    try:
+        time.sleep(0.3)  # segment 2 notices its neighbour is gone (150 ms)
+        start_daemon(d)
+        assert d.status()["segments"] == ["segment_1", "segment_2"]
+        q = d.subscribe(["event"])
+        chain.plug(2)
+        assert wait_for(lambda: len(d.topology()["segments"]) == 3, 3.0)
+        topo = d.topology()
+        assert topo["controlled"] == ["segment_1", "segment_2"]
+        assert [s["controlled"] for s in topo["segments"]] == [True, True, False]
+        assert any("extra at position(s) 2" in x["message"] for x in topo["differences"])
+        time.sleep(0.3)
+        msgs = []
+        while not q.empty():
+            msgs.append(q.get())
+        changes = [m for m in msgs if m["event"] == "topology_changed"]
+        assert len(changes) == 1, [m["message"] for m in changes]  # no rebuild loop
+        gid = d.send_trajectory(
+            [{"time_from_start": 0.5, "segments": {"segment_2": {"kappa": 0.5}}}]
+        )
+        assert wait_for(lambda: d.trajectory_status(gid)["done"], 5.0)
+        assert d.trajectory_status(gid)["state"] == "succeeded"
+    finally:
+        d.stop()
+        chain.plug(2)
