@@ -38,12 +38,21 @@ def vm_env(paths: list[Path] | None = None) -> dict[str, str]:
     return env
 
 
-def run_code(code: str, *, heap: str = ESP32_HEAP, paths: list[Path] | None = None,
-             timeout: float = 60.0, stdin: bytes | None = None) -> str:
-    """Execute ``code`` on the VM and return its stdout; raise RuntimeError with stderr on failure."""
+def run_code(
+    code: str,
+    *,
+    heap: str = ESP32_HEAP,
+    paths: list[Path] | None = None,
+    timeout: float = 60.0,
+    stdin: bytes | None = None,
+) -> str:
+    """Run ``code`` on the VM and return its stdout; RuntimeError with stderr on failure."""
     proc = subprocess.run(
         [micropython_binary(), "-X", f"heapsize={heap}", "-c", code],
-        env=vm_env(paths), capture_output=True, timeout=timeout, input=stdin,
+        env=vm_env(paths),
+        capture_output=True,
+        timeout=timeout,
+        input=stdin,
     )
     if proc.returncode != 0:
         raise RuntimeError(
