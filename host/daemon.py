@@ -545,6 +545,7 @@ class Daemon:
             kx = s["kx"] if s["kx"] is not None else kappa * math.cos(phi)
             ky = s["ky"] if s["ky"] is not None else kappa * math.sin(phi)
             st.kx[i], st.ky[i], st.kappa[i], st.phi[i], st.valid[i] = kx, ky, kappa, phi, True
+            st.t_ms[i] = s.get("t_ms")
         return st
 
     # -- publishing --------------------------------------------------------------------------

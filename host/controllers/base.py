@@ -27,6 +27,7 @@ class RobotState:
 
     Curvature vectors (kx, ky) and the interface form (kappa, phi) in SI; ``valid[i]`` is False
     when segment i did not answer this cycle (its values are then the last known ones).
+    ``t_ms[i]`` is segment i's own time stamp of the measurement (ms since its boot) or None.
     """
 
     t: float
@@ -36,11 +37,14 @@ class RobotState:
     kappa: list[float]
     phi: list[float]
     valid: list[bool]
+    t_ms: list[int | None] = field(default_factory=list)
 
     @classmethod
     def zeros(cls, names: list[str], t: float = 0.0) -> RobotState:
         n = len(names)
-        return cls(t, list(names), [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [False] * n)
+        return cls(
+            t, list(names), [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [False] * n, [None] * n
+        )
 
 
 @dataclass

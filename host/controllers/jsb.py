@@ -1,5 +1,6 @@
 """cJSB: the continuum joint state broadcaster. Publishes, at ``rate_hz``, the joint states of the
-robot: (kappa, phi) and (kx, ky) per bendable (1/m, rad) plus the movable rigid joints.
+robot: (kappa, phi) and (kx, ky) per bendable (1/m, rad), each segment's own measurement time
+stamp ``t_ms`` (ms since its boot, wraps at 2**30) plus the movable rigid joints.
 
 Rigid joints have no hardware on this robot (the segments are all continuum): their positions are
 the ``initial_value`` of their ``<ros2_control>`` state interface ``position`` (0 if none), marked
@@ -65,6 +66,7 @@ class JointStateBroadcaster(Controller):
             "kx": [state.kx[i] for i in idx],
             "ky": [state.ky[i] for i in idx],
             "valid": [state.valid[i] for i in idx],
+            "t_ms": [state.t_ms[i] if i < len(state.t_ms) else None for i in idx],
             "rigid": {k: {"position": v, "measured": False} for k, v in self._rigid.items()},
         }
 
