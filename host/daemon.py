@@ -162,7 +162,14 @@ class Daemon:
                 )
             self._adopt(descs, cmp)
             cmp = compare(self.full_robot, descs)
-        self._build(descs, cmp, "startup")
+        try:
+            self._build(descs, cmp, "startup")
+        except (OSError, ValueError) as exc:  # link failure, bad interface limits in the file
+            self._close_link()
+            raise DaemonError(f"cannot start on {self.port}: {exc}") from None
+        except DaemonError:
+            self._close_link()
+            raise
         self.link_state = "connected"
         self._t_started = time.monotonic()
         self.loop.start()
@@ -432,7 +439,11 @@ class Daemon:
             self._lost_chain(f"{reason}; {cmp.text()}")
             return
         t_disc = time.monotonic()
-        self._build(descs, cmp, reason)
+        try:
+            self._build(descs, cmp, reason)
+        except OSError as exc:
+            self._link_lost(exc)
+            return
         t_ready = time.monotonic()
         entry = {
             "t": t_detect,
@@ -511,7 +522,11 @@ class Daemon:
             self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
             self._reconnect_at = now + self._backoff
             return
-        self._build(descs, cmp, "reconnected")
+        try:
+            self._build(descs, cmp, "reconnected")
+        except OSError as exc:
+            self._link_lost(exc)
+            return
         self.link_state = "connected"
         self.link_error = ""
         self._backoff = wd.reconnect_min_s
