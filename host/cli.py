@@ -321,7 +321,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
             print(
                 f"loop: {stats['cycles']} cycles at {stats['rate_hz']:.0f} Hz, compute mean "
                 f"{stats['compute_us']['mean']:.0f} µs (p99 {stats['compute_us']['p99']:.0f}), "
-                f"jitter p99 {stats['jitter_us']['p99']:.0f} µs, overruns {stats['overruns']}",
+                f"jitter p99 {stats['jitter_us']['p99']:.0f} µs, overruns {stats['overruns']} "
+                "(this process also runs the emulator; see benchmarks/bench_host.py)",
                 flush=True,
             )
             for h in stats["hotplug"]:
