@@ -64,6 +64,58 @@ class GoalNotFound(LookupError):
     """No goal with this id."""
 
 
+class PublisherThread:
+    """Runs work handed over by the control cycle (e.g. cRSP's FK) in its own thread, so that work
+    never lengthens a cycle. Bounded: when it falls behind, new work is dropped and counted."""
+
+    def __init__(self, maxsize: int = 8):
+        self._q: queue.Queue = queue.Queue(maxsize=maxsize)
+        self._thread: threading.Thread | None = None
+        self.done = 0
+        self.dropped = 0
+        self.busy_s = 0.0
+
+    def start(self) -> None:
+        if self._thread is None or not self._thread.is_alive():
+            self._thread = threading.Thread(target=self._run, name="ucr-publisher", daemon=True)
+            self._thread.start()
+
+    def stop(self, timeout: float = 1.0) -> None:
+        if self._thread is not None:
+            try:
+                self._q.put(None, timeout=timeout)
+            except queue.Full:
+                pass
+            self._thread.join(timeout)
+            self._thread = None
+
+    def submit(self, fn: Callable[[], None]) -> None:
+        if self._thread is None:
+            fn()  # not started (e.g. timed by a benchmark): run inline
+            return
+        try:
+            self._q.put_nowait(fn)
+        except queue.Full:
+            self.dropped += 1
+
+    def stats(self) -> dict[str, Any]:
+        mean = self.busy_s / self.done * 1e6 if self.done else 0.0
+        return {"done": self.done, "dropped": self.dropped, "mean_us": mean}
+
+    def _run(self) -> None:
+        while True:
+            fn = self._q.get()
+            if fn is None:
+                return
+            t0 = time.perf_counter()
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - a failing publisher must not stop the others
+                log.exception("publisher task failed")
+            self.busy_s += time.perf_counter() - t0
+            self.done += 1
+
+
 class Daemon:
     """Drives one chain described by ``robot`` (a :class:`ucrdf.model.Robot` or a file path).
 
@@ -129,6 +181,7 @@ class Daemon:
         self._backoff = wd.reconnect_min_s
         self._stopping = False
         self.loop = FixedRateLoop(self.period, self._step, self._on_loop_error, name="ucr-daemon")
+        self._publisher = PublisherThread()
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> Daemon:
@@ -172,6 +225,7 @@ class Daemon:
             raise
         self.link_state = "connected"
         self._t_started = time.monotonic()
+        self._publisher.start()
         self.loop.start()
         log.info(
             "daemon running: %d segment(s) %s at %.0f Hz on %s",
@@ -186,6 +240,7 @@ class Daemon:
         """Stop the loop; abort goals; HOLD every segment (best effort); close the port."""
         self._stopping = True
         self.loop.stop()
+        self._publisher.stop()
         with self._lock:
             self._abort_goals("daemon stopping")
         if hold and self.link is not None:
@@ -244,7 +299,7 @@ class Daemon:
         hwi.configure()
         hwi.activate()
         state = self._robot_state_from(hwi, time.monotonic())
-        ctx = ControllerContext(limits, robot, self._publish)
+        ctx = ControllerContext(limits, robot, self._publish, self._publisher.submit)
         with self._lock:
             self.robot, self.hwi, self.descriptors, self.comparison = robot, hwi, descs, cmp
             self._state = state
@@ -675,6 +730,7 @@ class Daemon:
         with self._lock:
             out["hotplug"] = list(self.hotplug_log)
             out["subscriber_drops"] = self._dropped
+            out["publisher"] = self._publisher.stats()
             link = self.link
         try:
             out["link"] = link.stats if link is not None else {}

@@ -52,12 +52,15 @@ class ControllerContext:
     """What a controller knows about the robot it runs on. ``limits`` is chain-ordered.
 
     ``publish(msg)`` hands a message dict to the daemon's subscribers (broadcasters use it);
+    ``offload(fn)`` runs ``fn()`` outside the control cycle (the daemon's publisher thread; by
+    default at once), for work that only feeds subscribers, such as cRSP's FK;
     ``robot`` is the (possibly truncated) U(C)RDF robot currently controlled.
     """
 
     limits: dict[str, BendableLimits]
     robot: Any = None
     publish: Callable[[dict], None] = field(default=lambda msg: None)
+    offload: Callable[[Callable[[], None]], None] = field(default=lambda fn: fn())
 
     @property
     def names(self) -> list[str]:

@@ -140,5 +140,7 @@ class RobotStatePublisher(Controller):
             self._next += self.period
             if self._next < state.t:
                 self._next = state.t + self.period
-            self.ctx.publish(self.compute(state))
+            # FK of every frame is the heaviest work of a cycle and feeds only subscribers: run it
+            # outside the control cycle (RobotState objects are never modified after creation).
+            self.ctx.offload(lambda st=state: self.ctx.publish(self.compute(st)))
         return None
