@@ -7,7 +7,10 @@ zero_i + dir_i * angle_i, clamped to the servo's range. Backward: servo position
 -> kappa (projection on the atan2 direction) and phi (held when kappa is about zero).
 
 Limits: |kappa| <= kappa_max, servo targets within range, and the curvature *vector* moves at most
-kappa_rate_max * dt per cycle. Units: curvature 1e-4 1/m, angles 1e-4 rad, lengths um (ints).
+kappa_rate_max * dt per cycle. A setpoint is reported as rate-clamped only when it asks for more
+than kappa_rate_max allows since the previous setpoint (so a host stepping at 100 Hz within the
+rate never trips it, although each step takes the 200 Hz limiter two ticks).
+Units: curvature 1e-4 1/m, angles 1e-4 rad, lengths um (ints).
 Nothing here allocates after ``__init__`` (arrays are preallocated; all ints stay below 2**30).
 """
 
@@ -28,6 +31,7 @@ CLAMP_KAPPA = const(1)  # LIMIT_CLAMPED detail bits (contract)
 CLAMP_RATE = const(2)
 CLAMP_SERVO = const(4)
 _PHI_HOLD_EPS = const(10)  # 1e-3 1/m: below this measured kappa, phi keeps its last value
+_RATE_WINDOW_MS = const(100)  # longest setpoint interval credited to the rate check
 _MAX_DL_UM = const(1 << 23)  # largest tendon length change the fixed-point scheme allows
 
 
@@ -44,6 +48,10 @@ class Mechanism:
         self.kappa_max = cfg.kappa_max
         # slew step per cycle (1e-4 1/m), at least one unit
         self.step = max(1, int(cfg.rate_max * tick_ms / 1000.0 + 0.5))
+        # rate check of setpoints: 1.25 * rate per ms in Q4 (1e-4 1/m / 16 per ms); with
+        # dt <= 100 ms the product stays far below 2**30 for any accepted kappa_rate_max
+        self.rate_q4 = (cfg.rate_max * 16 * 5) // 4000
+        self.rate_excess = False  # the current target was requested faster than the rate allows
         ld = si["length"] * si["tendon_radius"]
         if ld * si["kappa_max"] * 1e6 > _MAX_DL_UM:
             raise ValueError("length * tendon_radius * kappa_max too large for fixed point")
@@ -94,8 +102,13 @@ class Mechanism:
         self.phi = 0
 
     # ---- forward ---------------------------------------------------------------------------
-    def set_target(self, kappa, phi):
-        """Take a (kappa, phi) setpoint (ints); return CLAMP_KAPPA if |kappa| was limited."""
+    def set_target(self, kappa, phi, dt_ms=-1):
+        """Take a (kappa, phi) setpoint (ints) arriving ``dt_ms`` after the previous one.
+
+        Returns CLAMP_KAPPA if |kappa| was limited, and CLAMP_RATE if the curvature vector moved
+        further than kappa_rate_max * dt_ms (+ one tick, + 25 %) from the previous target. Without
+        ``dt_ms`` there is no rate judgement here: update() then flags every tick it limits.
+        """
         flags = 0
         if kappa < 0:
             kappa = -kappa
@@ -105,8 +118,27 @@ class Mechanism:
             flags = CLAMP_KAPPA
         if phi > 1000000000 or phi < -1000000000:
             phi = 0  # nonsense from the wire; kappa magnitude is already bounded
-        self.tx = mulq(kappa, cos_q14(phi), 14)
-        self.ty = mulq(kappa, sin_q14(phi), 14)
+        tx = mulq(kappa, cos_q14(phi), 14)
+        ty = mulq(kappa, sin_q14(phi), 14)
+        if dt_ms < 0:
+            self.tx = tx
+            self.ty = ty
+            self.rate_excess = True
+            return flags
+        if dt_ms > _RATE_WINDOW_MS:
+            dt_ms = _RATE_WINDOW_MS
+        allowed = self.step + ((self.rate_q4 * dt_ms) >> 4)  # one tick + 25 % slack for jitter
+        dx = tx - self.tx
+        dy = ty - self.ty
+        if dx > allowed or dx < -allowed or dy > allowed or dy < -allowed:
+            self.rate_excess = True  # beyond the box: certainly beyond the disc
+        elif dx or dy:
+            psi = atan2_e4(dy, dx)
+            self.rate_excess = mulq(dx, cos_q14(psi), 14) + mulq(dy, sin_q14(psi), 14) > allowed
+        self.tx = tx
+        self.ty = ty
+        if self.rate_excess:
+            flags |= CLAMP_RATE
         return flags
 
     def update(self):
@@ -130,7 +162,10 @@ class Mechanism:
             else:
                 self.cx += mulq(st, c, 14)
                 self.cy += mulq(st, s, 14)
-                flags = CLAMP_RATE
+                if self.rate_excess:
+                    flags = CLAMP_RATE
+        if self.cx == self.tx and self.cy == self.ty:
+            self.rate_excess = False
         return flags | self._servo_targets()
 
     def _servo_targets(self):
@@ -187,5 +222,6 @@ class Mechanism:
         self.measure(positions)
         self.tx = self.cx = self.mx
         self.ty = self.cy = self.my
+        self.rate_excess = False
         for i in range(self.n):
             self.servo_target[i] = positions[i]

@@ -185,6 +185,7 @@ class Segment:
         self.now = now
         self.last_feed = now
         self.last_clamp_ev = now - CLAMP_EVENT_MS
+        self.last_sp = now  # arrival time of the last accepted SYNC setpoint (rate check)
         self.last_up_tx = now
         self.last_down_rx = now
         self.down_present = False
@@ -407,7 +408,8 @@ class Segment:
             if not self.moving:
                 self._start_moving()
             if res == pd.OK:
-                c = self.mc.set_target(out[1], out[2])
+                c = self.mc.set_target(out[1], out[2], _diff(self.now, self.last_sp))
+                self.last_sp = self.now
                 self.sp_clamp = c
                 self.clamped |= c
                 self.clamp_pending |= c

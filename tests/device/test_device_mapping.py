@@ -225,3 +225,42 @@ R['step'] = m.step
     assert r["flags"][0] == 2 and r["flags"][-1] == 0  # bit1 while rate-limited only
     n_limited = sum(1 for f in r["flags"] if f == 2)
     assert 119 <= n_limited <= 120  # 6 1/m at 0.05 1/m per cycle
+
+
+def _stream(vm, fraction):
+    """Setpoints every 10 ms moving kx at ``fraction`` of kappa_rate_max (10 1/m/s), with the
+    200 Hz limiter ticking twice per setpoint; returns the flags of set_target and update."""
+    return vm(
+        """
+import config, mechanism
+m = mechanism.Mechanism(config.Config({'kappa_rate_max': 10.0}), 5)
+m.set_target(0, 0, 10)
+R['sp'] = []
+R['up'] = []
+R['lag'] = 0
+k = 0
+for i in range(15):   # 15 * 2000 units stays below kappa_max (33100)
+    k += STEP   # 10 1/m/s * 10 ms = 0.1 1/m = 1000 units per setpoint at 100 %
+    R['sp'].append(m.set_target(k, 0, 10))
+    R['up'].append(m.update())
+    R['up'].append(m.update())
+    R['lag'] = max(R['lag'], m.tx - m.cx)
+R['final'] = [m.cx, m.tx]
+""".replace("STEP", str(round(fraction * 1000)))
+    )
+
+
+def test_setpoints_streamed_within_the_rate_are_never_reported_as_rate_clamped(vm):
+    """A host stepping at 100 Hz at 90 % of kappa_rate_max: each step needs two 200 Hz ticks of
+    the limiter, but the request is within the rate, so nothing is flagged and nothing lags."""
+    r = _stream(vm, 0.9)
+    assert not any(f & 2 for f in r["sp"] + r["up"])
+    assert r["lag"] == 0 and r["final"][0] == r["final"][1]
+
+
+def test_setpoints_streamed_faster_than_the_rate_are_flagged_while_the_limiter_catches_up(vm):
+    """At 200 % of the rate every setpoint is flagged and the motion is held to the rate."""
+    r = _stream(vm, 2.0)
+    assert all(f & 2 for f in r["sp"])
+    assert all(f & 2 for f in r["up"])
+    assert r["final"][0] == 15 * 1000  # 30 ticks * 500 units: exactly the rate, not more
