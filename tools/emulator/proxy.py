@@ -25,6 +25,8 @@ from tools.emulator.pipe import Pipe
 
 #: Bytes waiting for a slow reader of one master before new ones are dropped (UART overrun).
 MAX_PENDING = 64 * 1024
+#: select(2) watches only fds below FD_SETSIZE; past it the proxy uses the default selector.
+SELECT_MAX_FD = 1024
 
 
 def _raw_attrs(attrs: list, *, isig: bool) -> list:
@@ -84,7 +86,9 @@ class Proxy:
 
     def __init__(self) -> None:
         self._lock = threading.RLock()
-        self._sel = selectors.DefaultSelector()
+        # select(2) takes a µs timeout; epoll and poll round it up to whole ms, which would delay
+        # every throttled release by up to 1 ms per hop. The proxy watches a few dozen fds.
+        self._sel = selectors.SelectSelector()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
@@ -100,8 +104,19 @@ class Proxy:
         with self._lock:
             end = PtyEnd(name, isig=isig)
             self._ends.append(end)
+            if isinstance(self._sel, selectors.SelectSelector) and end.master >= SELECT_MAX_FD:
+                self._use_default_selector()
             self._sel.register(end.master, selectors.EVENT_READ, end)
             return end
+
+    def _use_default_selector(self) -> None:
+        """Move every registration to epoll/poll (ms timeouts, but no fd-number limit)."""
+        new = selectors.DefaultSelector()
+        for key in self._sel.get_map().values():
+            new.register(key.fileobj, key.events, key.data)
+        old, self._sel = self._sel, new
+        old.close()  # a select() running on it returns by its timeout; the next loop uses `new`
+        self._wake()
 
     def connect(self, src: PtyEnd, pipe: Pipe, dst: PtyEnd) -> None:
         """Bytes read from ``src`` travel through ``pipe`` and are written to ``dst``."""
