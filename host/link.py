@@ -5,12 +5,12 @@ runs one reader thread that turns bytes into CRC-checked frames (``protocol.fram
 and hands replies to the waiting request by ``seq`` and source position (the hop count of an
 upstream frame). Unsolicited EVENT frames go to a queue drained by :meth:`ChainLink.events`.
 Requests are serialised by a lock, so the daemon's loop thread and other threads may share one
-link. Wire values are fixed-point ints; this module converts to and from SI (docs/architecture.md).
+link. Payloads are built and checked by ``protocol.messages`` (SI on this side, fixed-point ints
+on the wire: docs/architecture.md), the same code the protocol tests and vectors prove.
 """
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from collections import deque
@@ -19,6 +19,7 @@ from typing import Any
 import serial
 
 from protocol import constants as C
+from protocol import messages as M
 from protocol.cbor import loads
 from protocol.errors import ProtocolError
 from protocol.frame import Frame, FrameReader, encode_frame
@@ -42,80 +43,6 @@ class SegmentError(LinkError):
         self.offending_type = offending_type
         self.text = text
         super().__init__(f"segment {position} answered {self.code_name}: {text}")
-
-
-def _status_names(bits: int) -> set[str]:
-    return {name for bit, name in C.STATUS_NAMES if bits & bit}
-
-
-def _fixed(value: float, scale: int, what: str) -> int:
-    """SI float -> wire int, refusing NaN/inf and values outside the small-int range."""
-    if not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{what} must be a finite number, got {value!r}")
-    n = round(value * scale)
-    if not -C.INT_LIMIT < n < C.INT_LIMIT:
-        raise ValueError(f"{what} {value!r} is out of the wire range")
-    return n
-
-
-def decode_descriptor(payload: dict, position: int) -> dict:
-    """DESCRIPTOR payload (int keys) -> host dict with the contract's names and ``position``."""
-    if not isinstance(payload, dict):
-        raise ProtocolError("DESCRIPTOR payload is not a map")
-    out: dict[str, Any] = {name: None for name in C.DESCRIPTOR_KEYS}
-    extra = {}
-    for key, value in payload.items():
-        if isinstance(key, int) and 0 <= key < len(C.DESCRIPTOR_KEYS):
-            out[C.DESCRIPTOR_KEYS[key]] = value
-        else:
-            extra[key] = value
-    if extra:
-        out["extra"] = extra
-    out["position"] = position
-    return out
-
-
-def decode_state(payload: dict, position: int) -> dict:
-    """STATE payload (fixed-point ints) -> SI dict (contract: docs/architecture.md)."""
-    if not isinstance(payload, dict):
-        raise ProtocolError("STATE payload is not a map")
-
-    def num(key: int, scale: int) -> float | None:
-        v = payload.get(key)
-        return None if v is None else v / scale
-
-    raw_status = int(payload.get(C.KS_STATUS, 0))
-    return {
-        "position": position,
-        "cycle": payload.get(C.KS_CYCLE),
-        "t_ms": payload.get(C.KS_T_MS),
-        "kappa": num(C.KS_KAPPA, C.KAPPA_SCALE),
-        "phi": num(C.KS_PHI, C.ANGLE_SCALE),
-        "kx": num(C.KS_KX, C.KAPPA_SCALE),
-        "ky": num(C.KS_KY, C.KAPPA_SCALE),
-        "tendon_lengths": [v / C.LENGTH_SCALE for v in payload.get(C.KS_TENDONS, [])],
-        "servo_angles": [v / C.ANGLE_SCALE for v in payload.get(C.KS_SERVOS, [])],
-        "status": _status_names(raw_status),
-        "raw_status": raw_status,
-    }
-
-
-def make_sync_payload(
-    cycle: int, setpoints: list[tuple[float, float]], *, resume: bool = False
-) -> dict:
-    """SYNC payload for SI setpoints [(kappa 1/m, phi rad), …] in chain order."""
-    flat: list[int] = []
-    for i, sp in enumerate(setpoints):
-        try:
-            kappa, phi = sp
-        except (TypeError, ValueError):
-            raise ValueError(f"setpoint {i} must be a (kappa, phi) pair, got {sp!r}") from None
-        flat.append(_fixed(kappa, C.KAPPA_SCALE, f"setpoint {i} kappa"))
-        flat.append(_fixed(phi, C.ANGLE_SCALE, f"setpoint {i} phi"))
-    payload: dict[int, Any] = {C.K_CYCLE: cycle, C.K_SETPOINTS: flat}
-    if resume:
-        payload[C.K_RESUME] = 1
-    return payload
 
 
 class _Collector:
@@ -345,13 +272,13 @@ class ChainLink:
             self._wait(col, timeout, done)
             descs = []
             for pos in sorted(col.replies):
-                payload = self._payload(col.replies[pos])
-                if payload is None:
-                    continue
                 try:
-                    descs.append(decode_descriptor(payload, pos))
+                    desc = M.decode_descriptor(col.replies[pos].payload)
                 except ProtocolError:
                     self._counters["bad_payloads"] += 1
+                    continue
+                desc["position"] = pos
+                descs.append(desc)
             if tip:
                 descs = [d for d in descs if d["position"] <= min(tip)]
             positions = [d["position"] for d in descs]
@@ -371,13 +298,12 @@ class ChainLink:
         states: list[dict | None] = []
         for pos in range(expected):
             frame = col.replies.get(pos)
-            payload_in = self._payload(frame) if frame is not None else None
-            if payload_in is None:
+            if frame is None:
                 states.append(None)
                 continue
             try:
-                states.append(decode_state(payload_in, pos))
-            except (ProtocolError, TypeError, ValueError):
+                states.append(M.decode_state(frame.payload, pos))
+            except ProtocolError:
                 self._counters["bad_payloads"] += 1
                 states.append(None)
         if any(s is None for s in states):
@@ -402,7 +328,7 @@ class ChainLink:
         ``timeout`` s passed; a missing answer is None. ``resume`` ends a HOLD.
         """
         with self._call_lock:
-            payload = make_sync_payload(self._next_cycle(), setpoints, resume=resume)
+            payload = M.sync_payload(self._next_cycle(), setpoints, resume=resume)
             n = len(setpoints) if expected is None else expected
             return self._cyclic(C.T_SYNC, payload, n, timeout)
 
@@ -502,7 +428,4 @@ __all__ = [
     "LinkError",
     "LinkTimeoutError",
     "SegmentError",
-    "decode_descriptor",
-    "decode_state",
-    "make_sync_payload",
 ]

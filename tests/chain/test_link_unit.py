@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 
@@ -13,14 +12,15 @@ from host.link import (
     LinkError,
     LinkTimeoutError,
     SegmentError,
-    decode_state,
-    make_sync_payload,
 )
 from protocol import constants as C
 from protocol.cbor import loads
 from protocol.frame import FrameReader, encode_frame
 
 UP = C.FLAG_UP
+#: required DESCRIPTOR fields (uid, firmware, protocol version, model) and a complete STATE
+DESC = {0: "uid", 1: "0.1.0", 2: 1, 3: "pcc"}
+STATE = {0: 0, 1: 10, 2: 0, 3: 0, 4: [316000, 316000, 316000], 5: [0, 0, 0], 6: 0, 7: 0, 8: 0}
 
 
 class FakeChain:
@@ -31,6 +31,7 @@ class FakeChain:
         self.path = os.ttyname(self.slave)
         self.stop = False
         self.received: list = []
+        self.truncate_state = False
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -49,12 +50,15 @@ class FakeChain:
                 body = loads(f.payload) if f.payload else {}
                 if f.mtype == C.T_DISCOVER:
                     self.send(0, C.T_EVENT, 0, {0: C.EV_BOOT, 1: 0, 2: 5})
-                    self.send(1, C.T_DESCRIPTOR, f.seq, {0: "b1", 12: "two", 15: False})
-                    self.send(0, C.T_DESCRIPTOR, f.seq, {0: "a0", 12: "one", 15: True})
+                    self.send(1, C.T_DESCRIPTOR, f.seq, {**DESC, 0: "b1", 12: "two", 15: False})
+                    self.send(0, C.T_DESCRIPTOR, f.seq, {**DESC, 0: "a0", 12: "one", 15: True})
                 elif f.mtype == C.T_HEARTBEAT:
                     self.send(0, C.T_STATE, (f.seq + 1) & 0xFF, {0: 99})  # stale seq: ignored
                     self.send(0, C.T_ALIVE, 0, {}, flags=UP | C.FLAG_LOCAL)
-                    self.send(0, C.T_STATE, f.seq, {0: body[0], 2: 12345, 3: -5000, 6: 0x11})
+                    state = {**STATE, 0: body[0], 2: 12345, 3: -5000, 6: 0x11}
+                    if self.truncate_state:
+                        del state[7]  # kx missing: not a valid STATE
+                    self.send(0, C.T_STATE, f.seq, state)
                 elif f.mtype == C.T_PARAM_GET and f.hop == 1:
                     self.send(1, C.T_ERROR, f.seq, {0: C.ERR_UNKNOWN_PARAM, 1: f.mtype, 2: "no"})
                 elif f.mtype == C.T_PARAM_GET and f.hop == 0:
@@ -97,6 +101,13 @@ def test_heartbeat_matches_by_seq_and_decodes_to_si(fake) -> None:
     assert stats["unmatched"] == 1 and stats["alive"] == 1 and stats["frames_ok"] >= 3
 
 
+def test_an_incomplete_state_is_counted_and_dropped_not_passed_on(fake) -> None:
+    chain, link = fake
+    chain.truncate_state = True
+    assert link.heartbeat(timeout=0.2, expected=1) == [None]
+    assert link.stats["bad_payloads"] == 1
+
+
 def test_missing_answers_are_none_and_counted_as_timeouts(fake) -> None:
     chain, link = fake
     states = link.heartbeat(timeout=0.1, expected=2)
@@ -112,22 +123,6 @@ def test_param_errors_and_timeouts_raise_typed_exceptions(fake) -> None:
     assert info.value.code_name == "UNKNOWN_PARAM" and isinstance(info.value, OSError)
     with pytest.raises(LinkTimeoutError):
         link.param_set(2, 0, 5, timeout=0.05)
-
-
-def test_sync_payload_is_fixed_point_and_refuses_non_finite_values() -> None:
-    p = make_sync_payload(7, [(1.5, -math.pi / 2), (0.0, 0.0)], resume=True)
-    assert p == {0: 7, 1: [15000, -15708, 0, 0], 2: 1}
-    for bad in ([(math.nan, 0.0)], [(1.0, math.inf)], [(1e9, 0.0)], [(1.0,)]):
-        with pytest.raises(ValueError):
-            make_sync_payload(1, bad)
-
-
-def test_decode_state_converts_lengths_and_angles() -> None:
-    s = decode_state(
-        {0: 3, 1: 10, 2: 20000, 3: 10000, 4: [316000], 5: [-20000], 6: 0x20, 7: 10806, 8: 16829}, 4
-    )
-    assert s["position"] == 4 and s["tendon_lengths"] == [0.316] and s["servo_angles"] == [-2.0]
-    assert s["kappa"] == 2.0 and s["status"] == {"UNCONFIGURED"}
 
 
 def test_opening_a_missing_port_raises_link_error() -> None:
