@@ -29,6 +29,7 @@ import sys
 import termios
 import time
 import tty
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,15 +52,16 @@ class InputEvent:
     note: str = ""
 
 
-class InputSource:
+class InputSource(ABC):
     """Base class: ``read(timeout)`` returns the events available within ``timeout`` s."""
 
     names: list[str]
 
+    @abstractmethod
     def read(self, timeout: float) -> list[InputEvent]:
-        raise NotImplementedError
+        """Events that arrived within ``timeout`` s (empty list if none)."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: most sources hold nothing to release
         """Release the device / restore the terminal."""
 
     def __enter__(self) -> InputSource:
