@@ -35,7 +35,7 @@ from host.config import DaemonConfig, bendable_limits
 from host.controller_manager import ControllerManager, SwitchError
 from host.controllers.base import ControllerContext, ControllerError, RobotState
 from host.hwi import ACTIVE, HardwareInterface
-from host.link import ChainLink
+from host.link import ChainLink, exchange_floor_s
 from host.loop import FixedRateLoop
 from host.topology import Comparison, adopt, adopted_path, chain_bendables, compare, truncate
 from ucrdf.parser import load
@@ -322,8 +322,34 @@ class Daemon:
                 }
             else:
                 self.cut = None
+        self._warn_if_rate_exceeds_the_chain(len(order))
         self._publish(
             {"kind": "topology", "t": time.monotonic(), "reason": reason, **self._topology_locked()}
+        )
+
+    def _warn_if_rate_exceeds_the_chain(self, n: int) -> None:
+        """Say so when a real UART chain of ``n`` segments cannot answer within a loop period."""
+        floor = exchange_floor_s(n, self.cfg.baudrate)
+        if floor <= self.reply_timeout:
+            return
+        max_rate = math.floor(0.8 / floor)
+        if floor > self.cfg.watchdog.reply_timeout_s:
+            advice = (
+                f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "
+                f"{max_rate}, or a higher baudrate"
+            )
+        else:
+            advice = f"use rate_hz <= {max_rate} or a higher baudrate"
+        log.warning(
+            "%d segment(s) at %d baud need at least %.1f ms per exchange on a real UART chain "
+            "(store-and-forward), more than the %.1f ms a %.0f Hz loop waits for their states: "
+            "states would arrive late or be missed; %s",
+            n,
+            self.cfg.baudrate,
+            floor * 1e3,
+            self.reply_timeout * 1e3,
+            self.rate_hz,
+            advice,
         )
 
     # -- loop --------------------------------------------------------------------------------

@@ -45,6 +45,29 @@ class SegmentError(LinkError):
         super().__init__(f"segment {position} answered {self.code_name}: {text}")
 
 
+def exchange_floor_s(n: int, baudrate: int) -> float:
+    """Shortest possible SYNC -> all-STATEs exchange (s) on a real UART chain of ``n`` segments.
+
+    Segments store and forward whole frames, so the SYNC crosses the n links one after the other
+    and so does the last segment's STATE: n x (t_sync + t_state), with frame sizes taken from the
+    real encoders at their largest field values and 10 bits per byte. Processing time is excluded.
+    """
+    if n <= 0:
+        return 0.0
+    sync = M.encode_sync(255, C.TIME_WRAP - 1, [(C.INT_LIMIT / C.KAPPA_SCALE / 2, -3.0)] * n)
+    state = M.encode_state(
+        255,
+        cycle=C.TIME_WRAP - 1,
+        t_ms=C.TIME_WRAP - 1,
+        kappa=3.0,
+        phi=-3.0,
+        tendon_lengths=[1.0] * 3,
+        servo_angles=[-3.0] * 3,
+        status=0x3F,
+    )
+    return n * (len(sync) + len(state)) * 10 / baudrate
+
+
 class _Collector:
     """Replies to one request: by position, of the accepted types; ERRORs kept aside."""
 
@@ -428,4 +451,5 @@ __all__ = [
     "LinkError",
     "LinkTimeoutError",
     "SegmentError",
+    "exchange_floor_s",
 ]
