@@ -3,8 +3,13 @@
 The strategy is a swappable object with ``step(target, cmd) -> new cmd`` (ints, 1e-4 rad):
 
 * ``Direct``: command = target (the servo's own position loop does the work);
-* ``PSlew``: command moves towards the target by gain * error per cycle, never more than the
-  servo's speed allows (``servo_speed`` rad/s * cycle time): a soft, rate-limited approach.
+* ``PSlew``: command moves towards the target by gain * error per cycle: a soft approach.
+
+Whatever the strategy, a command never moves more than the servo's speed allows per cycle
+(``servo_speed`` rad/s * cycle time) from the previous one. The commands restart from the measured
+positions after every hold, so motion always begins where the servos are: when a start or resume
+finds them away from where the curvature model puts them (uneven power-up angles, a stuck servo),
+they travel there at servo speed instead of jumping in one tick.
 
 Chosen by config key ``sc`` and switchable at run time (PARAM_SET ``sc``). Allocation-free.
 """
@@ -53,6 +58,7 @@ class SimpleControllers:
         self.cmd = array("i", [0] * n)
         self.gain = gain
         self.max_step = servo_speed * 10.0 * tick_ms  # rad/s -> 1e-4 rad per cycle
+        self.step_limit = max(1, int(self.max_step))
         self.strategies = [None] * n
         self.set_strategy(name)
 
@@ -73,6 +79,13 @@ class SimpleControllers:
             self.cmd[i] = positions[i]
 
     def step(self, targets):
+        lim = self.step_limit
         for i in range(self.n):
-            self.cmd[i] = self.strategies[i].step(targets[i], self.cmd[i])
+            c = self.cmd[i]
+            nc = self.strategies[i].step(targets[i], c)
+            if nc - c > lim:
+                nc = c + lim
+            elif c - nc > lim:
+                nc = c - lim
+            self.cmd[i] = nc
         return self.cmd

@@ -249,3 +249,37 @@ R['near_status'] = seg.status()
     st = [sorted(m["status"]) for m in msgs if m["type"] == "STATE"]
     assert all("CLAMPED" in s for s in st), st
     assert r["far_status"] & 0x08 and not r["near_status"] & 0x08
+
+
+def test_motion_starts_from_uneven_servo_angles_at_servo_speed_not_in_one_jump(vm):
+    """Servos powered up at uneven angles the curvature model cannot represent (all three wound
+    in by different amounts): the first SYNC must not snap them to the model's pose in one tick;
+    every command moves at most servo_speed * tick per cycle, for any SC strategy."""
+    sync = M.encode_sync(2, 11, [(0.0, 0.0)]).hex()
+    r = vm(
+        f"""
+import config, servos
+from segment import Segment
+R['runs'] = []
+for sc in ('direct', 'p_slew'):
+    hal = vmkit.LoopHal()
+    cfg = config.Config({{'watchdog_ms': 10000, 'sc': sc}})
+    bus = servos.make('emulated', cfg, hal)
+    for i, p in enumerate((3000, 3500, 4000)):
+        bus.true_pos[i] = p
+    seg = Segment(hal, cfg, bus, 5)
+    hal.up.feed(bytes.fromhex('{sync}'))
+    cmds = []
+    for _ in range(60):
+        vmkit.run(hal, seg, 1)
+        cmds.append(list(seg.sc.cmd))
+    R['runs'].append([sc, seg.sc.step_limit, [3000, 3500, 4000], cmds])
+"""
+    )
+    for sc, limit, start, cmds in r["runs"]:
+        prev = start
+        for cmd in cmds:
+            assert all(abs(c - p) <= limit for c, p in zip(cmd, prev, strict=True)), (sc, prev, cmd)
+            prev = cmd
+        assert limit == 300  # 6 rad/s * 5 ms = 0.03 rad = 300 units
+        assert cmds[-1] != start  # and it does move on towards the commanded pose
