@@ -47,10 +47,8 @@ class Mechanism:
         self.length_um = cfg.length_um
         self.kappa_max = cfg.kappa_max
         # slew step per cycle (1e-4 1/m), at least one unit
-        self.step = max(1, int(cfg.rate_max * tick_ms / 1000.0 + 0.5))
-        # rate check of setpoints: 1.25 * rate per ms in Q4 (1e-4 1/m / 16 per ms); with
-        # dt <= 100 ms the product stays far below 2**30 for any accepted kappa_rate_max
-        self.rate_q4 = (cfg.rate_max * 16 * 5) // 4000
+        self.tick_ms = tick_ms
+        self.set_rate_max(cfg.rate_max)
         self.rate_excess = False  # the current target was requested faster than the rate allows
         ld = si["length"] * si["tendon_radius"]
         if ld * si["kappa_max"] * 1e6 > _MAX_DL_UM:
@@ -101,6 +99,27 @@ class Mechanism:
         self.kappa = 0  # measured kappa, phi
         self.phi = 0
 
+    def set_rate_max(self, rate):
+        """kappa_rate_max in 1e-4 1/m per s: the slew step per tick and the setpoint rate check."""
+        self.step = max(1, (rate * self.tick_ms + 500) // 1000)
+        # rate check of setpoints: 1.25 * rate per ms in Q4 (1e-4 1/m / 16 per ms); with
+        # dt <= 100 ms the product stays far below 2**30 for any accepted kappa_rate_max
+        self.rate_q4 = (rate * 16 * 5) // 4000
+
+    def set_kappa_max(self, kappa_max):
+        """New curvature bound (1e-4 1/m), applied to the current target too: the commanded
+        vector then slews down to it at the rate limit instead of staying beyond it."""
+        self.kappa_max = kappa_max
+        tx = self.tx
+        ty = self.ty
+        if tx or ty:
+            psi = atan2_e4(ty, tx)
+            c = cos_q14(psi)
+            s = sin_q14(psi)
+            if mulq(tx, c, 14) + mulq(ty, s, 14) > kappa_max:
+                self.tx = mulq(kappa_max, c, 14)
+                self.ty = mulq(kappa_max, s, 14)
+
     # ---- forward ---------------------------------------------------------------------------
     def set_target(self, kappa, phi, dt_ms=-1):
         """Take a (kappa, phi) setpoint (ints) arriving ``dt_ms`` after the previous one.
@@ -110,14 +129,19 @@ class Mechanism:
         ``dt_ms`` there is no rate judgement here: update() then flags every tick it limits.
         """
         flags = 0
-        if kappa < 0:
-            kappa = -kappa
-            phi += fxp.ANGLE_PI
+        # bound everything before arithmetic: wire ints reach +-2**30, and 2**30 itself (or more)
+        # is not a small int on a 32-bit MCU (it would allocate)
+        if phi > 1000000000 or phi < -1000000000:
+            phi = 0  # nonsense from the wire; kappa magnitude is bounded below
         if kappa > self.kappa_max:
             kappa = self.kappa_max
             flags = CLAMP_KAPPA
-        if phi > 1000000000 or phi < -1000000000:
-            phi = 0  # nonsense from the wire; kappa magnitude is already bounded
+        elif kappa < -self.kappa_max:
+            kappa = -self.kappa_max
+            flags = CLAMP_KAPPA
+        if kappa < 0:
+            kappa = -kappa
+            phi += fxp.ANGLE_PI
         tx = mulq(kappa, cos_q14(phi), 14)
         ty = mulq(kappa, sin_q14(phi), 14)
         if dt_ms < 0:

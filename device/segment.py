@@ -76,7 +76,6 @@ from protocol.constants import (
 from protocol.frame import FrameReader, forward_into, frame_into
 
 _TMASK = const(0x3FFFFFFF)
-_HALF = const(0x20000000)
 CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
 STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
 STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
@@ -131,11 +130,13 @@ PARAM_NAMES = (
 
 
 def _diff(a, b):
-    """a - b for ms stamps wrapping at 2**30, in (-2**29, 2**29]."""
-    d = (a - b) & _TMASK
-    if d > _HALF:
-        d -= _TMASK + 1
-    return d
+    """ms elapsed from the past stamp ``b`` to ``a`` (stamps wrap at 2**30), in [0, 2**30).
+
+    Unsigned on purpose: every use asks "how long since", and a signed difference would turn
+    negative (hold events back, never time out) after 2**29 ms (6.2 days) without a refresh of the
+    stamp. A stamp exactly k * 2**30 ms (12.4 days) old reads as new: at worst one interval late.
+    """
+    return (a - b) & _TMASK
 
 
 class Segment:
@@ -147,7 +148,7 @@ class Segment:
         self.bus = bus
         self.tick_ms = tick_ms
         self.n = cfg.n
-        self.uid = cfg.uid_override or hal.uid()
+        self.uid = (cfg.uid_override or hal.uid()).lower()  # requests' uids are compared lowered
         self.mc = Mechanism(cfg, tick_ms)
         si = cfg.si
         self.sc = scmod.SimpleControllers(cfg.n, cfg.sc, si["sc_gain"], si["servo_speed"], tick_ms)
@@ -226,13 +227,14 @@ class Segment:
         """Slow path: CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it."""
         try:
             end = cbor.dumps_into(obj, self.raw, HEADER_LEN)
+            end = frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire)
         except (IndexError, ValueError, TypeError):
             # too long for one frame (or not encodable): say so instead of going silent
             end = cbor.dumps_into(
                 {0: ERR_BAD_VALUE, 1: mtype, 2: "reply does not fit a frame"}, self.raw, HEADER_LEN
             )
-            mtype = T_ERROR
-        self._up(frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire))
+            end = frame_into(self.raw, end, FLAG_UP, 0, T_ERROR, seq, self.wire)
+        self._up(end)
 
     def _error(self, seq, code, mtype, text):
         self._reply(T_ERROR, seq, {0: code, 1: mtype, 2: text})
@@ -603,7 +605,7 @@ class Segment:
             if t == T_PARAM_SET:
                 self.set_param(pid, req[1])
             value = self.get_param(pid)
-        except ValueError as e:
+        except Exception as e:  # noqa: BLE001 - any refused value is answered, never escapes poll()
             self._error(seq, ERR_BAD_VALUE, t, "%s: %s" % (PARAM_NAMES[pid], e))
             return
         self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
@@ -660,7 +662,7 @@ class Segment:
         """Change a run-time parameter (SI units); ValueError with the reason if refused."""
         num = not isinstance(v, bool) and isinstance(v, (int, float))
         if pid == P_WATCHDOG_MS:
-            if not num or int(v) != v or not 10 <= v <= 60000:
+            if not num or not 10 <= v <= 60000 or int(v) != v:  # range first: int(inf) raises
                 raise ValueError("must be an int 10..60000 (ms)")
             self.watchdog_ms = int(v)
         elif pid == P_KAPPA_MAX:
@@ -668,13 +670,13 @@ class Segment:
             if not num or not 0.0 <= v <= top:
                 raise ValueError("must be 0..%g 1/m (the flashed limit)" % top)
             self.kappa_max_si = float(v)
-            self.mc.kappa_max = int(v * config.KAPPA_SCALE + 0.5)
+            self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
         elif pid == P_KAPPA_RATE_MAX:
             top = float(self.cfg.si["kappa_rate_max"])
             if not num or not 0.0 < v <= top:
                 raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
             self.rate_max_si = float(v)
-            self.mc.step = max(1, int(v * config.KAPPA_SCALE * self.tick_ms / 1000.0 + 0.5))
+            self.mc.set_rate_max(int(v * config.KAPPA_SCALE + 0.5))
         elif pid == P_SC:
             if not isinstance(v, str):
                 raise ValueError("must be text: one of %s" % ", ".join(scmod.STRATEGIES))

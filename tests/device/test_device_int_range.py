@@ -133,6 +133,11 @@ def test_hot_path_ints_stay_below_2_pow_30(dev, extra):
                 int(rng.integers(cfg.zero[i] - 500000, cfg.zero[i] + 500000)) for i in range(cfg.n)
             ]
             mc.measure(array("i", pos))
+        # the wire's extremes (a CBOR int within +-2**30), with and without the rate check
+        for k, p in ((-(2**30 - 1), 2**30 - 1), (2**30 - 1, -(2**30 - 1)), (-(2**30 - 1), 0)):
+            mc.set_target(k, p)
+            mc.set_target(k, p, 10)
+            mc.update()
     finally:
         sys.settrace(None)
         mechanism.mulq = orig
