@@ -1,0 +1,44 @@
+"""ESP32 HAL pin selection (pure logic, run on CPython with a stand-in ``machine`` module): the
+classic ESP32 defaults, and a clear refusal on chips whose defaults would be their USB pins."""
+
+from __future__ import annotations
+
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+DEVICE = Path(__file__).resolve().parents[2] / "device"
+
+
+@pytest.fixture()
+def hal(monkeypatch):
+    monkeypatch.setitem(sys.modules, "machine", types.ModuleType("machine"))
+    monkeypatch.syspath_prepend(str(DEVICE))
+    monkeypatch.delitem(sys.modules, "hal_esp32", raising=False)
+    import hal_esp32
+
+    return hal_esp32
+
+
+def test_classic_esp32_uses_uart1_and_uart2_on_the_documented_pins(hal):
+    p = hal.chain_pins("ESP32", None)
+    assert (p["up_uart"], p["up_tx"], p["up_rx"]) == (1, 19, 18)
+    assert (p["down_uart"], p["down_tx"], p["down_rx"], p["baud"]) == (2, 17, 16, 921600)
+
+
+@pytest.mark.parametrize("chip", ["ESP32S3", "ESP32C3"])
+def test_other_chips_must_name_their_chain_pins(hal, chip):
+    with pytest.raises(ValueError, match=f"{chip}.*up_tx, up_rx, down_tx, down_rx"):
+        hal.chain_pins(chip, None)
+    with pytest.raises(ValueError, match="down_rx"):
+        hal.chain_pins(chip, {"up_tx": 4, "up_rx": 5, "down_tx": 6})
+    pins = {"up_uart": 1, "up_tx": 4, "up_rx": 5, "down_uart": 0, "down_tx": 6, "down_rx": 7}
+    assert hal.chain_pins(chip, pins)["down_uart"] == 0
+
+
+def test_chip_name_is_read_from_the_board_description(hal, monkeypatch):
+    board = types.SimpleNamespace(machine="Generic ESP32S3 module with ESP32S3")
+    monkeypatch.setattr(hal.os, "uname", lambda: board)
+    assert hal.chip() == "ESP32S3"
