@@ -34,6 +34,7 @@ from host.arbitration import Arbitrator
 from host.config import DaemonConfig, bendable_limits
 from host.controller_manager import ControllerManager, SwitchError
 from host.controllers.base import ControllerContext, ControllerError, RobotState
+from host.controllers.jtc import StaleGoalError
 from host.hwi import ACTIVE, HardwareInterface
 from host.link import ChainLink, exchange_floor_s
 from host.loop import FixedRateLoop
@@ -787,24 +788,47 @@ class Daemon:
     def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
         """Start a trajectory on a cJTC (the active one by default); returns the goal id.
 
+        The goal is parsed and retimed outside the daemon lock (a long one takes a while and the
+        loop must go on cycling meanwhile): under the lock only the controller's desired motion
+        is read, and the goal is installed only if that controller is still the active one and
+        its motion did not change meanwhile (else built once more, then rejected).
         Raises ControllerError (a ValueError) with the reason when it is rejected.
         """
-        with self._lock:
-            self._require_running()
-            ctrl = self._jtc(controller)
-            if not ctrl.active:
-                manual = self.arb.blocking_manual(self.cm, ctrl.name)
-                if manual:
-                    raise ControllerError(
-                        f"manual control by {manual!r} is active; hand back first "
-                        f"(switch_controllers(start=[{ctrl.name!r}], stop=[{manual!r}]))"
-                    )
-                raise ControllerError(f"controller {ctrl.name!r} is not active")
-            goal = ctrl.send_goal(points, time.monotonic())
-            self._goals[goal.id] = (goal, ctrl.name)
-            while len(self._goals) > 500:
-                self._goals.popitem(last=False)
-            return goal.id
+        lead = 0.05 + 2e-4 * (len(points) if isinstance(points, list | tuple) else 0)
+        for attempt in range(2):
+            with self._lock:
+                self._require_running()
+                ctrl = self._jtc(controller)
+                if not ctrl.active:
+                    manual = self.arb.blocking_manual(self.cm, ctrl.name)
+                    if manual:
+                        raise ControllerError(
+                            f"manual control by {manual!r} is active; hand back first "
+                            f"(switch_controllers(start=[{ctrl.name!r}], stop=[{manual!r}]))"
+                        )
+                    raise ControllerError(f"controller {ctrl.name!r} is not active")
+                t_build = time.monotonic()
+                start = ctrl.goal_snapshot(t_build + lead)
+            goal, traj = ctrl.build_goal(points, start)  # the slow part, lock not held
+            built_s = time.monotonic() - t_build
+            with self._lock:
+                self._require_running()
+                current = self.cm.controllers.get(ctrl.name)
+                if current is not ctrl or not ctrl.active:
+                    why = f"controller {ctrl.name!r} was switched or rebuilt while it was built"
+                else:
+                    try:
+                        ctrl.install_goal(goal, traj, start, time.monotonic())
+                    except StaleGoalError as exc:
+                        why = str(exc)
+                    else:
+                        self._goals[goal.id] = (goal, ctrl.name)
+                        while len(self._goals) > 500:
+                            self._goals.popitem(last=False)
+                        return goal.id
+            log.info("trajectory goal built again (attempt %d): %s", attempt + 1, why)
+            lead = 2.0 * built_s + 0.05
+        raise ControllerError(f"trajectory not started: {why}; send it again")
 
     def _jtc(self, controller: str | None) -> Any:
         if controller is not None:

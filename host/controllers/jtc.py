@@ -166,6 +166,30 @@ class CurvatureTrajectory:
         return p, v, a
 
 
+class StaleGoalError(ControllerError):
+    """A goal built outside the daemon lock no longer fits: the controller's motion changed (or
+    the build took longer than the lead it was planned with) before it could be installed."""
+
+
+class GoalStart:
+    """Where a goal built outside the daemon lock starts: a snapshot of the controller's desired
+    motion at ``t_start`` (s, monotonic), taken under the lock by ``goal_snapshot``."""
+
+    def __init__(
+        self,
+        t_start: float,
+        p: np.ndarray,
+        v: np.ndarray,
+        a: np.ndarray,
+        generation: int,
+        at_rest: bool,
+    ):
+        self.t_start = t_start
+        self.p, self.v, self.a = p, v, a
+        self.generation = generation
+        self.at_rest = at_rest
+
+
 class Goal:
     """One trajectory request and its fate; ``status()`` is what the caller sees."""
 
@@ -242,6 +266,9 @@ class JointTrajectoryController(Controller):
         self._state_index: list[int] = [ctx.names.index(j) for j in self.joints]
         J = len(self.joints)
         self._traj: CurvatureTrajectory | None = None
+        # the motion that runs until ``_traj.t0`` (a goal installed ahead of its start); None = hold
+        self._lead_in: CurvatureTrajectory | None = None
+        self._generation = 0  # bumped whenever the desired motion changes (stale-goal check)
         self._hold = np.zeros((J, 2))
         self._goal: Goal | None = None
         self._goals: OrderedDict[str, Goal] = OrderedDict()
@@ -252,8 +279,8 @@ class JointTrajectoryController(Controller):
     # -- lifecycle ---------------------------------------------------------------------------
     def on_activate(self, state: RobotState) -> None:
         """Hold the measured position: activation never moves the robot."""
-        self._traj = None
         self._hold = self._measured(state, fallback=self._hold)
+        self._set_motion(None)
         self._last_state = state
         self.active = True
 
@@ -261,23 +288,28 @@ class JointTrajectoryController(Controller):
         if self._goal is not None:
             self._goal.finish("aborted", reason or f"controller {self.name!r} deactivated")
             self._goal = None
-        self._traj = None
+        self._set_motion(None)
         self.active = False
 
     # -- requests (called under the daemon lock) ----------------------------------------------
-    def parse_points(self, points: Any) -> list[tuple[float, np.ndarray]]:
+    def parse_points(
+        self, points: Any, current: np.ndarray | None = None
+    ) -> list[tuple[float, np.ndarray]]:
         """Validate waypoints and turn them into knots (time, (J, 2) curvature vectors).
 
         Each point: ``{"time_from_start": s, "segments": {name: {"kappa": 1/m, "phi": rad}}}``
         (``kx``/``ky`` instead of kappa/phi also accepted). A bendable absent from a point keeps
-        its value from the previous point (or its current desired value). Raises ControllerError.
+        its value from the previous point (or ``current``, default its current desired value).
+        Raises ControllerError. Reads only immutable configuration when ``current`` is given, so
+        it may run outside the daemon lock.
         """
         if not isinstance(points, list | tuple) or not points:
             raise ControllerError("trajectory: expected a non-empty list of points")
         if len(points) > MAX_WAYPOINTS:
             raise ControllerError(f"trajectory: {len(points)} points, at most {MAX_WAYPOINTS}")
         prev_t = 0.0
-        current = self._desired_now()[0]
+        if current is None:
+            current = self._desired_now()[0]
         knots = []
         for n, pt in enumerate(points):
             where = f"trajectory point {n}"
@@ -348,25 +380,65 @@ class JointTrajectoryController(Controller):
         """Accept (or reject with ControllerError) a trajectory; it replaces a running one.
 
         The new path starts at ``now`` from the current desired position/velocity/acceleration.
+        (The daemon uses the three steps below instead, so that the build runs outside its lock.)
         """
+        now = time.monotonic() if now is None else now
+        start = self.goal_snapshot(now)
+        goal, traj = self.build_goal(points, start)
+        return self.install_goal(goal, traj, start, now)
+
+    def goal_snapshot(self, t_start: float) -> GoalStart:
+        """Step 1, under the daemon lock: the desired motion a new goal starts from at
+        ``t_start`` (s, monotonic; may lie in the future: the old motion runs until then)."""
         if not self.active:
             raise ControllerError(f"controller {self.name!r} is not active")
         if not self.joints:
             raise ControllerError(f"controller {self.name!r} commands no bendable")
-        now = time.monotonic() if now is None else now
-        knots = self.parse_points(points)
-        p, v, a = self._desired_now(now)
-        traj = CurvatureTrajectory(now, p, v, a, knots, self._rate)
+        p, v, a = self._desired_now(t_start)
+        at_rest = not np.any(v) and not np.any(a)
+        return GoalStart(t_start, p, v, a, self._generation, at_rest)
+
+    def build_goal(self, points: Any, start: GoalStart) -> tuple[Goal, CurvatureTrajectory]:
+        """Step 2, outside the lock: parse and retime (the slow part). Touches no mutable state
+        of the controller. Raises ControllerError with the reason for a bad goal."""
+        knots = self.parse_points(points, current=start.p)
+        traj = CurvatureTrajectory(start.t_start, start.p, start.v, start.a, knots, self._rate)
         goal = Goal(
             f"{self.name}-{next(self._counter)}-{uuid.uuid4().hex[:6]}", self.name, len(knots)
         )
+        return goal, traj
+
+    def install_goal(
+        self, goal: Goal, traj: CurvatureTrajectory, start: GoalStart, now: float
+    ) -> Goal:
+        """Step 3, under the lock: make the goal run. Raises StaleGoalError when the motion it
+        was built from changed meanwhile, or when ``now`` is past its planned start while the
+        old motion was moving (the new path would begin with a jump)."""
+        if not self.active:
+            raise ControllerError(f"controller {self.name!r} is not active")
+        if start.generation != self._generation:
+            raise StaleGoalError(
+                f"controller {self.name!r} changed its motion while the goal was being built"
+            )
+        lead_in = self._traj  # the old motion runs until the new path begins
+        if start.at_rest:
+            p, v, a = self._desired_now(now)
+            if not np.any(v) and not np.any(a) and np.allclose(p, start.p, rtol=0.0, atol=1e-12):
+                # Holding still from now on: the new path may begin at once.
+                traj.t0 = now
+                lead_in = None
+                self._hold = p
+        if lead_in is not None and now > start.t_start:
+            raise StaleGoalError(
+                f"building the goal took {now - start.t_start:.3f} s longer than planned"
+            )
         goal.trajectory = traj
         goal.t_accepted = now
         goal.state = "executing"
         if self._goal is not None:
             self._goal.finish("aborted", f"replaced by goal {goal.id}")
         self._goal = goal
-        self._traj = traj
+        self._set_motion(traj, lead_in=lead_in)
         self._remember(goal)
         return goal
 
@@ -419,7 +491,8 @@ class JointTrajectoryController(Controller):
     def update(self, state: RobotState, dt: float) -> Commands | None:
         self._last_state = state
         t = state.t
-        p = self._traj.position(t) if self._traj is not None else self._hold.tolist()
+        tr = self._traj_at(t)
+        p = tr.position(t) if tr is not None else self._hold.tolist()
         g = self._goal
         if g is not None:
             self._check_goal(g, state, p, t)
@@ -456,8 +529,8 @@ class JointTrajectoryController(Controller):
                         f"t = {tau:.2f} s",
                     )
                     self._goal = None
-                    self._traj = None
                     self._hold = self._measured(state, fallback=desired)
+                    self._set_motion(None)
             return
         g.final_error = {k: round(v, 5) for k, v in errs.items()}
         if len(errs) == len(self.joints) and all(e <= self.goal_tolerance for e in errs.values()):
@@ -473,14 +546,30 @@ class JointTrajectoryController(Controller):
             )
             self._goal = None
             self._hold = self._measured(state, fallback=desired)
-            self._traj = None
+            self._set_motion(None)
+
+    def _set_motion(
+        self, traj: CurvatureTrajectory | None, lead_in: CurvatureTrajectory | None = None
+    ) -> None:
+        """Replace the desired motion (None = hold ``_hold``); goals built before are stale."""
+        self._traj = traj
+        self._lead_in = lead_in
+        self._generation += 1
+
+    def _traj_at(self, t: float) -> CurvatureTrajectory | None:
+        """The trajectory that defines the desired motion at ``t`` (None = hold)."""
+        tr = self._traj
+        if tr is not None and t < tr.t0 and self._lead_in is not tr:
+            return self._lead_in
+        return tr
 
     def _desired_now(self, now: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if self._traj is None:
+        t = time.monotonic() if now is None else now
+        tr = self._traj_at(t)
+        if tr is None:
             z = np.zeros_like(self._hold)
             return self._hold.copy(), z, z.copy()
-        t = time.monotonic() if now is None else now
-        return self._traj.sample(t)
+        return tr.sample(t)
 
     def _stop(self, now: float) -> None:
         """Decelerate from the current desired motion to rest over ``stop_time`` s."""
@@ -489,11 +578,13 @@ class JointTrajectoryController(Controller):
         for i in range(len(self.joints)):
             end[i, 0], end[i, 1], _ = clamp_radial(end[i, 0], end[i, 1], self._kmax[i])
         if np.allclose(v, 0.0) and np.allclose(a, 0.0):
-            self._traj = None
             self._hold = p
+            self._set_motion(None)
             return
-        self._traj = CurvatureTrajectory(now, p, v, a, [(self.stop_time, end)], self._rate / 0.95)
         self._hold = end
+        self._set_motion(
+            CurvatureTrajectory(now, p, v, a, [(self.stop_time, end)], self._rate / 0.95)
+        )
 
     def _measured(self, state: RobotState, fallback: np.ndarray) -> np.ndarray:
         out = np.array(fallback, dtype=float, copy=True)

@@ -1,0 +1,191 @@
+"""Regression tests for the review findings on the daemon, HWI and controllers, on a fake chain
+link (no firmware, no serial port): the loop keeps cycling while a long goal is built, segments
+without a measurement are never commanded straight, finished goals drop their trajectory, …"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import pytest
+from daemon_helpers import wait_for
+
+import host.controllers.jtc as jtc_module
+from host.config import DaemonConfig
+from host.daemon import Daemon
+from host.topology import chain_bendables
+
+
+class FakeLink:
+    """Stands in for ``host.link.ChainLink``: answers DISCOVER with descriptors matching the
+    robot, and SYNC/HEARTBEAT with a STATE per position at ``measured[pos]`` (kappa, phi).
+    ``silent`` positions do not answer; every SYNC is recorded in ``syncs``."""
+
+    def __init__(self, robot, measured: dict[int, tuple[float, float]] | None = None):
+        self.names = chain_bendables(robot)
+        self.descs = []
+        for i, n in enumerate(self.names):
+            b = robot.bendables[n]
+            act = b.actuation
+            self.descs.append(
+                {
+                    "position": i,
+                    "uid": f"fake{i}",
+                    "name": n,
+                    "model": b.model.type,
+                    "length": b.length,
+                    "tendon_angles": list(act.angles),
+                    "tendon_radius": act.radius,
+                    "spool_radius": act.spool_radius,
+                    "kappa_max": b.model.limits.kappa_max,
+                    "kappa_rate_max": b.model.limits.kappa_rate_max,
+                    "downstream_present": i < len(self.names) - 1,
+                }
+            )
+        self.measured = dict(measured or {})
+        self.silent: set[int] = set()
+        self.syncs: list[tuple[list, bool]] = []
+        self.heartbeats = 0
+        self.cycle = 0
+        self.lock = threading.Lock()
+        self.stats: dict = {}
+
+    def discover(self, timeout: float = 0.5) -> list[dict]:
+        return [dict(d) for d in self.descs]
+
+    def _states(self) -> list[dict | None]:
+        out: list[dict | None] = []
+        for i in range(len(self.names)):
+            if i in self.silent:
+                out.append(None)
+                continue
+            k, p = self.measured.get(i, (0.0, 0.0))
+            out.append(
+                {
+                    "position": i,
+                    "cycle": self.cycle,
+                    "t_ms": self.cycle,
+                    "kappa": k,
+                    "phi": p,
+                    "kx": k * math.cos(p),
+                    "ky": k * math.sin(p),
+                    "status": set(),
+                }
+            )
+        return out
+
+    def sync(self, setpoints, timeout=0.1, *, expected=None, resume=False):
+        with self.lock:
+            self.cycle += 1
+            self.syncs.append((list(setpoints), resume))
+            return self._states()
+
+    def heartbeat(self, timeout=0.1, *, expected=None):
+        with self.lock:
+            self.cycle += 1
+            self.heartbeats += 1
+            return self._states()
+
+    def hold(self, position=None) -> None:
+        pass
+
+    def events(self) -> list[dict]:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.fixture()
+def make_daemon(robot3):
+    made: list[Daemon] = []
+
+    def make(link: FakeLink, **cfg) -> Daemon:
+        d = Daemon(
+            robot3,
+            DaemonConfig(**cfg) if cfg else DaemonConfig(),
+            port="fake://chain",
+            rate_hz=100.0,
+            link_factory=lambda url, baud: link,
+        )
+        made.append(d)
+        return d
+
+    yield make
+    for d in made:
+        d.stop(hold=False)
+
+
+def test_building_a_long_goal_does_not_stall_the_control_loop(robot3, make_daemon, monkeypatch):
+    link = FakeLink(robot3)
+    d = make_daemon(link).start()
+    names = chain_bendables(robot3)
+    # 1500 waypoints zig-zagging fast enough that every piece is retimed
+    points = [
+        {
+            "time_from_start": 0.01 * (k + 1),
+            "segments": {
+                n: {"kappa": 1.0 + 0.8 * (k % 2), "phi": 0.3 * j} for j, n in enumerate(names)
+            },
+        }
+        for k in range(1500)
+    ]
+    seen: list[int] = []
+    real = jtc_module.CurvatureTrajectory
+
+    def build_and_watch(*args, **kw):
+        before = len(link.syncs)
+        out = real(*args, **kw)
+        # the loop must go on exchanging with the chain while the goal is being built
+        wait_for(lambda: len(link.syncs) >= before + 3, 1.0)
+        seen.append(len(link.syncs) - before)
+        return out
+
+    monkeypatch.setattr(jtc_module, "CurvatureTrajectory", build_and_watch)
+    gid = d.send_trajectory(points)
+    assert seen and seen[0] >= 3, f"loop made {seen} exchanges while the goal was built"
+    st = d.trajectory_status(gid)
+    assert st["state"] == "executing" and st["points"] == 1500 and st["retimed"]
+
+
+def _jtc(robot3):
+    from host.config import bendable_limits
+    from host.controllers.base import ControllerContext, RobotState
+    from host.controllers.jtc import JointTrajectoryController
+
+    ctx = ControllerContext(bendable_limits(robot3), robot3)
+    c = JointTrajectoryController("jtc", {}, ctx)
+    n = len(ctx.names)
+    c.on_activate(
+        RobotState(0.0, ctx.names, [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [True] * n)
+    )
+    return c
+
+
+def test_goal_built_while_the_motion_changed_is_refused_and_lead_in_has_no_jump(robot3):
+    from host.controllers.jtc import StaleGoalError
+
+    c = _jtc(robot3)
+    pts = [{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 1.0, "phi": 0.0}}}]
+    first = c.send_goal(pts, now=0.0)
+    # a replacement planned to start at t = 0.5 while the first goal is moving
+    start = c.goal_snapshot(0.5)
+    goal, traj = c.build_goal(pts, start)
+    c.cancel(first.id, now=0.3)  # the motion changes before it is installed
+    with pytest.raises(StaleGoalError, match="changed its motion"):
+        c.install_goal(goal, traj, start, 0.4)
+    # built again from the new motion and installed ahead of its start: the old motion runs
+    # until then, so the desired position is continuous across the hand-over
+    start = c.goal_snapshot(0.5)
+    goal, traj = c.build_goal(pts, start)
+    before = c._desired_now(0.45)[0]
+    c.install_goal(goal, traj, start, 0.45)
+    assert c._desired_now(0.45)[0] == pytest.approx(before)
+    assert c._desired_now(0.5)[0] == pytest.approx(start.p)
+    # installing after the planned start of a moving motion would jump: refused
+    c2 = _jtc(robot3)
+    c2.send_goal(pts, now=0.0)
+    start = c2.goal_snapshot(0.2)
+    goal, traj = c2.build_goal(pts, start)
+    with pytest.raises(StaleGoalError, match="longer than planned"):
+        c2.install_goal(goal, traj, start, 0.25)
