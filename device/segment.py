@@ -241,7 +241,7 @@ class Segment:
 
     def status(self):
         s = self.clamped and ST_CLAMPED
-        if self.hold or not self.armed:
+        if self.hold or not self.armed or self.cfg.error:
             s |= ST_HOLD
         if self.wd_tripped:
             s |= ST_WATCHDOG
@@ -430,7 +430,9 @@ class Segment:
         return True
 
     def _may_move(self):
-        return self.armed and not self.hold and not self.wd_tripped
+        # a config.json that was present but rejected leaves the calibration unknown: never move
+        # on guessed zero offsets (an absent file runs on the documented defaults)
+        return self.armed and not self.hold and not self.wd_tripped and not self.cfg.error
 
     def _start_moving(self):
         self.moving = True

@@ -214,7 +214,8 @@ for _ in range(160):
     R['flags'].append(m.update())
     R['path'].append([m.cx, m.cy])
 R['step'] = m.step
-"""
+""",
+        heap="1m",  # 160 recorded points (test data) beside the compiled firmware
     )
     assert r["step"] == 500  # 10 1/m/s * 5 ms = 0.05 1/m = 500 units
     path = np.array([[30000, 0]] + r["path"], dtype=float)

@@ -109,3 +109,38 @@ R['tripped'] = seg.wd_tripped
     )
     names = [m["name"] for m in decode(r["up"]) if m["type"] == "EVENT"]
     assert r["tripped"] and "WATCHDOG_TRIPPED" in names
+
+
+def test_a_rejected_config_file_keeps_the_segment_in_hold_while_it_still_answers(vm):
+    """config.json present but invalid: the calibration is unknown, so the segment holds (HOLD and
+    UNCONFIGURED bits, reason readable as parameter config_error) and ignores setpoints, yet it
+    answers discovery and keeps forwarding, so the host can see and fix it."""
+    sync = M.encode_sync(1, 1, [(2.0, 0.0)]).hex()
+    discover = M.encode_discover(2).hex()
+    r = vm(
+        f"""
+import config, servos
+from segment import Segment
+with open('/tmp/ucr_rejected_config.json', 'w') as f:
+    f.write('{{"length": -1}}')
+hal = vmkit.LoopHal()
+cfg = config.load('/tmp/ucr_rejected_config.json')
+bus = servos.make('emulated', cfg, hal)
+seg = Segment(hal, cfg, bus, 5)
+start = list(bus.true_pos)
+for _ in range(50):
+    hal.up.feed(bytes.fromhex('{sync}'))
+    vmkit.run(hal, seg, 10)
+    hal.up.take()
+hal.up.feed(bytes.fromhex('{discover}'))
+vmkit.run(hal, seg, 5)
+R['up'] = vmkit.hexs(hal.up.take())
+R['moved'] = list(bus.true_pos) != start
+R['status'] = seg.status()
+R['error'] = seg.get_param(16)
+"""
+    )
+    assert not r["moved"]
+    assert r["status"] & 0x01 and r["status"] & 0x20  # HOLD and UNCONFIGURED
+    assert "length" in r["error"]
+    assert any(m["type"] == "DESCRIPTOR" for m in decode(r["up"]))
