@@ -296,7 +296,14 @@ class Daemon:
         order = chain_bendables(robot)
         lim_all = bendable_limits(robot)
         limits = {n: lim_all[n] for n in order}
-        hwi = HardwareInterface(limits, self.link, self.reply_timeout)
+        # the last STATE of each bendable from the HWI being replaced: a segment that misses the
+        # first heartbeat is then held where it was last seen, not at zero
+        known = {}
+        if self.hwi is not None:
+            known = {
+                n: st for n, st in zip(self.hwi.names, self.hwi.last_states, strict=True) if st
+            }
+        hwi = HardwareInterface(limits, self.link, self.reply_timeout, known=known)
         hwi.configure()
         hwi.activate()
         state = self._robot_state_from(hwi, time.monotonic())
@@ -376,6 +383,10 @@ class Daemon:
             dt = now - self._t_last if self._t_last else self.period
             self._t_last = now
             self._state = state
+            if hwi.first_measured:
+                for c in self.cm.controllers.values():
+                    if c.active:
+                        c.adopt_measured(hwi.first_measured, state)
             cmds = self.cm.update(state, dt)
             for name, (kx, ky) in cmds.items():
                 if name in hwi.limits:
@@ -636,12 +647,16 @@ class Daemon:
         st = RobotState.zeros(hwi.names, t)
         for i in range(n):
             s = hwi.raw_states[i]
+            fresh = s is not None
             if s is None:
-                continue
+                s = hwi.last_states[i]  # missed this cycle: the last known values, not fresh
+                if s is None:
+                    continue  # never measured: zeros, known=False (the HWI sends hold entries)
             kappa, phi = s["kappa"] or 0.0, s["phi"] or 0.0
             kx = s["kx"] if s["kx"] is not None else kappa * math.cos(phi)
             ky = s["ky"] if s["ky"] is not None else kappa * math.sin(phi)
-            st.kx[i], st.ky[i], st.kappa[i], st.phi[i], st.valid[i] = kx, ky, kappa, phi, True
+            st.kx[i], st.ky[i], st.kappa[i], st.phi[i] = kx, ky, kappa, phi
+            st.valid[i], st.known[i] = fresh, True
             st.t_ms[i] = s.get("t_ms")
         return st
 

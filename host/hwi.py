@@ -10,6 +10,13 @@ Lifecycle, as ros2_control's hardware components:
 - command interfaces are written to the segments only while ``active``. While inactive the cycle
   sends HEARTBEAT (feeds the segments' watchdogs, returns states) and never a setpoint.
 
+A segment is only commanded once it has been measured since activation: until its first STATE,
+its SYNC entry is a hold entry (None: the segment keeps its own setpoint), never a made-up (0, 0).
+An interface without a command interface keeps the value measured at activation (a bendable
+declaring only ``kappa`` keeps its measured phi), and a bendable with no command interface at all
+always gets a hold entry. ``last_states`` keeps the last STATE of every segment across missed
+cycles (and across a rebuild, through ``known``).
+
 A segment that reports HOLD ignores setpoints until a SYNC with "resume": activation sets
 ``resume_pending`` (the first SYNCs resume), and it clears once no segment reports HOLD.
 
@@ -39,7 +46,14 @@ class HardwareInterface:
     ``link`` is a :class:`host.link.ChainLink` (or anything with its ``sync``/``heartbeat``).
     """
 
-    def __init__(self, limits: dict[str, BendableLimits], link: Any, reply_timeout: float = 0.02):
+    def __init__(
+        self,
+        limits: dict[str, BendableLimits],
+        link: Any,
+        reply_timeout: float = 0.02,
+        known: dict[str, dict] | None = None,
+    ):
+        """``known``: last STATE per bendable from a previous HWI of this chain (a rebuild)."""
         self.limits = limits
         self.names = list(limits)
         self.link = link
@@ -53,6 +67,13 @@ class HardwareInterface:
             if "phi" in bl.command_interfaces:
                 self.command[f"{name}/phi"] = bl.phi_initial
         self.raw_states: list[dict | None] = [None] * len(self.names)
+        known = known or {}
+        # last STATE received per position, kept while a segment misses cycles
+        self.last_states: list[dict | None] = [known.get(n) for n in self.names]
+        # (kappa 1/m, phi rad) measured at activation or at the first STATE after it; None =
+        # not measured since activation: the segment gets a hold entry
+        self.held: dict[str, tuple[float, float] | None] = dict.fromkeys(self.names)
+        self.first_measured: list[str] = []  # measured for the first time in the last read()
         self.missing = [0] * len(self.names)  # consecutive cycles without a STATE, per position
         self.extra_states: list[dict] = []  # STATEs from positions beyond the known chain
         self.exchanges = 0
@@ -72,15 +93,23 @@ class HardwareInterface:
         """inactive → active. Commands start at the measured state, so activation never jumps."""
         if self.state != INACTIVE:
             raise LifecycleError(f"activate: HWI is {self.state}, expected {INACTIVE}")
+        self.first_measured = []
         for i, name in enumerate(self.names):
             st = self.raw_states[i]
+            self.held[name] = None
             if st is not None:
-                if f"{name}/kappa" in self.command:
-                    self.command[f"{name}/kappa"] = float(st["kappa"])
-                if f"{name}/phi" in self.command:
-                    self.command[f"{name}/phi"] = float(st["phi"])
+                self._adopt_measured(name, st)
         self.resume_pending = True  # segments may be holding (HOLD before a rebuild): resume
         self.state = ACTIVE
+
+    def _adopt_measured(self, name: str, st: dict) -> None:
+        """Start commanding ``name`` at its measured state (activation never jumps)."""
+        kappa, phi = float(st["kappa"]), float(st["phi"])
+        self.held[name] = (kappa, phi)
+        if f"{name}/kappa" in self.command:
+            self.command[f"{name}/kappa"] = kappa
+        if f"{name}/phi" in self.command:
+            self.command[f"{name}/phi"] = phi
 
     def deactivate(self) -> None:
         """active → inactive: setpoints stop; the segments hold the last one (and heartbeats)."""
@@ -94,6 +123,7 @@ class HardwareInterface:
             raise LifecycleError(f"cleanup: HWI is {self.state}, expected {INACTIVE}")
         self.state_values.clear()
         self.raw_states = [None] * len(self.names)
+        self.last_states = [None] * len(self.names)
         self.state = UNCONFIGURED
 
     # -- interfaces --------------------------------------------------------------------------
@@ -136,13 +166,18 @@ class HardwareInterface:
         if f"{name}/phi" in self.command and kappa > 1e-9:
             self.set_command(f"{name}/phi", math.atan2(ky, kx))
 
-    def setpoints(self) -> list[tuple[float, float]]:
-        """(kappa, phi) per position from the command interfaces (SI)."""
-        out = []
+    def setpoints(self) -> list[tuple[float, float] | None]:
+        """(kappa 1/m, phi rad) per position from the command interfaces; an interface without
+        a command interface keeps its measured value; None (hold) for a segment not measured
+        since activation or with no command interface."""
+        out: list[tuple[float, float] | None] = []
         for name in self.names:
-            out.append(
-                (self.command.get(f"{name}/kappa", 0.0), self.command.get(f"{name}/phi", 0.0))
-            )
+            held = self.held.get(name)
+            k_itf, p_itf = f"{name}/kappa", f"{name}/phi"
+            if held is None or (k_itf not in self.command and p_itf not in self.command):
+                out.append(None)
+                continue
+            out.append((self.command.get(k_itf, held[0]), self.command.get(p_itf, held[1])))
         return out
 
     # -- cycle -------------------------------------------------------------------------------
@@ -154,6 +189,7 @@ class HardwareInterface:
         self._pending = None
         if states is None:
             return self.raw_states
+        self.first_measured = []
         n = len(self.names)
         self.extra_states = [s for s in states[n:] if s is not None]
         for i in range(n):
@@ -164,7 +200,11 @@ class HardwareInterface:
                 continue
             self.missing[i] = 0
             self.raw_states[i] = st
+            self.last_states[i] = st
             name = self.names[i]
+            if self.state == ACTIVE and self.held[name] is None:
+                self._adopt_measured(name, st)
+                self.first_measured.append(name)
             self.state_values[f"{name}/kappa"] = float(st["kappa"])
             self.state_values[f"{name}/phi"] = float(st["phi"])
         if self.resume_pending and not any(

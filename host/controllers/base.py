@@ -28,6 +28,8 @@ class RobotState:
     Curvature vectors (kx, ky) and the interface form (kappa, phi) in SI; ``valid[i]`` is False
     when segment i did not answer this cycle (its values are then the last known ones).
     ``t_ms[i]`` is segment i's own time stamp of the measurement (ms since its boot) or None.
+    ``known[i]`` is True when the values are real (measured this cycle or last known); False
+    only for a segment never measured (its values are then zeros and must not be commanded).
     """
 
     t: float
@@ -38,12 +40,25 @@ class RobotState:
     phi: list[float]
     valid: list[bool]
     t_ms: list[int | None] = field(default_factory=list)
+    known: list[bool] = field(default_factory=list)
+
+    def has_value(self, i: int) -> bool:
+        """Whether position ``i`` holds a real (fresh or last known) measurement."""
+        return self.valid[i] or (i < len(self.known) and self.known[i])
 
     @classmethod
     def zeros(cls, names: list[str], t: float = 0.0) -> RobotState:
         n = len(names)
         return cls(
-            t, list(names), [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [False] * n, [None] * n
+            t,
+            list(names),
+            [0.0] * n,
+            [0.0] * n,
+            [0.0] * n,
+            [0.0] * n,
+            [False] * n,
+            [None] * n,
+            [False] * n,
         )
 
 
@@ -134,6 +149,10 @@ class Controller:
     # -- hooks -------------------------------------------------------------------------------
     def on_activate(self, state: RobotState) -> None:
         """Called when switched on; commanding controllers start by holding ``state``."""
+
+    def adopt_measured(self, names: list[str], state: RobotState) -> None:
+        """Bendables ``names`` were just measured for the first time since the HWI activated
+        (they got hold entries until now): commanding controllers start holding them there."""
 
     def on_deactivate(self, reason: str = "") -> None:
         """Called when switched off (``reason`` says why, for goals that end here)."""

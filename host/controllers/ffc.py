@@ -97,10 +97,16 @@ class FeedForwardController(Controller):
     def on_activate(self, state: RobotState) -> None:
         for j in self.joints:
             si = state.names.index(j)
-            if state.valid[si]:
+            if state.has_value(si):  # fresh or last known; never-measured ones get hold entries
                 self._cmd[j] = [state.kx[si], state.ky[si]]
         self._input = {}
         self.active = True
+
+    def adopt_measured(self, names: list[str], state: RobotState) -> None:
+        for j in names:
+            if j in self._cmd:
+                si = state.names.index(j)
+                self._cmd[j] = [state.kx[si], state.ky[si]]
 
     def on_deactivate(self, reason: str = "") -> None:
         self._input = {}

@@ -284,6 +284,25 @@ class JointTrajectoryController(Controller):
         self._last_state = state
         self.active = True
 
+    def adopt_measured(self, names: list[str], state: RobotState) -> None:
+        """Hold newly measured bendables where they are. A running goal was planned without
+        them (their entries were hold entries), so it is aborted, holding the desired motion."""
+        idx = [self._index[n] for n in names if n in self._index]
+        if not idx:
+            return
+        hold = self._desired_now(state.t)[0]
+        if self._goal is not None:
+            self._goal.finish(
+                "aborted",
+                f"{', '.join(names)} answered for the first time while the goal ran; holding",
+            )
+            self._goal = None
+        for i in idx:
+            si = self._state_index[i]
+            hold[i] = (state.kx[si], state.ky[si])
+        self._hold = hold
+        self._set_motion(None)
+
     def on_deactivate(self, reason: str = "") -> None:
         if self._goal is not None:
             self._goal.finish("aborted", reason or f"controller {self.name!r} deactivated")
@@ -592,7 +611,7 @@ class JointTrajectoryController(Controller):
             out = np.zeros((len(self.joints), 2))
         for i in range(len(self.joints)):
             si = self._state_index[i]
-            if state.valid[si]:
+            if state.has_value(si):  # fresh or last known (never measured: keep ``fallback``)
                 out[i] = (state.kx[si], state.ky[si])
         return out
 

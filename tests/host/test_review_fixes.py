@@ -189,3 +189,80 @@ def test_goal_built_while_the_motion_changed_is_refused_and_lead_in_has_no_jump(
     goal, traj = c2.build_goal(pts, start)
     with pytest.raises(StaleGoalError, match="longer than planned"):
         c2.install_goal(goal, traj, start, 0.25)
+
+
+def _limits(robot3, **changes):
+    import dataclasses
+
+    from host.config import bendable_limits
+
+    lim = bendable_limits(robot3)
+    return {n: dataclasses.replace(b, **changes.get(n, {})) for n, b in lim.items()}
+
+
+def test_segment_missing_at_activation_gets_hold_entries_then_its_measured_value(
+    robot3, make_daemon
+):
+    link = FakeLink(robot3, measured={0: (1.0, 0.5), 1: (2.5, 1.2), 2: (0.5, -1.0)})
+    link.silent = {1}  # segment_2's STATE is missing at configure/activate
+    d = make_daemon(link).start()
+    assert wait_for(lambda: len(link.syncs) >= 2, 2.0)
+    link.silent = set()
+    assert wait_for(lambda: len(link.syncs) >= 12, 2.0)
+    d.stop(hold=False)
+    entries = [sps[1] for sps, _ in link.syncs]
+    assert entries[0] is None  # not measured yet: hold, never (0, 0)
+    for e in entries:
+        assert e is None or e == pytest.approx((2.5, 1.2), abs=1e-6), entries
+    assert entries[-1] == pytest.approx((2.5, 1.2), abs=1e-6)
+    # the other segments were held at their measured values throughout
+    assert all(sps[0] == pytest.approx((1.0, 0.5)) for sps, _ in link.syncs)
+
+
+def test_rebuilt_controllers_hold_a_missing_segment_at_its_last_known_state(robot3):
+    from host.controllers.base import ControllerContext
+    from host.controllers.ffc import FeedForwardController
+    from host.controllers.jtc import JointTrajectoryController
+    from host.hwi import HardwareInterface
+
+    link = FakeLink(robot3, measured={0: (1.0, 0.5), 1: (2.5, 1.2), 2: (0.5, -1.0)})
+    lim = _limits(robot3)
+    old = HardwareInterface(lim, link)
+    old.configure()
+    link.silent = {1}  # the rebuild's heartbeat misses segment_2
+    hwi = HardwareInterface(lim, link, known=dict(zip(old.names, old.last_states, strict=True)))
+    hwi.configure()
+    hwi.activate()
+    state = Daemon._robot_state_from(hwi, 1.0)
+    assert not state.valid[1] and state.known[1]
+    assert (state.kappa[1], state.phi[1]) == pytest.approx((2.5, 1.2))
+    ctx = ControllerContext(lim, robot3)
+    jtc = JointTrajectoryController("jtc", {}, ctx)
+    ffc = FeedForwardController("ffc", {}, ctx)
+    jtc.on_activate(state)
+    ffc.on_activate(state)
+    want = (2.5 * math.cos(1.2), 2.5 * math.sin(1.2))
+    assert jtc.update(state, 0.01)["segment_2"] == pytest.approx(want)
+    assert ffc.update(state, 0.01)["segment_2"] == pytest.approx(want)
+    hwi.write()  # not measured since activation: a hold entry, not (0, 0)
+    assert link.syncs[-1][0][1] is None
+
+
+def test_uncommanded_phi_keeps_its_measured_value_and_uncommanded_bendable_holds(robot3):
+    from host.hwi import HardwareInterface
+
+    link = FakeLink(robot3, measured={0: (1.0, 0.5), 1: (2.5, 1.2), 2: (0.5, -1.0)})
+    lim = _limits(
+        robot3,
+        segment_1={"command_interfaces": ("kappa",)},
+        segment_3={"command_interfaces": ()},
+    )
+    hwi = HardwareInterface(lim, link)
+    hwi.configure()
+    hwi.activate()
+    hwi.set_command("segment_1/kappa", 2.0)
+    hwi.write()
+    sps = link.syncs[-1][0]
+    assert sps[0] == pytest.approx((2.0, 0.5))  # phi measured at activation, not 0
+    assert sps[1] == pytest.approx((2.5, 1.2))
+    assert sps[2] is None  # no command interface: hold entry, not (0, 0)
