@@ -200,7 +200,12 @@ class Goal:
         self.state = "pending"
         self.reason = ""
         self.t_accepted: float | None = None
+        # the path while the goal runs; dropped when it ends (a 2000-point path is megabytes and
+        # hundreds of finished goals are kept), leaving only the figures below
         self.trajectory: CurvatureTrajectory | None = None
+        self.duration: float | None = None  # s, after retiming
+        self.requested_duration: float | None = None  # s, as requested
+        self.retimed = False
         self.progress = 0.0
         self.max_error = 0.0
         self.final_error: dict[str, float] = {}
@@ -208,18 +213,27 @@ class Goal:
     def finish(self, state: str, reason: str = "") -> None:
         if self.state not in _TERMINAL:
             self.state, self.reason = state, reason
+        self._summarise()
+        self.trajectory = None
+
+    def _summarise(self) -> None:
+        tr = self.trajectory
+        if tr is not None:
+            self.duration = tr.duration
+            self.requested_duration = float(tr.requested_durations.sum())
+            self.retimed = bool(tr.retimed)
 
     def status(self) -> dict[str, Any]:
-        tr = self.trajectory
+        self._summarise()
         return {
             "id": self.id,
             "controller": self.controller,
             "state": self.state,
             "reason": self.reason,
             "progress": round(self.progress, 4),
-            "duration": tr.duration if tr else None,
-            "requested_duration": float(tr.requested_durations.sum()) if tr else None,
-            "retimed": bool(tr.retimed) if tr else False,
+            "duration": self.duration,
+            "requested_duration": self.requested_duration,
+            "retimed": self.retimed,
             "points": self.n_points,
             "max_path_error": self.max_error,
             "final_error": dict(self.final_error),

@@ -266,3 +266,37 @@ def test_uncommanded_phi_keeps_its_measured_value_and_uncommanded_bendable_holds
     assert sps[0] == pytest.approx((2.0, 0.5))  # phi measured at activation, not 0
     assert sps[1] == pytest.approx((2.5, 1.2))
     assert sps[2] is None  # no command interface: hold entry, not (0, 0)
+
+
+def test_finished_goals_drop_their_trajectory_and_keep_their_status(robot3):
+    from host.controllers.base import RobotState
+
+    c = _jtc(robot3)
+    names = c.ctx.names
+    n = len(names)
+    fast = [{"time_from_start": 0.1, "segments": {"segment_1": {"kappa": 2.0, "phi": 0.0}}}]
+    replaced = c.send_goal(fast, now=0.0)
+    goal = c.send_goal(fast, now=0.05)
+    assert replaced.state == "aborted" and replaced.trajectory is None
+    running = goal.status()
+    assert goal.trajectory is not None and running["retimed"]
+    t, meas = 0.05, [[0.0, 0.0]] * n
+    while not goal.status()["done"] and t < 5.0:
+        st = RobotState(
+            t,
+            names,
+            [m[0] for m in meas],
+            [m[1] for m in meas],
+            [math.hypot(*m) for m in meas],
+            [math.atan2(m[1], m[0]) for m in meas],
+            [True] * n,
+        )
+        out = c.update(st, 0.01)
+        meas = [list(out[j]) for j in names]
+        t += 0.01
+    done = goal.status()
+    assert done["state"] == "succeeded" and goal.trajectory is None
+    for key in ("duration", "requested_duration", "retimed", "points"):
+        assert done[key] == running[key]
+    assert done["requested_duration"] == pytest.approx(0.1)
+    assert replaced.status()["duration"] is not None
