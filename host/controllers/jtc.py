@@ -43,6 +43,7 @@ from host.controllers.base import (
 )
 
 MAX_WAYPOINTS = 2000
+MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
 _SAMPLES = 33  # samples per piece when checking the rate limit
 _TERMINAL = ("succeeded", "aborted", "canceled", "rejected")
 
@@ -91,18 +92,35 @@ class CurvatureTrajectory:
         self.v0, self.a0 = v0, a0
         self.rate_max = rate_max
         self.retimed = False
-        for _ in range(max_iterations):
-            self._build()
-            ratio = self._rate_ratios()
-            over = ratio > 1.0
-            if not over.any():
-                break
-            self.retimed = True
-            self.durations[over] *= ratio[over] * 1.02
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            self._retime(max_iterations)  # non-finite values are checked, not warned about
         self.ends = np.cumsum(self.durations).tolist()
         self.duration = self.ends[-1]
         self.final = self.positions[-1]
         self._final_list = self.final.tolist()
+
+    def _retime(self, max_iterations: int) -> None:
+        """Stretch the pieces until the rate limit holds (raises ControllerError if the path
+        cannot be computed)."""
+        for _ in range(max_iterations):
+            self._build()
+            if not np.isfinite(self.coeffs).all():
+                raise ControllerError(
+                    "trajectory: the path cannot be computed (non-finite coefficients; are the "
+                    "waypoints too close in time?)"
+                )
+            ratio = self._rate_ratios()
+            over = ~(ratio <= 1.0)  # NaN counts as over: never skip retiming on it
+            if not over.any():
+                break
+            self.retimed = True
+            finite = np.isfinite(ratio)
+            self.durations[over & finite] *= ratio[over & finite] * 1.02
+            self.durations[over & ~finite] *= 2.0
+        else:
+            self._build()  # the coefficients must match the last stretched durations
+            if not (np.isfinite(self.coeffs).all() and np.isfinite(self._rate_ratios()).all()):
+                raise ControllerError("trajectory: the rate along the path cannot be computed")
 
     def _build(self) -> None:
         P, d = self.positions, self.durations
@@ -360,6 +378,11 @@ class JointTrajectoryController(Controller):
                 raise ControllerError(
                     f"{where}: time_from_start {t} s must be > {prev_t} s (strictly increasing, "
                     "first > 0)"
+                )
+            if t - prev_t < MIN_PIECE_S:
+                raise ControllerError(
+                    f"{where}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms after the "
+                    f"previous point; at least {MIN_PIECE_S * 1e3:g} ms between points"
                 )
             segs = pt.get("segments")
             if not isinstance(segs, dict) or not segs:

@@ -300,3 +300,45 @@ def test_finished_goals_drop_their_trajectory_and_keep_their_status(robot3):
         assert done[key] == running[key]
     assert done["requested_duration"] == pytest.approx(0.1)
     assert replaced.status()["duration"] is not None
+
+
+@pytest.mark.parametrize(
+    ("times", "match"),
+    [
+        ([1e-200], "at least 1 ms between points"),
+        ([0.5, 0.5 + 1e-6], "point 1: .* at least 1 ms between points"),
+    ],
+)
+def test_waypoints_too_close_in_time_are_rejected_with_a_reason(robot3, times, match):
+    from host.controllers.base import ControllerError
+
+    c = _jtc(robot3)
+    pts = [
+        {"time_from_start": t, "segments": {"segment_1": {"kappa": 1.0 + k, "phi": 0.0}}}
+        for k, t in enumerate(times)
+    ]
+    with pytest.raises(ControllerError, match=match):
+        c.send_goal(pts, now=0.0)
+    assert c.current_goal is None  # nothing moved
+
+
+def test_nan_rate_ratio_is_retimed_not_skipped():
+    import numpy as np
+
+    from host.controllers.base import ControllerError
+    from host.controllers.jtc import CurvatureTrajectory
+
+    class NanOnce(CurvatureTrajectory):
+        """A rate check that cannot tell on the first pass (NaN), then a fine one."""
+
+        calls = 0
+
+        def _rate_ratios(self):
+            NanOnce.calls += 1
+            return np.array([np.nan]) if NanOnce.calls == 1 else np.array([0.5])
+
+    z = np.zeros((1, 2))
+    tr = NanOnce(0.0, z, z, z, [(1.0, np.array([[0.2, 0.0]]))], np.array([5.0]))
+    assert tr.retimed and tr.duration == pytest.approx(2.0)  # stretched, not accepted as is
+    with pytest.raises(ControllerError, match="cannot be computed"):
+        CurvatureTrajectory(0.0, z, z, z, [(1e-200, np.array([[1.0, 0.0]]))], np.array([1.0]))
