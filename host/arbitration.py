@@ -89,6 +89,16 @@ class Arbitrator:
             if m in stopped:
                 self.takeovers.pop(m)
 
+    def prune(self, cm: ControllerManager) -> list[str]:
+        """After a rebuild: forget the takeovers whose manual controller is no longer active
+        (those still active keep control, and hand-back still restarts what they preempted)."""
+        gone = [
+            m for m in self.takeovers if m not in cm.controllers or not cm.controllers[m].active
+        ]
+        for m in gone:
+            self.takeovers.pop(m)
+        return gone
+
     def blocking_manual(self, cm: ControllerManager, controller: str) -> str | None:
         """Name of an active manual controller holding interfaces ``controller`` needs."""
         need = set(cm.get(controller).command_interfaces())

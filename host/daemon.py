@@ -319,7 +319,7 @@ class Daemon:
                     raise DaemonError(f"{self.cfg.source}: active: {exc}") from None
             else:
                 self.cm.rebuild(ctx, state, reason)
-                self.arb.takeovers.clear()
+                self.arb.prune(self.cm)  # a manual takeover outlives a rebuild
             expected = chain_bendables(self.full_robot)
             if keep < len(expected):
                 lost = expected[keep:]

@@ -13,7 +13,7 @@ from daemon_helpers import wait_for
 import host.controllers.jtc as jtc_module
 from host.config import DaemonConfig
 from host.daemon import Daemon
-from host.topology import chain_bendables
+from host.topology import chain_bendables, compare
 
 
 class FakeLink:
@@ -342,3 +342,26 @@ def test_nan_rate_ratio_is_retimed_not_skipped():
     assert tr.retimed and tr.duration == pytest.approx(2.0)  # stretched, not accepted as is
     with pytest.raises(ControllerError, match="cannot be computed"):
         CurvatureTrajectory(0.0, z, z, z, [(1e-200, np.array([[1.0, 0.0]]))], np.array([1.0]))
+
+
+def test_manual_takeover_survives_a_rebuild_while_the_manual_controller_stays_active(
+    robot3, make_daemon
+):
+    link = FakeLink(robot3, measured={0: (1.0, 0.5), 1: (2.5, 1.2), 2: (0.5, -1.0)})
+    d = make_daemon(link).start()
+    res = d.ffc_input({"segment_1": [1.0, 0.0]})
+    assert res["takeover"] is not None and d.status()["manual_control"] == ["ffc"]
+    d.loop.stop()  # rebuild from this thread, as the loop would after a topology change
+    descs = link.discover()
+    d._build(descs, compare(d.full_robot, descs), "test rebuild")
+    assert d.cm.get("ffc").active and not d.cm.get("jtc").active
+    assert d.status()["manual_control"] == ["ffc"]
+    rec = d.hand_back()
+    assert rec["manual"] == "ffc" and "jtc" in rec["restarted"]
+    assert d.cm.get("jtc").active and not d.cm.get("ffc").active
+    # a takeover whose manual controller is no longer active is forgotten by a rebuild
+    from host.arbitration import Takeover
+
+    d.arb.takeovers["ffc"] = Takeover("ffc", ["jtc"])
+    d._build(descs, compare(d.full_robot, descs), "test rebuild")
+    assert d.status()["manual_control"] == []
