@@ -312,11 +312,12 @@ class Daemon:
             self.robot, self.hwi, self.descriptors, self.comparison = robot, hwi, descs, cmp
             self._state = state
             if self.cm is None:
-                self.cm = ControllerManager(self.cfg.controllers, ctx)
+                cm = ControllerManager(self.cfg.controllers, ctx)
                 try:
-                    self.cm.switch(self.cfg.active, [], state, reason)
+                    cm.switch(self.cfg.active, [], state, reason)
                 except SwitchError as exc:
                     raise DaemonError(f"{self.cfg.source}: active: {exc}") from None
+                self.cm = cm  # only once it runs: a retried start() builds it afresh
             else:
                 self.cm.rebuild(ctx, state, reason)
                 self.arb.prune(self.cm)  # a manual takeover outlives a rebuild

@@ -365,3 +365,25 @@ def test_manual_takeover_survives_a_rebuild_while_the_manual_controller_stays_ac
     d.arb.takeovers["ffc"] = Takeover("ffc", ["jtc"])
     d._build(descs, compare(d.full_robot, descs), "test rebuild")
     assert d.status()["manual_control"] == []
+
+
+def test_a_failed_start_leaves_no_controller_manager_so_a_retry_activates_the_controllers(
+    robot3, make_daemon
+):
+    from host.daemon import DaemonError
+
+    link = FakeLink(robot3)
+    d = make_daemon(
+        link,
+        controllers={
+            "jtc": {"type": "jtc", "params": {"rate_margin": 5.0}},
+            "jsb": {"type": "jsb"},
+        },
+        active=["jsb", "jtc"],
+    )
+    with pytest.raises(DaemonError, match="rate_margin"):
+        d.start()
+    assert d.cm is None
+    d.cfg.controllers["jtc"]["params"] = {}  # the operator fixes the configuration
+    d.start()
+    assert sorted(d.status()["active_controllers"]) == ["jsb", "jtc"]
