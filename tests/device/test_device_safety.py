@@ -258,7 +258,7 @@ def test_motion_starts_from_uneven_servo_angles_at_servo_speed_not_in_one_jump(v
     sync = M.encode_sync(2, 11, [(0.0, 0.0)]).hex()
     r = vm(
         f"""
-import config, servos
+import gc, config, servos
 from segment import Segment
 R['runs'] = []
 for sc in ('direct', 'p_slew'):
@@ -274,6 +274,8 @@ for sc in ('direct', 'p_slew'):
         vmkit.run(hal, seg, 1)
         cmds.append(list(seg.sc.cmd))
     R['runs'].append([sc, seg.sc.step_limit, [3000, 3500, 4000], cmds])
+    del seg, bus, hal, cfg  # one segment at a time fits the ESP32-sized heap
+    gc.collect()
 """
     )
     for sc, limit, start, cmds in r["runs"]:
