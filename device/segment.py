@@ -148,7 +148,10 @@ class Segment:
         self.bus = bus
         self.tick_ms = tick_ms
         self.n = cfg.n
-        self.uid = (cfg.uid_override or hal.uid()).lower()  # requests' uids are compared lowered
+        self.uid = (cfg.uid_override or hal.uid()).lower()
+        # frame handlers bound once: fetching a bound method in the loop would allocate
+        self._on_up = self._from_up
+        self._on_down = self._from_down  # requests' uids are compared lowered
         self.mc = Mechanism(cfg, tick_ms)
         si = cfg.si
         self.sc = scmod.SimpleControllers(cfg.n, cfg.sc, si["sc_gain"], si["servo_speed"], tick_ms)
@@ -277,29 +280,23 @@ class Segment:
     def poll(self):
         """Handle everything waiting on both ports; return the number of bytes read."""
         self.now = self.hal.ticks_ms()
+        hal = self.hal
+        return self._drain(hal.up, self.rxu, self.rd_up, self._on_up) + self._drain(
+            hal.down, self.rxd, self.rd_dn, self._on_down
+        )
+
+    def _drain(self, uart, rx, rd, handle):
+        """Read ``uart`` into ``rx`` until empty; hand every complete frame to ``handle``."""
         total = 0
-        rx = self.rxu
-        rd = self.rd_up
-        n = self.hal.up.readinto(rx)
+        n = uart.readinto(rx)
         while n:
             total += n
             pos = 0
             while pos < n:
                 pos = rd.scan(rx, pos, n)
                 if rd.ready:
-                    self._from_up(rd)
-            n = self.hal.up.readinto(rx) if n == _RXBUF else 0
-        rx = self.rxd
-        rd = self.rd_dn
-        n = self.hal.down.readinto(rx)
-        while n:
-            total += n
-            pos = 0
-            while pos < n:
-                pos = rd.scan(rx, pos, n)
-                if rd.ready:
-                    self._from_down(rd)
-            n = self.hal.down.readinto(rx) if n == _RXBUF else 0
+                    handle(rd)
+            n = uart.readinto(rx) if n == _RXBUF else 0
         return total
 
     def _from_up(self, r):
