@@ -56,6 +56,19 @@ def wrap_angle(phi: float) -> float:
     return math.pi if w == -math.pi else w
 
 
+def kappa_phi(
+    kx: float, ky: float, previous: Mapping[str, float] | None = None
+) -> dict[str, float]:
+    """Curvature vector (1/m) -> {"kappa", "phi"}; at kappa = 0 phi keeps ``previous["phi"]``
+    (else 0), so a path through straight never spins the bending plane."""
+    kappa = math.hypot(kx, ky)
+    if kappa == 0.0:
+        phi = wrap_angle(float(previous.get("phi", 0.0))) if previous else 0.0
+    else:
+        phi = wrap_angle(math.atan2(ky, kx))
+    return {"kappa": kappa, "phi": phi}
+
+
 def skew_to_vector(m: np.ndarray) -> np.ndarray:
     """The vector w of a (nearly) skew-symmetric 3x3 matrix [w]x (its skew part is used)."""
     return 0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])

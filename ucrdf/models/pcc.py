@@ -20,7 +20,14 @@ from collections.abc import Mapping
 import numpy as np
 
 from ucrdf.model import CurvatureLimits
-from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError, Variable, wrap_angle
+from ucrdf.models.base import (
+    LIMIT_SLACK,
+    CurvatureModel,
+    ModelError,
+    Variable,
+    kappa_phi,
+    wrap_angle,
+)
 
 #: theta^2 below which the series are used (theta < 0.25 rad). Five terms keep the truncation
 #: error below 1e-16; above it the closed forms lose at most ~eps/theta^2 < 2e-15 to cancellation.
@@ -181,13 +188,7 @@ class PCCModel(CurvatureModel):
     def from_coordinates(
         self, q: np.ndarray, previous: Mapping[str, float] | None = None
     ) -> dict[str, float]:
-        kx, ky = float(q[0]), float(q[1])
-        kappa = math.hypot(kx, ky)
-        if kappa == 0.0:
-            phi = wrap_angle(float(previous.get("phi", 0.0))) if previous else 0.0
-        else:
-            phi = wrap_angle(math.atan2(ky, kx))
-        return {"kappa": kappa, "phi": phi}
+        return kappa_phi(float(q[0]), float(q[1]), previous)
 
     def project(self, q: np.ndarray) -> np.ndarray:
         return np.array(

@@ -21,7 +21,13 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError, Variable, wrap_angle
+from ucrdf.models.base import (
+    LIMIT_SLACK,
+    CurvatureModel,
+    ModelError,
+    Variable,
+    kappa_phi,
+)
 from ucrdf.models.pcc import THETA_MAX, pcc_functions, project_disc
 
 DEFAULT_STEPS = 16
@@ -171,15 +177,8 @@ class PPCModel(CurvatureModel):
     def from_coordinates(
         self, q: np.ndarray, previous: Mapping[str, float] | None = None
     ) -> dict[str, float]:
-        kx, ky = float(q[0]), float(q[1])
-        kappa = math.hypot(kx, ky)
-        if kappa == 0.0:
-            phi = wrap_angle(float(previous.get("phi", 0.0))) if previous else 0.0
-        else:
-            phi = wrap_angle(math.atan2(ky, kx))
         return {
-            "kappa": kappa,
-            "phi": phi,
+            **kappa_phi(float(q[0]), float(q[1]), previous),
             "kappa_x_slope": float(q[2]),
             "kappa_y_slope": float(q[3]),
         }
