@@ -33,6 +33,10 @@ from ucrdf.model import ModelSpec
 #: conversions such as (kx, ky) -> (kappa, phi) must not turn into a limit violation).
 LIMIT_SLACK = 1e-9
 
+#: Largest total bend kappa_max*l a constant- or affine-curvature segment may declare (rad): up to
+#: a half circle, (kx, ky)*l is the principal rotation vector (see docs/kinematics.md).
+THETA_MAX = math.pi
+
 
 @dataclass(frozen=True)
 class Variable:
@@ -101,6 +105,19 @@ class CurvatureModel(ABC):
 
     def validate(self) -> None:  # noqa: B027 - optional hook
         """Raise ModelError if ``self.spec`` is not usable (e.g. kappa_max*l beyond the model)."""
+
+    def check_total_bend(self, label: str) -> None:
+        """ModelError unless kappa_max is a finite number >= 0 with kappa_max*l <= THETA_MAX."""
+        lim = self.spec.limits
+        if not (math.isfinite(lim.kappa_max) and lim.kappa_max >= 0.0):
+            raise ModelError(f"kappa_max must be a finite number >= 0 1/m, got {lim.kappa_max}")
+        theta = lim.kappa_max * self.length
+        if theta > THETA_MAX * (1.0 + LIMIT_SLACK):
+            raise ModelError(
+                f"kappa_max*length = {theta:.4g} rad ({math.degrees(theta):.1f} deg) exceeds the "
+                f"{label} bound of pi rad (180 deg): kappa_max must be <= "
+                f"{THETA_MAX / self.length:.4g} 1/m for this length"
+            )
 
     def limits(self) -> dict[str, tuple[float, float]]:
         """Bounds of each variable from ``<limits>`` (name -> (lower, upper))."""

@@ -21,7 +21,6 @@ import numpy as np
 
 from ucrdf.model import CurvatureLimits
 from ucrdf.models.base import (
-    LIMIT_SLACK,
     CurvatureModel,
     ModelError,
     Variable,
@@ -32,9 +31,6 @@ from ucrdf.models.base import (
 #: theta^2 below which the series are used (theta < 0.25 rad). Five terms keep the truncation
 #: error below 1e-16; above it the closed forms lose at most ~eps/theta^2 < 2e-15 to cancellation.
 SERIES_T = 0.0625
-
-#: Largest bend angle kappa_max*l a PCC segment may declare (rad), see docs/kinematics.md.
-THETA_MAX = math.pi
 
 
 def _series(t: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
@@ -164,15 +160,7 @@ class PCCModel(CurvatureModel):
             raise ModelError(
                 f"model 'pcc' takes no <param>, got: {', '.join(sorted(self.spec.params))}"
             )
-        if not (math.isfinite(lim.kappa_max) and lim.kappa_max >= 0.0):
-            raise ModelError(f"kappa_max must be a finite number >= 0 1/m, got {lim.kappa_max}")
-        theta = lim.kappa_max * self.length
-        if theta > THETA_MAX * (1.0 + LIMIT_SLACK):
-            raise ModelError(
-                f"kappa_max*length = {theta:.4g} rad ({math.degrees(theta):.1f} deg) exceeds the "
-                f"PCC bound of pi rad (180 deg): kappa_max must be <= {THETA_MAX / self.length:.4g}"
-                " 1/m for this length"
-            )
+        self.check_total_bend("PCC")
         if lim.phi_min > lim.phi_max:
             raise ModelError(f"phi_min {lim.phi_min} is larger than phi_max {lim.phi_max}")
 

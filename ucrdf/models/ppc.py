@@ -28,7 +28,7 @@ from ucrdf.models.base import (
     Variable,
     kappa_phi,
 )
-from ucrdf.models.pcc import THETA_MAX, pcc_functions, project_disc
+from ucrdf.models.pcc import pcc_functions, project_disc
 
 DEFAULT_STEPS = 16
 _G = math.sqrt(3.0) / 6.0  # Gauss points at h (1/2 -+ sqrt(3)/6)
@@ -119,16 +119,8 @@ class PPCModel(CurvatureModel):
         ):
             raise ModelError(f"ppc param steps must be an integer in 1..10000, got {steps!r}")
         self.steps = int(steps)
+        self.check_total_bend("PPC")
         lim = self.spec.limits
-        if not (math.isfinite(lim.kappa_max) and lim.kappa_max >= 0.0):
-            raise ModelError(f"kappa_max must be a finite number >= 0 1/m, got {lim.kappa_max}")
-        theta = lim.kappa_max * self.length
-        if theta > THETA_MAX * (1.0 + LIMIT_SLACK):
-            raise ModelError(
-                f"kappa_max*length = {theta:.4g} rad exceeds the bound of pi rad: the total bend "
-                f"of a PPC segment must stay <= 180 deg (kappa_max <= {THETA_MAX / self.length:.4g}"
-                " 1/m for this length)"
-            )
         extra = set(lim.extra) - {"kappa_slope_max"}
         if extra:
             raise ModelError(
