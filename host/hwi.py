@@ -31,7 +31,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from host.config import BendableLimits
+from host.controllers.base import RobotState
+from host.limits import BendableLimits
 
 UNCONFIGURED, INACTIVE, ACTIVE = "unconfigured", "inactive", "active"
 
@@ -224,3 +225,24 @@ class HardwareInterface:
         else:
             self._pending = self.link.heartbeat(timeout=self.reply_timeout)
         self.exchanges += 1
+
+
+def robot_state_from(hwi: HardwareInterface, t: float) -> RobotState:
+    """The controllers' view of the last exchange: fresh STATEs are ``valid``; a segment that
+    missed this cycle keeps its last known values (``known``, not ``valid``)."""
+    n = len(hwi.names)
+    st = RobotState.zeros(hwi.names, t)
+    for i in range(n):
+        s = hwi.raw_states[i]
+        fresh = s is not None
+        if s is None:
+            s = hwi.last_states[i]  # missed this cycle: the last known values, not fresh
+            if s is None:
+                continue  # never measured: zeros, known=False (the HWI sends hold entries)
+        kappa, phi = s["kappa"] or 0.0, s["phi"] or 0.0
+        kx = s["kx"] if s["kx"] is not None else kappa * math.cos(phi)
+        ky = s["ky"] if s["ky"] is not None else kappa * math.sin(phi)
+        st.kx[i], st.ky[i], st.kappa[i], st.phi[i] = kx, ky, kappa, phi
+        st.valid[i], st.known[i] = fresh, True
+        st.t_ms[i] = s.get("t_ms")
+    return st

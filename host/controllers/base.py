@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from host.config import BendableLimits
+from host.limits import BendableLimits
 
 
 class ControllerError(ValueError):

@@ -223,7 +223,7 @@ def test_rebuilt_controllers_hold_a_missing_segment_at_its_last_known_state(robo
     from host.controllers.base import ControllerContext
     from host.controllers.ffc import FeedForwardController
     from host.controllers.jtc import JointTrajectoryController
-    from host.hwi import HardwareInterface
+    from host.hwi import HardwareInterface, robot_state_from
 
     link = FakeLink(robot3, measured={0: (1.0, 0.5), 1: (2.5, 1.2), 2: (0.5, -1.0)})
     lim = _limits(robot3)
@@ -233,7 +233,7 @@ def test_rebuilt_controllers_hold_a_missing_segment_at_its_last_known_state(robo
     hwi = HardwareInterface(lim, link, known=dict(zip(old.names, old.last_states, strict=True)))
     hwi.configure()
     hwi.activate()
-    state = Daemon._robot_state_from(hwi, 1.0)
+    state = robot_state_from(hwi, 1.0)
     assert not state.valid[1] and state.known[1]
     assert (state.kappa[1], state.phi[1]) == pytest.approx((2.5, 1.2))
     ctx = ControllerContext(lim, robot3)

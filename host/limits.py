@@ -1,0 +1,124 @@
+"""Per-bendable interface limits: the model's ``<limits>`` intersected with the U(C)RDF
+``<ros2_control>`` block. Shared by the configuration, the HWI and the controllers, so it imports
+neither of them (it sits below both in the import order)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from host.errors import ConfigError
+
+
+@dataclass
+class BendableLimits:
+    """Effective limits of one bendable: the model's ``<limits>`` intersected with the
+    ``<ros2_control>`` command interface ``min``/``max``. Units 1/m, 1/m/s, rad."""
+
+    name: str
+    length: float
+    kappa_max: float
+    kappa_rate_max: float
+    phi_min: float = -math.pi
+    phi_max: float = math.pi
+    kappa_initial: float = 0.0
+    phi_initial: float = 0.0
+    command_interfaces: tuple[str, ...] = ("kappa", "phi")
+    state_interfaces: tuple[str, ...] = ("kappa", "phi")
+
+    @property
+    def full_circle(self) -> bool:
+        return self.phi_min <= -math.pi + 1e-9 and self.phi_max >= math.pi - 1e-9
+
+
+DEFAULT_KAPPA_RATE_MAX = 2.0  # 1/m/s, used when the U(C)RDF gives no kappa_rate_max
+
+
+def _fparam(params: dict, key: str, robot_src: str, where: str) -> float | None:
+    if key not in params:
+        return None
+    try:
+        v = float(params[key])
+    except (TypeError, ValueError):
+        raise ConfigError(
+            robot_src, where + "." + key, f"expected a number, got {params[key]!r}"
+        ) from None
+    if not math.isfinite(v):
+        raise ConfigError(robot_src, where + "." + key, f"must be finite, got {v!r}")
+    return v
+
+
+def bendable_limits(robot: Any) -> dict[str, BendableLimits]:
+    """Per-bendable effective limits and interface names, in document order.
+
+    A bendable listed in ``<ros2_control>`` exposes the interfaces declared there; one that is not
+    listed gets the default kappa/phi pair (so a U(C)RDF without ``<ros2_control>`` still runs).
+    ``max`` of the kappa command interface may only tighten ``kappa_max``; a looser one is an error.
+    """
+    src = getattr(robot, "source", "") or robot.name
+    declared: dict[str, Any] = {}
+    for block in getattr(robot, "ros2_control", []):
+        for j in block.joints:
+            declared[j.name] = j
+    out: dict[str, BendableLimits] = {}
+    for name, b in robot.bendables.items():
+        lim = b.model.limits
+        rate = lim.kappa_rate_max if lim.kappa_rate_max else DEFAULT_KAPPA_RATE_MAX
+        bl = BendableLimits(
+            name=name,
+            length=b.length,
+            kappa_max=float(lim.kappa_max),
+            kappa_rate_max=float(rate),
+            phi_min=lim.phi_min,
+            phi_max=lim.phi_max,
+        )
+        cj = declared.get(name)
+        if cj is not None:
+            where = f"ros2_control.joint[{name}]"
+            cmds = tuple(i.name for i in cj.command_interfaces)
+            sts = tuple(i.name for i in cj.state_interfaces)
+            for i in cmds + sts:
+                if i not in ("kappa", "phi"):
+                    raise ConfigError(
+                        src,
+                        f"{where}.{i}",
+                        "a PCC bendable offers only 'kappa' and 'phi' interfaces",
+                    )
+            bl.command_interfaces = cmds
+            bl.state_interfaces = sts or cmds
+            for itf in cj.command_interfaces:
+                w = f"{where}.command_interface[{itf.name}]"
+                lo = _fparam(itf.params, "min", src, w)
+                hi = _fparam(itf.params, "max", src, w)
+                init = _fparam(itf.params, "initial_value", src, w)
+                if itf.name == "kappa":
+                    if hi is not None:
+                        if hi <= 0:
+                            raise ConfigError(src, w + ".max", f"must be > 0, got {hi}")
+                        bl.kappa_max = min(bl.kappa_max, hi)
+                    if lo is not None and lo > 0:
+                        raise ConfigError(
+                            src,
+                            w + ".min",
+                            "kappa is a magnitude; a minimum above 0 is not supported",
+                        )
+                    if init is not None:
+                        bl.kappa_initial = init
+                else:
+                    if lo is not None:
+                        bl.phi_min = max(bl.phi_min, lo)
+                    if hi is not None:
+                        bl.phi_max = min(bl.phi_max, hi)
+                    if init is not None:
+                        bl.phi_initial = init
+            if bl.phi_min >= bl.phi_max:
+                raise ConfigError(src, where, f"empty phi range [{bl.phi_min}, {bl.phi_max}]")
+            if not 0.0 <= bl.kappa_initial <= bl.kappa_max:
+                raise ConfigError(
+                    src,
+                    where + ".kappa.initial_value",
+                    f"{bl.kappa_initial} is outside [0, {bl.kappa_max}]",
+                )
+        out[name] = bl
+    return out

@@ -1,0 +1,407 @@
+"""Topology follower: the chain as it is now — the link, discovery, comparison with the U(C)RDF,
+``--adopt``, the hardware interface built for the matching segments, and what happens when the
+chain changes (hot-plug) or the port vanishes (reopen with back-off).
+
+A change (reported by :class:`host.supervision.Supervisor`): abort every running goal, HOLD the
+chain, rediscover, compare, cut the robot to the matching segments, build a new HWI and have
+:class:`host.motion.Motion` rebuild the controllers (they hold the measured position) — in the
+loop thread, without restarting. Talks to the rest through: ``motion.build`` /
+``motion.abort_goals``, ``fanout.publish`` / ``fanout.emit_event``, ``submit`` (publisher thread).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from host.config import DaemonConfig
+from host.controllers.base import ControllerContext
+from host.errors import DaemonError, TopologyError
+from host.hwi import HardwareInterface, robot_state_from
+from host.limits import bendable_limits
+from host.link import exchange_floor_s
+from host.motion import Motion
+from host.publisher import Fanout
+from host.topology import Comparison, adopt, chain_bendables, compare, truncate
+
+log = logging.getLogger("ucr.daemon")
+
+_DESCRIPTOR_BYTES = 200  # a DESCRIPTOR frame on the wire, bytes (upper estimate)
+
+
+class TopologyFollower:
+    """Keeps ``link``, ``hwi`` and ``robot`` matching the chain; ``link_state`` is one of
+    stopped, connected, waiting (no usable segment), reconnecting (port lost)."""
+
+    def __init__(
+        self,
+        cfg: DaemonConfig,
+        file_robot: Any,
+        *,
+        port: str,
+        rate_hz: float,
+        reply_timeout: float,
+        adopt: bool,
+        adopt_path: Path,
+        link_factory: Callable[[str, int], Any],
+        lock: threading.RLock,
+        motion: Motion,
+        fanout: Fanout,
+        submit: Callable[[Callable[[], None]], None],
+    ):
+        self.cfg = cfg
+        self.file_robot = file_robot
+        self.full_robot = file_robot  # the description hot-plug compares against (adopted if so)
+        self.robot = file_robot
+        self.port = port
+        self.rate_hz = rate_hz
+        self.reply_timeout = reply_timeout
+        self.adopt = adopt
+        self.adopt_path = adopt_path
+        self._link_factory = link_factory
+        self._lock = lock
+        self._motion = motion
+        self._fanout = fanout
+        self._submit = submit
+        self.link: Any = None
+        self.link_state = "stopped"
+        self.link_error = ""
+        self.hwi: HardwareInterface | None = None
+        self.descriptors: list[dict] = []
+        self.comparison: Comparison | None = None
+        self.cut: dict[str, Any] | None = None
+        self.topology_changes = 0
+        self.stalls = 0
+        self.hotplug_log: deque[dict] = deque(maxlen=20)
+        self._reconnect_at = 0.0
+        self._backoff = cfg.watchdog.reconnect_min_s
+        self.stopping = False
+
+    @property
+    def connected(self) -> bool:
+        return self.link is not None and self.hwi is not None and self.link_state == "connected"
+
+    # -- startup -----------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the port, discover, compare (adopt if allowed), build. Raises DaemonError."""
+        try:
+            self.link = self._link_factory(self.port, self.cfg.baudrate)
+        except OSError as exc:
+            raise DaemonError(str(exc)) from None
+        try:
+            descs = self.discover()
+        except OSError as exc:
+            self.close_link()
+            raise DaemonError(f"discovery on {self.port} failed: {exc}") from None
+        if not descs:
+            self.close_link()
+            raise DaemonError(f"no segment answered DISCOVER on {self.port}")
+        cmp = compare(self.full_robot, descs)
+        if not cmp.ok:
+            if not self.adopt:
+                self.close_link()
+                src = self.file_robot.source or self.file_robot.name
+                raise TopologyError(
+                    cmp,
+                    f"chain differs from {src}: {cmp.text()} (start with --adopt to use the "
+                    "chain as found)",
+                )
+            self._adopt(descs, cmp)
+            cmp = compare(self.full_robot, descs)
+        try:
+            self.build(descs, cmp, "startup")
+        except (OSError, ValueError) as exc:  # link failure, bad interface limits in the file
+            self.close_link()
+            raise DaemonError(f"cannot start on {self.port}: {exc}") from None
+        except DaemonError:
+            self.close_link()
+            raise
+        self.link_state = "connected"
+
+    def discover(self, quick: bool = False) -> list[dict]:
+        """DISCOVER. ``quick`` (after a hot-plug) bounds the wait by what the line needs: the new
+        tip may still believe its lost neighbour is present for 150 ms, so the link would
+        otherwise wait the whole configured timeout for an answer that will never come."""
+        timeout = self.cfg.watchdog.discover_timeout_s
+        if quick:
+            n = max(len(self.descriptors), 1) + 1
+            line_s = 2 * n * _DESCRIPTOR_BYTES * 10 / self.cfg.baudrate
+            timeout = min(timeout, max(0.08, line_s + 0.04))
+        return self.link.discover(timeout=timeout)
+
+    def _adopt(self, descs: list[dict], cmp: Comparison) -> None:
+        try:
+            robot = adopt(descs, self.file_robot.name, self.adopt_path)
+        except Exception as exc:  # noqa: BLE001 - composition failure is a user-facing error
+            raise DaemonError(f"--adopt: cannot compose a robot from the chain: {exc}") from None
+        log.warning(
+            "chain differs from the description (%s); adopted the chain as found and wrote %s",
+            cmp.text(),
+            self.adopt_path,
+        )
+        self.full_robot = robot
+        self._fanout.emit_event(
+            "adopted",
+            message=f"robot composed from the chain written to {self.adopt_path}",
+            path=str(self.adopt_path),
+            differences=[d.as_dict() for d in cmp.differences],
+        )
+
+    def build(self, descs: list[dict], cmp: Comparison, reason: str) -> None:
+        """New HWI and controllers for the first ``cmp.matched`` segments of ``descs``."""
+        keep = cmp.matched
+        robot = truncate(self.full_robot, keep)
+        order = chain_bendables(robot)
+        lim_all = bendable_limits(robot)
+        limits = {n: lim_all[n] for n in order}
+        # the last STATE of each bendable from the HWI being replaced: a segment that misses the
+        # first heartbeat is then held where it was last seen, not at zero
+        known = {}
+        if self.hwi is not None:
+            known = {
+                n: st for n, st in zip(self.hwi.names, self.hwi.last_states, strict=True) if st
+            }
+        hwi = HardwareInterface(limits, self.link, self.reply_timeout, known=known)
+        hwi.configure()
+        hwi.activate()
+        state = robot_state_from(hwi, time.monotonic())
+        ctx = ControllerContext(limits, robot, self._fanout.publish, self._submit)
+        with self._lock:
+            self.robot, self.hwi, self.descriptors, self.comparison = robot, hwi, descs, cmp
+            self._motion.build(ctx, state, reason)
+            expected = chain_bendables(self.full_robot)
+            if keep < len(expected):
+                lost = expected[keep:]
+                self.cut = {
+                    "after_position": keep - 1,
+                    "after": expected[keep - 1] if keep else None,
+                    "lost": lost,
+                }
+            else:
+                self.cut = None
+        self._warn_if_rate_exceeds_the_chain(len(order))
+        self._fanout.publish(
+            {"kind": "topology", "t": time.monotonic(), "reason": reason, **self.describe()}
+        )
+
+    def _warn_if_rate_exceeds_the_chain(self, n: int) -> None:
+        """Say so when a real UART chain of ``n`` segments cannot answer within a loop period."""
+        floor = exchange_floor_s(n, self.cfg.baudrate)
+        if floor <= self.reply_timeout:
+            return
+        max_rate = math.floor(0.8 / floor)
+        if floor > self.cfg.watchdog.reply_timeout_s:
+            advice = (
+                f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "
+                f"{max_rate}, or a higher baudrate"
+            )
+        else:
+            advice = f"use rate_hz <= {max_rate} or a higher baudrate"
+        log.warning(
+            "%d segment(s) at %d baud need at least %.1f ms per exchange on a real UART chain "
+            "(store-and-forward), more than the %.1f ms a %.0f Hz loop waits for their states: "
+            "states would arrive late or be missed; %s",
+            n,
+            self.cfg.baudrate,
+            floor * 1e3,
+            self.reply_timeout * 1e3,
+            self.rate_hz,
+            advice,
+        )
+
+    # -- changes (loop thread) ---------------------------------------------------------------
+    def hotplug(self, reason: str, t_detect: float, verify: bool = False) -> None:
+        """Hold, rediscover, abort, rebuild — in the loop thread, without restarting.
+
+        ``verify`` (silent segments, no event): if discovery finds the very same chain, the
+        silence was a stall (late replies, a loaded host): resume without aborting anything.
+        """
+        aborted: list[str] = []
+        if not verify:
+            log.warning("topology change: %s", reason)
+            aborted = self._motion.abort_goals(f"topology changed: {reason}")
+        try:
+            self.link.hold()
+            descs = self.discover(quick=True)
+        except OSError as exc:
+            self.link_lost(exc)
+            return
+        if verify and self.hwi is not None:
+            same = [d.get("uid") for d in descs] == [d.get("uid") for d in self.descriptors]
+            if same and descs:
+                self.hwi.missing = [0] * len(self.hwi.names)
+                self.hwi.resume_pending = True
+                self.stalls += 1
+                self._fanout.emit_event(
+                    "link_stall",
+                    message=f"{reason}, but the chain is unchanged: resumed",
+                    reason=reason,
+                    stall_s=round(time.monotonic() - t_detect, 4),
+                )
+                log.warning("stall: %s; chain unchanged, resumed", reason)
+                return
+            log.warning("topology change: %s", reason)
+            aborted = self._motion.abort_goals(f"topology changed: {reason}")
+        self.topology_changes += 1
+        if not descs:
+            self._lost_chain(f"{reason}; no segment answers DISCOVER")
+            return
+        cmp = compare(self.full_robot, descs)
+        if not cmp.ok and self.adopt and cmp.matched < len(descs):
+            try:
+                self._adopt(descs, cmp)
+                cmp = compare(self.full_robot, descs)
+            except DaemonError as exc:
+                log.error("%s", exc)
+        if cmp.matched == 0:
+            self._lost_chain(f"{reason}; {cmp.text()}")
+            return
+        t_disc = time.monotonic()
+        try:
+            self.build(descs, cmp, reason)
+        except OSError as exc:
+            self.link_lost(exc)
+            return
+        t_ready = time.monotonic()
+        self.hotplug_log.append(
+            {
+                "t": t_detect,
+                "reason": reason,
+                "segments": list(self.hwi.names),
+                "aborted_goals": aborted,
+                "discover_s": t_disc - t_detect,
+                "rebuild_s": t_ready - t_detect,
+                "cut": self.cut,
+                "differences": [d.as_dict() for d in cmp.differences],
+            }
+        )
+        msg = f"now {len(self.hwi.names)} segment(s): {', '.join(self.hwi.names)}"
+        if self.cut:
+            msg += (
+                f"; chain cut after {self.cut['after']} (position "
+                f"{self.cut['after_position']}): {', '.join(self.cut['lost'])} unreachable"
+            )
+        extra = [d.message for d in cmp.differences if d.blocking and d.kind != "count"]
+        if extra:
+            msg += "; " + "; ".join(extra)
+        self._fanout.emit_event(
+            "topology_changed",
+            message=f"{reason}: {msg}",
+            reason=reason,
+            segments=list(self.hwi.names),
+            cut=self.cut,
+            aborted_goals=aborted,
+            rebuild_s=round(t_ready - t_detect, 4),
+        )
+        log.warning("rebuilt in %.0f ms: %s", (t_ready - t_detect) * 1e3, msg)
+
+    def _lost_chain(self, why: str) -> None:
+        """No usable segment: keep the port, retry discovery with back-off."""
+        log.error("chain lost: %s", why)
+        self.link_state = "waiting"
+        self.link_error = why
+        self._reconnect_at = time.monotonic() + self._backoff
+        with self._lock:
+            self.hwi = None
+        self._fanout.emit_event("chain_lost", message=why)
+
+    def link_lost(self, exc: BaseException) -> None:
+        """The port failed: abort goals, drop the HWI, close; :meth:`recover` reopens it."""
+        log.error("link lost: %s", exc)
+        with self._lock:
+            self._motion.abort_goals(f"link lost: {exc}")
+            self.hwi = None
+        self.close_link()
+        self.link_state = "reconnecting"
+        self.link_error = str(exc)
+        self._reconnect_at = time.monotonic() + self._backoff
+        self._fanout.emit_event("link_lost", message=str(exc))
+
+    def recover(self) -> None:
+        """Called by the loop while disconnected: reopen/rediscover when the back-off allows."""
+        if self.stopping:
+            return
+        now = time.monotonic()
+        if now < self._reconnect_at:
+            return
+        wd = self.cfg.watchdog
+        try:
+            if self.link is None:
+                self.link = self._link_factory(self.port, self.cfg.baudrate)
+            descs = self.discover()
+        except OSError as exc:
+            if self.link is not None:
+                self.close_link()  # reopen from scratch next time
+            self.link_error = str(exc)
+            self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
+            self._reconnect_at = now + self._backoff
+            return
+        cmp = compare(self.full_robot, descs) if descs else None
+        if not descs or cmp.matched == 0:
+            self.link_error = "no matching segment answers" if descs else "no segment answers"
+            self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
+            self._reconnect_at = now + self._backoff
+            return
+        try:
+            self.build(descs, cmp, "reconnected")
+        except OSError as exc:
+            self.link_lost(exc)
+            return
+        self.link_state = "connected"
+        self.link_error = ""
+        self._backoff = wd.reconnect_min_s
+        self._fanout.emit_event(
+            "link_restored",
+            message=f"{len(self.hwi.names)} segment(s) back on {self.port}",
+            segments=list(self.hwi.names),
+        )
+
+    def close_link(self) -> None:
+        link, self.link = self.link, None
+        if link is not None:
+            try:
+                link.close()
+            except OSError:
+                pass
+
+    # -- read by the facade ------------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
+        """The chain as discovered, what is controlled, differences, cuts (caller holds lock)."""
+        cmp = self.comparison
+        controlled = set(self.hwi.names) if self.hwi else set()
+        names = chain_bendables(self.full_robot)
+        segs = []
+        for d in self.descriptors:
+            pos = d.get("position", len(segs))
+            segs.append(
+                {
+                    "position": pos,
+                    "bendable": names[pos] if pos < len(names) else None,
+                    "name": d.get("name"),
+                    "uid": d.get("uid"),
+                    "model": d.get("model"),
+                    "length": d.get("length"),
+                    "kappa_max": d.get("kappa_max"),
+                    "kappa_rate_max": d.get("kappa_rate_max"),
+                    "fw_version": d.get("fw_version"),
+                    "watchdog_ms": d.get("watchdog_ms"),
+                    "controlled": pos < len(names) and names[pos] in controlled,
+                }
+            )
+        return {
+            "robot": self.robot.name,
+            "file": self.full_robot.source or None,
+            "expected": names,
+            "segments": segs,
+            "controlled": list(self.hwi.names) if self.hwi else [],
+            "matched": cmp.matched if cmp else 0,
+            "ok": bool(cmp and cmp.ok),
+            "differences": [d.as_dict() for d in cmp.differences] if cmp else [],
+            "cut": self.cut,
+        }
