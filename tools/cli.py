@@ -12,7 +12,7 @@ import importlib
 import os
 import sys
 
-_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli", "host.client_cli")
+_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli", "tools.demo", "host.client_cli")
 
 
 def build_parser() -> argparse.ArgumentParser:

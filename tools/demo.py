@@ -1,0 +1,289 @@
+"""``ucr demo``: the host daemon driving an emulated 3-segment robot (real firmware on the
+MicroPython VM): discovery, a demo trajectory with live state, then segment 3 unplugged and plugged
+back during a motion. Lives in tools/ because it needs the emulator; ``./run.sh demo`` runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from host.cli import print_error, setup_logging, start_api
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO_ROBOT = REPO / "robots" / "softrobot3.ucrdf"
+
+
+def register(subparsers: Any) -> None:
+    d = subparsers.add_parser(
+        "demo",
+        help="the daemon driving an emulated 3-segment robot (no hardware needed)",
+        description="Starts 3 emulated segments (real firmware on the MicroPython VM), the daemon "
+        "and its API, runs a demo trajectory with live state, then unplugs and replugs segment 3.",
+    )
+    d.add_argument(
+        "--forever", action="store_true", help="keep running (API up, state printed) until Ctrl-C"
+    )
+    d.add_argument("--no-api", action="store_true", help="do not start the network API")
+    d.add_argument("--api-port", type=int, default=0, help="API port (default: a free one)")
+    d.add_argument("--quiet-log", action="store_true", help="only warnings from the daemon log")
+    d.set_defaults(func=cmd_demo)
+
+
+# -- demo -------------------------------------------------------------------------------------
+
+
+def _fmt_state(js: dict | None, tf: dict | None) -> str:
+    if js is None:
+        return "(no state yet)"
+    parts = []
+    for name, k, p, ok in zip(js["names"], js["kappa"], js["phi"], js["valid"], strict=True):
+        short = name.replace("segment_", "s")
+        parts.append(f"{short} κ={k:4.2f} φ={math.degrees(p):6.1f}°" if ok else f"{short} --")
+    line = " | ".join(parts)
+    if tf is not None:
+        x, y, z = (v * 1000 for v in tf["tip"]["xyz"])
+        line += f" | tip ({x:6.1f}, {y:6.1f}, {z:6.1f}) mm"
+    return line
+
+
+class _Printer(threading.Thread):
+    """Prints one compact state line per 0.2 s and every event/topology message."""
+
+    def __init__(self, daemon: Any, t0: float):
+        super().__init__(name="ucr-demo-printer", daemon=True)
+        self.q = daemon.subscribe(["joint_states", "transforms", "event", "topology"])
+        self.daemon_ = daemon
+        self.t0 = t0
+        self.stop = threading.Event()
+        self.js: dict | None = None
+        self.tf: dict | None = None
+        self.topologies: list[dict] = []
+        self._last_event: dict[tuple, float] = {}
+
+    def _quiet(self, msg: dict) -> bool:
+        """Repeated segment events (e.g. LIMIT_CLAMPED on every step) print once per 2 s."""
+        if msg.get("source") != "segment":
+            return False
+        key = (msg["event"], msg.get("position"))
+        now = time.monotonic()
+        if now - self._last_event.get(key, -1e9) < 2.0:
+            return True
+        self._last_event[key] = now
+        return False
+
+    def run(self) -> None:
+        import queue  # noqa: PLC0415
+
+        next_print = time.monotonic()
+        while not self.stop.is_set():
+            try:
+                msg = self.q.get(timeout=0.05)
+            except queue.Empty:
+                msg = None
+            if msg is not None:
+                kind = msg["kind"]
+                if kind == "joint_states":
+                    self.js = msg
+                elif kind == "transforms":
+                    self.tf = msg
+                elif kind == "event" and self._quiet(msg):
+                    pass
+                elif kind == "event":
+                    print(
+                        f"[{time.monotonic() - self.t0:5.1f}s] event {msg['event']}: "
+                        f"{msg.get('message', '')}",
+                        flush=True,
+                    )
+                elif kind == "topology":
+                    self.topologies.append(msg)
+                    print(
+                        f"[{time.monotonic() - self.t0:5.1f}s] topology: "
+                        f"{len(msg['controlled'])} segment(s) {msg['controlled']}"
+                        + (f", cut after {msg['cut']['after']}" if msg.get("cut") else ""),
+                        flush=True,
+                    )
+            if time.monotonic() >= next_print:
+                next_print += 0.2
+                print(
+                    f"[{time.monotonic() - self.t0:5.1f}s] {_fmt_state(self.js, self.tf)}",
+                    flush=True,
+                )
+        self.daemon_.unsubscribe(self.q)
+
+
+def demo_trajectory(names: list[str], kappa: float) -> list[dict]:
+    """Bend each segment in turn, sweep phi around a full circle, return to straight."""
+    pts: list[dict] = []
+    t = 0.0
+    for i, n in enumerate(names):
+        t += 1.2
+        pts.append({"time_from_start": t, "segments": {n: {"kappa": kappa, "phi": 2.0944 * i}}})
+    steps = 12
+    for k in range(1, steps + 1):
+        t += 0.35
+        phi = math.atan2(math.sin(2 * math.pi * k / steps), math.cos(2 * math.pi * k / steps))
+        pts.append(
+            {
+                "time_from_start": t,
+                "segments": {n: {"kappa": kappa * 0.7, "phi": phi} for n in names},
+            }
+        )
+    t += 1.5
+    pts.append({"time_from_start": t, "segments": {n: {"kappa": 0.0, "phi": 0.0} for n in names}})
+    return pts
+
+
+def _wait(cond: Any, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from host.config import DaemonConfig  # noqa: PLC0415
+    from host.daemon import Daemon, DaemonError  # noqa: PLC0415
+    from tools.emulator import EmulatedChain  # noqa: PLC0415 - keep `ucr --help` fast
+    from tools.segment_config import config_for  # noqa: PLC0415
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    setup_logging("WARNING" if args.quiet_log else "INFO")
+    robot = load(DEMO_ROBOT)
+    names = list(robot.bendables)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    t0 = time.monotonic()
+    print(
+        f"ucr demo: starting {len(names)} emulated segments (real firmware on the MicroPython "
+        f"VM) for {DEMO_ROBOT.name}",
+        flush=True,
+    )
+    with EmulatedChain(len(names), config_for=lambda k: config_for(robot, names[k])) as chain:
+        cfg = DaemonConfig(port=chain.host_port)
+        daemon = Daemon(robot, cfg)
+        deadline = time.monotonic() + 15.0
+        while True:  # the segments need a moment to boot
+            try:
+                daemon.start()
+                break
+            except DaemonError as exc:
+                if time.monotonic() > deadline:
+                    return print_error(f"demo: {exc}")
+                time.sleep(0.3)
+        api = None
+        try:
+            if not args.no_api:
+                try:
+                    api = start_api(daemon, "127.0.0.1", args.api_port, None)
+                    if api is not None:
+                        print(f"API on {api.url} (try `ucr status --url {api.url}`)", flush=True)
+                except Exception as exc:  # noqa: BLE001 - the demo runs without API
+                    print(f"API not started: {exc}", flush=True)
+            topo = daemon.topology()
+            print(
+                f"discovered {len(topo['segments'])} segment(s): "
+                + ", ".join(
+                    f"{s['bendable']} (uid {s['uid']}, fw {s['fw_version']})"
+                    for s in topo["segments"]
+                ),
+                flush=True,
+            )
+            printer = _Printer(daemon, t0)
+            printer.start()
+            try:
+                rc = _demo_script(daemon, chain, names, printer, stop, args.forever)
+            finally:
+                printer.stop.set()
+                printer.join(1.0)
+            stats = daemon.loop_stats()
+            print(
+                f"loop: {stats['cycles']} cycles at {stats['rate_hz']:.0f} Hz, compute mean "
+                f"{stats['compute_us']['mean']:.0f} µs (p99 {stats['compute_us']['p99']:.0f}), "
+                f"jitter p99 {stats['jitter_us']['p99']:.0f} µs, overruns {stats['overruns']} "
+                "(this process also runs the emulator; see benchmarks/bench_host.py)",
+                flush=True,
+            )
+            for h in stats["hotplug"]:
+                print(
+                    f"hot-plug: {h['reason']} -> {h['segments']} in {h['rebuild_s'] * 1000:.0f} ms",
+                    flush=True,
+                )
+        finally:
+            if api is not None:
+                api.stop()
+            daemon.stop(hold=True)
+    print(f"ucr demo: done in {time.monotonic() - t0:.1f} s", flush=True)
+    return rc
+
+
+def _demo_script(
+    daemon: Any,
+    chain: Any,
+    names: list[str],
+    printer: _Printer,
+    stop: threading.Event,
+    forever: bool,
+) -> int:
+    kappa = 0.6 * min(daemon.hwi.limits[n].kappa_max for n in names)
+    print(
+        "== demo trajectory: bend each segment in turn, a circle of phi, back to straight",
+        flush=True,
+    )
+    gid = daemon.send_trajectory(demo_trajectory(names, kappa))
+    ok = _wait(lambda: daemon.trajectory_status(gid)["done"] or stop.is_set(), 40.0)
+    st = daemon.trajectory_status(gid)
+    print(
+        f"== trajectory {st['state']}{': ' + st['reason'] if st['reason'] else ''} "
+        f"(duration {st['duration']:.1f} s, max path error {st['max_path_error']:.3f} 1/m)",
+        flush=True,
+    )
+    if not ok or st["state"] != "succeeded":
+        return 1
+    if stop.is_set():
+        return 0
+    print("== hot-plug: unplugging segment 3 during a motion", flush=True)
+    daemon.send_trajectory(
+        [{"time_from_start": 3.0, "segments": {n: {"kappa": kappa, "phi": 1.0} for n in names}}]
+    )
+    time.sleep(1.0)
+    t_unplug = time.monotonic()
+    chain.unplug(len(names) - 1)
+    if not _wait(lambda: len(daemon.status()["segments"]) == len(names) - 1, 5.0):
+        print("== segment 3 removal was not detected", flush=True)
+        return 1
+    print(
+        f"== rebuilt as {len(names) - 1} segments {time.monotonic() - t_unplug:.2f} s after "
+        "the unplug; plugging it back",
+        flush=True,
+    )
+    time.sleep(1.0)
+    t_plug = time.monotonic()
+    chain.plug(len(names) - 1)
+    if not _wait(lambda: len(daemon.status()["segments"]) == len(names), 5.0):
+        print("== segment 3 was not found again", flush=True)
+        return 1
+    print(
+        f"== {len(names)} segments again {time.monotonic() - t_plug:.2f} s after the plug; "
+        "back to straight",
+        flush=True,
+    )
+    gid = daemon.send_trajectory(
+        [{"time_from_start": 2.0, "segments": {n: {"kappa": 0.0, "phi": 0.0} for n in names}}]
+    )
+    _wait(lambda: daemon.trajectory_status(gid)["done"], 10.0)
+    if forever:
+        print("== running until Ctrl-C", flush=True)
+        try:
+            while not stop.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+    return 0
