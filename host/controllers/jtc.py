@@ -23,7 +23,6 @@ with a reason and holds the measured position.
 
 from __future__ import annotations
 
-import bisect
 import itertools
 import math
 import time
@@ -41,222 +40,26 @@ from host.controllers.base import (
     RobotState,
     clamp_radial,
 )
+from host.controllers.trajectory import (
+    TERMINAL_STATES,
+    CurvatureTrajectory,
+    Goal,
+    GoalStart,
+    StaleGoalError,
+    quintic_coeffs,
+)
+
+__all__ = [
+    "CurvatureTrajectory",
+    "Goal",
+    "GoalStart",
+    "JointTrajectoryController",
+    "StaleGoalError",
+    "quintic_coeffs",
+]
 
 MAX_WAYPOINTS = 2000
 MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
-_SAMPLES = 33  # samples per piece when checking the rate limit
-_TERMINAL = ("succeeded", "aborted", "canceled", "rejected")
-
-
-def quintic_coeffs(
-    p0: np.ndarray,
-    v0: np.ndarray,
-    a0: np.ndarray,
-    p1: np.ndarray,
-    v1: np.ndarray,
-    a1: np.ndarray,
-    T: float,
-) -> np.ndarray:
-    """Coefficients c0..c5 (last axis) of the quintic with the given boundary values over [0, T]."""
-    T2, T3 = T * T, T * T * T
-    c3 = (20 * (p1 - p0) - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T2) / (2 * T3)
-    c4 = (30 * (p0 - p1) + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T2) / (2 * T3 * T)
-    c5 = (12 * (p1 - p0) - 6 * (v1 + v0) * T - (a0 - a1) * T2) / (2 * T3 * T2)
-    return np.stack([p0, v0, a0 / 2.0, c3, c4, c5], axis=-1)
-
-
-class CurvatureTrajectory:
-    """A timed path for J bendables in (kx, ky): knots, piecewise quintics, evaluation.
-
-    ``start`` arrays are (J, 2): position (1/m), velocity (1/m/s), acceleration (1/m/s^2) at
-    ``t0``; ``knots`` is a list of (time_from_start s, (J, 2) positions) with increasing times.
-    ``rate_max`` (J,) is the allowed |d(kx, ky)/dt| per bendable; pieces are stretched until it
-    holds (``retimed`` tells whether that happened).
-    """
-
-    def __init__(
-        self,
-        t0: float,
-        p0: np.ndarray,
-        v0: np.ndarray,
-        a0: np.ndarray,
-        knots: list[tuple[float, np.ndarray]],
-        rate_max: np.ndarray,
-        max_iterations: int = 30,
-    ):
-        self.t0 = t0
-        self.positions = np.stack([p0] + [p for _, p in knots])  # (m+1, J, 2)
-        times = [0.0] + [t for t, _ in knots]
-        self.requested_durations = np.diff(times)
-        self.durations = self.requested_durations.astype(float).copy()
-        self.v0, self.a0 = v0, a0
-        self.rate_max = rate_max
-        self.retimed = False
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            self._retime(max_iterations)  # non-finite values are checked, not warned about
-        self.ends = np.cumsum(self.durations).tolist()
-        self.duration = self.ends[-1]
-        self.final = self.positions[-1]
-        self._final_list = self.final.tolist()
-
-    def _retime(self, max_iterations: int) -> None:
-        """Stretch the pieces until the rate limit holds (raises ControllerError if the path
-        cannot be computed)."""
-        for _ in range(max_iterations):
-            self._build()
-            if not np.isfinite(self.coeffs).all():
-                raise ControllerError(
-                    "trajectory: the path cannot be computed (non-finite coefficients; are the "
-                    "waypoints too close in time?)"
-                )
-            ratio = self._rate_ratios()
-            over = ~(ratio <= 1.0)  # NaN counts as over: never skip retiming on it
-            if not over.any():
-                break
-            self.retimed = True
-            finite = np.isfinite(ratio)
-            self.durations[over & finite] *= ratio[over & finite] * 1.02
-            self.durations[over & ~finite] *= 2.0
-        else:
-            self._build()  # the coefficients must match the last stretched durations
-            if not (np.isfinite(self.coeffs).all() and np.isfinite(self._rate_ratios()).all()):
-                raise ControllerError("trajectory: the rate along the path cannot be computed")
-
-    def _build(self) -> None:
-        P, d = self.positions, self.durations
-        m = len(d)
-        V = np.zeros_like(P)
-        A = np.zeros_like(P)
-        V[0], A[0] = self.v0, self.a0
-        if m > 1:
-            slopes = (P[1:] - P[:-1]) / d[:, None, None]
-            s_in, s_out = slopes[:-1], slopes[1:]
-            same = np.sign(s_in) * np.sign(s_out) > 0
-            V[1:-1] = np.where(same, 0.5 * (s_in + s_out), 0.0)
-        self.coeffs = np.stack(
-            [
-                quintic_coeffs(P[i], V[i], A[i], P[i + 1], V[i + 1], A[i + 1], float(d[i]))
-                for i in range(m)
-            ]
-        )  # (m, J, 2, 6)
-
-    def _rate_ratios(self) -> np.ndarray:
-        """Per piece: max over samples and bendables of |v| / rate_max."""
-        m = len(self.durations)
-        out = np.zeros(m)
-        u = np.linspace(0.0, 1.0, _SAMPLES)
-        for i in range(m):
-            tau = u * self.durations[i]
-            pw = np.stack(
-                [np.zeros_like(tau), np.ones_like(tau), 2 * tau, 3 * tau**2, 4 * tau**3, 5 * tau**4]
-            )  # (6, S)
-            vel = self.coeffs[i] @ pw  # (J, 2, S)
-            speed = np.hypot(vel[:, 0, :], vel[:, 1, :]).max(axis=1)  # (J,)
-            out[i] = float((speed / self.rate_max).max())
-        return out
-
-    def position(self, t: float) -> list[list[float]]:
-        """Position only (J lists of [kx, ky]) at absolute time ``t``: the per-cycle fast path."""
-        tau = t - self.t0
-        if tau >= self.duration:
-            return self._final_list
-        tau = max(tau, 0.0)
-        i = bisect.bisect_right(self.ends, tau)
-        s = tau - (self.ends[i - 1] if i > 0 else 0.0)
-        s2 = s * s
-        return (self.coeffs[i] @ (1.0, s, s2, s2 * s, s2 * s2, s2 * s2 * s)).tolist()
-
-    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity, acceleration (each (J, 2)) at absolute time ``t``."""
-        tau = t - self.t0
-        if tau >= self.duration:
-            z = np.zeros_like(self.final)
-            return self.final.copy(), z, z.copy()
-        tau = max(tau, 0.0)
-        i = bisect.bisect_right(self.ends, tau)
-        start = self.ends[i - 1] if i > 0 else 0.0
-        s = tau - start
-        c = self.coeffs[i]
-        s2, s3 = s * s, s * s * s
-        p = c @ np.array([1.0, s, s2, s3, s3 * s, s3 * s2])
-        v = c @ np.array([0.0, 1.0, 2 * s, 3 * s2, 4 * s3, 5 * s3 * s])
-        a = c @ np.array([0.0, 0.0, 2.0, 6 * s, 12 * s2, 20 * s3])
-        return p, v, a
-
-
-class StaleGoalError(ControllerError):
-    """A goal built outside the daemon lock no longer fits: the controller's motion changed (or
-    the build took longer than the lead it was planned with) before it could be installed."""
-
-
-class GoalStart:
-    """Where a goal built outside the daemon lock starts: a snapshot of the controller's desired
-    motion at ``t_start`` (s, monotonic), taken under the lock by ``goal_snapshot``."""
-
-    def __init__(
-        self,
-        t_start: float,
-        p: np.ndarray,
-        v: np.ndarray,
-        a: np.ndarray,
-        generation: int,
-        at_rest: bool,
-    ):
-        self.t_start = t_start
-        self.p, self.v, self.a = p, v, a
-        self.generation = generation
-        self.at_rest = at_rest
-
-
-class Goal:
-    """One trajectory request and its fate; ``status()`` is what the caller sees."""
-
-    def __init__(self, goal_id: str, controller: str, n_points: int):
-        self.id = goal_id
-        self.controller = controller
-        self.n_points = n_points
-        self.state = "pending"
-        self.reason = ""
-        self.t_accepted: float | None = None
-        # the path while the goal runs; dropped when it ends (a 2000-point path is megabytes and
-        # hundreds of finished goals are kept), leaving only the figures below
-        self.trajectory: CurvatureTrajectory | None = None
-        self.duration: float | None = None  # s, after retiming
-        self.requested_duration: float | None = None  # s, as requested
-        self.retimed = False
-        self.progress = 0.0
-        self.max_error = 0.0
-        self.final_error: dict[str, float] = {}
-
-    def finish(self, state: str, reason: str = "") -> None:
-        if self.state not in _TERMINAL:
-            self.state, self.reason = state, reason
-        self._summarise()
-        self.trajectory = None
-
-    def _summarise(self) -> None:
-        tr = self.trajectory
-        if tr is not None:
-            self.duration = tr.duration
-            self.requested_duration = float(tr.requested_durations.sum())
-            self.retimed = bool(tr.retimed)
-
-    def status(self) -> dict[str, Any]:
-        self._summarise()
-        return {
-            "id": self.id,
-            "controller": self.controller,
-            "state": self.state,
-            "reason": self.reason,
-            "progress": round(self.progress, 4),
-            "duration": self.duration,
-            "requested_duration": self.requested_duration,
-            "retimed": self.retimed,
-            "points": self.n_points,
-            "max_path_error": self.max_error,
-            "final_error": dict(self.final_error),
-            "done": self.state in _TERMINAL,
-        }
 
 
 def _finite(v: Any) -> bool:
@@ -509,7 +312,7 @@ class JointTrajectoryController(Controller):
         g = self._goals.get(goal_id)
         if g is None:
             raise ControllerError(f"unknown goal id {goal_id!r}")
-        if g is not self._goal or g.state in _TERMINAL:
+        if g is not self._goal or g.state in TERMINAL_STATES:
             return False
         g.finish(state, reason)
         self._goal = None

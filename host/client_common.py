@@ -1,0 +1,70 @@
+"""Shared pieces of the client commands (host/client_cli.py, host/client_motion.py): connecting
+to the daemon's API, turning every failure into one line and an exit code, unit formatting."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from typing import Any
+
+from host.api import default_url
+
+_PROG = "ucr"
+
+
+class CliError(Exception):
+    """A user-facing failure: printed as one line, exit code 1."""
+
+
+def say_error(message: str) -> None:
+    """One error line on stderr, prefixed ``ucr:``."""
+    print(f"{_PROG}: {message}", file=sys.stderr)
+
+
+def connect_daemon(args: argparse.Namespace) -> Any:
+    from host.api.client import ApiAuthError, ApiConnectionError, connect  # noqa: PLC0415
+
+    url = args.url or default_url()
+    try:
+        return connect(url, token=args.token, timeout=args.timeout)
+    except ApiAuthError as exc:
+        raise CliError(exc.message) from None
+    except ApiConnectionError as exc:
+        if exc.code == "bad_url":
+            raise CliError(exc.message) from None
+        raise CliError(f"cannot reach the daemon at {url}: is `ucr daemon` running?") from None
+
+
+def with_client(args: argparse.Namespace, body: Any) -> int:
+    """Connect, run ``body(client)``, turn every API failure into one line and exit code 1."""
+    from host.api.client import ApiConnectionError, ApiError  # noqa: PLC0415
+
+    try:
+        client = connect_daemon(args)
+    except CliError as exc:
+        say_error(str(exc))
+        return 1
+    try:
+        return int(body(client) or 0)
+    except CliError as exc:
+        say_error(str(exc))
+        return 1
+    except ApiConnectionError as exc:
+        say_error(f"{exc.message}")
+        return 1
+    except ApiError as exc:
+        say_error(f"{exc.code}: {exc.message}")
+        return 1
+    finally:
+        client.close()
+
+
+def deg(rad: float | None) -> str:
+    """An angle in rad as degrees for people (``n/a`` if unknown)."""
+    return "  n/a" if rad is None else f"{math.degrees(rad):6.1f}°"
+
+
+def kap(k: float | None) -> str:
+    """A curvature in 1/m, fixed width (``n/a`` if unknown)."""
+    return "  n/a" if k is None else f"{k:6.3f}"
