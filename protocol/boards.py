@@ -46,8 +46,9 @@ _C3_RESERVED = _reserve(
 
 # uarts: hardware UART count; repl_uart: the UART stock MicroPython gives the REPL (None: REPL
 # on native USB only, a custom build); heap: bytes the firmware must fit in (-X heapsize in the
-# emulator); tick_hz: FreeRTOS tick (select.poll timeouts end on it); mhz: stock CPU clock;
-# pystones: pystone 1.2 score of stock MicroPython at that clock (CPU factor of the emulator).
+# emulator; the unix VM's 64-bit objects make that stricter than on the 32-bit board); tick_hz:
+# FreeRTOS tick (select.poll timeouts end on it); mhz: stock CPU clock; pystones: pystone 1.2
+# score of stock MicroPython at that clock (the emulator's CPU factor).
 BOARDS = {
     "esp32": {
         "chip": "ESP32",
@@ -116,7 +117,7 @@ BOARDS = {
         },
         "bus": None,
         "pwm": [6, 7, 10, 0, 1, 3],
-        "heap": 131072,
+        "heap": 163840,
         "tick_hz": 100,
         "mhz": 160,
         "pystones": 1292,
