@@ -98,7 +98,9 @@ class TickPoller:
 
 
 def host_spin(poller, deadline):
-    """The ESP32 spin's outcome (back at the deadline or on input) with little host CPU."""
+    """The ESP32 spin's outcome (back at the deadline or on input) with little host CPU: the
+    board's ``ipoll(0)`` never sleeps, so the host's poller (not the tick model) does the waiting."""
+    poller = getattr(poller, "poller", poller)
     while True:
         rem = time.ticks_diff(deadline, time.ticks_us())
         if rem <= 0:

@@ -17,8 +17,8 @@ def wait(poller, ms, tick_us, spin):
     deadline = time.ticks_add(time.ticks_us(), ms * 1000)
     if tick_us:
         rem = ms * 1000
-        if rem > tick_us + 1000:
-            for _ in poller.ipoll((rem - tick_us) // 1000):
+        if rem >= tick_us + 2000:  # ipoll(T) ends within [T, T + one tick): keep a tick spare
+            for _ in poller.ipoll((rem - tick_us - 1000) // 1000):
                 return
         spin(poller, deadline)
         return
