@@ -108,6 +108,8 @@ def cmd_flash(args: argparse.Namespace) -> int:
         )
     except FlashError as exc:
         return _error(str(exc))
+    except KeyboardInterrupt:
+        return _error("interrupted before the board was touched")
     return 0
 
 
