@@ -99,7 +99,7 @@ class TickPoller:
 
 def host_spin(poller, deadline):
     """The ESP32 spin's outcome (back at the deadline or on input) with little host CPU: the
-    board's ``ipoll(0)`` never sleeps, so the host's poller (not the tick model) does the waiting."""
+    board's ``ipoll(0)`` never sleeps, so the host's poller (not the tick model) waits here."""
     poller = getattr(poller, "poller", poller)
     while True:
         rem = time.ticks_diff(deadline, time.ticks_us())
@@ -112,3 +112,24 @@ def host_spin(poller, deadline):
             for _ in poller.ipoll(0):
                 return
             time.sleep_us(100 if rem > 100 else rem)
+
+
+class StretchUart:
+    """A UART under the timing model: a write first waits out the board's compute time."""
+
+    def __init__(self, uart, hal):
+        self.uart = uart
+        self.hal = hal
+        self.f = uart.f
+        self.irq_set = uart.irq_set
+
+    def readinto(self, buf):
+        return self.uart.readinto(buf)
+
+    def write(self, buf, n=-1):
+        self.hal.stretch()
+        return self.uart.write(buf, n)
+
+    def irq(self, handler=None, trigger=0):
+        self.uart.irq(handler, trigger)
+        self.irq_set = self.uart.irq_set

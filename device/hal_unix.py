@@ -4,7 +4,8 @@ Environment (docs/architecture.md, "Running firmware on the unix port"): ``UCR_U
 ``UCR_DOWN_PORT`` (pty paths; a missing one is an unconnected port), ``UCR_UID`` (hex unique id),
 ``UCR_FAULTS`` (optional fault injection spec for the emulated servos, see servos/emulated.py),
 ``UCR_BOARD`` (board to emulate, overriding config.json's ``board``), ``UCR_TIMING`` ("1": the
-board's timing model) and ``UCR_CPU_FACTOR`` (how much slower than this host the board computes).
+board's timing model), ``UCR_CPU_FACTOR`` (how much slower than this host the board computes) and
+``UCR_NAIVE_WAIT`` ("1", benchmarks only: wait as the firmware did before issue 11, one poll).
 
 The board is as strict as the real one (docs/emulator.md, "Boards"): the emulated ``machine``
 (:class:`BoardMachine`) refuses a UART the chip lacks or the REPL owns, a pin it lacks or has
@@ -148,6 +149,10 @@ class Hal:
             # the ESP32 HAL's rx irq (hal_esp32.py): the model wakes on input like the port
             for u in (self.up, self.down):
                 u.irq(trigger=emu_board.BoardMachine.IRQ_RX)
+            # bytes leave when the board would have computed them
+            self.up = emu_board.StretchUart(self.up, self)
+            self.down = emu_board.StretchUart(self.down, self)
+        self.naive_wait = os.getenv("UCR_NAIVE_WAIT") == "1"
         self._busy_from = time.ticks_us()
 
     def uid(self):
@@ -180,10 +185,8 @@ class Hal:
                 break
             return
         start = time.ticks_us()
-        extra = int(time.ticks_diff(start, self._busy_from) * (self.cpu_factor - 1.0))
-        if extra > 0:
-            time.sleep_us(extra)
-            ms -= extra // 1000
+        self.stretch()
+        ms -= time.ticks_diff(time.ticks_us(), start) // 1000
         if ms > 0:
             for _, ev in self._host_poller.ipoll(0):
                 if ev & (select.POLLHUP | select.POLLERR):
@@ -191,7 +194,20 @@ class Hal:
                     ms = 0
                 break
         if ms > 0:
-            waiting.wait(self.poller, ms, self.tick_us, self._spin)
+            if self.naive_wait:  # the pre-fix firmware: one poll, tick-granular on the board
+                for _ in self.poller.ipoll(ms):
+                    break
+            else:
+                waiting.wait(self.poller, ms, self.tick_us, self._spin)
+        self._busy_from = time.ticks_us()
+
+    def stretch(self):
+        """Timing model: the board is still computing what this host did since the last wait
+        or write: hold for that time x (cpu_factor - 1)."""
+        now = time.ticks_us()
+        extra = int(time.ticks_diff(now, self._busy_from) * (self.cpu_factor - 1.0))
+        if extra > 0:
+            time.sleep_us(extra)
         self._busy_from = time.ticks_us()
 
     def servo_uart(self, bus_cfg):

@@ -212,22 +212,25 @@ class Flasher:
     def _enter_raw_repl(self, timeout: float) -> None:
         """Ctrl-C, Ctrl-A, then the raw REPL banner within ``timeout`` s overall, however much
         the device talks (mpremote's own loop restarts its timeout on every byte it reads).
-        Bytes are read one at a time so the prompt after the banner stays for mpremote."""
+        Retried every second (a board still booting may miss the first Ctrl-C). Bytes are read
+        one at a time so the prompt after the banner stays for mpremote."""
         ser = self.t.serial
         end = time.monotonic() + timeout
-        ser.write(b"\r\x03\x03")  # stop a running program (resume semantics: no soft reset)
-        quiet_until = time.monotonic() + 0.2
-        while time.monotonic() < min(quiet_until, end) and ser.read(256):
-            pass  # drop what the program printed
-        ser.write(b"\r\x01")  # enter the raw REPL
         seen = b""
         while time.monotonic() < end:
-            b = ser.read(1)
-            if b:
-                seen = (seen + b)[-256:]
-                if seen.endswith(RAW_BANNER):
-                    self.t.in_raw_repl = True
-                    return
+            ser.write(b"\r\x03\x03")  # stop a running program (resume semantics: no soft reset)
+            quiet_until = time.monotonic() + 0.2
+            while time.monotonic() < min(quiet_until, end) and ser.read(256):
+                pass  # drop what the program printed
+            ser.write(b"\r\x01")  # enter the raw REPL
+            retry_at = time.monotonic() + 1.0
+            while time.monotonic() < min(retry_at, end):
+                b = ser.read(1)
+                if b:
+                    seen = (seen + b)[-256:]
+                    if seen.endswith(RAW_BANNER):
+                        self.t.in_raw_repl = True
+                        return
         text = seen[-60:].decode(errors="replace")
         raise FlashError(f"no raw REPL prompt, last bytes {text!r}" if seen else "no answer")
 
