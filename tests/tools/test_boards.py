@@ -208,3 +208,27 @@ def test_the_emulator_gives_each_segment_its_boards_heap() -> None:
         heap = boards.profile("esp32c3-usbrepl")["heap"] // 1024
         assert f"heapsize={heap}k".encode() in cmdline
         assert chain.board_of(0) == "esp32c3-usbrepl"
+
+
+def test_ucr_emulate_refuses_an_unknown_board_in_one_line() -> None:
+    result = _ucr("emulate", "1", "--board", "esp8266", "--no-stdin")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "unknown board 'esp8266'" in result.stderr and "esp32c3" in result.stderr
+
+
+def test_the_timing_model_makes_a_segment_answer_at_the_boards_speed() -> None:
+    from host.link import ChainLink
+
+    with EmulatedChain(1, timing=True, cpu_factor=100.0) as chain:
+        assert chain.cpu_factor_of(0) == 100.0
+        with ChainLink(chain.host_port) as link:
+            end = time.monotonic() + 60
+            while not link.discover(timeout=2.0):  # boot is stretched too
+                assert time.monotonic() < end
+            rtts = []
+            for _ in range(3):
+                t0 = time.monotonic()
+                assert link.discover(timeout=2.0)
+                rtts.append(time.monotonic() - t0)
+    # a DESCRIPTOR takes the VM well over 0.15 ms to build: x100 is at least 15 ms on the board
+    assert min(rtts) >= 0.015, rtts
