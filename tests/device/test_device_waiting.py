@@ -64,8 +64,9 @@ def test_the_esp32_timing_model_makes_a_poll_timeout_tick_granular_and_the_hal_w
     naive, hal = next(
         __import__("json").loads(x[2:]) for x in out.splitlines() if x.startswith("@@")
     )
-    # ipoll(3) with nothing to read sleeps to the next RTOS tick: at least ~9.5 ms, every time
-    assert min(naive) >= 9000, naive
+    # ipoll(3) with nothing to read sleeps to the next RTOS tick, ~9.5 ms later (median: a
+    # descheduled start on a loaded host can only shorten single samples)
+    assert statistics.median(naive) >= 8000, naive
     # the HAL's wait ends at its deadline (3 ms), far from the tick (median: robust under load)
     assert 2900 <= statistics.median(hal) < 6000, hal
 
