@@ -98,6 +98,9 @@ def cmd_flash(args: argparse.Namespace) -> int:
         return _error(str(exc))
     if args.servo_driver:
         config["servo_driver"] = args.servo_driver
+        err = _plan_problem(config)
+        if err:
+            return _error(f"--servo-driver {args.servo_driver}: {err}")
     try:
         flash(
             args.port,
@@ -111,6 +114,22 @@ def cmd_flash(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return _error("interrupted before the board was touched")
     return 0
+
+
+def _plan_problem(config: dict) -> str | None:
+    """The first reason config.json's wiring cannot work on its board (protocol/boards.py)."""
+    from protocol import boards  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    found = boards.problems(
+        config["board"],
+        config["pins"],
+        config["bus"],
+        config["pwm"],
+        driver=config["servo_driver"],
+        servo_ids=[s["id"] for s in config["servos"]],
+        n=len(config["tendon_angles"]),
+    )
+    return f"board {config['board']!r}: {found[0][1]}" if found else None
 
 
 def _on_sigterm(signum: int, frame: object) -> None:

@@ -135,6 +135,22 @@ def test_ucr_flash_refuses_an_impossible_plan_before_touching_the_port(tmp_path)
     assert "no UART left for a serial servo bus" in result.stderr
 
 
+def test_ucr_flash_refuses_a_servo_driver_override_the_board_cannot_wire() -> None:
+    result = _ucr(
+        "flash",
+        "--port",
+        "/dev/null",
+        "--robot",
+        str(ROBOT),
+        "--segment",
+        "segment_1",
+        "--servo-driver",
+        "feetech_sts",
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "--servo-driver feetech_sts: board 'esp32': esp32 has no UART left" in result.stderr
+
+
 def test_the_board_and_its_pins_reach_config_json(tmp_path) -> None:
     wiring = '\n        <uart role="downstream" id="2" tx="4" rx="13"/>'
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32"'), wiring)
@@ -232,3 +248,20 @@ def test_the_timing_model_makes_a_segment_answer_at_the_boards_speed() -> None:
                 rtts.append(time.monotonic() - t0)
     # a DESCRIPTOR takes the VM well over 0.15 ms to build: x100 is at least 15 ms on the board
     assert min(rtts) >= 0.015, rtts
+
+
+def test_board_and_wiring_survive_a_write_and_parse(tmp_path) -> None:
+    from ucrdf.parser import parse_string
+    from ucrdf.writer import dumps
+
+    wiring = (
+        '\n        <uart role="downstream" id="2" tx="4" rx="13" baud="460800"/>'
+        '\n        <pwm index="2" pin="32"/>'
+    )
+    path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32"'), wiring)
+    robot = load(path)
+    act = robot.bendables["segment_2"].actuation
+    assert act.board == "esp32" and act.pwm_pins == {2: 32}
+    assert act.uarts == {"downstream": {"id": 2, "tx": 4, "rx": 13, "baud": 460800}}
+    assert parse_string(dumps(robot)) == robot
+    assert config_for(robot, "segment_2")["pwm"] == {"pins": [25, 26, 32]}
