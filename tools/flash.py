@@ -355,15 +355,18 @@ class Flasher:
         """After a failure: remove the temporary uploads, leave the raw REPL, and (``reset``)
         restart the previous firmware. Best effort; returns what was done, for the message."""
         done = []
-        try:
-            if self.t.in_raw_repl:
-                self._exec(
-                    "import os\nfor p in %r:\n try:\n  os.remove(p)\n except OSError:\n  pass\n"
-                    % [p + TMP_SUFFIX for p, _ in files]
-                )
-                done.append("temporary files removed")
-        except FlashError:
-            pass
+        script = "import os\nfor p in %r:\n try:\n  os.remove(p)\n except OSError:\n  pass\n" % [
+            p + TMP_SUFFIX for p, _ in files
+        ]
+        for attempt in (1, 2):  # a link hiccup right after the failure gets a second chance
+            try:
+                if self.t.in_raw_repl:
+                    self._exec(script)
+                    done.append("temporary files removed")
+                break
+            except FlashError as exc:
+                if attempt == 2:
+                    done.append(f"temporary files left ({exc})")
         try:
             if reset and info is not None:
                 self.reset(info)

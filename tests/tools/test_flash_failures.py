@@ -64,7 +64,8 @@ def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail) -> str:
     assert "nothing was changed" in message and "reset to its previous firmware" in message
     after = {k: v for k, v in _snapshot(seg).items() if not k.endswith(TMP_SUFFIX)}
     assert after == before  # every file of the previous firmware untouched
-    assert not [p for p in seg.rglob("*" + TMP_SUFFIX) if p.is_file()]  # uploads cleaned up
+    left = [p for p in seg.rglob("*" + TMP_SUFFIX) if p.is_file()]
+    assert not left, message  # uploads cleaned up
     ch.wait_restarts(0, restarts + 1, timeout=20)  # the previous firmware runs again ...
     assert _discover_name(link) == "before"  # ... and serves the chain
     return message
@@ -135,6 +136,30 @@ def test_an_eio_midway_is_one_line_without_traceback(chain, monkeypatch, capsys)
     assert len(err.strip().splitlines()) == 1
     ch.wait_restarts(0, restarts + 1, timeout=20)
     assert _discover_name(link) == "before"
+
+
+def test_ctrl_c_midway_keeps_the_previous_firmware_running(chain, monkeypatch) -> None:
+    real = SerialTransport.fs_writefile
+    calls = []
+
+    def interrupted(self, dest, data, **kw):
+        calls.append(dest)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(self, dest, data, **kw)
+
+    class CtrlC:
+        def __init__(self, seg: Path) -> None:
+            pass
+
+        def __enter__(self):
+            monkeypatch.setattr(SerialTransport, "fs_writefile", interrupted)
+
+        def __exit__(self, *exc):
+            monkeypatch.setattr(SerialTransport, "fs_writefile", real)
+
+    message = _failed_flash_keeps_the_previous_firmware(chain, CtrlC)
+    assert message.startswith("interrupted")
 
 
 def test_a_chatty_device_that_is_no_repl_is_given_up_on_within_seconds() -> None:
