@@ -195,11 +195,14 @@ class Flasher:
         except _LINK_ERRORS as exc:
             raise FlashError(f"cannot open port {port}: {exc}") from exc
         # mpremote reads a pty with read(1) and no serial timeout: a silent device would block it
-        # forever; with a short timeout its own timeouts work.
+        # forever. 0.1 s while entering the raw REPL (our own loop keeps the deadline), then 2 s:
+        # mpremote's raw-paste handshake reads its 2-byte answer with the serial timeout, and a
+        # board (or loaded host) slower than 0.1 s made every exec fail "could not enter raw repl".
         self.t.serial.timeout = 0.1
         self.t.serial = self.wire = _CountingSerial(self.t.serial)
         try:
             self._enter_raw_repl(connect_timeout)
+            self.t.serial.timeout = 2.0
         except (FlashError, *_LINK_ERRORS) as exc:
             self.close()
             raise FlashError(
