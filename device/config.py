@@ -47,6 +47,7 @@ _SERVO_DEFAULT = {"zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "ma
 
 #: profile of the board of the configuration loaded last (protocol/boards.py), for the HAL
 PROFILE = None
+PROFILE_NAME = None
 
 KAPPA_SCALE = 10000  # 1e-4 1/m (mirrors protocol/constants.py; contract in docs/architecture.md)
 ANGLE_SCALE = 10000  # 1e-4 rad
@@ -194,8 +195,9 @@ def _wiring(cfg, n):
     pwm = dict(cfg["pwm"]) if cfg["pwm"] else {}
     pwm["pins"] = pw
     cfg["pwm"] = pwm
-    global PROFILE
+    global PROFILE, PROFILE_NAME
     PROFILE = boards.profile(board)
+    PROFILE_NAME = board
     if sys.implementation.name == "micropython":
         # the rules are needed once, at boot: free their ~15 KB (the HAL reads PROFILE)
         sys.modules.pop("protocol.boards", None)

@@ -47,6 +47,18 @@ def chip():
     return (m[i + 5 :] if i >= 0 else m).strip().upper()
 
 
+def _profile(board):
+    """The board's profile: the one config.py kept (the rules module is freed after boot)."""
+    import config
+
+    prof = config.PROFILE
+    if prof is None or config.PROFILE_NAME != board:
+        from protocol import boards
+
+        prof = boards.profile(board)
+    return prof
+
+
 def chain_pins(chip_name, cfg_pins):
     """UART ids, pins and baud of the chain. With a board named (config.py puts it in ``pins``)
     the plan is that board's, and the chip must be that board's chip. Without one: the classic
@@ -57,9 +69,7 @@ def chain_pins(chip_name, cfg_pins):
         p.update(cfg_pins)
     board = p.get("board")
     if board is not None:
-        from protocol import boards
-
-        want = boards.profile(board)["chip"]
+        want = _profile(board)["chip"]
         if want != chip_name:
             raise ValueError(
                 "config.json names board %r (chip %s) but this chip is an %s: flash the "
@@ -86,9 +96,7 @@ class Hal:
         self.pins = p
         self.tick_us = TICK_US
         if p.get("board"):
-            from protocol import boards
-
-            self.tick_us = 1000000 // boards.profile(p["board"])["tick_hz"]
+            self.tick_us = 1000000 // _profile(p["board"])["tick_hz"]
         # rxbuf holds at least one whole encoded frame (253 bytes) plus slack
         self.up = machine.UART(
             p["up_uart"], baudrate=p["baud"], tx=p["up_tx"], rx=p["up_rx"], rxbuf=1024, timeout=0

@@ -94,7 +94,7 @@ class Hal:
 
         pins = dict(cfg_pins) if cfg_pins else {}
         board = pins.pop("board", None)
-        prof = config.PROFILE if board is not None else None
+        prof = config.PROFILE if board is not None and config.PROFILE_NAME == board else None
         emulated = os.getenv("UCR_BOARD")
         if emulated and emulated != board:
             # the emulator runs this segment as another board: that board's default wiring
