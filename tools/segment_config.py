@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from ucrdf import boards as board_plan
-from ucrdf.model import Bendable, Robot
+from ucrdf.model import Actuation, Bendable, Robot
 
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
 #: ten to twenty missed cycles.
@@ -124,7 +124,7 @@ def config_for(robot: Robot, bendable_name: str) -> dict:
     }
 
 
-def _wiring(name: str, act) -> dict:
+def _wiring(name: str, act: Actuation) -> dict:
     """``board``, ``pins``, ``bus``, ``pwm`` (ucrdf/boards.py); an impossible plan is an error."""
     found = [msg for field, msg in board_plan.problems(act) if field != "servos"]
     if found:
