@@ -2,9 +2,10 @@
 tick, per processed SYNC (decode + forward + STATE), per forwarded upstream frame, per full cycle,
 heap bytes allocated per cycle (goal 0) and the heap left after boot.
 
-Run: .venv/bin/python benchmarks/bench_firmware.py [--cycles N]
-The unix port on a PC is much faster than an ESP32 (240 MHz Xtensa): expect roughly 10-30x
-longer times on the board; the 5 ms tick budget column shows the headroom on this machine.
+Run: .venv/bin/python benchmarks/bench_firmware.py [--cycles N] [--samples N] [--no-boards]
+The unix port on a PC is much faster than an ESP32: the board figures scale the VM's times by
+each board's CPU factor (tools/emulator/timing.py, derivation in docs/emulator.md), and the
+timing-model section runs the firmware with the model off and on (benchmarks/firmware_boards.py).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 from protocol import messages as M  # noqa: E402
 from tools import mpvm  # noqa: E402
@@ -113,6 +115,8 @@ print('@@' + json.dumps(R))
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cycles", type=int, default=500, help="cycles per measurement (default 500)")
+    ap.add_argument("--samples", type=int, default=200, help="samples per timing-model figure")
+    ap.add_argument("--no-boards", action="store_true", help="skip the board/timing-model part")
     args = ap.parse_args()
     if args.cycles < 1:
         ap.error("--cycles must be >= 1")
@@ -150,7 +154,35 @@ def main() -> int:
     print(f"  full cycle under heap_lock               {'ok' if r['heap_lock_ok'] else 'FAILED'}")
     print(f"  heap used after boot + run               {r['heap_used']:8d} bytes")
     print(f"  heap free                                {r['heap_free']:8d} bytes")
-    return 0 if r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0 else 2
+    ok = r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0
+    if not args.no_boards:
+        _boards(r, args.samples)
+    return 0 if ok else 2
+
+
+def _boards(r: dict, samples: int) -> None:
+    import firmware_boards as fb
+
+    from tools.emulator.timing import cpu_factor, host_pystones
+
+    print(f"Boards (this VM: about {host_pystones():.0f} pystones/s)")
+    for name in ("esp32", "esp32s3", "esp32c3"):
+        f = cpu_factor(name)
+        share = r["cycle_us"] * f / 5000.0
+        print(
+            f"  {name:8s} CPU factor {f:6.1f}: full cycle {r['cycle_us'] * f / 1000:7.2f} ms = "
+            f"{share:7.1%} of the 5 ms tick (goal <= 20 %)"
+        )
+    print("Heap after boot, main.build() with the board's heap budget (64-bit VM objects)")
+    for name, text in fb.heap_after_boot():
+        print(f"  {name:16s} {text}")
+    print(f"Wait overshoot past its deadline, esp32 tick model, CPU factor 1 ({samples} waits)")
+    for label, p50, p99 in fb.wait_overshoot(samples):
+        print(f"  {label:20s} p50 {p50 / 1000:6.2f} ms  p99 {p99 / 1000:6.2f} ms (goal p99 <= 0.5)")
+    factor, rows = fb.forwarding(samples // 2)
+    print(f"Per-hop SYNC forwarding latency, esp32 (CPU factor {factor:.0f}), {samples // 2} SYNCs")
+    for label, p50, p99, lost in rows:
+        print(f"  {label:20s} p50 {p50:6.2f} ms  p99 {p99:6.2f} ms  lost {lost} (goal <= 1 ms)")
 
 
 if __name__ == "__main__":

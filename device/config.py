@@ -4,7 +4,8 @@ The file is generated from the robot's U(C)RDF by ``tools/segment_config.py``; k
 docs/architecture.md ("Segment configuration"). Device-only optional keys (not generated, see
 docs/firmware.md): ``sc`` (simple-controller strategy), ``sc_gain``, ``servo_speed`` (rad/s, SC
 slew and emulated servo speed), ``servo_tau`` (s, emulated servo time constant), ``pins`` (ESP32 pin
-map), ``pwm`` (hobby servo calibration), ``bus`` (serial bus servo settings).
+map), ``pwm`` (hobby servo calibration), ``bus`` (serial bus servo settings); ``board`` and the
+pins are generated too and checked against protocol/boards.py, whose defaults fill the gaps.
 
 Floats are used here, once at boot; the control cycle only sees the ints computed here.
 If the file is absent or invalid the segment runs on the defaults and reports UNCONFIGURED.
@@ -39,9 +40,14 @@ DEFAULTS = {
     "pins": None,
     "pwm": None,
     "bus": None,
+    "board": None,  # None: protocol/boards.py default_board(servo_driver)
 }
 
 _SERVO_DEFAULT = {"zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
+
+#: profile of the board of the configuration loaded last (protocol/boards.py), for the HAL
+PROFILE = None
+PROFILE_NAME = None
 
 KAPPA_SCALE = 10000  # 1e-4 1/m (mirrors protocol/constants.py; contract in docs/architecture.md)
 ANGLE_SCALE = 10000  # 1e-4 rad
@@ -137,6 +143,7 @@ class Config:
                 raise ValueError("servos[%d]: min_angle must be below max_angle" % i)
             full.append(d)
         cfg["servos"] = full
+        _wiring(cfg, len(ang))
         if cfg["uid_override"] is not None and not isinstance(cfg["uid_override"], str):
             raise ValueError("uid_override must be a string")
 
@@ -157,6 +164,49 @@ class Config:
         self.driver = cfg["servo_driver"]
         self.sc = cfg["sc"]
         self.uid_override = cfg["uid_override"]
+
+
+def _wiring(cfg, n):
+    """Board and pin plan (protocol/boards.py, the rules ``ucr check`` applies too): refuse an
+    impossible plan; fill the board's default pins into ``pins``, ``bus`` and ``pwm``."""
+    import gc
+    import sys
+
+    gc.collect()
+    from protocol import boards
+
+    board = cfg["board"]
+    if board is None:
+        board = boards.default_board(cfg["servo_driver"])
+    if not isinstance(board, str):
+        raise ValueError("board must be a board name, got %r" % (board,))
+    for k in ("pins", "bus", "pwm"):
+        if cfg[k] is not None and not isinstance(cfg[k], dict):
+            raise ValueError("%s must be an object" % k)
+    ids = [d["id"] for d in cfg["servos"]]
+    found = boards.problems(board, cfg["pins"], cfg["bus"], cfg["pwm"], cfg["servo_driver"], ids, n)
+    if found:
+        raise ValueError("board %s: %s" % (board, found[0][1]))
+    chain, bus, pw = boards.resolve(board, cfg["pins"], cfg["bus"], cfg["pwm"])
+    chain["board"] = board  # the HAL reads the board with its pins (main.py passes ``pins``)
+    cfg["board"] = board
+    cfg["pins"] = chain
+    cfg["bus"] = bus
+    pwm = dict(cfg["pwm"]) if cfg["pwm"] else {}
+    pwm["pins"] = pw
+    cfg["pwm"] = pwm
+    global PROFILE, PROFILE_NAME
+    PROFILE = boards.profile(board)
+    PROFILE_NAME = board
+    if sys.implementation.name == "micropython":
+        # the rules are needed once, at boot: free their ~15 KB (the HAL reads PROFILE)
+        sys.modules.pop("protocol.boards", None)
+        import protocol
+
+        if hasattr(protocol, "boards"):
+            del protocol.boards
+        del boards
+        gc.collect()
 
 
 def _e4(x):

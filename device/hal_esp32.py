@@ -1,13 +1,14 @@
 """HAL of an ESP32 running MicroPython: machine.UART up/down, PWM / bus servos, ticks, unique id.
 
-Pins come from config key ``pins`` (defaults below). The REPL stays on the USB port (UART0 or the
-native USB of S2/S3/C3 boards); the chain uses UART1 (upstream) and UART2 (downstream).
-A Feetech bus needs a third UART: use a board whose REPL is on native USB (ESP32-S3/C3) and give
-the bus UART0 (config ``bus``), or use PWM servos on a classic ESP32.
+The board and its pin plan come from config.json (``board``, ``pins``, ``bus``, ``pwm``, resolved
+and checked against protocol/boards.py by config.py; docs/firmware.md has a wiring table per
+board). The REPL keeps UART0 (stock MicroPython) and the USB port; the chain uses two other UARTs.
+A configuration without a board on a chip other than a classic ESP32 must name its chain pins
+(the classic defaults may be that chip's USB pins).
 
-The default pins are a classic ESP32's. On other chips they may be the native USB pins (S3:
-GPIO19/20, C3: GPIO18/19) and a C3 has no UART2, so there the chain pins must be configured
-(``pins``: up_tx, up_rx, down_tx, down_rx, and up_uart/down_uart where UART2 is missing).
+Waiting (``wait``): a ``select.poll`` timeout ends on a FreeRTOS tick (10 ms), so the HAL sleeps
+in the poller only while more than a tick remains, woken early by a UART rx irq (MicroPython
+>= 1.24), and spins on ``ticks_us`` for the rest (device/waiting.py).
 """
 
 import os
@@ -15,6 +16,7 @@ import select
 import time
 
 import machine
+import waiting
 
 _TMASK = 0x3FFFFFFF
 
@@ -31,6 +33,11 @@ PINS = {
     "baud": 921600,
 }
 _CHAIN_PINS = ("up_tx", "up_rx", "down_tx", "down_rx")
+TICK_US = 10000  # FreeRTOS tick of stock MicroPython (CONFIG_FREERTOS_HZ = 100)
+
+
+def _on_rx(uart):
+    """UART rx irq: nothing to do, waking the main task is the point."""
 
 
 def chip():
@@ -40,12 +47,35 @@ def chip():
     return (m[i + 5 :] if i >= 0 else m).strip().upper()
 
 
+def _profile(board):
+    """The board's profile: the one config.py kept (the rules module is freed after boot)."""
+    import config
+
+    prof = config.PROFILE
+    if prof is None or config.PROFILE_NAME != board:
+        from protocol import boards
+
+        prof = boards.profile(board)
+    return prof
+
+
 def chain_pins(chip_name, cfg_pins):
-    """UART ids, pins and baud of the chain: the defaults on a classic ESP32; elsewhere the
-    chain pins must come from the config (the defaults may be that chip's USB pins)."""
+    """UART ids, pins and baud of the chain. With a board named (config.py puts it in ``pins``)
+    the plan is that board's, and the chip must be that board's chip. Without one: the classic
+    defaults on a classic ESP32; elsewhere the chain pins must come from the config (the defaults
+    may be that chip's USB pins)."""
     p = dict(PINS)
     if cfg_pins:
         p.update(cfg_pins)
+    board = p.get("board")
+    if board is not None:
+        want = _profile(board)["chip"]
+        if want != chip_name:
+            raise ValueError(
+                "config.json names board %r (chip %s) but this chip is an %s: flash the "
+                "configuration made for this board" % (board, want, chip_name)
+            )
+        return p
     if chip_name != "ESP32":
         missing = [k for k in _CHAIN_PINS if not cfg_pins or k not in cfg_pins]
         if missing:
@@ -64,6 +94,9 @@ class Hal:
     def __init__(self, cfg_pins=None):
         p = chain_pins(chip(), cfg_pins)
         self.pins = p
+        self.tick_us = TICK_US
+        if p.get("board"):
+            self.tick_us = 1000000 // _profile(p["board"])["tick_hz"]
         # rxbuf holds at least one whole encoded frame (253 bytes) plus slack
         self.up = machine.UART(
             p["up_uart"], baudrate=p["baud"], tx=p["up_tx"], rx=p["up_rx"], rxbuf=1024, timeout=0
@@ -79,6 +112,14 @@ class Hal:
         self.poller = select.poll()
         self.poller.register(self.up, select.POLLIN)
         self.poller.register(self.down, select.POLLIN)
+        # an rx irq wakes the main task out of its RTOS-tick sleep (machine_uart.c, >= 1.24)
+        self.rx_irq = False
+        for u in (self.up, self.down):
+            try:
+                u.irq(handler=_on_rx, trigger=machine.UART.IRQ_RX)
+                self.rx_irq = True
+            except (AttributeError, ValueError):
+                pass  # MicroPython < 1.24: no UART.irq; the spin still meets the deadline
         self.faults_spec = None
         self._t0 = time.ticks_ms()
 
@@ -95,8 +136,7 @@ class Hal:
         return time.ticks_diff(a, b)
 
     def wait(self, ms):
-        for _ in self.poller.ipoll(ms):
-            break
+        waiting.wait(self.poller, ms, self.tick_us, waiting.spin)
 
     def servo_uart(self, b):
         chain = [self.pins[k] for k in _CHAIN_PINS]

@@ -2,18 +2,21 @@
 
 Uses mpremote's serial transport in-process (pinned mpremote 1.29): enter the raw REPL without a
 soft reset (``resume`` semantics, so it also works on an emulated unix-port segment, whose process
-would end on a soft reset), write every file, verify each by SHA-256 computed on the board, then
-reset the board. Optionally the modules are precompiled with mpy-cross for the board's bytecode
-version (``sys.implementation._mpy``). docs/flashing.md has the details and the facts about
-mpremote and the unix port.
+would end on a soft reset) within an overall deadline (a device that talks but is no REPL is given
+up on), write every file under a temporary name, verify each by SHA-256 computed on the board,
+rename them into place (``main.py`` last), then reset the board. Any failure removes the
+temporary files and leaves the previous firmware in place and the board at the friendly REPL
+(reset, unless ``--no-reset``, so the old firmware runs the chain again). Optionally the modules
+are precompiled with mpy-cross for the board's bytecode version (``sys.implementation._mpy``),
+falling back to bytecode without native code, or to source, where the board needs it.
+docs/flashing.md has the details and the facts about mpremote and the unix port.
 """
 
 from __future__ import annotations
 
 import ast
-import contextlib
+import errno
 import hashlib
-import io
 import json
 import os
 import re
@@ -36,6 +39,10 @@ DEVICE_DIR = REPO / "device"
 PROTOCOL_DIR = REPO / "protocol"
 #: Files that must stay source: MicroPython only runs boot.py/main.py as .py.
 KEEP_SOURCE = {"main.py", "boot.py"}
+#: What the raw REPL prints when entered (mpremote waits for the ">" that follows itself).
+RAW_BANNER = b"raw REPL; CTRL-B to exit\r\n"
+#: Suffix of a file while it is being uploaded: renamed into place only once all are verified.
+TMP_SUFFIX = ".new"
 #: ``sys.implementation._mpy`` bits 10.. name the native architecture (py/persistentcode.h).
 MPY_ARCHES = (
     None,
@@ -141,6 +148,33 @@ def check_port(port: str) -> None:
     ser.close()
 
 
+class _CountingSerial:
+    """The pyserial port with byte counters (what a transfer really costs on the wire)."""
+
+    def __init__(self, ser: serial.Serial) -> None:
+        object.__setattr__(self, "_ser", ser)
+        object.__setattr__(self, "tx", 0)
+        object.__setattr__(self, "rx", 0)
+
+    def write(self, data: bytes) -> int | None:
+        object.__setattr__(self, "tx", self.tx + len(data))
+        return self._ser.write(data)
+
+    def read(self, n: int = 1) -> bytes:
+        data = self._ser.read(n)
+        object.__setattr__(self, "rx", self.rx + len(data))
+        return data
+
+    def __getattr__(self, name: str):
+        return getattr(self._ser, name)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        setattr(self._ser, name, value)
+
+
+_LINK_ERRORS = (TransportError, OSError, serial.SerialException)
+
+
 class Flasher:
     """One flashing session on ``port`` (see module docstring). ``log`` receives progress lines."""
 
@@ -158,27 +192,55 @@ class Flasher:
         self._TransportError = TransportError
         try:
             self.t = SerialTransport(port, baudrate=baudrate, exclusive="://" not in port)
-        except TransportError as exc:
+        except _LINK_ERRORS as exc:
             raise FlashError(f"cannot open port {port}: {exc}") from exc
         # mpremote reads a pty with read(1) and no serial timeout: a silent device would block it
-        # forever; with a short timeout its own overall timeout works.
+        # forever. 0.1 s while entering the raw REPL (our own loop keeps the deadline), then 2 s:
+        # mpremote's raw-paste handshake reads its 2-byte answer with the serial timeout, and a
+        # board (or loaded host) slower than 0.1 s made every exec fail "could not enter raw repl".
         self.t.serial.timeout = 0.1
+        self.t.serial = self.wire = _CountingSerial(self.t.serial)
         try:
-            # resume semantics: no soft reset (it would end an emulated segment's process).
-            with contextlib.redirect_stdout(io.StringIO()):  # mpremote prints what it got
-                self.t.enter_raw_repl(soft_reset=False, timeout_overall=connect_timeout)
-        except (TransportError, OSError) as exc:
-            self.t.close()
+            self._enter_raw_repl(connect_timeout)
+            self.t.serial.timeout = 2.0
+        except (FlashError, *_LINK_ERRORS) as exc:
+            self.close()
             raise FlashError(
-                f"the device on {port} did not answer like a MicroPython REPL ({exc}): is it "
-                "running MicroPython (see docs/flashing.md to install it) and not stuck? "
-                "Press its reset button and retry"
+                f"the device on {port} did not answer like a MicroPython REPL within "
+                f"{connect_timeout:g} s ({exc}): is it running MicroPython (see "
+                "docs/flashing.md to install it) and not stuck? Is it the board's USB/REPL port "
+                "and not a chain port? Press its reset button and retry"
             ) from exc
+
+    def _enter_raw_repl(self, timeout: float) -> None:
+        """Ctrl-C, Ctrl-A, then the raw REPL banner within ``timeout`` s overall, however much
+        the device talks (mpremote's own loop restarts its timeout on every byte it reads).
+        Retried every second (a board still booting may miss the first Ctrl-C). Bytes are read
+        one at a time so the prompt after the banner stays for mpremote."""
+        ser = self.t.serial
+        end = time.monotonic() + timeout
+        seen = b""
+        while time.monotonic() < end:
+            ser.write(b"\r\x03\x03")  # stop a running program (resume semantics: no soft reset)
+            quiet_until = time.monotonic() + 0.2
+            while time.monotonic() < min(quiet_until, end) and ser.read(256):
+                pass  # drop what the program printed
+            ser.write(b"\r\x01")  # enter the raw REPL
+            retry_at = time.monotonic() + 1.0
+            while time.monotonic() < min(retry_at, end):
+                b = ser.read(1)
+                if b:
+                    seen = (seen + b)[-256:]
+                    if seen.endswith(RAW_BANNER):
+                        self.t.in_raw_repl = True
+                        return
+        text = seen[-60:].decode(errors="replace")
+        raise FlashError(f"no raw REPL prompt, last bytes {text!r}" if seen else "no answer")
 
     def close(self) -> None:
         try:
             self.t.close()
-        except OSError:
+        except _LINK_ERRORS:
             pass
 
     def __enter__(self) -> Flasher:
@@ -190,8 +252,8 @@ class Flasher:
     def _exec(self, code: str) -> str:
         try:
             return self.t.exec(code).decode(errors="replace")
-        except self._TransportError as exc:
-            raise FlashError(f"command on the board failed: {exc}") from exc
+        except _LINK_ERRORS as exc:
+            raise FlashError(f"command on the board failed: {_why(exc)}") from exc
 
     def board_info(self) -> BoardInfo:
         out = self._exec(
@@ -222,33 +284,21 @@ class Flasher:
         return set(self._exec(code).split())
 
     def write_files(self, files: list[tuple[str, bytes]]) -> None:
-        """Write (board path, content) pairs, creating directories; progress per file."""
-        existing = self.listing()
+        """Upload (board path, content) pairs under temporary names (``path + TMP_SUFFIX``),
+        creating directories; progress per file. Nothing the board runs is touched yet."""
         dirs = sorted({str(Path(p).parent) for p, _ in files if "/" in p})
         for d in dirs:
             self._exec(f"import os\ntry:\n os.mkdir({d!r})\nexcept OSError:\n pass\n")
-        # A stale .py next to a new .mpy (or the reverse) would shadow it: .py is imported first.
-        names = {p for p, _ in files}
-        for p, _ in files:
-            other = p[:-3] + ".mpy" if p.endswith(".py") else p[:-4] + ".py"
-            if (
-                p.endswith((".py", ".mpy"))
-                and other in existing
-                and other not in names
-                and Path(other).name not in KEEP_SOURCE
-            ):
-                self._exec(f"import os\nos.remove({other!r})")
-                self.log(f"      removed stale {other}")
         total = len(files)
         for i, (path, data) in enumerate(files, 1):
             self.log(f"[{i:>2}/{total}] {path} ({len(data)} bytes)")
             try:
-                self.t.fs_writefile(path, data, chunk_size=256)
-            except (self._TransportError, OSError) as exc:
-                raise FlashError(f"copying {path} failed: {exc}") from exc
+                self.t.fs_writefile(path + TMP_SUFFIX, data, chunk_size=256)
+            except _LINK_ERRORS as exc:
+                raise FlashError(f"copying {path} failed: {_why(exc)}") from exc
 
-    def verify(self, files: list[tuple[str, bytes]]) -> None:
-        """Compare the SHA-256 of every file computed on the board with the host's."""
+    def verify(self, files: list[tuple[str, bytes]], *, suffix: str = TMP_SUFFIX) -> None:
+        """Compare the SHA-256 of every uploaded file computed on the board with the host's."""
         code = (
             "import hashlib, binascii\n"
             "def _h(p):\n"
@@ -266,12 +316,70 @@ class Flasher:
             "  print(p, _h(p))\n"
             " except OSError:\n"
             "  print(p, 'missing')\n"
-        ) % [p for p, _ in files]
+        ) % [p + suffix for p, _ in files]
         got = dict(line.split() for line in self._exec(code).splitlines() if line.strip())
-        bad = [p for p, data in files if got.get(p) != hashlib.sha256(data).hexdigest()]
+        bad = [p for p, data in files if got.get(p + suffix) != hashlib.sha256(data).hexdigest()]
         if bad:
             raise FlashError(f"verification failed (hash differs on the board): {', '.join(bad)}")
         self.log(f"verified {len(files)} files by SHA-256 on the board")
+
+    def commit(self, files: list[tuple[str, bytes]]) -> None:
+        """Rename every verified upload into place in one script (``main.py`` last, as listed),
+        then remove a stale ``.py``/``.mpy`` twin a new file would be shadowed by or shadow."""
+        existing = self.listing()
+        names = {p for p, _ in files}
+        stale = []
+        for p, _ in files:
+            other = p[:-3] + ".mpy" if p.endswith(".py") else p[:-4] + ".py"
+            if (
+                p.endswith((".py", ".mpy"))
+                and other in existing
+                and other not in names
+                and Path(other).name not in KEEP_SOURCE
+            ):
+                stale.append(other)
+        finals = [p for p, _ in files]
+        code = (
+            f"import os\nT = {TMP_SUFFIX!r}\n"
+            f"for p in {finals!r}:\n"
+            " try:\n"
+            "  os.rename(p + T, p)\n"
+            " except OSError:\n"
+            "  os.remove(p)\n"
+            "  os.rename(p + T, p)\n"
+            f"for p in {stale!r}:\n"
+            " os.remove(p)\n"
+        )
+        self._exec(code)
+        for p in stale:
+            self.log(f"      removed stale {p}")
+
+    def abort(self, files: list[tuple[str, bytes]], *, reset: bool, info: BoardInfo | None) -> str:
+        """After a failure: remove the temporary uploads, leave the raw REPL, and (``reset``)
+        restart the previous firmware. Best effort; returns what was done, for the message."""
+        done = []
+        script = "import os\nfor p in %r:\n try:\n  os.remove(p)\n except OSError:\n  pass\n" % [
+            p + TMP_SUFFIX for p, _ in files
+        ]
+        for attempt in (1, 2):  # a link hiccup right after the failure gets a second chance
+            try:
+                if self.t.in_raw_repl:
+                    self._exec(script)
+                    done.append("temporary files removed")
+                break
+            except FlashError as exc:
+                if attempt == 2:
+                    done.append(f"temporary files left ({exc})")
+        try:
+            if reset and info is not None:
+                self.reset(info)
+                done.append("the board was reset to its previous firmware")
+            else:
+                self.leave()
+                done.append("the board is at its REPL with its previous firmware")
+        except _LINK_ERRORS:
+            pass
+        return "; ".join(done) or "the board did not answer any more: reset it by hand"
 
     def reset(self, info: BoardInfo) -> None:
         """Restart the board so it boots the new firmware.
@@ -287,13 +395,21 @@ class Flasher:
         else:
             try:
                 self.t.exec_raw_no_follow("import machine\nmachine.reset()")
-            except (self._TransportError, OSError):
+            except _LINK_ERRORS:
                 pass  # the board resets before it can answer
             self.t.in_raw_repl = False
 
     def leave(self) -> None:
         """Back to the friendly REPL without a reset."""
         self.t.exit_raw_repl()
+
+
+def _why(exc: BaseException) -> str:
+    """One line for a transport or OS error (EIO on a vanished port says so)."""
+    if isinstance(exc, OSError) and exc.errno == errno.EIO:
+        return "input/output error: the port went away (board unplugged or reset?)"
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[-1] if text else type(exc).__name__
 
 
 def build_files(
@@ -303,21 +419,23 @@ def build_files(
     info: BoardInfo | None = None,
     device_dir: Path = DEVICE_DIR,
     protocol_dir: Path = PROTOCOL_DIR,
+    log: Callable[[str], None] = print,
 ) -> list[tuple[str, bytes]]:
-    """(board path, bytes) of everything to flash, compiled to .mpy if asked."""
+    """(board path, bytes) of everything to flash, compiled to .mpy if asked and possible.
+
+    ``--mpy`` falls back: to bytecode-only .mpy where mpy-cross has no native emitter for the
+    board's architecture (a module with viper code, protocol/_fast.py, then goes as source: its
+    import fails on such a board and the callers keep their Python loops), and to source where
+    the board cannot import the .mpy files mpy-cross writes (each said in a log line).
+    """
     sources = firmware_files(device_dir, protocol_dir)
     files: list[tuple[str, bytes]] = []
     if mpy:
         assert info is not None
-        if info.mpy == 0:
-            raise FlashError("this MicroPython build cannot import .mpy files; flash without --mpy")
-        host_ver = mpy_cross_version()
-        if host_ver[0] != info.mpy_version[0] or host_ver[1] != info.mpy_version[1]:
-            raise FlashError(
-                f"the board imports mpy v{info.mpy_version[0]}.{info.mpy_version[1]} but "
-                f"mpy-cross writes v{host_ver[0]}.{host_ver[1]}: flash without --mpy, or use "
-                "a matching MicroPython/mpy-cross version"
-            )
+        mpy = _mpy_usable(info, log)
+    if mpy:
+        assert info is not None
+        arch = info.arch
         with tempfile.TemporaryDirectory(prefix="ucr-mpy-") as tmp:
             for board_path, src in sources:
                 if Path(board_path).name in KEEP_SOURCE:
@@ -325,7 +443,20 @@ def build_files(
                     continue
                 dst = Path(tmp) / (board_path[:-3] + ".mpy")
                 dst.parent.mkdir(parents=True, exist_ok=True)
-                compile_mpy(src, dst, arch=info.arch)
+                try:
+                    compile_mpy(src, dst, arch=arch)
+                except FlashError:
+                    if arch is not None:
+                        log(f"mpy-cross has no native emitter for {arch}: bytecode-only .mpy files")
+                        arch = None
+                    try:
+                        compile_mpy(src, dst, arch=None)
+                    except FlashError:
+                        # native/viper code needs an emitter: the source, whose import falls
+                        # back to plain Python on a board without one (protocol/_fast.py)
+                        log(f"{board_path}: native code without an emitter: flashed as source")
+                        files.append((board_path, src.read_bytes()))
+                        continue
                 files.append((board_path[:-3] + ".mpy", dst.read_bytes()))
     else:
         files = [(p, src.read_bytes()) for p, src in sources]
@@ -333,6 +464,21 @@ def build_files(
     # main.py last: a flash interrupted half-way never boots a new main.py with old modules.
     files.sort(key=lambda f: Path(f[0]).name in KEEP_SOURCE)
     return files
+
+
+def _mpy_usable(info: BoardInfo, log: Callable[[str], None]) -> bool:
+    """Whether the board imports the .mpy files the installed mpy-cross writes (else: source)."""
+    if info.mpy == 0:
+        log("this MicroPython build cannot import .mpy files: flashing source files")
+        return False
+    host_ver = mpy_cross_version()
+    if host_ver[0] != info.mpy_version[0] or host_ver[1] != info.mpy_version[1]:
+        log(
+            f"the board imports mpy v{info.mpy_version[0]}.{info.mpy_version[1]} but mpy-cross "
+            f"writes v{host_ver[0]}.{host_ver[1]}: flashing source files"
+        )
+        return False
+    return True
 
 
 def flash(
@@ -344,28 +490,59 @@ def flash(
     log: Callable[[str], None] = print,
     device_dir: Path = DEVICE_DIR,
     protocol_dir: Path = PROTOCOL_DIR,
+    connect_timeout: float = 5.0,
 ) -> BoardInfo:
-    """Flash firmware + protocol + ``config`` to the board on ``port``; return what it reported."""
+    """Flash firmware + protocol + ``config`` to the board on ``port``; return what it reported.
+
+    Raises FlashError with one line on any failure; the board then still has its previous
+    firmware (see module docstring)."""
     if "://" not in port and not os.path.exists(port):
         check_port(port)  # the clearest error first
     firmware_files(device_dir, protocol_dir)  # fail early, before touching the board
     t0 = time.monotonic()
-    with Flasher(port, log=log) as fl:
-        info = fl.board_info()
-        log(
-            f"board: {info.version.strip()} on {info.platform}, mpy v{info.mpy_version[0]}."
-            f"{info.mpy_version[1]}{' ' + info.arch if info.arch else ''}"
-        )
-        files = build_files(
-            config, mpy=mpy, info=info, device_dir=device_dir, protocol_dir=protocol_dir
-        )
-        fl.write_files(files)
-        fl.verify(files)
-        if reset:
-            fl.reset(info)
-            log("board reset: it boots the new firmware")
-        else:
-            fl.leave()
-            log("not reset (--no-reset): the firmware runs after the next reset")
-    log(f"flashed {len(files)} files in {time.monotonic() - t0:.1f} s")
+    with Flasher(port, log=log, connect_timeout=connect_timeout) as fl:
+        info: BoardInfo | None = None
+        files: list[tuple[str, bytes]] = []
+        try:
+            info = fl.board_info()
+            log(
+                f"board: {info.version.strip()} on {info.platform}, mpy v{info.mpy_version[0]}."
+                f"{info.mpy_version[1]}{' ' + info.arch if info.arch else ''}"
+            )
+            files = build_files(
+                config,
+                mpy=mpy,
+                info=info,
+                device_dir=device_dir,
+                protocol_dir=protocol_dir,
+                log=log,
+            )
+            fl.write_files(files)
+            fl.verify(files)
+            fl.commit(files)
+        except (FlashError, KeyboardInterrupt) as exc:
+            what = fl.abort(files, reset=reset, info=info)
+            if isinstance(exc, KeyboardInterrupt):
+                raise FlashError(f"interrupted; nothing was changed ({what})") from None
+            raise FlashError(f"{exc}; nothing was changed ({what})") from exc
+        except _LINK_ERRORS as exc:
+            what = fl.abort(files, reset=reset, info=info)
+            raise FlashError(f"the link failed: {_why(exc)}; ({what})") from exc
+        try:
+            if reset:
+                fl.reset(info)
+                log("board reset: it boots the new firmware")
+            else:
+                fl.leave()
+                log("not reset (--no-reset): the firmware runs after the next reset")
+        except _LINK_ERRORS as exc:
+            raise FlashError(
+                f"the new firmware is in place but the reset failed ({_why(exc)}): press the "
+                "board's reset button"
+            ) from exc
+        wire = fl.wire.tx + fl.wire.rx
+    log(
+        f"flashed {len(files)} files in {time.monotonic() - t0:.1f} s ({wire} bytes over the "
+        f"REPL: at least {wire * 10 / 115200:.1f} s at 115200 baud)"
+    )
     return info

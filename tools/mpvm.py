@@ -11,9 +11,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+from protocol.boards import BOARDS
+
 REPO = Path(__file__).resolve().parent.parent
-#: Heap of an ESP32 (WROOM, no PSRAM) MicroPython build: about 110 KiB usable of a ~160 KiB heap.
-ESP32_HEAP = "160k"
+#: Heap budget of a plain ESP32 (protocol/boards.py, the one source): what the firmware must fit.
+ESP32_HEAP = f"{BOARDS['esp32']['heap'] // 1024}k"
 
 
 def micropython_binary() -> str:

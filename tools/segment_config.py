@@ -12,7 +12,8 @@ import math
 import os
 from pathlib import Path
 
-from ucrdf.model import Bendable, Robot
+from ucrdf import boards as board_plan
+from ucrdf.model import Actuation, Bendable, Robot
 
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
 #: ten to twenty missed cycles.
@@ -34,6 +35,10 @@ CONFIG_KEYS = (
     "servo_driver",
     "servos",
     "watchdog_ms",
+    "board",
+    "pins",
+    "bus",
+    "pwm",
 )
 
 
@@ -115,7 +120,18 @@ def config_for(robot: Robot, bendable_name: str) -> dict:
         "servo_driver": act.driver,
         "servos": servos,
         "watchdog_ms": _watchdog_ms(robot, bendable),
+        **_wiring(bendable_name, act),
     }
+
+
+def _wiring(name: str, act: Actuation) -> dict:
+    """``board``, ``pins``, ``bus``, ``pwm`` (ucrdf/boards.py); an impossible plan is an error."""
+    found = [msg for field, msg in board_plan.problems(act) if field != "servos"]
+    if found:
+        raise SegmentConfigError(
+            f"bendable {name!r}: board {board_plan.board_of(act)!r}: {found[0]}"
+        )
+    return board_plan.plan(act)
 
 
 def configs(robot: Robot) -> list[dict]:

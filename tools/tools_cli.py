@@ -33,6 +33,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     em.add_argument("--control-socket", type=Path, help="also accept commands on this unix socket")
     em.add_argument("--no-stdin", action="store_true", help="do not read commands from stdin")
+    em.add_argument(
+        "--board",
+        help="run every segment as this board (esp32, esp32s3, esp32c3, …, unix): its UARTs, "
+        "pins and heap; default each segment's configured board, else esp32",
+    )
+    em.add_argument(
+        "--timing-model",
+        action="store_true",
+        help="the board's timing model: waits end on its RTOS tick, compute is stretched by "
+        "its CPU factor (docs/emulator.md)",
+    )
+    em.add_argument(
+        "--cpu-factor",
+        type=float,
+        help="with --timing-model: board/host slowdown (default measured)",
+    )
     em.set_defaults(func=cmd_emulate)
 
     fl = subparsers.add_parser(
@@ -82,6 +98,9 @@ def cmd_flash(args: argparse.Namespace) -> int:
         return _error(str(exc))
     if args.servo_driver:
         config["servo_driver"] = args.servo_driver
+        err = _plan_problem(config)
+        if err:
+            return _error(f"--servo-driver {args.servo_driver}: {err}")
     try:
         flash(
             args.port,
@@ -92,7 +111,25 @@ def cmd_flash(args: argparse.Namespace) -> int:
         )
     except FlashError as exc:
         return _error(str(exc))
+    except KeyboardInterrupt:
+        return _error("interrupted before the board was touched")
     return 0
+
+
+def _plan_problem(config: dict) -> str | None:
+    """The first reason config.json's wiring cannot work on its board (protocol/boards.py)."""
+    from protocol import boards  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    found = boards.problems(
+        config["board"],
+        config["pins"],
+        config["bus"],
+        config["pwm"],
+        driver=config["servo_driver"],
+        servo_ids=[s["id"] for s in config["servos"]],
+        n=len(config["tendon_angles"]),
+    )
+    return f"board {config['board']!r}: {found[0][1]}" if found else None
 
 
 def _on_sigterm(signum: int, frame: object) -> None:
@@ -116,6 +153,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             return _error(str(exc))
         for cfg in configs_list:
             cfg["servo_driver"] = "emulated"  # there are no real servos in the emulator
+            if args.board is not None:  # re-wired for the emulated board: its default pins
+                cfg.update(board=args.board, pins=None, bus=None, pwm=None)
         if n is None:
             n = len(configs_list)
         elif n != len(configs_list):
@@ -129,7 +168,17 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     control = None
     try:
-        with EmulatedChain(n, args.workdir, config_for=configs_list, reuse_dirs=args.keep) as chain:
+        if args.cpu_factor is not None and not (args.cpu_factor >= 1.0):
+            return _error(f"--cpu-factor must be >= 1, got {args.cpu_factor}")
+        with EmulatedChain(
+            n,
+            args.workdir,
+            config_for=configs_list,
+            reuse_dirs=args.keep,
+            board=args.board,
+            timing=args.timing_model,
+            cpu_factor=args.cpu_factor,
+        ) as chain:
             try:
                 settings = {}
                 if args.baud is not None:
@@ -146,7 +195,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             for k in range(n):
                 print(
                     f"segment {k}: REPL {chain.repl_port(k)}  uid {chain.uid(k)}  "
-                    f"dir {chain.segment_dir(k)}"
+                    f"dir {chain.segment_dir(k)}  board {chain.board_of(k)}"
+                    + (f" x{chain.cpu_factor_of(k):.0f}" if args.timing_model else "")
                 )
             if args.control_socket:
                 control = ControlSocket(chain, args.control_socket)

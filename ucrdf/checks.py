@@ -18,6 +18,7 @@ import re
 from collections.abc import Callable
 
 import ucrdf.models as registry
+from ucrdf.boards import check as board_plans
 from ucrdf.errors import Diagnostic
 from ucrdf.model import Bendable, ControlJoint, Inertial, Interface, Joint, Robot
 from ucrdf.models.base import CurvatureModel, ModelError
@@ -96,6 +97,7 @@ class _Checker:
             self.joint(joint)
         for bendable in robot.bendables.values():
             self.bendable(bendable)
+        self.diagnostics += board_plans(robot, self.lines)  # ucrdf/boards.py: wiring per board
         self.tree()
         self.ros2_control()
 

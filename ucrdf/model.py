@@ -181,7 +181,7 @@ class Actuation:
     frame from +x towards +y, at distance ``radius`` (m) from the backbone axis. Its length is
     l_i = l * (1 - radius * (kx*cos(sigma_i) + ky*sin(sigma_i))). Each tendon is wound on a spool of
     ``spool_radius`` (m) by ``servos[i]``. ``driver`` names the servo driver on the segment
-    ("pwm", "feetech_sts", "emulated").
+    ("pwm", "feetech_sts", "emulated"); ``board``, ``uarts`` and ``pwm_pins`` its wiring.
     """
 
     type: str = "tendon"
@@ -190,6 +190,12 @@ class Actuation:
     spool_radius: float = 0.0
     driver: str = "pwm"
     servos: list[Servo] = field(default_factory=list)
+    #: board the segment runs on (``protocol/boards.py``); None = not said (esp32 by default)
+    board: str | None = None
+    #: wiring overrides by role ("upstream", "downstream", "servo_bus"): {id, tx, rx[, baud]}
+    uarts: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: PWM pin per servo index (overrides the board's default pins)
+    pwm_pins: dict[int, int] = field(default_factory=dict)
 
     @property
     def count(self) -> int:

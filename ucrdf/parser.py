@@ -439,8 +439,24 @@ class _Builder:
         count = int(element.get("count"))
         tendons: dict[int, float] = {}
         servos: dict[int, Servo] = {}
+        uarts: dict[str, dict[str, int]] = {}
+        pwm_pins: dict[int, int] = {}
         for child in _children(element):
+            if child.tag == "uart":
+                self._uart(child, owner, key, uarts)
+                continue
             index = int(child.get("index"))
+            if child.tag == "pwm":
+                if index in pwm_pins:
+                    self.error(child, f"{owner} has two <pwm> with index {index}")
+                elif index >= count:
+                    self.error(
+                        child, f"{owner} <pwm index={index}> is out of range: count is {count}"
+                    )
+                else:
+                    self.lines[(*key, "pwm", index)] = child.sourceline or 0
+                    pwm_pins[index] = int(child.get("pin"))
+                continue
             table = tendons if child.tag == "tendon" else servos
             if index in table:
                 self.error(child, f"{owner} has two <{child.tag}> with index {index}")
@@ -481,7 +497,24 @@ class _Builder:
             spool_radius=_float(element.get("spool_radius")),
             driver=element.get("driver", "pwm"),
             servos=[servos[i] for i in sorted(servos)],
+            board=element.get("board"),
+            uarts=uarts,
+            pwm_pins=pwm_pins,
         )
+
+    def _uart(
+        self, child: etree._Element, owner: str, key: LineKey, uarts: dict[str, dict[str, int]]
+    ) -> None:
+        """``<uart role= id= tx= rx= [baud=]/>``: one UART of the segment's wiring plan."""
+        role = child.get("role")
+        if role in uarts:
+            self.error(child, f"{owner} has two <uart role={role!r}>")
+            return
+        self.lines[(*key, "uart", role)] = child.sourceline or 0
+        entry = {k: int(child.get(k)) for k in ("id", "tx", "rx")}
+        if child.get("baud") is not None:
+            entry["baud"] = int(child.get("baud"))
+        uarts[role] = entry
 
     # -- ros2_control --------------------------------------------------------------------------
     def params(self, elements: list[etree._Element], owner: str, key: LineKey) -> dict[str, str]:

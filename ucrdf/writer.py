@@ -129,6 +129,8 @@ def _actuation(parent: etree._Element, act: Actuation) -> None:
         spool_radius=fmt(act.spool_radius),
         driver=act.driver,
     )
+    if act.board is not None:
+        el.set("board", act.board)
     for i, angle in enumerate(act.angles):
         _sub(el, "tendon", index=str(i), angle=fmt(angle))
     for i, servo in enumerate(act.servos):
@@ -142,6 +144,10 @@ def _actuation(parent: etree._Element, act: Actuation) -> None:
             min_angle=fmt(servo.min_angle),
             max_angle=fmt(servo.max_angle),
         )
+    for role, u in act.uarts.items():
+        _sub(el, "uart", role=role, **{k: str(v) for k, v in u.items()})
+    for i, pin in sorted(act.pwm_pins.items()):
+        _sub(el, "pwm", index=str(i), pin=str(pin))
 
 
 def _bendable(parent: etree._Element, b: Bendable) -> None:

@@ -81,6 +81,8 @@ def test_pwm_outputs_nothing_in_the_boot_hold_then_maps_angles_to_pulses(vm):
     cfg = {
         "servo_driver": "pwm",
         "watchdog_ms": 60000,
+        # GPIO4-6 are free on an ESP32-S3 (GPIO6 is the SPI flash's on a classic ESP32)
+        "board": "esp32s3",
         "pwm": {"pins": [4, 5, 6], "min_us": 1000, "max_us": 2000, "range": 1.5},
         "servos": [{"zero_offset": 0.2}, {"direction": -1}, {"min_angle": -0.3, "max_angle": 0.3}],
     }

@@ -42,3 +42,19 @@ def test_chip_name_is_read_from_the_board_description(hal, monkeypatch):
     board = types.SimpleNamespace(machine="Generic ESP32S3 module with ESP32S3")
     monkeypatch.setattr(hal.os, "uname", lambda: board)
     assert hal.chip() == "ESP32S3"
+
+
+def test_a_configuration_for_another_board_is_refused_on_this_chip(hal):
+    pins = {
+        "board": "esp32s3",
+        "up_uart": 1,
+        "up_tx": 17,
+        "up_rx": 18,
+        "down_uart": 2,
+        "down_tx": 15,
+        "down_rx": 16,
+        "baud": 921600,
+    }
+    with pytest.raises(ValueError, match="names board 'esp32s3' .* this chip is an ESP32"):
+        hal.chain_pins("ESP32", pins)
+    assert hal.chain_pins("ESP32S3", pins)["down_tx"] == 15

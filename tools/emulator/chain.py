@@ -35,9 +35,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from protocol import boards
 from tools.emulator.pipe import Pipe
 from tools.emulator.proxy import Proxy, PtyEnd, RingLog
-from tools.mpvm import ESP32_HEAP, REPO, micropython_binary
+from tools.mpvm import REPO, micropython_binary
 
 DEFAULT_FIRMWARE_DIR = REPO / "device"
 DEFAULT_PROTOCOL_DIR = REPO / "protocol"
@@ -125,6 +126,8 @@ class _Link:
 
 class _Segment:
     def __init__(self, index: int, seg_dir: Path, uid: str) -> None:
+        self.board = boards.DEFAULT_BOARD
+        self.cpu_factor = 1.0
         self.index = index
         self.dir = seg_dir
         self.uid = uid
@@ -150,8 +153,11 @@ class EmulatedChain:
     directory removed on close), ``firmware_dir`` (default ``device/``), ``protocol_dir`` (default
     ``protocol/``), ``config_for`` (position -> config dict or None for firmware defaults; or a
     list), ``faults_for`` (position -> UCR_FAULTS spec), ``uids`` (hex ids; default random but
-    stable for the chain's life), ``heap`` (``-X heapsize``), ``reuse_dirs`` (keep existing segment
-    directories, e.g. flashed ones, instead of repopulating), ``seed`` (corruption RNG).
+    stable for the chain's life), ``heap`` (``-X heapsize``; default the board's heap budget),
+    ``reuse_dirs`` (keep existing segment directories, e.g. flashed ones, instead of
+    repopulating), ``seed`` (corruption RNG), ``board`` (run every segment as this board; default
+    each configuration's ``board``, else esp32), ``timing`` (the board's timing model: RTOS-tick
+    waits and compute stretched by ``cpu_factor``, default measured, tools/emulator/timing.py).
     """
 
     def __init__(
@@ -164,10 +170,13 @@ class EmulatedChain:
         config_for: ConfigSource = None,
         faults_for: Callable[[int], str | None] | None = None,
         uids: Sequence[str] | None = None,
-        heap: str = ESP32_HEAP,
+        heap: str | None = None,
         reuse_dirs: bool = False,
         seed: int = 0,
         restart_delay_s: float = 0.05,
+        board: str | None = None,
+        timing: bool = False,
+        cpu_factor: float | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1:
             raise EmulatorError(f"a chain needs at least one segment, got {n!r}")
@@ -175,6 +184,11 @@ class EmulatedChain:
             raise EmulatorError(f"{len(uids)} uids given for {n} segments")
         self.n = n
         self._heap = heap
+        if board is not None and board not in boards.BOARDS:
+            raise EmulatorError(f"unknown board {board!r} (boards: {', '.join(boards.NAMES)})")
+        self.board = board
+        self.timing = timing
+        self._cpu_factor = cpu_factor
         self._binary = micropython_binary()
         self._restart_delay_s = restart_delay_s
         self._closed = False
@@ -220,6 +234,8 @@ class EmulatedChain:
                 )
             seg = _Segment(k, seg_dir, uid)
             seg.faults = faults_for(k) if faults_for is not None else None
+            seg.board = self._board_of(seg_dir)
+            seg.cpu_factor = self.cpu_factor(seg.board) if self.timing else 1.0
             self._segments.append(seg)
         proxy = self._proxy
         self._host = proxy.add_end("host")
@@ -258,6 +274,28 @@ class EmulatedChain:
             return config_for(k)
         return config_for[k]
 
+    def _board_of(self, seg_dir: Path) -> str:
+        """The board segment ``seg_dir`` runs as: ``board`` if given, else its config's."""
+        if self.board is not None:
+            return self.board
+        try:
+            cfg = json.loads((seg_dir / "config.json").read_text())
+        except (OSError, ValueError):
+            cfg = {}
+        name = cfg.get("board") if isinstance(cfg, dict) else None
+        if not isinstance(name, str) or name not in boards.BOARDS:
+            driver = cfg.get("servo_driver") if isinstance(cfg, dict) else None
+            name = boards.default_board(driver)
+        return name
+
+    def cpu_factor(self, board: str) -> float:
+        """The timing model's CPU factor for ``board`` (given, or measured once on this host)."""
+        if self._cpu_factor is not None:
+            return self._cpu_factor
+        from tools.emulator.timing import cpu_factor  # noqa: PLC0415 - runs the VM once
+
+        return cpu_factor(board)
+
     # -- processes ------------------------------------------------------------------------------
     def _spawn(self, seg: _Segment) -> None:
         env = dict(os.environ)
@@ -268,10 +306,18 @@ class EmulatedChain:
         env.pop("UCR_FAULTS", None)
         if seg.faults:
             env["UCR_FAULTS"] = seg.faults
+        for key in ("UCR_BOARD", "UCR_TIMING", "UCR_CPU_FACTOR"):
+            env.pop(key, None)
+        if self.board is not None:
+            env["UCR_BOARD"] = self.board
+        if self.timing:
+            env["UCR_TIMING"] = "1"
+            env["UCR_CPU_FACTOR"] = f"{seg.cpu_factor:.3f}"
+        heap = self._heap or f"{boards.profile(seg.board)['heap'] // 1024}k"
         seg.repl_inner.flush_input()
         fd = seg.repl_inner.slave
         seg.proc = subprocess.Popen(
-            [self._binary, "-X", f"heapsize={self._heap}", "-i", "main.py"],
+            [self._binary, "-X", f"heapsize={heap}", "-i", "main.py"],
             cwd=seg.dir,
             env=env,
             stdin=fd,
@@ -334,6 +380,14 @@ class EmulatedChain:
     def repl_port(self, k: int) -> str:
         """Pty path of segment ``k``'s REPL (what mpremote opens)."""
         return self._seg(k).repl_outer.path
+
+    def board_of(self, k: int) -> str:
+        """The board segment ``k`` runs as."""
+        return self._seg(k).board
+
+    def cpu_factor_of(self, k: int) -> float:
+        """Segment ``k``'s CPU factor under the timing model (1.0 without it)."""
+        return self._seg(k).cpu_factor
 
     def segment_dir(self, k: int) -> Path:
         """Segment ``k``'s flash directory (firmware, protocol/, config.json)."""
