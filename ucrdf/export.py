@@ -17,10 +17,16 @@ model's tip orientation; its position converges as O(1/N^2) (docs/kinematics.md 
 ``export_urdf(robot, N)`` writes movable joints (zero = straight); :func:`urdf_joint_positions`
 gives their values for a configuration. ``export_urdf(robot, N, config)`` bakes the configuration
 into fixed joints instead (a static snapshot). Rigid joints, links, inertials, visuals and
-collisions are copied. A bendable's mass is spread evenly over its subdivision links, each with
-its centre of mass at the subdivision's middle and 1/N of the segment's inertia tensor (an
-approximation, good for display and rough dynamics). Generated names that clash with the robot's
-own links or joints are refused with a clear error.
+collisions are copied.
+
+Physics (:func:`distribute_inertial`): a bendable's mass is split evenly over its N subdivision
+links so that, in the straight pose, their total mass, centre of mass and inertia about it equal
+the segment's exactly. Limits of the pseudo-rigid joints: velocity = kappa_rate_max times the
+largest rate of that joint's angle per unit curvature-vector rate (:func:`joint_rate_gains`, about
+h = l/N since a subdivision bends by kappa * h), effort = EI * kappa_max (the backbone's bending
+moment at full bend, the same at every joint of a constant-curvature arc); 0 (URDF: not given)
+when the U(C)RDF lacks the rate limit or the stiffness. Generated names that clash with the
+robot's own links or joints are refused with a clear error.
 """
 
 from __future__ import annotations
@@ -105,6 +111,82 @@ def urdf_joint_positions(
     return out
 
 
+def _tensor(i) -> np.ndarray:
+    ixx, ixy, ixz, iyy, iyz, izz = i
+    return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], dtype=float)
+
+
+def _physical(i: np.ndarray) -> bool:
+    """An inertia tensor a rigid body can have: symmetric, eigenvalues >= 0 and each at most the
+    sum of the other two (triangle inequality)."""
+    eig = np.linalg.eigvalsh(i)
+    tol = 1e-12 * max(1.0, float(np.abs(eig).max()))
+    return bool(eig.min() >= -tol and eig.max() <= eig.sum() - eig.max() + tol)
+
+
+def distribute_inertial(
+    inertial: Inertial, length: float, subdivisions: int
+) -> list[tuple[tuple[float, float, float], np.ndarray]]:
+    """Centre of mass (m) and inertia about it (kg m^2, 3x3), both in the segment's base frame
+    in the straight pose, of each of the ``subdivisions`` links (each of mass m/N).
+
+    Link k's centre of mass is c + s * (z_k - l/2) e_z, with c the segment's centre of mass and
+    z_k = (k + 1/2) h the middle of subdivision k: they average to c. Their spread adds
+    J = s^2 * m h^2 (N^2 - 1)/12 to the inertia about x and y (parallel axes), so each link gets
+    (I_c - J)/N about its own centre of mass and the sum is I_c exactly. s = 1 (point masses
+    where the subdivisions are) unless I_c - J would not be a physical inertia (a segment thinner
+    in its inertia than its own length implies): then s shrinks until it is (s = 0 is always)."""
+    n = subdivisions
+    m = inertial.mass
+    c = np.array(inertial.origin.xyz, dtype=float)
+    r = inertial.origin.matrix()[:3, :3]
+    i_c = r @ _tensor(inertial.inertia) @ r.T
+    h = length / n
+    spread = np.array([(k + 0.5) * h - length / 2 for k in range(n)])
+    lateral = np.diag([1.0, 1.0, 0.0])
+    j_full = m * h * h * (n * n - 1) / 12.0 * lateral
+    s = 1.0
+    for _ in range(60):
+        if _physical(i_c - s * s * j_full):
+            break
+        s *= 0.5
+    else:
+        s = 0.0
+    own = (i_c - s * s * j_full) / n
+    own = (own + own.T) / 2.0
+    return [(c + s * dz * np.array([0.0, 0.0, 1.0]), own) for dz in spread]
+
+
+def joint_rate_gains(
+    model: CurvatureModel, kappa_max: float, subdivisions: int
+) -> tuple[float, float]:
+    """Largest rate of any universal-joint angle and of the twist (rad/s) per unit rate of the
+    curvature vector (1/m/s), sampled over the disc |(kx, ky)| <= kappa_max (central differences,
+    4 radii x 16 directions) with a 2 % margin. About h for the joints (x1.05 at N = 10, x1.64 at
+    N = 1 near a 60 deg bend: the two axes of a universal joint share the bend unevenly)."""
+    n = subdivisions
+    eps = 1e-6 * max(kappa_max, 1.0)
+    g_joint = g_twist = 0.0
+    dim = len(model.coordinate_names())
+
+    def angles(q: np.ndarray) -> tuple[np.ndarray, float]:
+        ab, tw = subdivision_angles(model, q, n)
+        return np.array(ab, dtype=float).ravel(), tw
+
+    for radius in (0.0, 0.5 * kappa_max, 0.85 * kappa_max, kappa_max - eps):
+        for phi in np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False):
+            q0 = np.zeros(dim)  # PCC: (kx, ky); other models: the curvature vector first
+            q0[:2] = radius * math.cos(phi), radius * math.sin(phi)
+            dj, dt = [], []
+            for axis in np.eye(dim) * eps:
+                (ja, ta), (jb, tb) = angles(q0 + axis), angles(q0 - axis)
+                dj.append((ja - jb) / (2 * eps))
+                dt.append((ta - tb) / (2 * eps))
+            g_joint = max(g_joint, float(np.sqrt(np.sum(np.square(dj), axis=0)).max()))
+            g_twist = max(g_twist, float(np.linalg.norm(dt)))
+    return 1.02 * g_joint, 1.02 * g_twist
+
+
 def _check_subdivisions(subdivisions: int) -> None:
     if isinstance(subdivisions, bool) or not isinstance(subdivisions, int) or subdivisions < 1:
         raise ConfigError(f"subdivisions must be an integer >= 1, got {subdivisions!r}")
@@ -114,21 +196,28 @@ def _origin_el(parent: etree._Element, xyz, rpy=(0.0, 0.0, 0.0)) -> None:
     etree.SubElement(parent, "origin", xyz=_vec(xyz), rpy=_vec(rpy))
 
 
-def _inertial_el(
-    parent: etree._Element, inertial: Inertial, scale: float = 1.0, at_frame: bool = False
-) -> None:
-    """Copy of ``inertial`` with mass and inertia times ``scale``; ``at_frame`` puts the centre
-    of mass at the link frame (used for the subdivisions of a bendable)."""
+def _inertial_el(parent: etree._Element, inertial: Inertial) -> None:
+    """Copy of a rigid link's ``inertial``."""
     el = etree.SubElement(parent, "inertial")
-    if at_frame:
-        _origin_el(el, (0.0, 0.0, 0.0), inertial.origin.rpy)
-    else:
-        _origin_el(el, inertial.origin.xyz, inertial.origin.rpy)
-    etree.SubElement(el, "mass", value=_fmt(inertial.mass * scale))
+    _origin_el(el, inertial.origin.xyz, inertial.origin.rpy)
+    etree.SubElement(el, "mass", value=_fmt(inertial.mass))
     names = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     etree.SubElement(
-        el, "inertia", {k: _fmt(v * scale) for k, v in zip(names, inertial.inertia, strict=True)}
+        el, "inertia", {k: _fmt(v) for k, v in zip(names, inertial.inertia, strict=True)}
     )
+
+
+def _sub_inertial_el(
+    parent: etree._Element, mass: float, com: np.ndarray, inertia: np.ndarray
+) -> None:
+    """``<inertial>`` of one subdivision link (its frame is parallel to the segment base)."""
+    el = etree.SubElement(parent, "inertial")
+    _origin_el(el, com)
+    etree.SubElement(el, "mass", value=_fmt(mass))
+    i = inertia
+    values = (i[0, 0], i[0, 1], i[0, 2], i[1, 1], i[1, 2], i[2, 2])
+    names = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    etree.SubElement(el, "inertia", {k: _fmt(v) for k, v in zip(names, values, strict=True)})
 
 
 def _joint_el(
@@ -185,6 +274,7 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
                 "used by a link or joint of the robot"
             )
         taken |= made
+    gains: dict[tuple[str, int], tuple[float, float]] = {}
     for b in robot.bendables.values():
         model = kin.models[b.name]
         n = subdivisions
@@ -193,7 +283,16 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
             angles, twist = subdivision_angles(model, coords[b.name], n)
         else:
             angles, twist = [(0.0, 0.0)] * n, 0.0
-        amax = b.model.limits.kappa_max * h * (1.0 + 1e-6) + 1e-9
+        lims = b.model.limits
+        amax = lims.kappa_max * h * (1.0 + 1e-6) + 1e-9
+        rate = lims.kappa_rate_max or 0.0
+        key = (repr(b.model), n)
+        if key not in gains:  # identical segments share the sampling
+            gains[key] = joint_rate_gains(model, lims.kappa_max, n) if rate else (0.0, 0.0)
+        g_joint, g_twist = gains[key]
+        ei = b.model.backbone.stiffness() or 0.0
+        effort = ei * lims.kappa_max
+        parts = distribute_inertial(b.inertial, model.length, n) if b.inertial else None
         radius = b.model.backbone.radius
         parent = b.parent
         base = b.origin.matrix() @ Origin((0.0, 0.0, h / 2)).matrix()
@@ -203,8 +302,10 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
             sub = f"{b.name}_prb{k}"
             etree.SubElement(root, "link", name=mid)
             sub_el = etree.SubElement(root, "link", name=sub)
-            if b.inertial is not None:
-                _inertial_el(sub_el, b.inertial, 1.0 / n, at_frame=True)
+            if parts is not None:
+                com, inertia = parts[k]
+                z_k = (k + 0.5) * h  # the link frame's place along the straight segment
+                _sub_inertial_el(sub_el, b.inertial.mass / n, com - (0.0, 0.0, z_k), inertia)
             if radius > 0.0:
                 vis = etree.SubElement(sub_el, "visual")
                 _origin_el(vis, (0.0, 0.0, 0.0))
@@ -215,7 +316,7 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
                 _joint_el(root, f"{b.name}_prb{k}_rx", "fixed", parent, mid, xyz, _rpy(r_x))
                 _joint_el(root, f"{b.name}_prb{k}_ry", "fixed", mid, sub, rpy=_rpy(_rot_y(bb)))
             else:
-                lim = {"lower": -amax, "upper": amax, "effort": 0.0, "velocity": 0.0}
+                lim = {"lower": -amax, "upper": amax, "effort": effort, "velocity": rate * g_joint}
                 _joint_el(root, f"{b.name}_prb{k}_rx", "revolute", parent, mid, xyz,
                           rpy if k == 0 else (0.0, 0.0, 0.0), (1, 0, 0), lim)  # fmt: skip
                 _joint_el(
@@ -230,7 +331,8 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
             _joint_el(root, f"{b.name}_prb_twist", "fixed", tw_link, b.child, rpy=(0.0, 0.0, twist))
         else:
             _joint_el(root, f"{b.name}_prb_end", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
-            _joint_el(root, f"{b.name}_prb_twist", "continuous", tw_link, b.child, axis=(0, 0, 1))
+            _joint_el(root, f"{b.name}_prb_twist", "continuous", tw_link, b.child, axis=(0, 0, 1),
+                      limit={"effort": 0.0, "velocity": rate * g_twist})  # fmt: skip
     return etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="utf-8").decode()
 
 
