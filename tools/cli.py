@@ -12,7 +12,14 @@ import importlib
 import os
 import sys
 
-_AREAS = ("ucrdf.cli", "tools.tools_cli", "host.cli", "tools.demo", "host.client_cli")
+_AREAS = (
+    "ucrdf.cli",
+    "tools.tools_cli",
+    "host.cli",
+    "tools.demo",
+    "host.client_cli",
+    "interop.cli",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

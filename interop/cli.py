@@ -1,0 +1,159 @@
+"""``ucr record``, ``ucr replay``, ``ucr foxglove``: the robot's data in ROS 2 / Foxglove tools.
+
+Heavy imports (mcap, foxglove-sdk) happen inside the commands; without the optional ``record``
+dependencies each command says so in one line (no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Any
+
+_NEEDS = {
+    "record": ("mcap", "mcap_ros2", "zstandard"),
+    "replay": ("mcap", "mcap_ros2", "zstandard", "foxglove"),
+    "foxglove": ("mcap_ros2", "foxglove"),
+}
+
+
+def missing_dependency(command: str) -> str | None:
+    """The first module ``command`` needs that is not installed, else None."""
+    for mod in _NEEDS[command]:
+        try:
+            importlib.import_module(mod)
+        except ImportError:
+            return mod
+    return None
+
+
+def _guard(command: str, fn: Any) -> Any:
+    def run(args: argparse.Namespace) -> int:
+        mod = missing_dependency(command)
+        if command == "record" and getattr(args, "foxglove_port", None) is not None and not mod:
+            mod = missing_dependency("foxglove")
+        if mod:
+            print(f"ucr: `ucr {command}` needs the optional recording dependencies (module "
+                  f"{mod!r} is missing): pip install 'ucr[record]'", file=sys.stderr)  # fmt: skip
+            return 1
+        return int(fn(args) or 0)
+
+    return run
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    from host.api import ENV_TOKEN, ENV_URL, default_url  # noqa: PLC0415 - fast `ucr --help`
+
+    p.add_argument("--url", default=None,
+                   help=f"daemon API URL (default ${ENV_URL} or {default_url()})")  # fmt: skip
+    p.add_argument("--token", default=None, help=f"API token (default ${ENV_TOKEN})")
+    p.add_argument("--timeout", type=float, default=5.0, help="API reply timeout, s (5)")
+    p.add_argument(
+        "--robot", default=None, help="U(C)RDF file (default: the file the daemon reports)"
+    )
+
+
+def _record(args: argparse.Namespace) -> int:
+    from interop.record import run  # noqa: PLC0415 - after the dependency check
+
+    return run(args)
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from interop.replay import run  # noqa: PLC0415
+
+    return run(args)
+
+
+def _foxglove(args: argparse.Namespace) -> int:
+    from interop.foxglove import run  # noqa: PLC0415
+
+    return run(args)
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "record", help="record the live robot into an MCAP file (ROS 2 messages)",
+        description="Record the daemon's live data as ROS 2 messages (CDR) into MCAP: "
+        "/joint_states, /tf, /tf_static, /robot_description, /ucr/arcs, status, events, goals, "
+        "loop statistics (docs/recording.md). Ctrl-C or SIGTERM stops and closes the file.",
+    )  # fmt: skip
+    p.add_argument("-o", "--output", required=True, help="MCAP file to write (e.g. run.mcap)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument(
+        "--subdivisions",
+        type=int,
+        default=10,
+        help="pseudo-rigid links per bendable in /robot_description and /tf (10)",
+    )
+    p.add_argument(
+        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+    )
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument(
+        "--flush-interval",
+        type=float,
+        default=1.0,
+        help="close a chunk at least this often, s: at most this much is lost if the "
+        "recorder is killed (1)",
+    )
+    p.add_argument(
+        "--foxglove-port",
+        type=int,
+        default=None,
+        help="also serve the same data live to Foxglove on this port",
+    )
+    p.add_argument("--foxglove-host", default="127.0.0.1", help=argparse.SUPPRESS)
+    _common(p)
+    p.set_defaults(func=_guard("record", _record))
+
+    p = subparsers.add_parser(
+        "replay", help="play an MCAP recording into Foxglove, or re-run its motion (--execute)",
+        description="Play a recording back on a Foxglove WebSocket server at --rate x speed. "
+        "With --execute: re-run the recorded motion on the robot (dry run unless --go).",
+    )  # fmt: skip
+    p.add_argument("file", help="MCAP file written by `ucr record`")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed, x recorded (1)")
+    p.add_argument("--host", default="127.0.0.1", help="Foxglove server address (loopback)")
+    p.add_argument("--port", type=int, default=8766, help="Foxglove server port (8766)")
+    p.add_argument(
+        "--wait-client",
+        type=float,
+        default=0.0,
+        help="wait this many s before playing, for a viewer to connect (0)",
+    )
+    p.add_argument(
+        "--execute",
+        action="store_true",
+        help="re-run the recorded motion on the robot: prints the plan (dry run)",
+    )
+    p.add_argument("--go", action="store_true", help="with --execute: really move the robot")
+    p.add_argument(
+        "--sample-period", type=float, default=0.1, help="with --execute: waypoint spacing, s (0.1)"
+    )
+    p.add_argument(
+        "--lead-in",
+        type=float,
+        default=2.0,
+        help="with --execute: time to reach the first recorded pose, s (2)",
+    )
+    _common(p)
+    p.set_defaults(func=_guard("replay", _replay))
+
+    p = subparsers.add_parser(
+        "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
+        description="Serve the same topics as `ucr record` live on the Foxglove WebSocket "
+        "protocol (foxglove-sdk). Loopback only (docs/recording.md, security).",
+    )  # fmt: skip
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (loopback only)")
+    p.add_argument("--port", type=int, default=8766, help="port (8766; 0: any free port)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument(
+        "--subdivisions", type=int, default=10, help="pseudo-rigid links per bendable (10)"
+    )
+    p.add_argument(
+        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+    )
+    _common(p)
+    p.set_defaults(func=_guard("foxglove", _foxglove))

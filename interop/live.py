@@ -1,0 +1,153 @@
+"""The live robot as ROS 2 messages: a client of the daemon's API (docs/api.md) that subscribes to
+joint states, events and topology changes, polls status, loop statistics and trajectory goals,
+and publishes every topic of :mod:`interop.topics` to a :class:`~interop.sinks.Fanout`.
+
+Runs in the recorder's or the Foxglove server's own process: the daemon never waits for it (a
+slow feed loses stream messages in the daemon's per-client outbox, counted, never a cycle).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from interop.sinks import Fanout
+from interop.topics import RobotTopics
+from ucrdf.errors import UcrdfError
+from ucrdf.parser import load
+
+
+class FeedError(RuntimeError):
+    """The feed cannot start (no robot file, daemon refused)."""
+
+
+def robot_for(client: Any, robot_path: str | None) -> tuple[Any, str]:
+    """The robot (parsed U(C)RDF) and its text: ``robot_path`` or the file the daemon reports."""
+    path = robot_path or client.topology().get("file")
+    if not path:
+        raise FeedError("the daemon reports no robot file; pass --robot FILE")
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise FeedError(
+            f"cannot read the robot file {path} ({exc.strerror}); pass --robot FILE"
+        ) from None
+    try:
+        return load(p), text
+    except UcrdfError as exc:
+        raise FeedError(str(exc)) from None
+
+
+class LiveFeed:
+    """Publishes the live robot. ``viz_rate`` (Hz) caps /tf and /ucr/arcs (FK is the costly
+    part), ``status_period`` (s) the segment diagnostics and loop statistics; joint states go
+    out as the daemon publishes them (cJSB, 50 Hz by default), up to ``js_rate``."""
+
+    def __init__(
+        self,
+        client: Any,
+        topics: RobotTopics,
+        out: Fanout,
+        *,
+        viz_rate: float = 20.0,
+        js_rate: float = 1000.0,
+        status_period: float = 1.0,
+        goal_period: float = 0.2,
+    ) -> None:
+        self.client = client
+        self.topics = topics
+        self.out = out
+        self.viz_period = 1.0 / viz_rate if viz_rate > 0 else float("inf")
+        self.js_rate = js_rate
+        self.status_period = status_period
+        self.goal_period = goal_period
+        self._offset: float | None = None  # wall - daemon monotonic (s)
+        self._goals: dict[str, dict] = {}
+        self.dropped = 0
+
+    def _t_ns(self, t_daemon: float | None) -> int:
+        """Wall-clock stamp (ns) of a daemon monotonic time: same host -> the local offset;
+        otherwise estimated once from the first message's arrival."""
+        now = time.time()
+        if t_daemon is None:
+            return int(now * 1e9)
+        if self._offset is None:
+            local = time.monotonic()
+            same_clock = abs(local - t_daemon) < 1.0
+            self._offset = (now - local) if same_clock else (now - t_daemon)
+        return int((t_daemon + self._offset) * 1e9)
+
+    def _poll_goals(self, status: dict) -> None:
+        running = set(status.get("running_goals") or [])
+        for gid in running - set(self._goals):
+            try:
+                st = self.client.trajectory_status(gid)
+            except Exception:  # noqa: BLE001 - gone already: the result poll reports it
+                continue
+            self._goals[gid] = st
+            self.out.publish(self.topics.goal(st, self._t_ns(None), done=False))
+        for gid in list(self._goals):
+            if gid in running:
+                continue
+            try:
+                st = self.client.trajectory_status(gid)
+            except Exception as exc:  # noqa: BLE001 - forgotten by the daemon (500 kept)
+                st = {**self._goals[gid], "state": "unknown", "reason": str(exc)}
+            if not st.get("done", True) and st.get("state") in ("running", "pending"):
+                continue
+            del self._goals[gid]
+            self.out.publish(self.topics.goal(st, self._t_ns(None), done=True))
+
+    def run(
+        self,
+        stop: threading.Event,
+        duration: float | None = None,
+        on_tick: Callable[[], None] | None = None,
+    ) -> None:
+        """Publish until ``stop`` is set, ``duration`` (s) passed or the connection ends."""
+        t0 = time.monotonic()
+        for m in self.topics.static_messages(self._t_ns(None)):
+            self.out.publish(m)
+        next_viz = next_status = next_goal = 0.0
+        topology: dict | None = None
+        with self.client.subscribe(
+            ["joint_states", "events", "topology"], max_rate=self.js_rate, buffer=4096
+        ) as sub:
+            while not stop.is_set():
+                now = time.monotonic()
+                if duration is not None and now - t0 >= duration:
+                    break
+                msg = sub.get(timeout=0.05)
+                if msg is not None:
+                    kind = msg.get("kind")
+                    t_ns = self._t_ns(msg.get("t"))
+                    if kind == "joint_states":
+                        self.out.publish(self.topics.joint_states(msg, t_ns))
+                        if now >= next_viz:
+                            next_viz = now + self.viz_period
+                            self.out.publish(self.topics.tf(msg, t_ns))
+                            self.out.publish(self.topics.arcs(msg, t_ns))
+                    elif kind in ("event", "topology"):
+                        for m in self.topics.event(msg, t_ns):
+                            self.out.publish(m)
+                        if kind == "topology":
+                            topology = None  # re-read with the next status poll
+                if now >= next_goal:
+                    next_goal = now + self.goal_period
+                    status = self.client.status()
+                    self._poll_goals(status)
+                    if now >= next_status:
+                        next_status = now + self.status_period
+                        if topology is None:
+                            topology = self.client.topology()
+                        t_ns = self._t_ns(None)
+                        self.out.publish(self.topics.segments(status, topology, t_ns))
+                        self.out.publish(self.topics.loop_stats(self.client.loop_stats(), t_ns))
+                self.out.tick()
+                if on_tick is not None:
+                    on_tick()
+            self.dropped = sub.dropped_local + sub.dropped_server

@@ -1,0 +1,304 @@
+"""``ucr replay``: plays a recording (MCAP, ROS 2 CDR) back into sinks at 1x or another rate, and
+with ``--execute`` runs the recorded motion on the robot again (a dry run unless ``--go``).
+
+Output seam: :func:`play` writes every message, still encoded, to any :class:`~interop.sinks.Sink`
+(the Foxglove server today; ``ucr view`` plugs in the same way, decoding with
+:func:`interop.ros2.codec`). The motion that ``--execute`` re-runs is the recorded /joint_states
+(measured κ, φ per bendable), resampled as timed waypoints in the curvature vector (κx, κy) and
+sent as one cJTC goal; every waypoint is checked against the robot file first.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+from mcap_ros2._dynamic import generate_dynamic
+
+from host.api.client import ApiError, connect
+from interop import ros2
+from interop.live import robot_for
+from interop.sinks import Fanout
+from ucrdf.errors import UcrdfError
+from ucrdf.parser import load
+
+
+class RecordingError(ValueError):
+    """The file cannot be replayed (not MCAP, no joint states, limits exceeded)."""
+
+
+@dataclass
+class RecordedMessage:
+    topic: str
+    typename: str
+    schema: str
+    data: bytes
+    t_ns: int
+
+
+def read_recording(path: str | Path) -> Iterator[RecordedMessage]:
+    """Every message of an MCAP file in log-time order. A file cut short (recorder killed) is
+    read up to its last complete chunk."""
+    p = Path(path)
+    try:
+        f = open(p, "rb")  # noqa: SIM115 - closed below
+    except OSError as exc:
+        raise RecordingError(f"{p}: {exc.strerror}") from None
+    with f:
+        try:
+            reader = make_reader(f)
+            reader.get_summary()
+            summary_ok = reader.get_summary() is not None
+        except (McapError, ValueError, EOFError):
+            summary_ok = False
+        if summary_ok:
+            it = reader.iter_messages(log_time_order=True)
+        else:  # no summary: a killed recording, read as a stream until it ends
+            f.seek(0)
+            it = NonSeekingReader(f).iter_messages()
+        try:
+            for schema, channel, message in it:
+                if schema is None or channel.message_encoding != ros2.MESSAGE_ENCODING:
+                    continue
+                yield RecordedMessage(channel.topic, schema.name, schema.data.decode(),
+                                      message.data, message.log_time)  # fmt: skip
+        except (McapError, EOFError, ValueError) as exc:
+            if summary_ok:
+                raise RecordingError(f"{p}: not a readable MCAP file: {exc}") from None
+            # truncated tail of a killed recording: everything before it was delivered
+
+
+def play(
+    path: str | Path, sinks: list[Any], rate: float = 1.0, stop: threading.Event | None = None
+) -> int:
+    """Write every message to ``sinks`` at ``rate`` x recorded speed (0: as fast as possible).
+    Returns the number of messages."""
+    out = Fanout(sinks)
+    stop = stop or threading.Event()
+    t_rec0: int | None = None
+    t_wall0 = time.monotonic()
+    n = 0
+    for m in read_recording(path):
+        if stop.is_set():
+            break
+        if t_rec0 is None:
+            t_rec0 = m.t_ns
+        if rate > 0:
+            due = t_wall0 + (m.t_ns - t_rec0) / 1e9 / rate
+            while not stop.is_set():
+                wait = due - time.monotonic()
+                if wait <= 0:
+                    break
+                out.tick()
+                stop.wait(min(wait, 0.05))
+        out.write(m.topic, m.typename, m.schema, m.data, m.t_ns)
+        n += 1
+    out.tick()
+    return n
+
+
+# -- re-executing the recorded motion ----------------------------------------------------------
+@dataclass
+class Plan:
+    """Timed waypoints (s from start, per bendable (kx, ky) in 1/m) and what the check found."""
+
+    points: list[dict] = field(default_factory=list)
+    segments: list[str] = field(default_factory=list)
+    duration: float = 0.0
+    lead_in: float = 0.0
+    kappa_range: dict[str, tuple[float, float]] = field(default_factory=dict)
+    start: dict[str, tuple[float, float]] = field(default_factory=dict)
+    end: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fastest: dict[str, float] = field(default_factory=dict)  # 1/m/s
+    notes: list[str] = field(default_factory=list)
+
+
+def recorded_joint_states(path: str | Path) -> list[tuple[float, dict[str, tuple[float, float]]]]:
+    """(t s, {bendable: (kappa, phi)}) of every /joint_states message."""
+    dec = None
+    out = []
+    for m in read_recording(path):
+        if m.topic != "/joint_states":
+            continue
+        if dec is None:
+            dec = generate_dynamic(m.typename, m.schema)[m.typename]
+        msg = dec(m.data)
+        vals: dict[str, dict[str, float]] = {}
+        for name, pos in zip(msg.name, msg.position, strict=False):
+            seg, _, var = name.rpartition("/")
+            if var in ("kappa", "phi") and seg and math.isfinite(pos):
+                vals.setdefault(seg, {})[var] = pos
+        states = {k: (v["kappa"], v["phi"]) for k, v in vals.items() if len(v) == 2}
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        out.append((t, states))
+    return out
+
+
+def make_plan(
+    path: str | Path, robot: Any, sample_period: float = 0.1, lead_in: float = 2.0
+) -> Plan:
+    """Waypoints from the recorded joint states, checked against ``robot`` (a parsed U(C)RDF):
+    every bendable must exist, κ within [0, kappa_max], φ within its range; rates above
+    kappa_rate_max are reported (the daemon stretches such a goal: ``retimed``)."""
+    states = recorded_joint_states(path)
+    if not states:
+        raise RecordingError(f"{path}: no /joint_states messages to execute")
+    names = sorted({n for _, s in states for n in s})
+    unknown = [n for n in names if n not in robot.bendables]
+    if unknown:
+        raise RecordingError(
+            f"the recording moves {', '.join(unknown)}, which robot {robot.name!r} does not have"
+        )
+    plan = Plan(segments=names, lead_in=lead_in)
+    t0 = states[0][0]
+    last_t = -math.inf
+    prev: dict[str, tuple[float, float, float]] = {}
+    for i, (t, s) in enumerate(states):
+        if t - last_t < sample_period - 1e-9 and i != len(states) - 1:
+            continue
+        last_t = t
+        seg_pts = {}
+        for name, (kappa, phi) in s.items():
+            lim = robot.bendables[name].model.limits
+            if kappa < -1e-9 or kappa > lim.kappa_max * (1 + 1e-6) + 1e-9:
+                raise RecordingError(
+                    f"{name}: recorded kappa {kappa:.4g} 1/m at t = {t - t0:.2f} s is outside "
+                    f"[0, {lim.kappa_max:.4g}] of the robot file: refused, nothing moves"
+                )
+            full = lim.phi_max - lim.phi_min >= 2 * math.pi - 1e-9
+            if not full and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
+                raise RecordingError(
+                    f"{name}: recorded phi {math.degrees(phi):.1f} deg at t = {t - t0:.2f} s is "
+                    f"outside [{math.degrees(lim.phi_min):.1f}, {math.degrees(lim.phi_max):.1f}] "
+                    "deg of the robot file: refused, nothing moves"
+                )
+            kappa = min(max(kappa, 0.0), lim.kappa_max)
+            kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
+            seg_pts[name] = {"kx": kx, "ky": ky}
+            lo, hi = plan.kappa_range.get(name, (kappa, kappa))
+            plan.kappa_range[name] = (min(lo, kappa), max(hi, kappa))
+            plan.start.setdefault(name, (kappa, phi))
+            plan.end[name] = (kappa, phi)
+            if name in prev:
+                pt, px, py = prev[name]
+                if t > pt:
+                    speed = math.hypot(kx - px, ky - py) / (t - pt)
+                    plan.fastest[name] = max(plan.fastest.get(name, 0.0), speed)
+            prev[name] = (t, kx, ky)
+        plan.points.append({"time_from_start": lead_in + (t - t0), "segments": seg_pts})
+    plan.duration = plan.points[-1]["time_from_start"]
+    for name in names:
+        rate = robot.bendables[name].model.limits.kappa_rate_max
+        if rate is not None and plan.fastest.get(name, 0.0) > rate * (1 + 1e-3):
+            plan.notes.append(
+                f"{name}: recorded rate {plan.fastest[name]:.3g} 1/m/s exceeds kappa_rate_max "
+                f"{rate:.3g}: the daemon will slow the goal down (retimed)"
+            )
+    return plan
+
+
+def describe(plan: Plan) -> str:
+    head = (
+        f"{len(plan.points)} waypoints over {plan.duration:.2f} s "
+        f"(first after a {plan.lead_in:.1f} s lead-in from where the robot is):"
+    )
+    lines = [head]
+    for name in plan.segments:
+        (k0, p0), (k1, p1) = plan.start[name], plan.end[name]
+        lo, hi = plan.kappa_range[name]
+        lines.append(
+            f"  {name}: kappa {k0:.3f} -> {k1:.3f} 1/m (range {lo:.3f}..{hi:.3f}), "
+            f"phi {math.degrees(p0):.1f} -> {math.degrees(p1):.1f} deg, "
+            f"fastest {plan.fastest.get(name, 0.0):.3g} 1/m/s"
+        )
+    lines += [f"  note: {n}" for n in plan.notes]
+    return "\n".join(lines)
+
+
+def execute(args: Any) -> int:
+    """``ucr replay FILE --execute [--go]``."""
+    client = None
+    try:
+        if args.robot:
+            robot = load(args.robot)
+        else:
+            client = connect(args.url, args.token, timeout=args.timeout)
+            robot, _ = robot_for(client, None)
+        plan = make_plan(args.file, robot, args.sample_period, args.lead_in)
+        print(describe(plan))
+        if not args.go:
+            print("dry run: nothing moved (add --go to run it on the robot)")
+            return 0
+        if client is None:
+            client = connect(args.url, args.token, timeout=args.timeout)
+        live = set(client.status().get("segments") or [])
+        missing = [n for n in plan.segments if n not in live]
+        if missing:
+            print(f"ucr: the daemon does not control {', '.join(missing)}: refused, nothing moves",
+                  file=sys.stderr)  # fmt: skip
+            return 1
+
+        def progress(st: dict) -> None:
+            print(f"\r  {st.get('state', '?'):10s} {100 * (st.get('progress') or 0):5.1f} %",
+                  end="", file=sys.stderr, flush=True)  # fmt: skip
+
+        result = client.send_trajectory(
+            plan.points, progress=progress, timeout=plan.duration * 3 + 30
+        )
+        print(file=sys.stderr)
+        print(f"goal {result.get('id')}: {result.get('state')} in {result.get('duration', 0):.2f} s"
+              + (" (retimed)" if result.get("retimed") else ""))  # fmt: skip
+        return 0 if result.get("state") == "succeeded" else 1
+    except (RecordingError, UcrdfError) as exc:
+        print(f"ucr: {exc}", file=sys.stderr)
+        return 1
+    except ApiError as exc:
+        print(f"ucr: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if client is not None:
+            client.close()
+
+
+def run(args: Any) -> int:
+    """The ``ucr replay`` command."""
+    if args.execute:
+        return execute(args)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    sinks: list[Any] = []
+    try:
+        from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
+            FoxgloveBindError,
+            FoxgloveSink,
+        )
+
+        try:
+            sink = FoxgloveSink(args.host, args.port)
+        except (FoxgloveBindError, RuntimeError) as exc:
+            print(f"ucr: {exc}", file=sys.stderr)
+            return 1
+        sinks.append(sink)
+        print(f"ucr: replaying {args.file} at {args.rate:g}x on {sink.url}", file=sys.stderr,
+              flush=True)  # fmt: skip
+        if args.wait_client > 0:
+            time.sleep(args.wait_client)
+        n = play(args.file, sinks, rate=args.rate, stop=stop)
+        print(f"ucr: {n} messages replayed", file=sys.stderr)
+        return 0
+    except RecordingError as exc:
+        print(f"ucr: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        for s in sinks:
+            s.close()

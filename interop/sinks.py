@@ -1,0 +1,70 @@
+"""Where encoded ROS 2 messages go: an MCAP file, the Foxglove server, a viewer.
+
+A sink takes messages already CDR-encoded (so a recording replays byte for byte and a live feed
+encodes each message once for every sink). :class:`Fanout` encodes a
+:class:`~interop.topics.Message` once and hands the bytes to each sink; a sink that fails is
+reported and dropped, never allowed to stop the others.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import Protocol
+
+from interop import ros2
+from interop.topics import Message
+
+log = logging.getLogger(__name__)
+
+
+class Sink(Protocol):
+    """A consumer of encoded messages. ``typename`` is ``pkg/msg/Type``; its definition text is
+    ``interop.ros2.definition(typename)`` (or the schema a recording carried)."""
+
+    def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None: ...
+
+    def tick(self) -> None:
+        """Called often (>= 10 Hz) even when no message flows: flush, re-send latched data."""
+
+    def close(self) -> None: ...
+
+
+class Fanout:
+    """Encode once, write to every sink."""
+
+    def __init__(self, sinks: list[Sink]) -> None:
+        self.sinks = list(sinks)
+        self.messages = 0
+
+    def publish(self, m: Message) -> None:
+        c = ros2.codec(m.typename)
+        self.write(m.topic, c.name, c.schema_text, c.encode(m.msg), m.t_ns)
+
+    def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
+        self.messages += 1
+        for s in list(self.sinks):
+            try:
+                s.write(topic, typename, schema, data, t_ns)
+            except Exception as exc:  # noqa: BLE001 - one broken sink never stops the others
+                self._drop(s, exc)
+
+    def tick(self) -> None:
+        for s in list(self.sinks):
+            try:
+                s.tick()
+            except Exception as exc:  # noqa: BLE001
+                self._drop(s, exc)
+
+    def _drop(self, sink: Sink, exc: Exception) -> None:
+        print(f"ucr: {type(sink).__name__} stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
+        log.debug("sink failed", exc_info=exc)
+        self.sinks.remove(sink)
+        try:
+            sink.close()
+        except Exception:  # noqa: BLE001, S110 - already failed
+            pass
+
+    def close(self) -> None:
+        for s in self.sinks:
+            s.close()

@@ -1,0 +1,326 @@
+"""The robot's data as ROS 2 topics: turns the daemon's API messages (docs/api.md) into ROS 2
+messages (nested dicts for :mod:`interop.ros2`). One place for recording, replay and the live
+Foxglove server, so every consumer sees the same topics (docs/recording.md lists them).
+
+The transforms are computed here from the joint states, as ROS's robot_state_publisher does from
+/robot_description: /tf carries every movable joint of the exported URDF (the pseudo-rigid joints
+subdivided along each arc included), /tf_static every fixed one; /ucr/arcs draws each segment's
+true backbone curve (exact model FK, not the pseudo-rigid chord).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from lxml import etree
+
+from ucrdf.export import export_urdf, subdivision_angles
+from ucrdf.fk import RobotKinematics, axis_rotation
+from ucrdf.model import Origin, Robot
+
+# topic -> ROS 2 type (docs/recording.md)
+TOPICS: dict[str, str] = {
+    "/robot_description": "std_msgs/msg/String",
+    "/ucr/robot_description_ucrdf": "std_msgs/msg/String",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/ucr/arcs": "visualization_msgs/msg/MarkerArray",
+    "/ucr/segments": "diagnostic_msgs/msg/DiagnosticArray",
+    "/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
+    "/rosout": "rcl_interfaces/msg/Log",
+    "/ucr/events": "std_msgs/msg/String",
+    "/ucr/trajectory/goals": "std_msgs/msg/String",
+    "/ucr/trajectory/results": "std_msgs/msg/String",
+}
+LATCHED = ("/robot_description", "/ucr/robot_description_ucrdf", "/tf_static")
+
+LINE_STRIP = 4
+_LOG_INFO, _LOG_WARN, _LOG_ERROR = 20, 30, 40
+_WARN_EVENTS = ("manual_takeover", "topology", "hold", "rebuild", "deadman", "retimed")
+_ERROR_EVENTS = ("fault", "lost", "error", "abort")
+
+
+@dataclass(frozen=True)
+class Message:
+    """One ROS 2 message to publish: topic, type, content (dict) and stamp (ns, wall clock)."""
+
+    topic: str
+    typename: str
+    msg: dict[str, Any]
+    t_ns: int
+
+
+def quaternion(r: np.ndarray) -> dict[str, float]:
+    """geometry_msgs/Quaternion of a 3x3 rotation matrix (largest-component branch)."""
+    tr = float(r[0, 0] + r[1, 1] + r[2, 2])
+    diag = [tr, float(r[0, 0]), float(r[1, 1]), float(r[2, 2])]
+    k = int(np.argmax(diag))
+    if k == 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, s / 4
+    elif k == 1:
+        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q = s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s
+    elif k == 2:
+        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q = (r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q = (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4, (r[1, 0] - r[0, 1]) / s
+    if q[3] < 0:
+        q = tuple(-v for v in q)
+    return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
+
+
+def _transform(t: np.ndarray) -> dict[str, Any]:
+    return {
+        "translation": {"x": float(t[0, 3]), "y": float(t[1, 3]), "z": float(t[2, 3])},
+        "rotation": quaternion(t[:3, :3]),
+    }
+
+
+def _header(t_ns: int, frame: str = "") -> dict[str, Any]:
+    return {"stamp": {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000},
+            "frame_id": frame}  # fmt: skip
+
+
+def _string(topic: str, text: str, t_ns: int) -> Message:
+    return Message(topic, TOPICS[topic], {"data": text}, t_ns)
+
+
+@dataclass
+class _UrdfJoint:
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin: np.ndarray
+    axis: np.ndarray
+
+
+def _parse_joints(urdf: str) -> list[_UrdfJoint]:
+    root = etree.fromstring(urdf.encode())
+    out = []
+    for j in root.iter("joint"):
+        o = j.find("origin")
+        xyz = tuple(float(v) for v in o.get("xyz", "0 0 0").split()) if o is not None else (0,) * 3
+        rpy = tuple(float(v) for v in o.get("rpy", "0 0 0").split()) if o is not None else (0,) * 3
+        ax = j.find("axis")
+        axis = np.array([float(v) for v in ax.get("xyz").split()]) if ax is not None else None
+        if axis is not None:
+            axis = axis / np.linalg.norm(axis)
+        out.append(_UrdfJoint(j.get("name"), j.get("type"), j.find("parent").get("link"),
+                              j.find("child").get("link"), Origin(xyz, rpy).matrix(),
+                              axis))  # fmt: skip
+    return out
+
+
+class RobotTopics:
+    """Converter for one robot: exported URDF with ``subdivisions`` per bendable."""
+
+    def __init__(self, robot: Robot, ucrdf_text: str = "", subdivisions: int = 10) -> None:
+        self.robot = robot
+        self.kin = RobotKinematics(robot)
+        self.root = self.kin.root
+        self.subdivisions = subdivisions
+        self.urdf = export_urdf(robot, subdivisions)
+        self.ucrdf_text = ucrdf_text
+        self.joints = _parse_joints(self.urdf)
+        self.movable = [j for j in self.joints if j.type != "fixed"]
+        self.fixed = [j for j in self.joints if j.type == "fixed"]
+        self.bendables = list(robot.bendables)
+
+    # -- latched -------------------------------------------------------------------------------
+    def static_messages(self, t_ns: int) -> list[Message]:
+        """/robot_description, the U(C)RDF text and /tf_static (every fixed joint)."""
+        tf = [
+            {"header": _header(t_ns, j.parent), "child_frame_id": j.child,
+             "transform": _transform(j.origin)}
+            for j in self.fixed
+        ]  # fmt: skip
+        return [
+            _string("/robot_description", self.urdf, t_ns),
+            _string("/ucr/robot_description_ucrdf", self.ucrdf_text, t_ns),
+            Message("/tf_static", TOPICS["/tf_static"], {"transforms": tf}, t_ns),
+        ]
+
+    # -- joint states --------------------------------------------------------------------------
+    def _coords(self, js: dict) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        coords: dict[str, np.ndarray] = {}
+        names = js.get("names", [])
+        for i, name in enumerate(names):
+            model = self.kin.models.get(name)
+            if model is None:
+                continue
+            kappa, phi = js["kappa"][i], js["phi"][i]
+            if kappa is None or phi is None:
+                continue
+            # from (kappa, phi) as /joint_states carries them, so /tf is exactly what a consumer
+            # recomputes from /joint_states (the daemon's kx, ky are rounded separately)
+            q = np.zeros(len(model.coordinate_names()))
+            q[:2] = kappa * math.cos(phi), kappa * math.sin(phi)
+            coords[name] = q
+        for name, model in self.kin.models.items():  # not reported (unplugged): straight
+            coords.setdefault(name, np.zeros(len(model.coordinate_names())))
+        rigid = {k: float(v["position"]) for k, v in (js.get("rigid") or {}).items()
+                 if isinstance(v, dict) and v.get("position") is not None}  # fmt: skip
+        return coords, rigid
+
+    def joint_states(self, js: dict, t_ns: int) -> Message:
+        """sensor_msgs/JointState: ``<b>/kappa`` (1/m) and ``<b>/phi`` (rad) per reported
+        bendable, then the movable rigid joints. Velocity and effort stay empty (the daemon
+        reports no rates yet)."""
+        names: list[str] = []
+        pos: list[float] = []
+        for i, name in enumerate(js.get("names", [])):
+            k, p = js["kappa"][i], js["phi"][i]
+            names += [f"{name}/kappa", f"{name}/phi"]
+            pos += [float("nan") if k is None else float(k), float("nan") if p is None else p]
+        for name, v in (js.get("rigid") or {}).items():
+            if isinstance(v, dict) and v.get("position") is not None:
+                names.append(name)
+                pos.append(float(v["position"]))
+        msg = {"header": _header(t_ns, self.root), "name": names, "position": pos,
+               "velocity": [], "effort": []}  # fmt: skip
+        return Message("/joint_states", TOPICS["/joint_states"], msg, t_ns)
+
+    def joint_positions(self, js: dict) -> dict[str, float]:
+        """Every movable joint of the exported URDF for an API joint_states message (rad / m)."""
+        coords, rigid = self._coords(js)
+        out = dict(rigid)
+        for name, model in self.kin.models.items():
+            angles, twist = subdivision_angles(model, coords[name], self.subdivisions)
+            for k, (a, b) in enumerate(angles):
+                out[f"{name}_prb{k}_rx"] = a
+                out[f"{name}_prb{k}_ry"] = b
+            out[f"{name}_prb_twist"] = twist
+        return out
+
+    def tf(self, js: dict, t_ns: int) -> Message:
+        """tf2_msgs/TFMessage: parent -> child of every movable joint of the exported URDF."""
+        q = self.joint_positions(js)
+        out = []
+        for j in self.movable:
+            t = j.origin.copy()
+            v = q.get(j.name, 0.0)
+            if j.type in ("revolute", "continuous"):
+                m = np.eye(4)
+                m[:3, :3] = axis_rotation(j.axis, v)
+                t = t @ m
+            elif j.type == "prismatic":
+                m = np.eye(4)
+                m[:3, 3] = j.axis * v
+                t = t @ m
+            out.append({"header": _header(t_ns, j.parent), "child_frame_id": j.child,
+                        "transform": _transform(t)})  # fmt: skip
+        return Message("/tf", TOPICS["/tf"], {"transforms": out}, t_ns)
+
+    def arcs(self, js: dict, t_ns: int, samples: int = 24) -> Message:
+        """visualization_msgs/MarkerArray: one LINE_STRIP per bendable along its true backbone
+        (root frame), as wide as the segment's backbone (at least 5 mm)."""
+        coords, rigid = self._coords(js)
+        frames = self.kin.fk_coordinates(coords, rigid)
+        markers = []
+        for i, (name, model) in enumerate(self.kin.models.items()):
+            b = self.robot.bendables[name]
+            base = frames[b.parent] @ b.origin.matrix()
+            pts = []
+            for s in np.linspace(0.0, model.length, samples):
+                p = base @ model.transform_coordinates(coords[name], float(s))[:, 3]
+                pts.append({"x": float(p[0]), "y": float(p[1]), "z": float(p[2])})
+            width = max(2.0 * b.model.backbone.radius, 0.005)
+            markers.append({
+                "header": _header(t_ns, self.root), "ns": "ucr/arcs", "id": i,
+                "type": LINE_STRIP, "action": 0, "pose": {"orientation": {"w": 1.0}},
+                "scale": {"x": width, "y": 0.0, "z": 0.0},
+                "color": {"r": 0.1, "g": 0.6, "b": 0.95, "a": 1.0},
+                "frame_locked": False, "points": pts, "text": name,
+            })  # fmt: skip
+        return Message("/ucr/arcs", TOPICS["/ucr/arcs"], {"markers": markers}, t_ns)
+
+    # -- status, events, goals -----------------------------------------------------------------
+    def segments(self, status: dict, topology: dict | None, t_ns: int) -> Message:
+        """diagnostic_msgs/DiagnosticArray: one status per bendable (OK measured and controlled,
+        WARN not valid this cycle, STALE not on the chain) with κ, φ, uid, firmware."""
+        js = status.get("joint_states") or {}
+        found = {s.get("bendable"): s for s in (topology or {}).get("segments", [])}
+        out = []
+        for name in self.bendables:
+            st, seg = js.get(name), found.get(name, {})
+            if st is None:
+                level, text = 3, "not on the chain"
+            elif st.get("valid"):
+                level, text = 0, "ok"
+            else:
+                level, text = 1, "no valid state this cycle"
+            values = {"state": status.get("state", ""), "kappa_1_per_m": (st or {}).get("kappa"),
+                      "phi_rad": (st or {}).get("phi"), "uid": seg.get("uid"),
+                      "position": seg.get("position"), "fw_version": seg.get("fw_version"),
+                      "controlled": seg.get("controlled")}  # fmt: skip
+            out.append({"level": level, "name": f"ucr/{name}", "message": text,
+                        "hardware_id": str(seg.get("uid") or ""),
+                        "values": _key_values(values)})  # fmt: skip
+        msg = {"header": _header(t_ns, ""), "status": out}
+        return Message("/ucr/segments", TOPICS["/ucr/segments"], msg, t_ns)
+
+    @staticmethod
+    def loop_stats(stats: dict, t_ns: int) -> Message:
+        """diagnostic_msgs/DiagnosticArray with one status ``ucr/loop``: every number of the
+        daemon's ``loop_stats`` flattened to ``key.sub`` = value (µs, counts)."""
+        flat = _flatten(stats)
+        level = 1 if (stats.get("overruns") or 0) > 0 else 0
+        status = {"level": level, "name": "ucr/loop", "message": f"{stats.get('cycles')} cycles",
+                  "hardware_id": "", "values": _key_values(flat)}  # fmt: skip
+        msg = {"header": _header(t_ns, ""), "status": [status]}
+        return Message("/ucr/loop_stats", TOPICS["/ucr/loop_stats"], msg, t_ns)
+
+    @staticmethod
+    def event(ev: dict, t_ns: int) -> list[Message]:
+        """An API event or topology message: rcl_interfaces/Log on /rosout (for log viewers) and
+        the full JSON on /ucr/events (lossless)."""
+        name = str(ev.get("event") or ev.get("kind") or "event")
+        text = str(ev.get("message") or ev.get("reason") or name)
+        low = name.lower()
+        level = _LOG_INFO
+        if any(w in low for w in _WARN_EVENTS):
+            level = _LOG_WARN
+        if any(w in low for w in _ERROR_EVENTS):
+            level = _LOG_ERROR
+        log = {"stamp": _header(t_ns)["stamp"], "level": level, "name": f"ucr.{name}",
+               "msg": text, "file": "", "function": "", "line": 0}  # fmt: skip
+        return [
+            Message("/rosout", TOPICS["/rosout"], log, t_ns),
+            _string("/ucr/events", json.dumps(ev, sort_keys=True, default=str), t_ns),
+        ]
+
+    @staticmethod
+    def goal(status: dict, t_ns: int, done: bool) -> Message:
+        """A trajectory goal's status as JSON: on /ucr/trajectory/goals when first seen, on
+        /ucr/trajectory/results when it ended (succeeded, aborted, canceled)."""
+        topic = "/ucr/trajectory/results" if done else "/ucr/trajectory/goals"
+        return _string(topic, json.dumps(status, sort_keys=True, default=str), t_ns)
+
+
+def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    elif isinstance(d, list):
+        if all(not isinstance(v, dict | list) for v in d):
+            out[prefix] = json.dumps(d)
+        else:
+            for i, v in enumerate(d):
+                out.update(_flatten(v, f"{prefix}[{i}]"))
+    else:
+        out[prefix] = d
+    return out
+
+
+def _key_values(values: dict[str, Any]) -> list[dict[str, str]]:
+    return [{"key": k, "value": "" if v is None else str(v)} for k, v in values.items()]

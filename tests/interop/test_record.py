@@ -1,0 +1,211 @@
+"""`ucr record` against the emulated chain, read back by readers nobody here wrote: the Python
+`mcap` library with mcap-ros2-support's decoder, rosbags' AnyReader, yourdfpy for the URDF."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from .conftest import ROBOT_FILE, stop, straighten, ucr, wait_for
+
+pytestmark = pytest.mark.timeout(240)
+
+GOAL = {"segment_1": (2.0, 0.5), "segment_3": (1.5, -1.2)}  # kappa 1/m, phi rad
+EXPECTED_TOPICS = {
+    "/robot_description": "std_msgs/msg/String",
+    "/ucr/robot_description_ucrdf": "std_msgs/msg/String",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/ucr/arcs": "visualization_msgs/msg/MarkerArray",
+    "/ucr/segments": "diagnostic_msgs/msg/DiagnosticArray",
+    "/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
+    "/ucr/trajectory/goals": "std_msgs/msg/String",
+    "/ucr/trajectory/results": "std_msgs/msg/String",
+}
+
+
+@pytest.fixture(scope="module")
+def recording(rig, tmp_path_factory):
+    """A recording of one trajectory (segment_1 and segment_3 bend, then hold)."""
+    from host.api.client import connect
+
+    _, srv = rig
+    path = tmp_path_factory.mktemp("rec") / "run.mcap"
+    with connect(srv.url) as c:
+        straighten(c)
+        proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE))
+        try:
+            assert wait_for(lambda: path.exists() and path.stat().st_size > 0, 30)
+            time.sleep(1.0)
+            pts = [{"time_from_start": 1.5, "segments": {n: {"kappa": k, "phi": p}
+                    for n, (k, p) in GOAL.items()}}]  # fmt: skip
+            result = c.send_trajectory(pts, timeout=30)
+            assert result["state"] == "succeeded", result
+            time.sleep(1.5)  # the goal poll (5 Hz) and a status poll (1 Hz) see the result
+        finally:
+            code, out, err = stop(proc)
+    assert code == 0, err
+    return path, result, err
+
+
+def _read_all(path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        msgs = list(reader.iter_decoded_messages(log_time_order=True))
+    return summary, msgs
+
+
+def test_python_mcap_reader_decodes_every_message_with_ros2_schemas(recording):
+    path, _, err = recording
+    summary, msgs = _read_all(path)
+    assert summary is not None and summary.statistics.message_count == len(msgs) > 100
+    channels = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    for topic, typename in EXPECTED_TOPICS.items():
+        assert topic in channels, topic
+        assert channels[topic].name == typename and channels[topic].encoding == "ros2msg"
+    assert all(c.message_encoding == "cdr" for c in summary.channels.values())
+    assert summary.statistics.chunk_count >= 1
+    assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+    # progress on the terminal: duration, messages, bytes
+    assert re.search(r"recording .*run\.mcap\s+[\d.]+ s\s+\d+ messages\s+[\d.]+ (B|KiB|MiB)", err)
+
+
+def test_rosbags_anyreader_deserializes_every_message(recording):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path, _, _ = recording
+    summary, msgs = _read_all(path)
+    counts = Counter()
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _t, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] += 1
+    assert sum(counts.values()) == len(msgs)
+    assert counts == Counter(schema_channel[1].topic for schema_channel in msgs)
+
+
+def test_recorded_joint_states_reach_the_goal_and_name_kappa_phi(recording):
+    path, _, _ = recording
+    _, msgs = _read_all(path)
+    js = [m.decoded_message for m in msgs if m.channel.topic == "/joint_states"]
+    last = dict(zip(js[-1].name, js[-1].position, strict=True))
+    assert list(js[-1].name) == [f"segment_{i}/{v}" for i in (1, 2, 3) for v in ("kappa", "phi")]
+    for seg, (kappa, phi) in GOAL.items():
+        assert last[f"{seg}/kappa"] == pytest.approx(kappa, abs=0.05)
+        assert math.remainder(last[f"{seg}/phi"] - phi, 2 * math.pi) == pytest.approx(0, abs=0.05)
+    assert last["segment_2/kappa"] == pytest.approx(0.0, abs=0.05)
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in js]
+    assert stamps == sorted(stamps) and abs(stamps[-1] - time.time()) < 120
+
+
+def _quat_matrix(q) -> np.ndarray:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def test_tf_tree_and_arcs_follow_the_recorded_bend(recording):
+    """/tf_static + /tf compose to each segment's tip as the U(C)RDF FK places it (within the
+    pseudo-rigid export's error), and /ucr/arcs ends exactly at the FK tip."""
+    from ucrdf.fk import RobotKinematics
+    from ucrdf.parser import load
+
+    path, _, _ = recording
+    _, msgs = _read_all(path)
+    last = {}
+    for m in msgs:
+        last[m.channel.topic] = m.decoded_message
+    edges = {}
+    for topic in ("/tf_static", "/tf"):
+        for tr in last[topic].transforms:
+            t = np.eye(4)
+            t[:3, :3] = _quat_matrix(tr.transform.rotation)
+            v = tr.transform.translation
+            t[:3, 3] = v.x, v.y, v.z
+            edges[tr.child_frame_id] = (tr.header.frame_id, t)
+
+    def world(frame):
+        if frame not in edges:
+            return np.eye(4)
+        parent, t = edges[frame]
+        return world(parent) @ t
+
+    def stamp_of(msg):
+        return msg.header.stamp.sec, msg.header.stamp.nanosec
+
+    stamp = stamp_of(last["/tf"].transforms[0])
+    js = [
+        m.decoded_message
+        for m in msgs
+        if m.channel.topic == "/joint_states" and stamp_of(m.decoded_message) == stamp
+    ][0]  # the state /tf was computed from
+    pos = dict(zip(js.name, js.position, strict=True))
+    robot = load(ROBOT_FILE)
+    cfg = {n: {"kappa": pos[f"{n}/kappa"], "phi": pos[f"{n}/phi"]} for n in robot.bendables}
+    fk = RobotKinematics(robot).fk(cfg, strict=False)
+    subdivided = [f for f in edges if "_prb" in f]
+    assert len(subdivided) >= 3 * 10 * 2  # frames along every arc
+    for b in robot.bendables.values():
+        assert np.linalg.norm(world(b.child)[:3, 3] - fk[b.child][:3, 3]) < 2e-3
+        assert np.allclose(world(b.child)[:3, :3], fk[b.child][:3, :3], atol=1e-6)
+    arcs = {m.text: m for m in last["/ucr/arcs"].markers}
+    for name, b in robot.bendables.items():
+        m = arcs[name]
+        assert m.type == 4 and len(m.points) >= 10  # LINE_STRIP
+        assert stamp_of(m) == stamp
+        tip = m.points[-1]
+        assert np.linalg.norm([tip.x, tip.y, tip.z] - fk[b.child][:3, 3]) < 1e-9
+
+
+def test_robot_description_is_the_exported_urdf_and_ucrdf_is_kept(recording, tmp_path):
+    import yourdfpy
+
+    path, _, _ = recording
+    _, msgs = _read_all(path)
+    by_topic = {m.channel.topic: m.decoded_message for m in msgs}
+    urdf_path = tmp_path / "desc.urdf"
+    urdf_path.write_text(by_topic["/robot_description"].data)
+    urdf = yourdfpy.URDF.load(str(urdf_path), load_meshes=False)
+    assert "segment_1_prb0" in urdf.link_map and len(urdf.actuated_joint_names) == 3 * 21
+    assert by_topic["/ucr/robot_description_ucrdf"].data == ROBOT_FILE.read_text()
+
+
+def test_goal_and_result_are_recorded(recording):
+    path, result, _ = recording
+    _, msgs = _read_all(path)
+    results = [json.loads(m.decoded_message.data) for m in msgs
+               if m.channel.topic == "/ucr/trajectory/results"]  # fmt: skip
+    goals = [json.loads(m.decoded_message.data) for m in msgs
+             if m.channel.topic == "/ucr/trajectory/goals"]  # fmt: skip
+    assert result["id"] in {g["id"] for g in goals}
+    mine = [r for r in results if r["id"] == result["id"]]
+    assert mine and mine[-1]["state"] == "succeeded"
+
+
+def test_segment_status_and_loop_statistics_are_diagnostics(recording):
+    path, _, _ = recording
+    _, msgs = _read_all(path)
+    seg = [m.decoded_message for m in msgs if m.channel.topic == "/ucr/segments"][-1]
+    assert [s.name for s in seg.status] == ["ucr/segment_1", "ucr/segment_2", "ucr/segment_3"]
+    assert all(s.level == 0 for s in seg.status)
+    assert all(s.hardware_id for s in seg.status)  # the segment uid
+    loop = [m.decoded_message for m in msgs if m.channel.topic == "/ucr/loop_stats"][-1]
+    keys = {kv.key: kv.value for kv in loop.status[0].values}
+    assert float(keys["cycles"]) > 0 and "jitter_us.p99" in keys
