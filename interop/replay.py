@@ -64,7 +64,7 @@ def read_recording(path: str | Path) -> Iterator[RecordedMessage]:
             it = reader.iter_messages(log_time_order=True)
         else:  # no summary: a killed recording, read as a stream until it ends
             f.seek(0)
-            it = NonSeekingReader(f).iter_messages()
+            it = NonSeekingReader(f).iter_messages(log_time_order=False)  # written in order
         try:
             for schema, channel, message in it:
                 if schema is None or channel.message_encoding != ros2.MESSAGE_ENCODING:

@@ -85,3 +85,92 @@ def straighten(client, timeout: float = 30.0) -> None:
             for n in ("segment_1", "segment_2", "segment_3")}}]  # fmt: skip
     res = client.send_trajectory(pts, timeout=timeout)
     assert res["state"] == "succeeded", res
+
+
+GOAL = {"segment_1": (2.0, 0.5), "segment_3": (1.5, -1.2)}  # kappa 1/m, phi rad
+EXPECTED_TOPICS = {
+    "/robot_description": "std_msgs/msg/String",
+    "/ucr/robot_description_ucrdf": "std_msgs/msg/String",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/ucr/arcs": "visualization_msgs/msg/MarkerArray",
+    "/ucr/segments": "diagnostic_msgs/msg/DiagnosticArray",
+    "/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
+    "/ucr/trajectory/goals": "std_msgs/msg/String",
+    "/ucr/trajectory/results": "std_msgs/msg/String",
+}
+
+
+@pytest.fixture(scope="package")
+def recording(rig, tmp_path_factory):
+    """A recording of one trajectory (segment_1 and segment_3 bend, then hold)."""
+    from host.api.client import connect
+
+    _, srv = rig
+    path = tmp_path_factory.mktemp("rec") / "run.mcap"
+    with connect(srv.url) as c:
+        straighten(c)
+        proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE))
+        try:
+            assert wait_for(lambda: path.exists() and path.stat().st_size > 0, 30)
+            time.sleep(1.0)
+            pts = [{"time_from_start": 1.5, "segments": {n: {"kappa": k, "phi": p}
+                    for n, (k, p) in GOAL.items()}}]  # fmt: skip
+            result = c.send_trajectory(pts, timeout=30)
+            assert result["state"] == "succeeded", result
+            time.sleep(1.5)  # the goal poll (5 Hz) and a status poll (1 Hz) see the result
+        finally:
+            code, out, err = stop(proc)
+    assert code == 0, err
+    return path, result, err
+
+
+NODE_DIR = Path(__file__).resolve().parent / "node"
+
+
+@pytest.fixture(scope="session")
+def node_clients():
+    """Directory holding the npm packages of tests/interop/node (installed once with `npm ci`
+    into a cache outside the repository, keyed by the lock file) and the test scripts."""
+    import hashlib
+    import shutil
+
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if not node or not npm:
+        pytest.skip("node and npm are needed for the independent JavaScript clients")
+    lock = (NODE_DIR / "package-lock.json").read_bytes()
+    key = hashlib.sha256(lock).hexdigest()[:16]
+    base = Path(os.environ.get("UCR_NODE_CACHE") or Path.home() / ".cache" / "ucr-tests")
+    target = base / f"interop-node-{key}"
+    if not (target / "node_modules" / ".ucr-complete").exists():
+        target.mkdir(parents=True, exist_ok=True)
+        for name in ("package.json", "package-lock.json"):
+            shutil.copy(NODE_DIR / name, target / name)
+        try:
+            res = subprocess.run(
+                [npm, "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=target,
+                capture_output=True, text=True, timeout=600,
+            )  # fmt: skip
+        except subprocess.TimeoutExpired:
+            pytest.skip("npm ci timed out (npm registry unreachable?)")
+        if res.returncode != 0:
+            tail = (res.stderr or res.stdout).strip().splitlines()[-3:]
+            pytest.skip(f"npm ci failed (npm registry unreachable?): {' / '.join(tail)}")
+        (target / "node_modules" / ".ucr-complete").write_text(key)
+    for script in NODE_DIR.glob("*.mjs"):
+        shutil.copy(script, target / script.name)
+    return target
+
+
+def run_node(node_dir: Path, script: str, *args: str, timeout: float = 120.0) -> dict:
+    """Run one of the node scripts; returns its JSON output."""
+    import json
+
+    res = subprocess.run(["node", script, *args], cwd=node_dir, capture_output=True, text=True,
+                         timeout=timeout)  # fmt: skip
+    assert res.stdout.strip(), f"no output from {script}: {res.stderr}"
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out["_returncode"] = res.returncode
+    out["_stderr"] = res.stderr
+    return out

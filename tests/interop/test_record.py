@@ -12,47 +12,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from .conftest import ROBOT_FILE, stop, straighten, ucr, wait_for
+from .conftest import EXPECTED_TOPICS, GOAL, ROBOT_FILE
 
 pytestmark = pytest.mark.timeout(240)
-
-GOAL = {"segment_1": (2.0, 0.5), "segment_3": (1.5, -1.2)}  # kappa 1/m, phi rad
-EXPECTED_TOPICS = {
-    "/robot_description": "std_msgs/msg/String",
-    "/ucr/robot_description_ucrdf": "std_msgs/msg/String",
-    "/tf_static": "tf2_msgs/msg/TFMessage",
-    "/tf": "tf2_msgs/msg/TFMessage",
-    "/joint_states": "sensor_msgs/msg/JointState",
-    "/ucr/arcs": "visualization_msgs/msg/MarkerArray",
-    "/ucr/segments": "diagnostic_msgs/msg/DiagnosticArray",
-    "/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
-    "/ucr/trajectory/goals": "std_msgs/msg/String",
-    "/ucr/trajectory/results": "std_msgs/msg/String",
-}
-
-
-@pytest.fixture(scope="module")
-def recording(rig, tmp_path_factory):
-    """A recording of one trajectory (segment_1 and segment_3 bend, then hold)."""
-    from host.api.client import connect
-
-    _, srv = rig
-    path = tmp_path_factory.mktemp("rec") / "run.mcap"
-    with connect(srv.url) as c:
-        straighten(c)
-        proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE))
-        try:
-            assert wait_for(lambda: path.exists() and path.stat().st_size > 0, 30)
-            time.sleep(1.0)
-            pts = [{"time_from_start": 1.5, "segments": {n: {"kappa": k, "phi": p}
-                    for n, (k, p) in GOAL.items()}}]  # fmt: skip
-            result = c.send_trajectory(pts, timeout=30)
-            assert result["state"] == "succeeded", result
-            time.sleep(1.5)  # the goal poll (5 Hz) and a status poll (1 Hz) see the result
-        finally:
-            code, out, err = stop(proc)
-    assert code == 0, err
-    return path, result, err
 
 
 def _read_all(path):

@@ -1,0 +1,134 @@
+"""Clients nobody here wrote, in another language: @mcap/core reads our recording (indexed, and as
+a stream after the recorder was killed mid-run) and @foxglove/ws-protocol subscribes to the live
+Foxglove server; both decode the ROS 2 CDR with @foxglove/rosmsg2-serialization."""
+
+from __future__ import annotations
+
+import re
+import signal
+import time
+
+import pytest
+
+from .conftest import EXPECTED_TOPICS, GOAL, ROBOT_FILE, run_node, stop, ucr, wait_for
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def _python_counts(path) -> dict[str, int]:
+    from collections import Counter
+
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return dict(Counter(ch.topic for _, ch, _ in make_reader(f).iter_messages()))
+
+
+def test_node_mcap_reader_reads_schemas_counts_and_every_message(recording, node_clients):
+    path, _, _ = recording
+    out = run_node(node_clients, "read_mcap.mjs", str(path))
+    assert out["_returncode"] == 0, out["_stderr"]
+    for topic, typename in EXPECTED_TOPICS.items():
+        assert out["topics"][topic] == {"schema": typename, "encoding": "ros2msg",
+                                        "messageEncoding": "cdr"}  # fmt: skip
+    assert out["counts"] == _python_counts(path)
+    assert out["decoded"] == sum(out["counts"].values()) == out["statistics"]
+    last = dict(zip(out["last"]["/joint_states"]["name"], out["last"]["/joint_states"]["position"],
+                    strict=True))  # fmt: skip
+    for seg, (kappa, _) in GOAL.items():
+        assert last[f"{seg}/kappa"] == pytest.approx(kappa, abs=0.05)
+
+
+def test_sigkill_mid_run_leaves_a_file_readable_up_to_the_last_chunk(rig, tmp_path, node_clients):
+    """`ucr record` killed with SIGKILL (no chance to write the summary): the Python mcap stream
+    reader and @mcap/core's stream reader both read every message of the closed chunks."""
+    from mcap.exceptions import McapError
+    from mcap.reader import NonSeekingReader
+    from mcap_ros2.decoder import DecoderFactory
+
+    _, srv = rig
+    path = tmp_path / "killed.mcap"
+    proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE),
+               "--flush-interval", "0.3")  # fmt: skip
+    try:
+        # wait until several chunks are on disk (each flush adds one)
+        assert wait_for(lambda: path.exists() and path.stat().st_size > 20_000, 60), (
+            path.stat().st_size if path.exists() else None
+        )
+        time.sleep(0.5)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    data = path.read_bytes()
+    assert not data.endswith(b"\x89MCAP0\r\n")  # no footer magic: the file really was cut short
+
+    decoder = DecoderFactory()
+    n, topics = 0, set()
+    with open(path, "rb") as f:
+        try:
+            for schema, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                decoder.decoder_for(channel.message_encoding, schema)(message.data)
+                n += 1
+                topics.add(channel.topic)
+        except (McapError, EOFError, ValueError):
+            pass  # the torn last record
+    assert n > 50 and {"/joint_states", "/tf", "/robot_description"} <= topics
+
+    out = run_node(node_clients, "read_mcap.mjs", str(path), "--stream")
+    assert out["_returncode"] == 0, out["_stderr"]
+    assert out["complete"] is False
+    assert out["decoded"] == n  # the same messages: everything up to the last whole chunk
+
+    # and `ucr replay` plays it (reads up to the last chunk, no traceback)
+    proc = ucr("replay", str(path), "--rate", "0", "--port", "0")
+    outp, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert f"{n} messages replayed" in err
+
+
+def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
+    from host.api.client import connect
+
+    _, srv = rig
+    proc = ucr("foxglove", "--port", "0", "--url", srv.url, "--robot", str(ROBOT_FILE))
+    try:
+        url = None
+
+        def announced() -> bool:
+            nonlocal url
+            line = proc.stderr.readline()
+            m = re.search(r"(ws://127\.0\.0\.1:\d+)", line or "")
+            url = m.group(1) if m else None
+            return url is not None or proc.poll() is not None
+
+        assert wait_for(announced, 60) and url, "no server URL printed"
+        with connect(srv.url) as c:
+            want = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
+        out = run_node(node_clients, "foxglove_client.mjs", url, "5")
+        assert out["_returncode"] == 0, (out, out["_stderr"])
+    finally:
+        code, _, err = stop(proc)
+    assert code == 0, err
+    assert out["serverInfo"]["capabilities"] == []  # read-only: no publish, services, params
+    for topic, typename in EXPECTED_TOPICS.items():
+        if topic.startswith("/ucr/trajectory"):
+            continue  # advertised once a goal is seen
+        assert out["channels"][topic]["schemaName"] == typename
+        assert out["channels"][topic]["encoding"] == "cdr"
+    assert out["robotDescription"] > 1000  # latched: sent to a client that came later
+    js = out["jointStates"]
+    assert len(js) == 5
+    names = js[-1]["name"]
+    assert names == [f"segment_{i}/{v}" for i in (1, 2, 3) for v in ("kappa", "phi")]
+    last = dict(zip(names, js[-1]["position"], strict=True))
+    for seg, kappa in want.items():
+        assert last[f"{seg}/kappa"] == pytest.approx(kappa, abs=0.05)
+
+
+def test_foxglove_refuses_a_non_loopback_address(rig):
+    _, srv = rig
+    proc = ucr("foxglove", "--host", "0.0.0.0", "--url", srv.url)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1
+    assert "loopback only" in err and "Traceback" not in err
