@@ -339,6 +339,13 @@ class _Checker:
             if not math.isfinite(angle):
                 self.error(tline, f"{where}: tendon {i} angle is not finite")
                 continue
+            if abs(angle) > math.tau + 1e-9:  # 120 instead of 2.094: degrees given for radians
+                self.error(
+                    tline,
+                    f"{where}: tendon {i} angle {angle:g} is beyond 2*pi: angles are radians "
+                    f"(if {angle:g} is degrees, write {math.radians(angle):.10g})",
+                )
+                continue
             wrapped = round(math.remainder(angle, math.tau), 9)
             if wrapped in seen:
                 self.error(
