@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from lxml import etree
 
-from ucrdf.export import export_urdf, subdivision_angles
+from ucrdf.export import export_urdf, frames_along, subdivision_angles
 from ucrdf.fk import RobotKinematics, axis_rotation
 from ucrdf.model import Origin, Robot
 
@@ -229,10 +229,9 @@ class RobotTopics:
         for i, (name, model) in enumerate(self.kin.models.items()):
             b = self.robot.bendables[name]
             base = frames[b.parent] @ b.origin.matrix()
-            pts = []
-            for s in np.linspace(0.0, model.length, samples):
-                p = base @ model.transform_coordinates(coords[name], float(s))[:, 3]
-                pts.append({"x": float(p[0]), "y": float(p[1]), "z": float(p[2])})
+            along = frames_along(model, coords[name], np.linspace(0.0, model.length, samples))
+            xyz = (base @ along[:, :, 3].T).T
+            pts = [{"x": float(p[0]), "y": float(p[1]), "z": float(p[2])} for p in xyz]
             width = max(2.0 * b.model.backbone.radius, 0.005)
             markers.append({
                 "header": _header(t_ns, self.root), "ns": "ucr/arcs", "id": i,

@@ -40,6 +40,7 @@ from lxml import etree
 from ucrdf.fk import Config, ConfigError, RobotKinematics, joint_motion
 from ucrdf.model import Inertial, Origin, Robot
 from ucrdf.models.base import CurvatureModel
+from ucrdf.models.pcc import PCCModel, pcc_transforms
 
 
 def _fmt(x: float) -> str:
@@ -72,6 +73,14 @@ def _rpy(r: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
+def frames_along(model: CurvatureModel, q: np.ndarray, s_values) -> np.ndarray:
+    """(len(s_values), 4, 4) base -> arc length s transforms for model coordinates ``q``: one
+    batched call for PCC, the model's own ``transform_coordinates`` otherwise."""
+    if type(model) is PCCModel:
+        return pcc_transforms(float(q[0]), float(q[1]), np.asarray(s_values, dtype=float))
+    return np.array([model.transform_coordinates(q, float(s)) for s in s_values])
+
+
 def subdivision_angles(
     model: CurvatureModel, q: np.ndarray, subdivisions: int
 ) -> tuple[list[tuple[float, float]], float]:
@@ -81,14 +90,15 @@ def subdivision_angles(
     h = model.length / n
     r_chain = np.eye(3)
     angles: list[tuple[float, float]] = []
+    along = frames_along(model, q, [(k + 1) * h for k in range(n)])
     for k in range(n):
-        r_true = model.transform_coordinates(q, (k + 1) * h)[:3, :3]
+        r_true = along[k][:3, :3]
         z = r_chain.T @ r_true[:, 2]
         b = math.asin(max(-1.0, min(1.0, float(z[0]))))
         a = math.atan2(-float(z[1]), float(z[2]))
         angles.append((a, b))
         r_chain = r_chain @ _rot_x(a) @ _rot_y(b)
-    r_rel = r_chain.T @ model.transform_coordinates(q)[:3, :3]
+    r_rel = r_chain.T @ along[-1][:3, :3]  # s = n*h: the tip
     twist = math.atan2(r_rel[1, 0], r_rel[0, 0])
     return angles, twist
 
