@@ -32,6 +32,9 @@ from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
 
+MAGIC = b"\x89MCAP0\r\n"  # MCAP files start (and, when complete, end) with it
+
+
 class RecordingError(ValueError):
     """The file cannot be replayed (not MCAP, no joint states, limits exceeded)."""
 
@@ -54,9 +57,11 @@ def read_recording(path: str | Path) -> Iterator[RecordedMessage]:
     except OSError as exc:
         raise RecordingError(f"{p}: {exc.strerror}") from None
     with f:
+        if f.read(len(MAGIC)) != MAGIC:
+            raise RecordingError(f"{p}: not an MCAP file")
+        f.seek(0)
         try:
             reader = make_reader(f)
-            reader.get_summary()
             summary_ok = reader.get_summary() is not None
         except (McapError, ValueError, EOFError):
             summary_ok = False
@@ -278,6 +283,7 @@ def run(args: Any) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     sinks: list[Any] = []
     try:
+        next(iter(read_recording(args.file)), None)  # readable at all, before serving anything
         from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
             FoxgloveBindError,
             FoxgloveSink,
