@@ -56,7 +56,7 @@ class LiveFeed:
         viz_rate: float = 20.0,
         js_rate: float = 1000.0,
         status_period: float = 1.0,
-        goal_period: float = 0.2,
+        goal_period: float = 0.5,
     ) -> None:
         self.client = client
         self.topics = topics

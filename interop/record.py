@@ -85,8 +85,12 @@ class McapSink:
         """Close the current chunk if it is older than ``flush_interval``."""
         now = time.monotonic()
         if now >= self._next_flush:
-            self._next_flush = now + self.flush_interval
-            self._writer.flush()
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the current chunk now (compressed, indexed, on disk)."""
+        self._next_flush = time.monotonic() + self.flush_interval
+        self._writer.flush()
 
     @property
     def bytes_written(self) -> int:

@@ -119,7 +119,7 @@ def recording(rig, tmp_path_factory):
                     for n, (k, p) in GOAL.items()}}]  # fmt: skip
             result = c.send_trajectory(pts, timeout=30)
             assert result["state"] == "succeeded", result
-            time.sleep(1.5)  # the goal poll (5 Hz) and a status poll (1 Hz) see the result
+            time.sleep(1.5)  # the goal poll (2 Hz) and a status poll (1 Hz) see the result
         finally:
             code, out, err = stop(proc)
     assert code == 0, err
