@@ -53,7 +53,8 @@ with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"], max_size=None) as ws
         if isinstance(m, str):
             msg = json.loads(m)
             if msg.get("op") == "advertise":
-                subs = [{"id": sub + i, "channelId": c["id"]} for i, c in enumerate(msg["channels"])]
+                chans = msg["channels"]
+                subs = [{"id": sub + i, "channelId": c["id"]} for i, c in enumerate(chans)]
                 sub += len(subs)
                 ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
         else:
@@ -214,8 +215,10 @@ def main() -> None:
     if not args.skip_jitter:
         phase = 12.0 if args.quick else 20.0
         rounds = 2 if args.quick else 3
-        print(f"\n2. daemon loop jitter at 100 Hz, 3 emulated segments, {rounds} x ({phase:.0f} s "
-              "off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)")
+        print(
+            f"\n2. daemon loop jitter at 100 Hz, 3 emulated segments, {rounds} x ({phase:.0f} s "
+            "off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
+        )
         jitter_phases(phase, rounds)
 
 

@@ -31,7 +31,6 @@ from interop.sinks import Fanout
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
-
 MAGIC = b"\x89MCAP0\r\n"  # MCAP files start (and, when complete, end) with it
 
 
