@@ -217,7 +217,7 @@ def main() -> None:
         rounds = 2 if args.quick else 3
         print(
             f"\n2. daemon loop jitter at 100 Hz, 3 emulated segments, {rounds} x ({phase:.0f} s "
-            "off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
+            f"off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
         )
         jitter_phases(phase, rounds)
 
