@@ -175,14 +175,15 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
                           f"({size / phase_s / 1024:.1f} KiB/s live, 3 segments)")  # fmt: skip
                 procs = []
                 time.sleep(1.0)
-        print(f"{'':8s}{'jitter p99 µs':>16s}{'period p99 µs':>16s}{'overruns':>10s}")
+        print(f"{'':6s}{'jitter p99 µs per round':>28s}{'period p99 µs per round':>28s}"
+              f"{'overruns':>10s}")  # fmt: skip
         p99 = {}
         for mode in ("off", "on"):
             vals = [s["jitter_us"]["p99"] for s in results[mode]]
             per = [s["period_us"]["p99"] for s in results[mode]]
             p99[mode] = sorted(vals)[len(vals) // 2]
-            print(f"{mode:8s}{' / '.join(f'{v:.0f}' for v in vals):>16s}"
-                  f"{' / '.join(f'{v:.0f}' for v in per):>16s}"
+            print(f"{mode:6s}{' / '.join(f'{v:.0f}' for v in vals):>28s}"
+                  f"{' / '.join(f'{v:.0f}' for v in per):>28s}"
                   f"{results[mode][-1]['overruns']:>10d}")  # fmt: skip
         ratio = p99["on"] / p99["off"] if p99["off"] else float("inf")
         verdict = "ok" if ratio <= 1.05 else "ABOVE GOAL"
