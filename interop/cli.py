@@ -54,6 +54,16 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _serve(p: argparse.ArgumentParser) -> None:
+    """Options of the Foxglove server's door (interop/guard.py)."""
+    p.add_argument("--serve-token", default=None,
+                   help="token Foxglove clients must present (default $UCR_FOXGLOVE_TOKEN); "
+                   "required for a non-loopback address")  # fmt: skip
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="browser origin allowed to connect, e.g. https://app.foxglove.dev "
+                   "(repeatable; default none: only clients that send no Origin)")  # fmt: skip
+
+
 def _record(args: argparse.Namespace) -> int:
     from interop.record import run  # noqa: PLC0415 - after the dependency check
 
@@ -104,7 +114,9 @@ def register(subparsers: Any) -> None:
         default=None,
         help="also serve the same data live to Foxglove on this port",
     )
-    p.add_argument("--foxglove-host", default="127.0.0.1", help=argparse.SUPPRESS)
+    p.add_argument("--foxglove-host", default="127.0.0.1",
+                   help="address of that server (loopback; others need --serve-token)")  # fmt: skip
+    _serve(p)
     _common(p)
     p.set_defaults(func=_guard("record", _record))
 
@@ -115,7 +127,9 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     p.add_argument("file", help="MCAP file written by `ucr record`")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed, x recorded (1)")
-    p.add_argument("--host", default="127.0.0.1", help="Foxglove server address (loopback)")
+    p.add_argument(
+        "--host", default="127.0.0.1", help="server address (loopback; others need --serve-token)"
+    )
     p.add_argument("--port", type=int, default=8766, help="Foxglove server port (8766)")
     p.add_argument(
         "--wait-client",
@@ -138,15 +152,18 @@ def register(subparsers: Any) -> None:
         default=2.0,
         help="with --execute: time to reach the first recorded pose, s (2)",
     )
+    _serve(p)
     _common(p)
     p.set_defaults(func=_guard("replay", _replay))
 
     p = subparsers.add_parser(
         "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
         description="Serve the same topics as `ucr record` live on the Foxglove WebSocket "
-        "protocol (foxglove-sdk). Loopback only (docs/recording.md, security).",
+        "protocol (foxglove-sdk), read-only. Loopback by default; any other address needs "
+        "--serve-token (docs/recording.md, security).",
     )  # fmt: skip
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (loopback only)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (loopback; others need --serve-token)")  # fmt: skip
     p.add_argument("--port", type=int, default=8766, help="port (8766; 0: any free port)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many s")
     p.add_argument(
@@ -155,5 +172,6 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
+    _serve(p)
     _common(p)
     p.set_defaults(func=_guard("foxglove", _foxglove))

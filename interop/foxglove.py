@@ -2,16 +2,16 @@
 the same topics, schemas and CDR bytes as a recording, for Foxglove and Lichtblick.
 
 Read-only: the server advertises no capability (no client publishing, services, parameters or
-playback control), so a connected client can only watch. foxglove-sdk 0.30 offers no hook to
-check a token, Origin or Host header, so the API's token rule cannot be enforced on this server:
-it binds loopback only and refuses any other address (use an SSH tunnel; docs/recording.md).
+playback control), so a connected client can only watch. foxglove-sdk cannot check a token,
+``Origin`` or ``Host``, so its server listens on a private loopback port and
+:class:`~interop.guard.FoxgloveGuard` takes the public address and checks every handshake with the
+API's token rule (docs/recording.md, security).
 """
 
 from __future__ import annotations
 
-import ipaddress
+import os
 import signal
-import socket
 import sys
 import threading
 from typing import Any
@@ -20,28 +20,13 @@ import foxglove
 
 from host.api.client import ApiError, connect
 from interop import ros2
+from interop.guard import FoxgloveGuard, GuardError
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
 from interop.topics import LATCHED, RobotTopics
 
-
-class FoxgloveBindError(ValueError):
-    """Refused bind address."""
-
-
-def check_bind(host: str) -> None:
-    """Loopback only: anything else could be read by anyone on the network without a token."""
-    try:
-        addrs = {info[4][0] for info in socket.getaddrinfo(host, None)}
-    except OSError as exc:
-        raise FoxgloveBindError(f"cannot resolve {host!r}: {exc}") from None
-    for a in addrs:
-        if not ipaddress.ip_address(a.split("%")[0]).is_loopback:
-            raise FoxgloveBindError(
-                f"refusing to serve Foxglove on {host} ({a}): the Foxglove server cannot check a "
-                "token, so it listens on loopback only; reach it through an SSH tunnel "
-                "(ssh -L 8766:127.0.0.1:8766 pi@robot)"
-            )
+ENV_SERVE_TOKEN = "UCR_FOXGLOVE_TOKEN"
+FoxgloveBindError = GuardError  # a refused address or token
 
 
 class FoxgloveSink:
@@ -49,8 +34,15 @@ class FoxgloveSink:
     the topic first appears. Latched topics (/robot_description, /tf_static, the U(C)RDF) are
     sent again to each new subscriber."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8766, name: str = "ucr") -> None:
-        check_bind(host)
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8766,
+        name: str = "ucr",
+        token: str | None = None,
+        allowed_origins: tuple[str, ...] | list[str] = (),
+    ) -> None:
+        self.guard = FoxgloveGuard("ws://127.0.0.1:0", host, port, token, allowed_origins)
         self._fg = foxglove
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
@@ -67,10 +59,16 @@ class FoxgloveSink:
 
         self._listener = Listener()
         self.server = foxglove.start_server(
-            name=name, host=host, port=port, capabilities=[], server_listener=self._listener,
+            name=name, host="127.0.0.1", port=0, capabilities=[], server_listener=self._listener,
             supported_encodings=[ros2.MESSAGE_ENCODING], context=self._ctx,
         )  # fmt: skip
-        self.port = self.server.port
+        self.guard.upstream = f"ws://127.0.0.1:{self.server.port}"
+        try:
+            self.guard.start()
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.guard.port
         self.host = host
 
     @property
@@ -106,9 +104,16 @@ class FoxgloveSink:
             self._channels[topic].log(data, log_time=t_ns)
 
     def close(self) -> None:
+        self.guard.stop()
         for ch in self._channels.values():
             ch.close()
         self.server.stop()
+
+
+def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
+    """A FoxgloveSink with the command line's token (or $UCR_FOXGLOVE_TOKEN) and origins."""
+    token = getattr(args, "serve_token", None) or os.environ.get(ENV_SERVE_TOKEN) or None
+    return FoxgloveSink(host, port, token=token, allowed_origins=args.allow_origin or ())
 
 
 def run(args: Any) -> int:
@@ -116,11 +121,6 @@ def run(args: Any) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
-    try:
-        check_bind(args.host)
-    except FoxgloveBindError as exc:
-        print(f"ucr: {exc}", file=sys.stderr)
-        return 1
     try:
         client = connect(args.url, args.token, timeout=args.timeout)
     except ApiError as exc:
@@ -131,8 +131,8 @@ def run(args: Any) -> int:
         robot, text = robot_for(client, args.robot)
         topics = RobotTopics(robot, text, args.subdivisions)
         try:
-            sink = FoxgloveSink(args.host, args.port)
-        except RuntimeError as exc:  # foxglove-sdk: port in use, bind failure
+            sink = sink_from_args(args.host, args.port, args)
+        except (GuardError, OSError, RuntimeError) as exc:
             print(f"ucr: cannot serve Foxglove on {args.host}:{args.port}: {exc}", file=sys.stderr)
             return 1
         print(f"ucr: Foxglove WebSocket server on {sink.url} (open it in Foxglove or Lichtblick: "

@@ -163,9 +163,11 @@ def run(args: Any) -> int:
                         flush_interval=args.flush_interval)  # fmt: skip
         sinks.append(sink)
         if args.foxglove_port is not None:
-            from interop.foxglove import FoxgloveSink  # noqa: PLC0415 - only when asked
+            from interop.foxglove import sink_from_args  # noqa: PLC0415 - only when asked
 
-            sinks.append(FoxgloveSink(args.foxglove_host, args.foxglove_port))
+            fox = sink_from_args(args.foxglove_host, args.foxglove_port, args)
+            sinks.append(fox)
+            print(f"ucr: Foxglove WebSocket server on {fox.url}", file=sys.stderr, flush=True)
         out = Fanout(sinks)
         progress = Progress(sink)
         feed = LiveFeed(client, topics, out, viz_rate=args.viz_rate)
@@ -175,7 +177,7 @@ def run(args: Any) -> int:
             print(f"ucr: {feed.dropped} stream messages were dropped (recorder too slow)",
                   file=sys.stderr)  # fmt: skip
         return 0
-    except (FeedError, ValueError, OSError) as exc:
+    except (FeedError, ValueError, OSError, RuntimeError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     except ApiError as exc:

@@ -259,7 +259,9 @@ def execute(args: Any) -> int:
             plan.points, progress=progress, timeout=plan.duration * 3 + 30
         )
         print(file=sys.stderr)
-        print(f"goal {result.get('id')}: {result.get('state')} in {result.get('duration', 0):.2f} s"
+        why = f": {result['reason']}" if result.get("reason") else ""
+        print(f"goal {result.get('id')}: {result.get('state')}{why} in "
+              f"{result.get('duration') or 0:.2f} s"
               + (" (retimed)" if result.get("retimed") else ""))  # fmt: skip
         return 0 if result.get("state") == "succeeded" else 1
     except (RecordingError, UcrdfError) as exc:
@@ -285,12 +287,12 @@ def run(args: Any) -> int:
         next(iter(read_recording(args.file)), None)  # readable at all, before serving anything
         from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
             FoxgloveBindError,
-            FoxgloveSink,
+            sink_from_args,
         )
 
         try:
-            sink = FoxgloveSink(args.host, args.port)
-        except (FoxgloveBindError, RuntimeError) as exc:
+            sink = sink_from_args(args.host, args.port, args)
+        except (FoxgloveBindError, OSError, RuntimeError) as exc:
             print(f"ucr: {exc}", file=sys.stderr)
             return 1
         sinks.append(sink)

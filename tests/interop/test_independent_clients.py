@@ -126,9 +126,9 @@ def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
         assert last[f"{seg}/kappa"] == pytest.approx(kappa, abs=0.05)
 
 
-def test_foxglove_refuses_a_non_loopback_address(rig):
+def test_foxglove_refuses_a_non_loopback_address_without_a_token(rig):
     _, srv = rig
-    proc = ucr("foxglove", "--host", "0.0.0.0", "--url", srv.url)
+    proc = ucr("foxglove", "--host", "0.0.0.0", "--url", srv.url, "--robot", str(ROBOT_FILE))
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
-    assert "loopback only" in err and "Traceback" not in err
+    assert "without a token" in err and "Traceback" not in err

@@ -64,21 +64,27 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
 
     _, srv = rig
     path, _, _ = recording
-    again = tmp_path / "again.mcap"
-    with connect(srv.url) as c:
-        straighten(c)
-        rec = ucr("record", "-o", str(again), "--url", srv.url, "--robot", str(ROBOT_FILE))
-        try:
-            assert wait_for(lambda: again.exists() and again.stat().st_size > 0, 30)
-            proc = ucr("replay", str(path), "--execute", "--go", "--url", srv.url)
-            out, err = proc.communicate(timeout=180)
-            assert proc.returncode == 0, (out, err)
-            assert "succeeded" in out
-            time.sleep(1.0)
-        finally:
-            code, _, rec_err = stop(rec)
-        assert code == 0, rec_err
-        final = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
+    # a heavily loaded machine can make an emulated segment miss its watchdog (HOLD) or drop
+    # off the chain, which aborts any goal: that is the daemon being safe, so try once more
+    environment = ("topology changed", "holding", "link lost")
+    for attempt in range(3):
+        again = tmp_path / f"again{attempt}.mcap"
+        with connect(srv.url) as c:
+            straighten(c)
+            rec = ucr("record", "-o", str(again), "--url", srv.url, "--robot", str(ROBOT_FILE))
+            try:
+                assert wait_for(lambda f=again: f.exists() and f.stat().st_size > 0, 30)
+                proc = ucr("replay", str(path), "--execute", "--go", "--url", srv.url)
+                out, err = proc.communicate(timeout=180)
+                time.sleep(1.0)
+            finally:
+                code, _, rec_err = stop(rec)
+            assert code == 0, rec_err
+            final = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
+        if proc.returncode == 0 or not any(w in out for w in environment):
+            break
+    assert proc.returncode == 0, (out, err)
+    assert "succeeded" in out
 
     t0, k0 = _kappa_series(path)
     t1, k1 = _kappa_series(again)
