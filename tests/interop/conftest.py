@@ -20,36 +20,73 @@ pytest.importorskip("mcap", reason="the 'record' extra (mcap) is not installed")
 pytest.importorskip("mcap_ros2", reason="the 'record' extra (mcap-ros2-support) is not installed")
 
 
-@pytest.fixture(scope="package")
-def rig():
-    """(daemon, api server) on an emulated chain of softrobot3; torn down afterwards."""
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+class Rig:
+    """The real daemon (50 Hz: less load on a shared machine, more slack for the emulated
+    segments) and its API server on an emulated chain of softrobot3."""
 
-    robot = load(ROBOT_FILE)
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = None
-    try:
-        deadline = time.monotonic() + 20
+    def __init__(self) -> None:
+        from tools.emulator import EmulatedChain
+        from tools.segment_config import configs
+        from ucrdf.parser import load
+
+        self.robot = load(ROBOT_FILE)
+        self.chain = EmulatedChain(3, config_for=configs(self.robot))
+        self.daemon = self.srv = None
+        self._start()
+
+    def _start(self) -> None:
+        from host.api.server import ApiServer
+        from host.daemon import Daemon, DaemonError
+
+        deadline = time.monotonic() + 30
         while True:  # the VMs need a moment to boot before they answer DISCOVER
             try:
-                daemon = Daemon(robot, port=chain.host_port).start()
+                self.daemon = Daemon(self.robot, port=self.chain.host_port, rate_hz=50.0).start()
                 break
             except DaemonError:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
-        yield daemon, srv
+        self.srv = ApiServer(self.daemon, "127.0.0.1", 0).start()
+
+    @property
+    def url(self) -> str:
+        return self.srv.url
+
+    def _whole(self) -> bool:
+        st = self.daemon.status()
+        js = st["joint_states"]
+        return st["state"] == "connected" and len(js) == 3 and all(s["valid"] for s in js.values())
+
+    def ensure_whole(self) -> str:
+        """The API URL of a daemon controlling all three segments. On a heavily loaded machine
+        an emulated segment can miss enough cycles that the daemon (rightly) cuts the chain
+        there; then start a fresh daemon, which discovers the chain again."""
+        if not wait_for(self._whole, 15, 0.1):
+            self.close_daemon()
+            self._start()
+            assert wait_for(self._whole, 60, 0.1), self.daemon.status()
+        return self.url
+
+    def close_daemon(self) -> None:
+        if self.srv is not None:
+            self.srv.stop()
+        if self.daemon is not None:
+            self.daemon.stop()
+        self.srv = self.daemon = None
+
+    def close(self) -> None:
+        self.close_daemon()
+        self.chain.close()
+
+
+@pytest.fixture(scope="package")
+def rig():
+    r = Rig()
+    try:
+        yield r
     finally:
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+        r.close()
 
 
 def ucr(*args: str, **kw) -> subprocess.Popen:
@@ -122,11 +159,11 @@ def recording(rig, tmp_path_factory):
     """A recording of one trajectory (segment_1 and segment_3 bend, then hold)."""
     from host.api.client import connect
 
-    _, srv = rig
+    url = rig.ensure_whole()
     path = tmp_path_factory.mktemp("rec") / "run.mcap"
-    with connect(srv.url) as c:
+    with connect(url) as c:
         straighten(c)
-        proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE))
+        proc = ucr("record", "-o", str(path), "--url", url, "--robot", str(ROBOT_FILE))
         try:
             assert wait_for(lambda: path.exists() and path.stat().st_size > 0, 30)
             time.sleep(1.0)

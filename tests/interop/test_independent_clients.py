@@ -46,9 +46,9 @@ def test_sigkill_mid_run_leaves_a_file_readable_up_to_the_last_chunk(rig, tmp_pa
     from mcap.reader import NonSeekingReader
     from mcap_ros2.decoder import DecoderFactory
 
-    _, srv = rig
+    url = rig.ensure_whole()
     path = tmp_path / "killed.mcap"
-    proc = ucr("record", "-o", str(path), "--url", srv.url, "--robot", str(ROBOT_FILE),
+    proc = ucr("record", "-o", str(path), "--url", url, "--robot", str(ROBOT_FILE),
                "--flush-interval", "0.3")  # fmt: skip
     try:
         # wait until several chunks are on disk (each flush adds one)
@@ -90,22 +90,22 @@ def test_sigkill_mid_run_leaves_a_file_readable_up_to_the_last_chunk(rig, tmp_pa
 def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
     from host.api.client import connect
 
-    _, srv = rig
-    proc = ucr("foxglove", "--port", "0", "--url", srv.url, "--robot", str(ROBOT_FILE))
+    url = rig.ensure_whole()
+    proc = ucr("foxglove", "--port", "0", "--url", url, "--robot", str(ROBOT_FILE))
     try:
-        url = None
+        fox_url = None
 
         def announced() -> bool:
-            nonlocal url
+            nonlocal fox_url
             line = proc.stderr.readline()
             m = re.search(r"(ws://127\.0\.0\.1:\d+)", line or "")
-            url = m.group(1) if m else None
-            return url is not None or proc.poll() is not None
+            fox_url = m.group(1) if m else None
+            return fox_url is not None or proc.poll() is not None
 
-        assert wait_for(announced, 60) and url, "no server URL printed"
-        with connect(srv.url) as c:
+        assert wait_for(announced, 60) and fox_url, "no server URL printed"
+        with connect(url) as c:
             want = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
-        out = run_node(node_clients, "foxglove_client.mjs", url, "5")
+        out = run_node(node_clients, "foxglove_client.mjs", fox_url, "5")
         assert out["_returncode"] == 0, (out, out["_stderr"])
     finally:
         code, _, err = stop(proc)
@@ -127,8 +127,8 @@ def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
 
 
 def test_foxglove_refuses_a_non_loopback_address_without_a_token(rig):
-    _, srv = rig
-    proc = ucr("foxglove", "--host", "0.0.0.0", "--url", srv.url, "--robot", str(ROBOT_FILE))
+    url = rig.ensure_whole()
+    proc = ucr("foxglove", "--host", "0.0.0.0", "--url", url, "--robot", str(ROBOT_FILE))
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
     assert "without a token" in err and "Traceback" not in err
