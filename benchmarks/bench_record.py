@@ -139,12 +139,21 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
         pts = [{"time_from_start": 2.0 * (k + 1), "segments": {
             n: {"kappa": 1.0 + 0.8 * math.sin(k + i), "phi": 0.5 * k} for i, n in
             enumerate(robot.bendables)}} for k in range(200)]  # fmt: skip
-        daemon.send_trajectory(pts)
+
+        def keep_moving() -> None:  # a stall under load aborts a goal: start the wave again
+            if not daemon.status()["running_goals"]:
+                try:
+                    daemon.send_trajectory(pts)
+                except Exception as exc:  # noqa: BLE001 - rebuilding: the next phase retries
+                    print(f"   (wave not restarted: {exc})")
+
+        keep_moving()
         time.sleep(3.0)
         results: dict[str, list[dict]] = {"off": [], "on": []}
         tmp = tempfile.mkdtemp()
         for r in range(rounds):
             for mode in ("off", "on"):
+                keep_moving()
                 if mode == "on":
                     port = free_port()
                     ucr = [sys.executable, "-m", "tools.cli"]
