@@ -6,20 +6,21 @@ firmware's boot compiles it after the board rules (protocol/boards.py) have been
 
 import time
 
-import hal_unix
-
 
 class BoardMachine:
     """The ``machine`` of an emulated board: UARTs and pins as strict as the board's profile.
 
-    ``wires`` maps a UART id to the pty path wired to it (None: nothing plugged in). Errors are
-    ValueError, with the port's own text where the port has one ("UART(3) does not exist").
+    ``wires`` maps a UART id to the pty path wired to it (None: nothing plugged in);
+    ``open_uart(path_or_None)`` makes the UART object (the HAL's, passed in so this module does
+    not import the HAL back). Errors are ValueError, with the port's own text where the port has
+    one ("UART(3) does not exist").
     """
 
     IRQ_RX = 1
 
-    def __init__(self, board, profile, wires):
+    def __init__(self, board, profile, wires, open_uart):
         self.board = board
+        self.open_uart = open_uart
         self.profile = profile
         self.wires = wires
         self.claimed = {}  # GPIO -> what uses it
@@ -51,7 +52,7 @@ class BoardMachine:
         self._pin(tx, "UART%d TX" % uid, True)
         self._pin(rx, "UART%d RX" % uid, False)
         path = self.wires.get(uid)
-        u = hal_unix.PtyUart(path) if path else hal_unix.NullUart()
+        u = self.open_uart(path)
         self.uarts[uid] = u
         return u
 

@@ -81,6 +81,11 @@ class NullUart:
         pass
 
 
+def _open_uart(path):
+    """The emulated board's UART wired to ``path`` (a pty), or an unconnected one."""
+    return PtyUart(path) if path else NullUart()
+
+
 class Hal:
     """Unix-port HAL: the emulated board's UARTs (ptys), its timing model, emulated servo bus."""
 
@@ -123,7 +128,7 @@ class Hal:
         up = os.getenv("UCR_UP_PORT")
         down = os.getenv("UCR_DOWN_PORT")
         wires = {chain["up_uart"]: up, chain["down_uart"]: down}
-        self.machine = emu_board.BoardMachine(board, prof, wires)
+        self.machine = emu_board.BoardMachine(board, prof, wires, _open_uart)
         self._spin = emu_board.host_spin
         m = self.machine
         self.up = m.UART(chain["up_uart"], chain["baud"], tx=chain["up_tx"], rx=chain["up_rx"])

@@ -185,10 +185,10 @@ def test_the_segment_refuses_an_impossible_config_json_and_says_why(tmp_path) ->
 
 def test_the_emulated_machine_refuses_uarts_and_pins_the_board_lacks() -> None:
     out = _vm(
-        "import emu_board\n"
+        "import emu_board, hal_unix\n"
         "from protocol import boards\n"
         "def tryit(board, f):\n"
-        " m = emu_board.BoardMachine(board, boards.profile(board), {})\n"
+        " m = emu_board.BoardMachine(board, boards.profile(board), {}, hal_unix._open_uart)\n"
         " try:\n  f(m)\n  print(board, 'ok')\n"
         " except ValueError as e:\n  print(board, 'refused:', e)\n"
         "tryit('esp32c3', lambda m: m.UART(2, tx=4, rx=5))\n"
