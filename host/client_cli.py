@@ -3,8 +3,8 @@ trajectory, controllers, teleop. This module registers them all and runs status,
 controllers; the commands that move the robot live in :mod:`host.client_motion`, the connection
 and error helpers in :mod:`host.client_common`.
 
-Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with ``--token``
-(default ``$UCR_TOKEN``). Curvature is in 1/m, the bending-plane angle phi in degrees on the command
+Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with the token
+from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN``). Curvature is in 1/m, the bending-plane angle phi in degrees on the command
 line and in the output (radians on the wire). Exit codes: 0 done, 1 failed (daemon unreachable,
 request refused, trajectory aborted), 2 usage error. Errors are one line, never a traceback.
 """
@@ -29,7 +29,16 @@ def _common(p: argparse.ArgumentParser, nested: bool = False) -> None:
         help=f"daemon API URL (default ${ENV_URL} or ws://127.0.0.1:8765)",
         **({"default": None} | kw),
     )
-    p.add_argument("--token", help=f"API token (default ${ENV_TOKEN})", **({"default": None} | kw))
+    p.add_argument(
+        "--token-file",
+        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN})",
+        **({"default": None} | kw),
+    )
+    # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
+    p.add_argument("--token", help=argparse.SUPPRESS, **({"default": None} | kw))
+    p.add_argument(
+        "--ca", help="CA file to verify a wss:// daemon ($UCR_CA)", **({"default": None} | kw)
+    )
     p.add_argument(
         "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
     )

@@ -1,0 +1,362 @@
+"""The seam between the control loop's process and the API server: a socket carrying RPCs,
+published messages (encoded once) and status snapshots.
+
+Daemon side, :class:`DaemonBridge`: calls the Daemon facade for RPCs (a small worker pool), holds
+ONE daemon subscription while any client subscribes, JSON-encodes each published message once and
+sends it on, and sends a status snapshot every ``status_period`` s and after every op that changes
+state. Nothing here runs in the control loop: the loop's cost per published message is one
+``put_nowait`` into the bridge's queue, whatever the number of clients.
+
+API side, :class:`DaemonLink`: the facade as the API server sees it — ``await call(...)``, the
+latest status snapshot (read without locks), and a callback per published message.
+
+Wire: frames ``[u32 length][u8 type][body]``; types ``Q`` request ``{"id", "m", "a"}``, ``A``
+answer ``{"id", "ok", "r" | "code", "message"}``, ``P`` publication ``kind "\\n" json``, ``S``
+status JSON, ``U`` subscription wanted (``1``/``0``), ``C``/``Y`` configuration and ready message
+of a separate API process. JSON only: the API side never sends anything the daemon executes
+beyond the whitelisted facade methods with JSON arguments.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import queue
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+from host.api import schema as S
+
+log = logging.getLogger("ucr.api")
+
+_HEAD = struct.Struct("!IB")
+MAX_FRAME = 64 * 1024 * 1024  # a wire frame above this is a protocol error (bridge closes)
+DAEMON_KINDS = ("joint_states", "transforms", "event", "topology")
+
+# facade methods an RPC may name; True: changes state (a fresh status snapshot follows)
+METHODS: dict[str, bool] = {
+    "status": False,
+    "topology": False,
+    "loop_stats": False,
+    "controllers": False,
+    "trajectory_status": False,
+    "switch_controllers": True,
+    "hand_back": True,
+    "send_trajectory": True,
+    "cancel_trajectory": True,
+    "ffc_input": False,  # a snapshot follows only if it took over (see DaemonBridge._serve)
+}
+
+
+class BridgeClosed(ConnectionError):
+    """The other side of the bridge went away."""
+
+
+class RemoteError(Exception):
+    """A facade call failed on the daemon side; ``code`` is an API error code."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def send_frame(sock: socket.socket, lock: threading.Lock, kind: bytes, body: bytes) -> None:
+    with lock:
+        sock.sendall(_HEAD.pack(len(body), kind[0]) + body)
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    buf = bytearray()
+    while len(buf) < n:
+        chunk = sock.recv(min(n - len(buf), 1 << 20))
+        if not chunk:
+            raise BridgeClosed("bridge closed")
+        buf += chunk
+    return bytes(buf)
+
+
+def recv_frame(sock: socket.socket) -> tuple[bytes, bytes]:
+    """(type byte, body); BridgeClosed at EOF or on a malformed frame."""
+    length, kind = _HEAD.unpack(_recv_exact(sock, _HEAD.size))
+    if length > MAX_FRAME:
+        raise BridgeClosed(f"bridge frame of {length} bytes")
+    return bytes([kind]), _recv_exact(sock, length)
+
+
+def classify(exc: BaseException) -> tuple[str, str]:
+    """Map a daemon exception onto an API error code without leaking a traceback.
+
+    The daemon's ``DaemonError`` (a RuntimeError: not running, chain lost) -> unavailable;
+    ``GoalNotFound`` (LookupError) -> not_found; ``ControllerError``/``SwitchError`` (ValueError:
+    refused goal, conflicting switch, input for an unknown bendable) -> rejected.
+    """
+    code = getattr(exc, "code", None)
+    if isinstance(code, str) and code in S.ERROR_CODES:
+        return code, str(exc)
+    if isinstance(exc, LookupError):
+        return S.NOT_FOUND, str(exc.args[0]) if exc.args else type(exc).__name__
+    if isinstance(exc, ValueError):
+        return S.REJECTED, str(exc)
+    if any(c.__name__ == "DaemonError" for c in type(exc).__mro__):
+        return S.UNAVAILABLE, str(exc)
+    return S.INTERNAL, f"internal error ({type(exc).__name__}): {exc}"
+
+
+def _args_for(method: str, args: list) -> list:
+    """JSON brings lists where the facade takes tuples (cFFC deflections)."""
+    if method == "ffc_input" and args and isinstance(args[0], dict):
+        return [{k: tuple(v) if isinstance(v, list) else v for k, v in args[0].items()}]
+    return args
+
+
+class DaemonBridge:
+    """Daemon side of the bridge (see module docstring). ``start()``, then ``stop()``."""
+
+    def __init__(
+        self,
+        daemon: Any,
+        sock: socket.socket,
+        *,
+        workers: int = 2,
+        status_period: float = 0.05,
+        queue_size: int = 1000,
+    ) -> None:
+        self.daemon = daemon
+        self.sock = sock
+        self.status_period = status_period
+        self.queue_size = queue_size
+        self._send_lock = threading.Lock()
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ucr-api-call")
+        self._stop = threading.Event()
+        self._sub_lock = threading.Lock()
+        self._sub: Any = None  # the daemon queue while any client subscribes
+        self._threads: list[threading.Thread] = []
+        self.closed = threading.Event()
+        self.counters = {"published": 0, "unencodable": 0, "calls": 0}
+
+    def start(self) -> DaemonBridge:
+        for target, name in ((self._reader, "ucr-api-bridge"), (self._feeder, "ucr-api-feed")):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(timeout)
+        self._set_subscribed(False)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def _send(self, kind: bytes, body: bytes) -> None:
+        try:
+            send_frame(self.sock, self._send_lock, kind, body)
+        except OSError:
+            self._stop.set()
+
+    # -- requests from the API side ----------------------------------------------------------
+    def _reader(self) -> None:
+        try:
+            while not self._stop.is_set():
+                kind, body = recv_frame(self.sock)
+                if kind == b"Q":
+                    self._pool.submit(self._serve, body)
+                elif kind == b"U":
+                    self._set_subscribed(body == b"1")
+                else:
+                    log.warning("API bridge: unexpected frame type %r", kind)
+        except (BridgeClosed, OSError, RuntimeError, struct.error):
+            pass
+        finally:
+            self._stop.set()
+            self._set_subscribed(False)
+            self.closed.set()
+
+    def _serve(self, body: bytes) -> None:
+        rid: Any = None
+        try:
+            req = json.loads(body)
+            rid, method, args = req["id"], req["m"], _args_for(req["m"], list(req["a"]))
+            if method not in METHODS:
+                raise RemoteError(S.UNKNOWN_OP, f"no facade method {method!r}")
+            fn = getattr(self.daemon, method, None)
+            if fn is None:
+                raise RemoteError(S.UNKNOWN_OP, f"this daemon has no {method!r}")
+            self.counters["calls"] += 1
+            result = fn(*args)
+            text = S.encode({"id": rid, "ok": True, "r": result})
+            changed = METHODS[method] or (
+                method == "ffc_input" and isinstance(result, dict) and result.get("takeover")
+            )
+        except Exception as exc:  # noqa: BLE001 - every failure becomes an answer
+            code, message = classify(exc)
+            if isinstance(exc, TypeError | ValueError) and "encod" in str(exc):
+                code, message = S.INTERNAL, f"internal error: result not encodable ({exc})"
+            if code == S.INTERNAL:
+                log.error("API: %s failed: %s", body[:80], message)
+            text = S.encode({"id": rid, "ok": False, "code": code, "message": message})
+            changed = False
+        if changed:
+            self._send_status()
+        self._send(b"A", text.encode())
+
+    # -- published messages and status ---------------------------------------------------------
+    def _set_subscribed(self, want: bool) -> None:
+        with self._sub_lock:
+            if want and self._sub is None and not self._stop.is_set():
+                try:
+                    self._sub = self.daemon.subscribe(list(DAEMON_KINDS))
+                except Exception as exc:  # noqa: BLE001 - reported; streams stay empty
+                    log.error("API bridge: cannot subscribe: %s", exc)
+            elif not want and self._sub is not None:
+                q, self._sub = self._sub, None
+                with contextlib.suppress(Exception):
+                    self.daemon.unsubscribe(q)
+
+    def _send_status(self) -> None:
+        try:
+            text = S.encode(self.daemon.status())
+        except Exception as exc:  # noqa: BLE001 - the API answers status with this error
+            code, message = classify(exc)
+            text = S.encode({"__error__": {"code": code, "message": message}})
+        self._send(b"S", text.encode())
+
+    def _feeder(self) -> None:
+        next_status = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_status:
+                next_status = now + self.status_period
+                self._send_status()
+            q = self._sub
+            if q is None:
+                self._stop.wait(min(self.status_period, max(0.0, next_status - now)))
+                continue
+            try:
+                msg = q.get(timeout=max(0.001, next_status - time.monotonic()))
+            except queue.Empty:
+                continue
+            except Exception:  # noqa: BLE001 - a broken queue: forget it
+                continue
+            kind = msg.get("kind", "") if isinstance(msg, dict) else ""
+            try:
+                text = S.encode(msg)
+            except (TypeError, ValueError, RecursionError) as exc:
+                self.counters["unencodable"] += 1
+                log.warning("API: dropped a %s message that JSON cannot carry: %s", kind, exc)
+                continue
+            self.counters["published"] += 1
+            self._send(b"P", S.normalize_kind(str(kind)).encode() + b"\n" + text.encode())
+
+
+class DaemonLink:
+    """API side of the bridge: RPCs as awaitables, the latest status snapshot, publications.
+
+    ``on_publish(kind, json_text)`` is called in the event loop for every published message.
+    """
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self._send_lock = threading.Lock()
+        self._ids = 0
+        self._pending: dict[int, asyncio.Future] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._on_publish: Callable[[str, str], None] | None = None
+        self.status_text: str | None = None  # replaced whole, read without a lock
+        self.status_t = 0.0
+        self.closed = False
+        self._thread: threading.Thread | None = None
+        self._subscribed = False
+
+    def start(
+        self, loop: asyncio.AbstractEventLoop, on_publish: Callable[[str, str], None]
+    ) -> None:
+        self._loop = loop
+        self._on_publish = on_publish
+        self._thread = threading.Thread(target=self._reader, name="ucr-api-link", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self.closed = True
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def want_stream(self, want: bool) -> None:
+        """Ask the daemon side to (un)subscribe its one daemon queue."""
+        if want != self._subscribed and not self.closed:
+            self._subscribed = want
+            self._write(b"U", b"1" if want else b"0")
+
+    def _write(self, kind: bytes, body: bytes) -> None:
+        try:
+            send_frame(self.sock, self._send_lock, kind, body)
+        except OSError as exc:
+            self.closed = True
+            raise BridgeClosed(f"the daemon side of the API is gone: {exc}") from None
+
+    async def call(self, method: str, *args: Any) -> Any:
+        """Call a facade method in the daemon's process; RemoteError if it failed there."""
+        if self.closed:
+            raise RemoteError(S.UNAVAILABLE, "the daemon is not reachable")
+        loop = asyncio.get_running_loop()
+        self._ids += 1
+        rid = self._ids
+        fut = loop.create_future()
+        self._pending[rid] = fut
+        try:
+            body = json.dumps({"id": rid, "m": method, "a": list(args)}, allow_nan=False)
+            await loop.run_in_executor(None, self._write, b"Q", body.encode())
+            return await fut
+        except BridgeClosed as exc:
+            raise RemoteError(S.UNAVAILABLE, str(exc)) from None
+        finally:
+            self._pending.pop(rid, None)
+
+    def _reader(self) -> None:
+        loop = self._loop
+        assert loop is not None
+        try:
+            while True:
+                kind, body = recv_frame(self.sock)
+                if kind == b"P":
+                    k, _, text = body.partition(b"\n")
+                    loop.call_soon_threadsafe(self._on_publish, k.decode(), text.decode())
+                elif kind == b"S":
+                    self.status_text = body.decode()
+                    self.status_t = time.monotonic()
+                elif kind == b"A":
+                    loop.call_soon_threadsafe(self._answer, json.loads(body))
+        except (BridgeClosed, OSError, ValueError, RuntimeError):
+            pass
+        finally:
+            self.closed = True
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._fail_all)
+
+    def _answer(self, msg: dict) -> None:
+        fut = self._pending.get(msg.get("id"))
+        if fut is None or fut.done():
+            return
+        if msg.get("ok"):
+            fut.set_result(msg.get("r"))
+        else:
+            fut.set_exception(RemoteError(str(msg.get("code")), str(msg.get("message"))))
+
+    def _fail_all(self) -> None:
+        for fut in list(self._pending.values()):
+            if not fut.done():
+                fut.set_exception(RemoteError(S.UNAVAILABLE, "the daemon side of the API closed"))
