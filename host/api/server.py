@@ -316,6 +316,7 @@ class ApiServer:
             "dropped": 0,
             "slow_closed": 0,
             "forbidden": 0,
+            "throttled": 0,
         }
 
     def _ssl_context(self) -> ssl.SSLContext:
@@ -394,7 +395,6 @@ class ApiServer:
             "clients": len(sessions),
             "tcp_connections": self._tcp_total,
             "subscriptions": sum(len(s.subs) for s in sessions),
-            "throttled": sum(s.throttled for s in sessions),
             "queued_bytes": self._queued_bytes,
             "upload_points": self._upload_points,
         }
@@ -586,6 +586,7 @@ class ApiServer:
         )
         if wait > 0:
             session.throttled += 1
+            self.counters["throttled"] += 1
             await asyncio.sleep(min(wait, 10.0))
             now = time.monotonic()
             session.tokens = min(
