@@ -335,8 +335,10 @@ _BAD = [
     '{"id": 1, "op": "trajectory.send", "points": [{"t": "1", "segments": {"s1": {}}}]}',
     '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": [1, 2]}}]}',
     '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {"kx": "a"}}}]}',
-    '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {}}}], '
-    '"controller": []}',
+    (
+        '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {}}}], '
+        '"controller": []}'
+    ),
     '{"id": 1, "op": "trajectory.upload", "points": [], "upload": true}',
     '{"id": 1, "op": "trajectory.cancel", "goal": null}',
     '{"id": 1, "op": "subscribe", "kinds": null}',
