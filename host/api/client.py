@@ -34,6 +34,7 @@ from host.api.auth import AuthConfigError, read_token_file
 from host.api.guard import is_loopback
 from host.api.schema import MAX_REQUEST_BYTES
 
+_COMPACT = (",", ":")
 CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
 
 
@@ -266,7 +267,8 @@ class Client:
         with self._lock:
             self._pending[rid] = pending
         try:
-            self.ws.send(json.dumps({"id": rid, "op": op, **params}, allow_nan=False))
+            text = json.dumps({"id": rid, "op": op, **params}, allow_nan=False, separators=_COMPACT)
+            self.ws.send(text)
         except ValueError as exc:
             with self._lock:
                 self._pending.pop(rid, None)
@@ -418,7 +420,7 @@ def _chunks(points: list[dict], limit: int) -> list[list[dict]]:
     out: list[list[dict]] = [[]]
     size = 0
     for p in points:
-        n = len(json.dumps(p, separators=(",", ":"))) + 1
+        n = len(json.dumps(p, separators=_COMPACT).encode()) + 1
         if out[-1] and size + n > limit:
             out.append([])
             size = 0

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -340,6 +341,18 @@ def _reject_constant(name: str) -> Any:
     raise ValueError(f"{name} is not valid JSON")
 
 
+_LEADING_ID = re.compile(r'\s*\{\s*"id"\s*:\s*(?:(\d{1,15})|"([^"\\]{1,64})")\s*,')
+
+
+def _leading_id(data: str) -> Any:
+    """The id of a request too large to parse, if it is the first member (so the client can
+    match the error reply); None otherwise."""
+    m = _LEADING_ID.match(data[:100])
+    if m is None:
+        return None
+    return int(m.group(1)) if m.group(1) is not None else m.group(2)
+
+
 def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tuple[Any, str, dict]:
     """Decode and validate one request frame; returns ``(id, op, params)``.
 
@@ -349,9 +362,14 @@ def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tupl
     if isinstance(data, bytes | bytearray | memoryview):
         raise RequestError(BAD_REQUEST, "binary frames are not accepted: send JSON text")
     if len(data) > max_bytes:  # characters >= bytes/4, so check the cheap bound first
-        raise RequestError(TOO_LARGE, f"request of {len(data)} chars exceeds {max_bytes} bytes")
+        raise RequestError(
+            TOO_LARGE,
+            f"request of {len(data)} chars exceeds {max_bytes} bytes (long trajectories: "
+            "trajectory.upload in chunks)",
+            _leading_id(data),
+        )
     if len(data.encode("utf-8", "surrogatepass")) > max_bytes:
-        raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes")
+        raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes", _leading_id(data))
     try:
         obj = json.loads(data, parse_constant=_reject_constant)
     except (ValueError, RecursionError) as exc:

@@ -293,3 +293,49 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         assert rc == 1 and "no_such not controlled by the daemon" in err
     finally:
         ensure_jtc(client)
+
+
+# ------------------------------------------------------------------ issue 12 finding 6
+def _long_wave(n: int) -> list[dict]:
+    """``n`` waypoints, 2 ms apart, a gentle wave on every segment (well inside the limits)."""
+    names = ("segment_1", "segment_2", "segment_3")
+    return [
+        {
+            "time_from_start": round(0.5 + 0.002 * i, 6),
+            "segments": {
+                s: {"kappa": round(0.3 + 0.2 * math.sin(i / 500 + k), 6), "phi": 0.5}
+                for k, s in enumerate(names)
+            },
+        }
+        for i in range(n)
+    ]
+
+
+def test_ten_thousand_waypoints_through_the_python_client(rig, client):
+    ensure_jtc(client)
+    points = _long_wave(10_000)
+    assert len(json.dumps(points)) > 10 * 64 * 1024  # far above one request's limit
+    goal = client.send_trajectory(points, wait=False)
+    try:
+        status = client.trajectory_status(goal)
+        assert status["points"] == 10_000
+        assert status["state"] in ("executing", "succeeded"), status
+    finally:
+        client.cancel(goal)
+
+
+def test_ten_thousand_waypoints_through_ucr_trajectory(rig, client, capsys, tmp_path):
+    from tools.cli import main as ucr
+
+    ensure_jtc(client)
+    _, srv = rig
+    f = tmp_path / "long.json"
+    f.write_text(json.dumps({"waypoints": _long_wave(10_000)}))
+    rc = ucr(["trajectory", str(f), "--url", srv.url, "--no-wait"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    goal = out.strip().splitlines()[-1].split()[-1]
+    try:
+        assert client.trajectory_status(goal)["points"] == 10_000
+    finally:
+        client.cancel(goal)
