@@ -264,49 +264,48 @@ class DaemonBridge:
 class DaemonLink:
     """API side of the bridge: RPCs as awaitables, the latest status snapshot, publications.
 
-    ``on_publish(kind, json_text)`` is called in the event loop for every published message.
+    Runs in the API server's event loop (no thread: one hop less for every published message).
+    ``on_publish(kind, json_text)`` is called for every published message.
     """
 
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
-        self._send_lock = threading.Lock()
         self._ids = 0
         self._pending: dict[int, asyncio.Future] = {}
-        self._loop: asyncio.AbstractEventLoop | None = None
         self._on_publish: Callable[[str, str], None] | None = None
-        self.status_text: str | None = None  # replaced whole, read without a lock
+        self._writer: asyncio.StreamWriter | None = None
+        self._task: asyncio.Task | None = None
+        self.status_text: str | None = None  # replaced whole
         self.status_t = 0.0
         self.closed = False
-        self._thread: threading.Thread | None = None
         self._subscribed = False
 
-    def start(
-        self, loop: asyncio.AbstractEventLoop, on_publish: Callable[[str, str], None]
-    ) -> None:
-        self._loop = loop
+    async def start(self, on_publish: Callable[[str, str], None]) -> None:
+        """Attach to the running event loop and start reading."""
         self._on_publish = on_publish
-        self._thread = threading.Thread(target=self._reader, name="ucr-api-link", daemon=True)
-        self._thread.start()
+        reader, self._writer = await asyncio.open_connection(sock=self.sock, limit=MAX_FRAME)
+        self._task = asyncio.get_running_loop().create_task(self._read(reader))
 
     def close(self) -> None:
         self.closed = True
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
-        with contextlib.suppress(OSError):
-            self.sock.close()
+        if self._writer is None:
+            with contextlib.suppress(OSError):
+                self.sock.close()
+
+    def send_raw(self, kind: bytes, body: bytes) -> None:
+        """Queue one frame to the daemon side (from the event loop)."""
+        if self.closed or self._writer is None:
+            raise BridgeClosed("the daemon side of the API is gone")
+        self._writer.write(_HEAD.pack(len(body), kind[0]) + body)
 
     def want_stream(self, want: bool) -> None:
         """Ask the daemon side to (un)subscribe its one daemon queue."""
         if want != self._subscribed and not self.closed:
             self._subscribed = want
-            self._write(b"U", b"1" if want else b"0")
-
-    def _write(self, kind: bytes, body: bytes) -> None:
-        try:
-            send_frame(self.sock, self._send_lock, kind, body)
-        except OSError as exc:
-            self.closed = True
-            raise BridgeClosed(f"the daemon side of the API is gone: {exc}") from None
+            with contextlib.suppress(BridgeClosed):
+                self.send_raw(b"U", b"1" if want else b"0")
 
     async def call(self, method: str, *args: Any) -> Any:
         """Call a facade method in the daemon's process; RemoteError if it failed there."""
@@ -319,33 +318,38 @@ class DaemonLink:
         self._pending[rid] = fut
         try:
             body = json.dumps({"id": rid, "m": method, "a": list(args)}, allow_nan=False)
-            await loop.run_in_executor(None, self._write, b"Q", body.encode())
+            self.send_raw(b"Q", body.encode())
+            if len(body) > 65536:
+                await self._writer.drain()
             return await fut
-        except BridgeClosed as exc:
+        except (BridgeClosed, ConnectionError) as exc:
             raise RemoteError(S.UNAVAILABLE, str(exc)) from None
         finally:
             self._pending.pop(rid, None)
 
-    def _reader(self) -> None:
-        loop = self._loop
-        assert loop is not None
+    async def _read(self, reader: asyncio.StreamReader) -> None:
         try:
             while True:
-                kind, body = recv_frame(self.sock)
-                if kind == b"P":
+                head = await reader.readexactly(_HEAD.size)
+                length, kind = _HEAD.unpack(head)
+                if length > MAX_FRAME:
+                    break
+                body = await reader.readexactly(length)
+                if kind == 0x50:  # P
                     k, _, text = body.partition(b"\n")
-                    loop.call_soon_threadsafe(self._on_publish, k.decode(), text.decode())
-                elif kind == b"S":
+                    self._on_publish(k.decode(), text.decode())
+                elif kind == 0x53:  # S
                     self.status_text = body.decode()
                     self.status_t = time.monotonic()
-                elif kind == b"A":
-                    loop.call_soon_threadsafe(self._answer, json.loads(body))
-        except (BridgeClosed, OSError, ValueError, RuntimeError):
+                elif kind == 0x41:  # A
+                    self._answer(json.loads(body))
+        except (asyncio.IncompleteReadError, OSError, ValueError):
             pass
+        except Exception:  # noqa: BLE001 - a bad frame ends the bridge, loudly
+            log.exception("API bridge: reading failed")
         finally:
             self.closed = True
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(self._fail_all)
+            self._fail_all()
 
     def _answer(self, msg: dict) -> None:
         fut = self._pending.get(msg.get("id"))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -29,6 +30,7 @@ from host.api.auth import Token
 from host.api.bridge import BridgeClosed, DaemonBridge, DaemonLink, recv_frame, send_frame
 
 log = logging.getLogger("ucr.api")
+API_NICE = 5  # scheduling priority of the API process relative to the daemon (nice increment)
 
 
 def _options_json(options: dict[str, Any]) -> dict[str, Any]:
@@ -184,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     sock = socket.socket(fileno=int(args[0]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon decides when the API ends
+    with contextlib.suppress(OSError):
+        os.nice(API_NICE)  # when CPU is short, the control loop's process goes first
     lock = threading.Lock()
     try:
         kind, body = recv_frame(sock)
@@ -195,7 +199,6 @@ def main(argv: list[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s[api]: %(message)s",
     )
     link = DaemonLink(sock)
-    link._send_lock = lock
     try:
         server = ApiServer(
             link,
@@ -207,9 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ApiServerError, OSError) as exc:
         send_frame(sock, lock, b"Y", json.dumps({"ok": False, "error": str(exc)}).encode())
         return 1
-    send_frame(
-        sock, lock, b"Y", json.dumps({"ok": True, "url": server.url, "port": server.port}).encode()
-    )
+    ready = json.dumps({"ok": True, "url": server.url, "port": server.port}).encode()
+    server.call_in_loop(link.send_raw, b"Y", ready)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     while not stop.wait(0.5) and not link.closed:

@@ -381,6 +381,11 @@ class ApiServer:
             self._bridge.stop()
             self._bridge = None
 
+    def call_in_loop(self, fn: Any, *args: Any) -> None:
+        """Run ``fn(*args)`` in the server's event loop (from any thread)."""
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(fn, *args)
+
     def __enter__(self) -> ApiServer:
         return self.start() if self._thread is None else self
 
@@ -412,7 +417,6 @@ class ApiServer:
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
-        self._link.start(self._loop, self._publish)
         server: Server
         async with serve(
             self._handle,
@@ -428,6 +432,7 @@ class ApiServer:
             server_header="ucr-api",
             ssl=self._ssl,
         ) as server:
+            await self._link.start(self._publish)  # once bound: a failed start leaves it alone
             sock = next(iter(server.sockets))
             self.port = sock.getsockname()[1]
             self.guard = self.guard.with_port(self.port)
