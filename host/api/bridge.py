@@ -38,6 +38,7 @@ log = logging.getLogger("ucr.api")
 
 _HEAD = struct.Struct("!IB")
 MAX_FRAME = 64 * 1024 * 1024  # a wire frame above this is a protocol error (bridge closes)
+PART_POINTS = 250  # waypoints per bridge frame (~40 KB: a json.loads of well under 1 ms)
 DAEMON_KINDS = ("joint_states", "transforms", "event", "topology")
 
 # facade methods an RPC may name; True: changes state (a fresh status snapshot follows)
@@ -140,6 +141,7 @@ class DaemonBridge:
         self._threads: list[threading.Thread] = []
         self.closed = threading.Event()
         self.counters = {"published": 0, "unencodable": 0, "calls": 0}
+        self._partial: dict[Any, tuple[dict, list]] = {}  # requests whose points are arriving
 
     def start(self) -> DaemonBridge:
         for target, name in ((self._reader, "ucr-api-bridge"), (self._feeder, "ucr-api-feed")):
@@ -172,22 +174,33 @@ class DaemonBridge:
             while not self._stop.is_set():
                 kind, body = recv_frame(self.sock)
                 if kind == b"Q":
-                    self._pool.submit(self._serve, body)
+                    head = json.loads(body)
+                    if head.get("parts"):  # the points follow in parts: parse them piecewise
+                        self._partial[head["id"]] = (head, [])
+                    else:
+                        self._pool.submit(self._serve, head)
+                elif kind == b"q":
+                    part = json.loads(body)
+                    head, points = self._partial[part["id"]]
+                    points.extend(part["p"])
+                    if len(points) >= head["parts"]:
+                        del self._partial[part["id"]]
+                        head["a"][0] = points
+                        self._pool.submit(self._serve, head)
                 elif kind == b"U":
                     self._set_subscribed(body == b"1")
                 else:
                     log.warning("API bridge: unexpected frame type %r", kind)
-        except (BridgeClosed, OSError, RuntimeError, struct.error):
+        except (BridgeClosed, OSError, RuntimeError, struct.error, ValueError, KeyError):
             pass
         finally:
             self._stop.set()
             self._set_subscribed(False)
             self.closed.set()
 
-    def _serve(self, body: bytes) -> None:
+    def _serve(self, req: dict) -> None:
         rid: Any = None
         try:
-            req = json.loads(body)
             rid, method, args = req["id"], req["m"], _args_for(req["m"], list(req["a"]))
             if method not in METHODS:
                 raise RemoteError(S.UNKNOWN_OP, f"no facade method {method!r}")
@@ -205,7 +218,7 @@ class DaemonBridge:
             if isinstance(exc, TypeError | ValueError) and "encod" in str(exc):
                 code, message = S.INTERNAL, f"internal error: result not encodable ({exc})"
             if code == S.INTERNAL:
-                log.error("API: %s failed: %s", body[:80], message)
+                log.error("API: %s failed: %s", req.get("m"), message)
             text = S.encode({"id": rid, "ok": False, "code": code, "message": message})
             changed = False
         if changed:
@@ -317,10 +330,22 @@ class DaemonLink:
         fut = loop.create_future()
         self._pending[rid] = fut
         try:
-            body = json.dumps({"id": rid, "m": method, "a": list(args)}, allow_nan=False)
-            self.send_raw(b"Q", body.encode())
-            if len(body) > 65536:
-                await self._writer.drain()
+            args_l = list(args)
+            points = args_l[0] if method == "send_trajectory" else None
+            if isinstance(points, list) and len(points) > PART_POINTS:
+                # Many waypoints: in parts, so the daemon's process never spends long in one
+                # json.loads (a C call that holds the interpreter lock the control loop needs).
+                head = {"id": rid, "m": method, "a": [None, *args_l[1:]], "parts": len(points)}
+                self.send_raw(b"Q", json.dumps(head).encode())
+                for i in range(0, len(points), PART_POINTS):
+                    part = {"id": rid, "p": points[i : i + PART_POINTS]}
+                    self.send_raw(b"q", json.dumps(part, allow_nan=False).encode())
+                    await self._writer.drain()
+            else:
+                body = json.dumps({"id": rid, "m": method, "a": args_l}, allow_nan=False)
+                self.send_raw(b"Q", body.encode())
+                if len(body) > 65536:
+                    await self._writer.drain()
             return await fut
         except (BridgeClosed, ConnectionError) as exc:
             raise RemoteError(S.UNAVAILABLE, str(exc)) from None
