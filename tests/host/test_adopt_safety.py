@@ -10,7 +10,7 @@ import os
 import pytest
 
 from host.config import bendable_limits
-from host.topology import Envelope, adopt, adopt_capped, adopted_path, envelope_from
+from host.topology import adopt, adopted_path
 from ucrdf.parser import load
 
 
@@ -40,6 +40,8 @@ def test_a_symlink_at_the_output_path_is_replaced_not_followed(tmp_path):
 
 
 def test_adopted_limits_are_capped_by_the_envelope_and_reported(tmp_path):
+    from host.topology import Envelope, adopt_capped
+
     out = tmp_path / "a.ucrdf"
     robot, capped = adopt_capped(
         [_desc(3.0, 2.0), _desc(9.0, 50.0)], "r", out, Envelope(kappa_max=4.0, kappa_rate_max=5.0)
@@ -56,6 +58,8 @@ def test_adopted_limits_are_capped_by_the_envelope_and_reported(tmp_path):
 
 
 def test_the_envelope_comes_from_the_description(robot3):
+    from host.topology import envelope_from
+
     env = envelope_from(robot3)
     kmax = max(b.model.limits.kappa_max for b in robot3.bendables.values())
     assert env.kappa_max == pytest.approx(kmax)

@@ -19,11 +19,12 @@ import pytest
 from websockets.sync.client import connect as ws_connect
 
 from host.api import schema
-from host.api.auth import CONTROL, READ, Backoff, Token, read_token_file
 from host.api.client import ApiAuthError, ApiError, connect
-from host.api.guard import WebGuard
 from host.api.server import ApiServer, ApiServerError
 from host.config import ConfigError, load_config
+
+# New modules are imported inside the tests that need them, so that every test here can also be
+# run against the code before issue 13 (and fail there on its own assertion).
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -110,6 +111,8 @@ def test_a_configured_origin_and_host_name_are_allowed(stub):
 
 
 def test_guard_is_reusable_by_other_surfaces():
+    from host.api.guard import WebGuard
+
     g = WebGuard.build(bind="127.0.0.1", port=8080, origins=["http://127.0.0.1:8080/"], path="/v")
     assert g.check("/v", {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:8080"}) is None
     assert g.check("/v", {"Host": "localhost:8080"}) is None
@@ -127,6 +130,8 @@ def _token_file(tmp_path: Path, name: str, value: str, mode: int = 0o600) -> Pat
 
 
 def test_read_scope_may_look_but_not_move(stub):
+    from host.api.auth import CONTROL, READ, Token
+
     tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
     srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
     points = [{"time_from_start": 0.2, "segments": {"s1": {"kappa": 1.0}}}]
@@ -158,6 +163,8 @@ def test_tokens_shorter_than_16_characters_are_refused(stub):
 
 
 def test_token_files_must_be_private(tmp_path):
+    from host.api.auth import read_token_file
+
     good = _token_file(tmp_path, "good.token", CONTROL_TOKEN)
     assert read_token_file(good) == CONTROL_TOKEN
     loose = _token_file(tmp_path, "loose.token", CONTROL_TOKEN, 0o644)
@@ -180,7 +187,7 @@ def test_config_holding_a_token_must_be_private(tmp_path):
     cfg.write_text(f"api:\n  tokens:\n    - {{file: {tok}, scope: read}}\n")
     cfg.chmod(0o644)  # no secret in it: may be world-readable
     (t,) = load_config(cfg).api.tokens
-    assert (t.value, t.scope) == (READ_TOKEN, READ)
+    assert (t.value, t.scope) == (READ_TOKEN, "read")
 
 
 def test_non_loopback_bind_needs_tls_unless_marked_insecure(stub):
@@ -267,6 +274,8 @@ def test_repeated_auth_failures_back_off_per_peer(stub):
         assert srv.stats()["auth_failures"] >= 4
     finally:
         srv.stop()
+    from host.api.auth import Backoff
+
     b = Backoff(free=2, base_s=1.0, max_s=8.0)
     assert [b.failed("p", now=0.0) for _ in range(6)] == [0.0, 1.0, 2.0, 4.0, 8.0, 8.0]
     assert b.blocked_for("p", now=3.0) == 5.0 and b.blocked_for("q", now=3.0) == 0.0
