@@ -23,6 +23,8 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import ctypes
+import gc
 import ipaddress
 import json
 import logging
@@ -648,10 +650,16 @@ class ApiServer:
                         await self._link.call("ffc_input", {name: (0.0, 0.0)})
 
     async def _janitor(self) -> None:
-        """Once a second: close clients that stopped reading; forget stale uploads."""
+        """Once a second: close clients that stopped reading; forget stale uploads; give memory
+        back to the OS once a crowd of connections has gone."""
+        peak = 0
         while True:
             await asyncio.sleep(min(1.0, self.opts.slow_close_s / 2))
             now = time.monotonic()
+            peak = max(peak, self._tcp_total)
+            if peak >= 32 and self._tcp_total <= peak // 8:
+                peak = self._tcp_total
+                _release_memory()
             for session in list(self._sessions):
                 stuck = session.stream or session.priority
                 if stuck and now - session.t_progress > self.opts.slow_close_s:
@@ -928,6 +936,14 @@ class ApiServer:
                 session.goals[goal] = status
             if done:
                 session.goals.pop(goal, None)
+
+
+def _release_memory() -> None:
+    """Collect garbage and return free heap pages to the OS (glibc ``malloc_trim``), so the
+    process shrinks back after a burst of connections instead of keeping its peak."""
+    gc.collect()
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 class _Raw:

@@ -454,3 +454,22 @@ def test_request_budget_is_weighted_by_bytes(stub, server):
     # 20 x ~45 units (1 + 1/KiB + work) = ~900 units at 500/s after a burst of 100: >= 1.4 s
     assert elapsed >= 1.2
     assert server.stats()["throttled"] > 0
+
+
+def test_ucr_token_writes_a_private_token_file_usable_by_server_and_cli(tmp_path, capsys):
+    from host.api.auth import read_token_file
+    from tools.cli import main as ucr
+
+    tok = tmp_path / "operator.token"
+    assert ucr(["token", str(tok)]) == 0
+    assert (tok.stat().st_mode & 0o777) == 0o600
+    value = read_token_file(tok)
+    assert len(value) >= 16
+    assert ucr(["token", str(tok)]) == 1  # never overwrites by accident
+    victim = tmp_path / "victim"
+    victim.write_text("keep\n")
+    link = tmp_path / "link.token"
+    link.symlink_to(victim)
+    assert ucr(["token", str(link), "--force"]) == 0
+    assert victim.read_text() == "keep\n" and not link.is_symlink()
+    capsys.readouterr()
