@@ -139,12 +139,17 @@ def _diff_one(
             got = d.get(key)
             if expected and (not isinstance(got, int | float) or not _close(float(got), expected)):
                 add("geometry", f"{key} {got} m on the segment, {expected:g} m in the description")
+    # A description tighter than the segment is safe (the host never commands beyond it): noted,
+    # not blocking. A looser one would command what the segment refuses: blocking.
     lim = b.model.limits
     kmax = d.get("kappa_max")
     if not isinstance(kmax, int | float) or not _close(float(kmax), lim.kappa_max):
+        tighter = isinstance(kmax, int | float) and lim.kappa_max < float(kmax)
         add(
             "limits",
-            f"kappa_max {kmax} 1/m on the segment, {lim.kappa_max:g} 1/m in the description",
+            f"kappa_max {kmax} 1/m on the segment, {lim.kappa_max:g} 1/m in the description"
+            + (" (the description's tighter limit applies)" if tighter else ""),
+            blocking=not tighter,
         )
     rate = d.get("kappa_rate_max")
     if (
@@ -152,10 +157,13 @@ def _diff_one(
         and isinstance(rate, int | float)
         and not _close(float(rate), lim.kappa_rate_max)
     ):
+        tighter = lim.kappa_rate_max < float(rate)
         add(
             "limits",
             f"kappa_rate_max {rate} 1/m/s on the segment, {lim.kappa_rate_max:g} "
-            "1/m/s in the description",
+            "1/m/s in the description"
+            + (" (the description's tighter limit applies)" if tighter else ""),
+            blocking=not tighter,
         )
     if name in uids and str(d.get("uid", "")).lower() != uids[name]:
         add(

@@ -70,3 +70,37 @@ def test_adopted_file_goes_to_the_state_directory(tmp_path, monkeypatch):
     assert adopted_path("/usr/share/ucr/robot.ucrdf", "x") == tmp_path / "robot.adopted.ucrdf"
     monkeypatch.delenv("STATE_DIRECTORY")
     assert str(adopted_path("/x/robot.ucrdf", "x")) == os.path.join("/x", "robot.adopted.ucrdf")
+
+
+def test_daemon_adopting_a_chain_caps_limits_at_the_descriptions_envelope(tmp_path, robot3):
+    """A 2-segment description with kappa_max halved, a 3-segment chain: --adopt runs the chain
+    with no segment allowed more than the description's envelope, and says so."""
+    import copy
+
+    from daemon_helpers import ROBOT_FILE, emulated_configs, start_daemon
+
+    from host.config import DaemonConfig
+    from host.daemon import Daemon
+    from tools.emulator import EmulatedChain
+
+    two = load(ROBOT_FILE.with_name("softrobot2.ucrdf"))
+    small = copy.deepcopy(two)
+    for b in small.bendables.values():
+        b.model.limits.kappa_max /= 2
+    cap = max(b.model.limits.kappa_max for b in small.bendables.values())
+    out = tmp_path / "adopted.ucrdf"
+    with EmulatedChain(3, config_for=emulated_configs(robot3)) as chain:
+        d = Daemon(small, DaemonConfig(port=chain.host_port), adopt=True, adopt_path=out)
+        q = d.subscribe(["event"])
+        start_daemon(d)
+        try:
+            assert d.status()["segments"] == ["segment_1", "segment_2", "segment_3"]
+            assert all(lim.kappa_max <= cap + 1e-9 for lim in d.hwi.limits.values())
+            events = []
+            while not q.empty():
+                events.append(q.get_nowait())
+            (adopted,) = [e for e in events if e.get("event") == "adopted"]
+            assert len(adopted["capped"]) == 3 and "capped to" in adopted["capped"][0]
+        finally:
+            d.stop()
+    assert all(b.model.limits.kappa_max <= cap + 1e-9 for b in load(out).bendables.values())
