@@ -5,8 +5,9 @@ and error helpers in :mod:`host.client_common`.
 
 Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with the token
 from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN``). Curvature is in 1/m, the
-bending-plane angle phi in degrees on the command line and in the output (radians on the wire). Exit codes: 0 done, 1 failed (daemon unreachable,
-request refused, trajectory aborted), 2 usage error. Errors are one line, never a traceback.
+bending-plane angle phi in degrees on the command line and in the output (radians on the wire).
+Exit codes: 0 done, 1 failed (daemon unreachable, request refused, trajectory aborted), 2 usage
+error. Errors are one line, never a traceback. ``ucr token FILE`` writes a new token file.
 """
 
 from __future__ import annotations
