@@ -341,7 +341,10 @@ class Client:
                 extra = {} if upload is None else {"upload": upload}
                 upload = self.call("trajectory.upload", points=chunk, **extra)["upload"]
             params["upload"] = upload
-        result = self.call("trajectory.send", points=chunks[-1], **params)
+        # The daemon builds and retimes the whole path before it answers: ~0.2 ms per waypoint
+        # on a Pi-class CPU, more when loaded, so a long trajectory gets a longer reply timeout.
+        wait = self.timeout + 0.002 * len(points)
+        result = self.call("trajectory.send", timeout=wait, points=chunks[-1], **params)
         goal = result["goal"]
         self.last_goal = goal
         if progress is not None:

@@ -218,6 +218,7 @@ class _Session:
         self.subs: dict[int, _Subscription] = {}
         self.goals: dict[Any, Any] = {}  # goal id -> last pushed status
         self.ffc_active: set[str] = set()  # bendables this client last drove with non-zero input
+        self.ffc_audited: set[str] | None = None  # deflected set last written to the audit log
         self.stream: collections.deque[tuple[_Subscription, str]] = collections.deque()
         self.priority: collections.deque[str] = collections.deque()
         self.queued_bytes = 0
@@ -814,7 +815,8 @@ class ApiServer:
         # and a disconnect must then zero it.
         before = set(session.ffc_active)
         deflected = {n for n, (x, y) in rates.items() if x or y}
-        if deflected != before & set(rates) or not before:
+        if deflected != session.ffc_audited:  # a 50 Hz stream is audited when its sticks change
+            session.ffc_audited = deflected
             self._audit(session, "ffc.input", None, f"deflected {sorted(deflected)}")
         session.ffc_active.update(deflected)
         try:

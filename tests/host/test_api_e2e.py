@@ -311,11 +311,28 @@ def _long_wave(n: int) -> list[dict]:
     ]
 
 
+def wait_for_connected(c, timeout: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        st = c.status()
+        if st["state"] == "connected" and len(st["segments"]) == 3:
+            return True
+        time.sleep(0.1)
+    return False
+
+
 def test_ten_thousand_waypoints_through_the_python_client(rig, client):
     ensure_jtc(client)
     points = _long_wave(10_000)
     assert len(json.dumps(points)) > 10 * 64 * 1024  # far above one request's limit
-    goal = client.send_trajectory(points, wait=False)
+    for attempt in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+        try:
+            goal = client.send_trajectory(points, wait=False)
+            break
+        except ApiError as exc:
+            if attempt == 2 or exc.code not in (schema.UNAVAILABLE, schema.REJECTED):
+                raise
+            assert wait_for_connected(client)
     try:
         status = client.trajectory_status(goal)
         assert status["points"] == 10_000
@@ -331,9 +348,13 @@ def test_ten_thousand_waypoints_through_ucr_trajectory(rig, client, capsys, tmp_
     _, srv = rig
     f = tmp_path / "long.json"
     f.write_text(json.dumps({"waypoints": _long_wave(10_000)}))
-    rc = ucr(["trajectory", str(f), "--url", srv.url, "--no-wait"])
-    out = capsys.readouterr().out
-    assert rc == 0, out
+    for _ in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+        rc = ucr(["trajectory", str(f), "--url", srv.url, "--no-wait"])
+        out, err = capsys.readouterr()
+        if rc == 0 or not ("unavailable" in err or "rejected" in err):
+            break
+        assert wait_for_connected(client)
+    assert rc == 0, err
     goal = out.strip().splitlines()[-1].split()[-1]
     try:
         assert client.trajectory_status(goal)["points"] == 10_000

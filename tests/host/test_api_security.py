@@ -304,7 +304,9 @@ def test_motion_and_controller_ops_are_audited_with_peer_and_role(stub):
             )
             c.cancel(goal)
             c.switch(start=["ffc"], stop=["jtc"])
-            c.ffc_input({"s1": (0.5, 0.0)})
+            for _ in range(5):  # a stream is audited when its deflected sticks change
+                c.ffc_input({"s1": (0.5, 0.0)})
+            c.ffc_input({"s1": (0.0, 0.0)})
             local = c.ws.local_address
     finally:
         srv.stop()
@@ -312,7 +314,14 @@ def test_motion_and_controller_ops_are_audited_with_peer_and_role(stub):
         logging.getLogger().setLevel(root_level)
     lines = [r.getMessage() for r in records]
     ops = [line.split(" op=")[1].split()[0] for line in lines]
-    assert ops[:4] == ["trajectory.send", "trajectory.cancel", "controllers.switch", "ffc.input"]
+    assert ops == [
+        "trajectory.send",
+        "trajectory.cancel",
+        "controllers.switch",
+        "ffc.input",
+        "ffc.input",
+    ]
+    assert "deflected ['s1']" in lines[3] and "deflected []" in lines[4]
     send = lines[0]
     assert f"peer={local[0]}:{local[1]}" in send and "scope=control" in send
     assert f"goal={goal}" in send and "1 waypoint(s)" in send and "token=api.token" in send

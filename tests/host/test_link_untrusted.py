@@ -153,31 +153,29 @@ def daemon(chain, robot3):
     d.stop()
 
 
-def _controls_the_chain(d: Daemon) -> None:
-    """The daemon is connected and a short trajectory on all three segments succeeds."""
-    assert wait_for(
-        lambda: d.status()["state"] == "connected" and d.status()["segments"] == NAMES, 15.0
-    ), d.status()
-    for kappa in (1.0, 0.0):
-        deadline = time.monotonic() + 20
-        while True:  # a hot-plug triggered by a fuzzed DOWNSTREAM event may still be settling
-            try:
+def _controls_the_chain(d: Daemon, attempts: int = 5) -> None:
+    """The daemon is connected and drives all three segments through a slow trajectory to a bend
+    and back (retried a few times: on a loaded machine a goal may abort on path tolerance)."""
+    for attempt in range(attempts):
+        assert wait_for(
+            lambda: d.status()["state"] == "connected" and d.status()["segments"] == NAMES, 20.0
+        ), d.status()
+        try:
+            for kappa in (1.0, 0.0):
                 gid = d.send_trajectory(
-                    [{"time_from_start": 0.4, "segments": {n: {"kappa": kappa} for n in NAMES}}]
+                    [{"time_from_start": 1.5, "segments": {n: {"kappa": kappa} for n in NAMES}}]
                 )
-                break
-            except Exception:  # noqa: BLE001 - retried until the deadline
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        assert wait_for(lambda g=gid: d.trajectory_status(g)["state"] in _ENDED, 15.0)
-        status = d.trajectory_status(gid)
-        assert status["state"] in ("succeeded", "aborted"), status
-        if status["state"] == "aborted":  # only a topology change may abort it: try again
-            assert "topology" in status["reason"] or "holding" in status["reason"], status
-            return _controls_the_chain(d)
-    js = d.status()["joint_states"]
-    assert all(abs(js[n]["kappa"]) < 0.1 for n in NAMES), js
+                assert wait_for(lambda g=gid: d.trajectory_status(g)["state"] in _ENDED, 20.0)
+                status = d.trajectory_status(gid)
+                assert status["state"] == "succeeded", status
+        except Exception:  # noqa: BLE001 - a hot-plug settling or a tolerance abort: try again
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.5)
+            continue
+        js = d.status()["joint_states"]
+        assert all(abs(js[n]["kappa"]) < 0.1 for n in NAMES), js
+        return
 
 
 def test_event_with_an_infinite_code_does_not_disable_the_daemon(daemon, chain):
