@@ -343,8 +343,8 @@ class Client:
             params["upload"] = upload
         # The daemon builds and retimes the whole path before it answers: ~0.2 ms per waypoint
         # on a Pi-class CPU, more when loaded, so a long trajectory gets a longer reply timeout.
-        wait = self.timeout + 0.002 * len(points)
-        result = self.call("trajectory.send", timeout=wait, points=chunks[-1], **params)
+        reply_s = self.timeout + 0.002 * len(points)
+        result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
         goal = result["goal"]
         self.last_goal = goal
         if progress is not None:
