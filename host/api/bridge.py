@@ -1,18 +1,19 @@
 """The seam between the control loop's process and the API server: a socket carrying RPCs,
 published messages (encoded once) and status snapshots.
 
-Daemon side, :class:`DaemonBridge`: calls the Daemon facade for RPCs (a small worker pool), holds
-ONE daemon subscription while any client subscribes, JSON-encodes each published message once and
-sends it on, and sends a status snapshot every ``status_period`` s and after every op that changes
-state. Nothing here runs in the control loop: the loop's cost per published message is one
-``put_nowait`` into the bridge's queue, whatever the number of clients.
+Daemon side, :class:`DaemonBridge`: calls the Daemon facade for RPCs (a small worker pool),
+holds ONE daemon subscription to the kinds clients subscribe to, JSON-encodes each published
+message once and sends it on, and sends a status snapshot every ``status_period`` s and after
+every op that changes state. Nothing here runs in the control loop: the loop's cost per
+published message is one ``put_nowait`` into the bridge's queue, whatever the number of clients.
 
 API side, :class:`DaemonLink`: the facade as the API server sees it — ``await call(...)``, the
 latest status snapshot (read without locks), and a callback per published message.
 
 Wire: frames ``[u32 length][u8 type][body]``; types ``Q`` request ``{"id", "m", "a"}``, ``A``
 answer ``{"id", "ok", "r" | "code", "message"}``, ``P`` publication ``kind "\\n" json``, ``S``
-status JSON, ``U`` subscription wanted (``1``/``0``), ``C``/``Y`` configuration and ready message
+status JSON, ``U`` the kinds clients subscribe to (comma-separated), ``Q``/``q`` a request whose
+waypoints follow in parts, ``C``/``Y`` configuration and ready message
 of a separate API process. JSON only: the API side never sends anything the daemon executes
 beyond the whitelisted facade methods with JSON arguments.
 """
@@ -138,6 +139,7 @@ class DaemonBridge:
         self._stop = threading.Event()
         self._sub_lock = threading.Lock()
         self._sub: Any = None  # the daemon queue while any client subscribes
+        self._sub_kinds: list[str] = []
         self._threads: list[threading.Thread] = []
         self.closed = threading.Event()
         self.counters = {"published": 0, "unencodable": 0, "calls": 0}
@@ -157,7 +159,7 @@ class DaemonBridge:
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(timeout)
-        self._set_subscribed(False)
+        self._set_subscribed([])
         self._pool.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(OSError):
             self.sock.close()
@@ -188,14 +190,14 @@ class DaemonBridge:
                         head["a"][0] = points
                         self._pool.submit(self._serve, head)
                 elif kind == b"U":
-                    self._set_subscribed(body == b"1")
+                    self._set_subscribed(body.decode().split(",") if body else [])
                 else:
                     log.warning("API bridge: unexpected frame type %r", kind)
         except (BridgeClosed, OSError, RuntimeError, struct.error, ValueError, KeyError):
             pass
         finally:
             self._stop.set()
-            self._set_subscribed(False)
+            self._set_subscribed([])
             self.closed.set()
 
     def _serve(self, req: dict) -> None:
@@ -226,17 +228,23 @@ class DaemonBridge:
         self._send(b"A", text.encode())
 
     # -- published messages and status ---------------------------------------------------------
-    def _set_subscribed(self, want: bool) -> None:
+    def _set_subscribed(self, kinds: list[str]) -> None:
+        """Hold one daemon subscription to exactly the kinds some client wants (none: none), so
+        the daemon encodes nothing nobody reads (e.g. the large transforms)."""
+        want = sorted({"event" if k == "events" else k for k in kinds} & set(DAEMON_KINDS))
         with self._sub_lock:
-            if want and self._sub is None and not self._stop.is_set():
-                try:
-                    self._sub = self.daemon.subscribe(list(DAEMON_KINDS))
-                except Exception as exc:  # noqa: BLE001 - reported; streams stay empty
-                    log.error("API bridge: cannot subscribe: %s", exc)
-            elif not want and self._sub is not None:
+            if want == self._sub_kinds:
+                return
+            if self._sub is not None:
                 q, self._sub = self._sub, None
                 with contextlib.suppress(Exception):
                     self.daemon.unsubscribe(q)
+            self._sub_kinds = want
+            if want and not self._stop.is_set():
+                try:
+                    self._sub = self.daemon.subscribe(want)
+                except Exception as exc:  # noqa: BLE001 - reported; streams stay empty
+                    log.error("API bridge: cannot subscribe: %s", exc)
 
     def _send_status(self) -> None:
         try:
@@ -291,7 +299,7 @@ class DaemonLink:
         self.status_text: str | None = None  # replaced whole
         self.status_t = 0.0
         self.closed = False
-        self._subscribed = False
+        self._subscribed = ""
 
     async def start(self, on_publish: Callable[[str, str], None]) -> None:
         """Attach to the running event loop and start reading."""
@@ -313,12 +321,13 @@ class DaemonLink:
             raise BridgeClosed("the daemon side of the API is gone")
         self._writer.write(_HEAD.pack(len(body), kind[0]) + body)
 
-    def want_stream(self, want: bool) -> None:
-        """Ask the daemon side to (un)subscribe its one daemon queue."""
+    def want_stream(self, kinds: set[str]) -> None:
+        """Tell the daemon side which kinds any client subscribes to (empty: none)."""
+        want = ",".join(sorted(kinds))
         if want != self._subscribed and not self.closed:
             self._subscribed = want
             with contextlib.suppress(BridgeClosed):
-                self.send_raw(b"U", b"1" if want else b"0")
+                self.send_raw(b"U", want.encode())
 
     async def call(self, method: str, *args: Any) -> Any:
         """Call a facade method in the daemon's process; RemoteError if it failed there."""

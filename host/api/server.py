@@ -720,7 +720,7 @@ class ApiServer:
         session.wakeup.set()
 
     def _update_stream_wanted(self) -> None:
-        self._link.want_stream(any(self._by_kind.values()))
+        self._link.want_stream({kind for kind, subs in self._by_kind.items() if subs})
 
     # ------------------------------------------------------------------ requests
     async def _serve_frame(self, session: _Session, frame: str | bytes) -> dict | str:
