@@ -77,10 +77,11 @@ def test_daemon_adopting_a_chain_caps_limits_at_the_descriptions_envelope(tmp_pa
     with no segment allowed more than the description's envelope, and says so."""
     import copy
 
-    from daemon_helpers import ROBOT_FILE, emulated_configs, start_daemon
+    from daemon_helpers import ROBOT_FILE, emulated_configs, start_daemon, wait_for
 
     from host.config import DaemonConfig
     from host.daemon import Daemon
+    from host.link import ChainLink
     from tools.emulator import EmulatedChain
 
     two = load(ROBOT_FILE.with_name("softrobot2.ucrdf"))
@@ -90,6 +91,8 @@ def test_daemon_adopting_a_chain_caps_limits_at_the_descriptions_envelope(tmp_pa
     cap = max(b.model.limits.kappa_max for b in small.bendables.values())
     out = tmp_path / "adopted.ucrdf"
     with EmulatedChain(3, config_for=emulated_configs(robot3)) as chain:
+        with ChainLink(chain.host_port) as link:  # all three booted (adopt takes what answers)
+            assert wait_for(lambda: len(link.discover(timeout=0.3)) == 3, 20.0, 0.1)
         d = Daemon(small, DaemonConfig(port=chain.host_port), adopt=True, adopt_path=out)
         q = d.subscribe(["event"])
         start_daemon(d)
