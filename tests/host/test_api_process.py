@@ -1,9 +1,12 @@
-"""`ucr daemon` serves its API from a process of its own (issue 12, finding 7): client load never
-competes with the control loop for the interpreter lock. The API process is restarted if it
-dies, and ends with the daemon. Figures (200 clients at 10 Hz) are in benchmarks/bench_api.py."""
+"""`ucr daemon` as deployed, a process beside the emulated chain: it serves its API from a process
+of its own (issue 12, finding 7), restarted if it dies and ended with the daemon; and it takes
+10,000-waypoint trajectories through the Python client and `ucr trajectory` (issue 12, finding 6).
+Figures (200 clients at 10 Hz, latency) are in benchmarks/bench_api.py."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import signal
 import socket
@@ -15,7 +18,7 @@ from pathlib import Path
 import pytest
 from daemon_helpers import REPO, ROBOT_FILE, emulated_configs, wait_for
 
-from host.api.client import connect
+from host.api.client import ApiError, connect
 from host.link import ChainLink
 from tools.emulator import EmulatedChain
 
@@ -127,3 +130,94 @@ def test_ucr_daemon_serves_the_api_from_its_own_process(chain, tmp_path):
             proc.kill()
             proc.wait()
         time.sleep(0.1)
+
+
+# ------------------------------------------------------------------ issue 12 finding 6
+@pytest.fixture(scope="module")
+def daemon_url(chain, tmp_path_factory):
+    """`ucr daemon` (API in its own process) on the module's chain; its URL."""
+    port = _free_port()
+    cfg = tmp_path_factory.mktemp("cfg") / "daemon.yaml"
+    cfg.write_text(f"api: {{bind: 127.0.0.1, port: {port}}}\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "daemon", "--robot", str(ROBOT_FILE)]
+        + ["--port", chain.host_port, "--config", str(cfg)],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    url = f"ws://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: _connected(url), 30.0, 0.2)
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _connected(url: str) -> bool:
+    try:
+        with connect(url, timeout=2) as c:
+            st = c.status()
+            return st["state"] == "connected" and len(st["segments"]) == 3
+    except (ConnectionError, TimeoutError):
+        return False
+
+
+def _long_wave(n: int) -> list[dict]:
+    """``n`` waypoints, 2 ms apart, a gentle wave on every segment (well inside the limits)."""
+    names = ("segment_1", "segment_2", "segment_3")
+    return [
+        {
+            "time_from_start": round(0.5 + 0.002 * i, 6),
+            "segments": {
+                s: {"kappa": round(0.3 + 0.2 * math.sin(i / 500 + k), 6), "phi": 0.5}
+                for k, s in enumerate(names)
+            },
+        }
+        for i in range(n)
+    ]
+
+
+def test_ten_thousand_waypoints_through_the_python_client(daemon_url):
+    points = _long_wave(10_000)
+    assert len(json.dumps(points)) > 10 * 64 * 1024  # far above one request's limit
+    with connect(daemon_url, timeout=10) as c:
+        for attempt in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+            assert wait_for(lambda: _connected(daemon_url), 30.0, 0.2)
+            try:
+                goal = c.send_trajectory(points, wait=False)
+                break
+            except ApiError as exc:
+                if attempt == 2 or exc.code not in ("unavailable", "rejected"):
+                    raise
+        try:
+            status = c.trajectory_status(goal)
+            assert status["points"] == 10_000
+            assert status["state"] in ("executing", "succeeded", "aborted"), status
+        finally:
+            c.cancel(goal)
+
+
+def test_ten_thousand_waypoints_through_ucr_trajectory(daemon_url, tmp_path, capsys):
+    from tools.cli import main as ucr
+
+    f = tmp_path / "long.json"
+    f.write_text(json.dumps({"waypoints": _long_wave(10_000)}))
+    for _ in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+        assert wait_for(lambda: _connected(daemon_url), 30.0, 0.2)
+        rc = ucr(["trajectory", str(f), "--url", daemon_url, "--no-wait", "--timeout", "10"])
+        out, err = capsys.readouterr()
+        if rc == 0 or not any(w in err for w in ("unavailable", "rejected", "not controlled")):
+            break
+    assert rc == 0, err
+    goal = out.strip().splitlines()[-1].split()[-1]
+    with connect(daemon_url, timeout=10) as c:
+        try:
+            assert c.trajectory_status(goal)["points"] == 10_000
+        finally:
+            c.cancel(goal)
