@@ -80,14 +80,23 @@ def _load(robot_path: str, config_path: str | None) -> tuple[Any, Any]:
     return load(robot_path), load_config(config_path)
 
 
-def start_api(daemon: Any, bind: str, port: int, token: str | None) -> Any:
-    """Start host.api.server if it is installed; None if absent."""
+def start_api(
+    daemon: Any,
+    bind: str,
+    port: int,
+    token: str | None,
+    *,
+    log_level: str = "info",
+    options: dict[str, Any] | None = None,
+) -> Any:
+    """Start the API server in its own process (host.api.process); None if it is absent.
+    ``options``: ``ApiConfig.server_options()`` (tokens, TLS, origins, host names)."""
     try:
-        from host.api.server import start_server  # noqa: PLC0415 - optional part
+        from host.api.process import start_api_process  # noqa: PLC0415 - optional part
     except ModuleNotFoundError:
         logging.getLogger("ucr").warning("host.api.server not available: running without API")
         return None
-    return start_server(daemon, bind, port, token)
+    return start_api_process(daemon, bind, port, token, log_level=log_level, **(options or {}))
 
 
 def cmd_daemon(args: argparse.Namespace) -> int:
@@ -118,7 +127,14 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     api = None
     if cfg.api.enabled and not args.no_api:
         try:
-            api = start_api(daemon, cfg.api.bind, cfg.api.port, cfg.api.token)
+            api = start_api(
+                daemon,
+                cfg.api.bind,
+                cfg.api.port,
+                cfg.api.token,
+                log_level=args.log_level,
+                options=cfg.api.server_options(),
+            )
         except Exception as exc:  # noqa: BLE001 - bind/token errors are user errors
             daemon.stop()
             return print_error(f"API: {exc}")

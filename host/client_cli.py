@@ -3,16 +3,18 @@ trajectory, controllers, teleop. This module registers them all and runs status,
 controllers; the commands that move the robot live in :mod:`host.client_motion`, the connection
 and error helpers in :mod:`host.client_common`.
 
-Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with ``--token``
-(default ``$UCR_TOKEN``). Curvature is in 1/m, the bending-plane angle phi in degrees on the command
-line and in the output (radians on the wire). Exit codes: 0 done, 1 failed (daemon unreachable,
-request refused, trajectory aborted), 2 usage error. Errors are one line, never a traceback.
+Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with the token
+from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN``). Curvature is in 1/m, the
+bending-plane angle phi in degrees on the command line and in the output (radians on the wire).
+Exit codes: 0 done, 1 failed (daemon unreachable, request refused, trajectory aborted), 2 usage
+error. Errors are one line, never a traceback. ``ucr token FILE`` writes a new token file.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 from host.api import ENV_TOKEN, ENV_URL
@@ -29,7 +31,16 @@ def _common(p: argparse.ArgumentParser, nested: bool = False) -> None:
         help=f"daemon API URL (default ${ENV_URL} or ws://127.0.0.1:8765)",
         **({"default": None} | kw),
     )
-    p.add_argument("--token", help=f"API token (default ${ENV_TOKEN})", **({"default": None} | kw))
+    p.add_argument(
+        "--token-file",
+        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN})",
+        **({"default": None} | kw),
+    )
+    # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
+    p.add_argument("--token", help=argparse.SUPPRESS, **({"default": None} | kw))
+    p.add_argument(
+        "--ca", help="CA file to verify a wss:// daemon ($UCR_CA)", **({"default": None} | kw)
+    )
     p.add_argument(
         "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
     )
@@ -37,6 +48,16 @@ def _common(p: argparse.ArgumentParser, nested: bool = False) -> None:
 
 def register(subparsers: Any) -> None:
     """Add the client commands to the ``ucr`` dispatcher."""
+    t = subparsers.add_parser(
+        "token",
+        help="write a new random API token to a file only you can read (mode 0600)",
+        description="Writes a new random API token (43 characters) to FILE, mode 0600, "
+        "atomically. Point api.tokens in the daemon config at it (scope read or control) and "
+        "give clients the same file (--token-file) or its content ($UCR_TOKEN).",
+    )
+    t.add_argument("file", help="where to write the token (must not exist, unless --force)")
+    t.add_argument("--force", action="store_true", help="replace an existing file")
+    t.set_defaults(func=cmd_token)
     p = subparsers.add_parser("status", help="show the daemon's state and the robot's joints")
     _common(p)
     p.add_argument("--json", action="store_true", help="print the raw status as JSON")
@@ -258,3 +279,22 @@ def cmd_controllers(args: argparse.Namespace) -> int:
         return 0
 
     return with_client(args, body)
+
+
+def cmd_token(args: argparse.Namespace) -> int:
+    """``ucr token FILE``: a fresh 256-bit token in a new 0600 file."""
+    import secrets  # noqa: PLC0415
+
+    from host.api.auth import write_private  # noqa: PLC0415
+
+    path = Path(args.file)
+    if (path.exists() or path.is_symlink()) and not args.force:
+        say_error(f"{path} exists (use --force to replace it)")
+        return 1
+    try:
+        write_private(path, secrets.token_urlsafe(32) + "\n")
+    except OSError as exc:
+        say_error(f"cannot write {path}: {exc.strerror or exc}")
+        return 1
+    print(f"wrote a new API token to {path} (mode 0600)")
+    return 0

@@ -23,11 +23,24 @@ def say_error(message: str) -> None:
 
 
 def connect_daemon(args: argparse.Namespace) -> Any:
-    from host.api.client import ApiAuthError, ApiConnectionError, connect  # noqa: PLC0415
+    """Connect with ``--url``, the token from ``--token-file`` or ``$UCR_TOKEN``, ``--ca``."""
+    from host.api import ENV_TOKEN  # noqa: PLC0415
+    from host.api.client import (  # noqa: PLC0415
+        ApiAuthError,
+        ApiConnectionError,
+        connect,
+        read_token,
+    )
 
     url = args.url or default_url()
     try:
-        return connect(url, token=args.token, timeout=args.timeout)
+        if getattr(args, "token", None):
+            raise CliError(
+                "--token is refused: a token on the command line is visible to every user in "
+                f"/proc; use --token-file FILE (mode 0600) or ${ENV_TOKEN}"
+            )
+        token = read_token(getattr(args, "token_file", None))
+        return connect(url, token=token, timeout=args.timeout, cafile=getattr(args, "ca", None))
     except ApiAuthError as exc:
         raise CliError(exc.message) from None
     except ApiConnectionError as exc:

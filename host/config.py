@@ -42,12 +42,30 @@ DEFAULT_ACTIVE = ["jtc", "jsb", "rsp"]
 
 @dataclass
 class ApiConfig:
-    """Network API: bind address, TCP port, token (required for a non-loopback bind)."""
+    """Network API (docs/api.md): bind address, TCP port, tokens with scopes (token files, or an
+    inline ``token`` in a 0600 config), TLS, allowed browser origins and host names."""
 
     bind: str = "127.0.0.1"
     port: int = 8765
     token: str | None = None
     enabled: bool = True
+    tokens: list[Any] = field(default_factory=list)  # host.api.auth.Token
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    insecure: bool = False
+    origins: list[str] = field(default_factory=list)
+    hosts: list[str] = field(default_factory=list)
+
+    def server_options(self) -> dict[str, Any]:
+        """Keyword options for ``host.api.server.ApiServer`` / ``host.api.process.ApiProcess``."""
+        return {
+            "tokens": tuple(self.tokens),
+            "tls_cert": self.tls_cert,
+            "tls_key": self.tls_key,
+            "insecure": self.insecure,
+            "origins": tuple(self.origins),
+            "names": tuple(self.hosts),
+        }
 
 
 @dataclass
@@ -177,7 +195,13 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
         api = data["api"]
         if not isinstance(api, dict):
             raise ConfigError(source, "api", "expected a mapping")
-        _check_keys(source, "api.", api, {"bind", "port", "token", "enabled"})
+        _parse_api_security(source, api, cfg.api)
+        _check_keys(
+            source,
+            "api.",
+            api,
+            {"bind", "port", "token", "enabled", "tokens", "tls", "insecure", "origins", "hosts"},
+        )
         if "bind" in api:
             if not isinstance(api["bind"], str):
                 raise ConfigError(source, "api.bind", "expected an address string")
@@ -188,6 +212,8 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
             if api["token"] is not None and not isinstance(api["token"], str):
                 raise ConfigError(source, "api.token", "expected a string")
             cfg.api.token = api["token"]
+            if api["token"] is not None:
+                _check_inline_token(source, api["token"])
         if "enabled" in api:
             if not isinstance(api["enabled"], bool):
                 raise ConfigError(source, "api.enabled", "expected true or false")
@@ -202,6 +228,69 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
             val = _num(source, f"watchdog.{k}", v, lo=1 if integer else 0.0005, integer=integer)
             setattr(cfg.watchdog, k, int(val) if integer else float(val))
     return cfg
+
+
+def _str_list(source: str, key: str, value: Any) -> list[str]:
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        raise ConfigError(source, key, "expected a list of strings")
+    return list(value)
+
+
+def _check_inline_token(source: str, token: str) -> None:
+    """An inline token: long enough, and only in a config file nobody else can read."""
+    from host.api.auth import AuthConfigError, check_private, check_token_text  # noqa: PLC0415
+
+    try:
+        check_token_text(token, "api.token")
+        if not source.startswith("<"):
+            check_private(Path(source), "a config file holding api.token")
+    except AuthConfigError as exc:
+        raise ConfigError(source, "api.token", str(exc)) from None
+
+
+def _parse_api_security(source: str, api: dict, out: ApiConfig) -> None:
+    """api.tokens (files with scopes), api.tls, api.insecure, api.origins, api.hosts."""
+    from host.api.auth import SCOPES, AuthConfigError, Token, read_token_file  # noqa: PLC0415
+    from host.api.guard import GuardConfigError, WebGuard  # noqa: PLC0415
+
+    for i, entry in enumerate(api.get("tokens") or []):
+        key = f"api.tokens[{i}]"
+        if not isinstance(entry, dict):
+            raise ConfigError(source, key, "expected {file: PATH, scope: read|control}")
+        _check_keys(source, key + ".", entry, {"file", "scope"})
+        scope = entry.get("scope", "control")
+        if scope not in SCOPES:
+            raise ConfigError(source, key + ".scope", f"expected one of {', '.join(SCOPES)}")
+        path = entry.get("file")
+        if not isinstance(path, str) or not path:
+            raise ConfigError(source, key + ".file", "expected the path of a token file")
+        try:
+            value = read_token_file(path)
+        except AuthConfigError as exc:
+            raise ConfigError(source, key + ".file", str(exc)) from None
+        out.tokens.append(Token(value, scope, Path(path).name))
+    tls = api.get("tls")
+    if tls is not None:
+        if not isinstance(tls, dict) or set(tls) != {"cert", "key"}:
+            raise ConfigError(source, "api.tls", "expected {cert: PATH, key: PATH}")
+        for k in ("cert", "key"):
+            if not isinstance(tls[k], str) or not Path(tls[k]).is_file():
+                raise ConfigError(source, f"api.tls.{k}", f"no such file: {tls[k]!r}")
+        out.tls_cert, out.tls_key = tls["cert"], tls["key"]
+    if "insecure" in api:
+        if not isinstance(api["insecure"], bool):
+            raise ConfigError(source, "api.insecure", "expected true or false")
+        out.insecure = api["insecure"]
+    if "origins" in api:
+        out.origins = _str_list(source, "api.origins", api["origins"])
+    if "hosts" in api:
+        out.hosts = _str_list(source, "api.hosts", api["hosts"])
+    try:
+        WebGuard.build(bind=None, origins=out.origins, names=out.hosts)
+    except GuardConfigError as exc:
+        raise ConfigError(source, "api", str(exc)) from None
+    except AuthConfigError as exc:  # pragma: no cover - defensive
+        raise ConfigError(source, "api", str(exc)) from None
 
 
 def load_config(path: str | Path | None) -> DaemonConfig:

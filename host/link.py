@@ -68,6 +68,20 @@ def exchange_floor_s(n: int, baudrate: int) -> float:
     return n * (len(sync) + len(state)) * 10 / baudrate
 
 
+def _small_int(value: Any, lo: int, hi: int) -> bool:
+    """An int (not a bool) within [lo, hi]: what a CBOR field from a segment must be to be used."""
+    return isinstance(value, int) and not isinstance(value, bool) and lo <= value <= hi
+
+
+def _shown(value: Any) -> str:
+    """A short, safe rendering of an untrusted value for a message."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - e.g. too deep
+        text = f"<{type(value).__name__}>"
+    return text[:80]
+
+
 class _Collector:
     """Replies to one request: by position, of the accepted types; ERRORs kept aside."""
 
@@ -149,6 +163,20 @@ class ChainLink:
 
     # -- reader thread --------------------------------------------------------------------------
     def _read_loop(self) -> None:
+        """Read bytes, cut frames, dispatch them. Any way out of this loop other than close() is
+        a link failure (``_error`` set), which the daemon's normal reopen path handles."""
+        try:
+            self._read_frames()
+        except BaseException as exc:  # noqa: BLE001 - the reader must never die silently
+            if not self._closed and self._error is None:
+                self._error = exc
+        finally:
+            if not self._closed and self._error is None:
+                self._error = LinkError("link reader stopped unexpectedly")
+            with self._cond:
+                self._cond.notify_all()
+
+    def _read_frames(self) -> None:
         ser = self._ser
         while not self._closed:
             try:
@@ -156,16 +184,23 @@ class ChainLink:
             except (serial.SerialException, OSError, TypeError) as exc:
                 if not self._closed:
                     self._error = exc
-                with self._cond:
-                    self._cond.notify_all()
                 return
             if not data:
                 continue
-            frames = self._reader.feed(data)
+            try:
+                frames = self._reader.feed(data)
+            except Exception:  # noqa: BLE001 - a framer failure costs these bytes, no more
+                self._reader = FrameReader()
+                with self._cond:
+                    self._counters["bad_payloads"] += 1
+                continue
             with self._cond:
                 self._counters["rx_bytes"] += len(data)
                 for frame in frames:
-                    self._dispatch(frame)
+                    try:
+                        self._dispatch(frame)
+                    except Exception:  # noqa: BLE001 - total: one bad frame is dropped, counted
+                        self._counters["bad_payloads"] += 1
                 if frames:
                     self._cond.notify_all()
 
@@ -197,12 +232,17 @@ class ChainLink:
             self._counters["unmatched"] += 1
 
     def _on_event(self, frame: Frame, position: int) -> None:
+        """Queue an EVENT whose fields have the documented types; count anything else as bad."""
         try:
             payload = loads(frame.payload) if frame.payload else {}
-            code = int(payload.get(C.KE_CODE))
-        except (ProtocolError, TypeError, ValueError, AttributeError):
+        except ProtocolError:
+            payload = None
+        code = payload.get(C.KE_CODE) if isinstance(payload, dict) else None
+        if not _small_int(code, 0, 0xFFFF):
             self._counters["bad_payloads"] += 1
             return
+        detail = payload.get(C.KE_DETAIL)
+        t_ms = payload.get(C.KE_T_MS)
         if len(self._events) == self._events.maxlen:
             self._counters["events_dropped"] += 1
         self._counters["events"] += 1
@@ -211,8 +251,9 @@ class ChainLink:
                 "position": position,
                 "code": code,
                 "name": C.EVENT_NAMES.get(code, f"EVENT_{code}"),
-                "detail": payload.get(C.KE_DETAIL),
-                "t_ms": payload.get(C.KE_T_MS),
+                # detail and t_ms are ints on the wire; anything else is shown as absent
+                "detail": detail if _small_int(detail, -(2**31), 2**32) else None,
+                "t_ms": t_ms if _small_int(t_ms, 0, 2**32) else None,
                 "t": time.monotonic(),
             }
         )
@@ -259,17 +300,24 @@ class ChainLink:
     def _payload(self, frame: Frame) -> Any:
         try:
             return loads(frame.payload) if frame.payload else {}
-        except ProtocolError:
+        except Exception:  # noqa: BLE001 - untrusted bytes: any decoder failure is a bad payload
             self._counters["bad_payloads"] += 1
             return None
 
     def _raise_error(self, position: int, frame: Frame) -> None:
-        payload = self._payload(frame) or {}
+        """Raise :class:`SegmentError` from an ERROR frame, whatever its payload holds."""
+        payload = self._payload(frame)
+        if not isinstance(payload, dict):
+            self._counters["bad_payloads"] += 1
+            raise SegmentError(position, 0, None, f"malformed ERROR payload {_shown(payload)}")
+        code = payload.get(C.KR_CODE, 0)
+        mtype = payload.get(C.KR_TYPE)
+        text = payload.get(C.KR_TEXT, "")
         raise SegmentError(
             position,
-            int(payload.get(C.KR_CODE, 0)),
-            payload.get(C.KR_TYPE),
-            str(payload.get(C.KR_TEXT, "")),
+            code if _small_int(code, 0, 0xFFFF) else 0,
+            mtype if _small_int(mtype, 0, 0xFF) else None,
+            text[:200] if isinstance(text, str) else _shown(text),
         )
 
     def discover(self, timeout: float = 0.5) -> list[dict]:
@@ -297,7 +345,7 @@ class ChainLink:
             for pos in sorted(col.replies):
                 try:
                     desc = M.decode_descriptor(col.replies[pos].payload)
-                except ProtocolError:
+                except Exception:  # noqa: BLE001 - any malformed descriptor is a bad payload
                     self._counters["bad_payloads"] += 1
                     continue
                 desc["position"] = pos
@@ -326,7 +374,7 @@ class ChainLink:
                 continue
             try:
                 states.append(M.decode_state(frame.payload, pos))
-            except ProtocolError:
+            except Exception:  # noqa: BLE001 - any malformed STATE is a bad payload
                 self._counters["bad_payloads"] += 1
                 states.append(None)
         if any(s is None for s in states):

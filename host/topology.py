@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -138,12 +139,17 @@ def _diff_one(
             got = d.get(key)
             if expected and (not isinstance(got, int | float) or not _close(float(got), expected)):
                 add("geometry", f"{key} {got} m on the segment, {expected:g} m in the description")
+    # A description tighter than the segment is safe (the host never commands beyond it): noted,
+    # not blocking. A looser one would command what the segment refuses: blocking.
     lim = b.model.limits
     kmax = d.get("kappa_max")
     if not isinstance(kmax, int | float) or not _close(float(kmax), lim.kappa_max):
+        tighter = isinstance(kmax, int | float) and lim.kappa_max < float(kmax)
         add(
             "limits",
-            f"kappa_max {kmax} 1/m on the segment, {lim.kappa_max:g} 1/m in the description",
+            f"kappa_max {kmax} 1/m on the segment, {lim.kappa_max:g} 1/m in the description"
+            + (" (the description's tighter limit applies)" if tighter else ""),
+            blocking=not tighter,
         )
     rate = d.get("kappa_rate_max")
     if (
@@ -151,10 +157,13 @@ def _diff_one(
         and isinstance(rate, int | float)
         and not _close(float(rate), lim.kappa_rate_max)
     ):
+        tighter = lim.kappa_rate_max < float(rate)
         add(
             "limits",
             f"kappa_rate_max {rate} 1/m/s on the segment, {lim.kappa_rate_max:g} "
-            "1/m/s in the description",
+            "1/m/s in the description"
+            + (" (the description's tighter limit applies)" if tighter else ""),
+            blocking=not tighter,
         )
     if name in uids and str(d.get("uid", "")).lower() != uids[name]:
         add(
@@ -236,19 +245,102 @@ def truncate(robot: Robot, keep: int) -> Robot:
     return out
 
 
-def adopt(descriptors: list[dict[str, Any]], name: str, out_path: str | Path) -> Robot:
-    """Compose a robot from the descriptors (``ucrdf.compose``) and write it to ``out_path``."""
+@dataclass(frozen=True)
+class Envelope:
+    """The most a segment may claim for itself when adopted (1/m, 1/m/s); None = no bound."""
+
+    kappa_max: float | None = None
+    kappa_rate_max: float | None = None
+
+
+def envelope_from(robot: Robot) -> Envelope:
+    """The configured envelope: the largest limits among the described robot's bendables, so an
+    adopted segment never gets more than the user's own description allows anywhere."""
+    lims = [b.model.limits for b in robot.bendables.values()]
+    if not lims:
+        return Envelope()
+    rates = [lim.kappa_rate_max for lim in lims if lim.kappa_rate_max]
+    return Envelope(max(lim.kappa_max for lim in lims), max(rates) if rates else None)
+
+
+def cap_limits(robot: Robot, envelope: Envelope) -> list[str]:
+    """Clamp every bendable's limits (model and ``<ros2_control>`` kappa max) to ``envelope``;
+    returns one line per value that was lowered."""
+    out = []
+    for name, b in robot.bendables.items():
+        lim = b.model.limits
+        cap = envelope.kappa_max
+        if cap is not None and lim.kappa_max > cap:
+            out.append(f"{name}: kappa_max {lim.kappa_max:g} 1/m capped to {cap:g} 1/m")
+            lim.kappa_max = cap
+        cap = envelope.kappa_rate_max
+        if cap is not None and (lim.kappa_rate_max is None or lim.kappa_rate_max > cap):
+            shown = "unset" if lim.kappa_rate_max is None else f"{lim.kappa_rate_max:g} 1/m/s"
+            out.append(f"{name}: kappa_rate_max {shown} capped to {cap:g} 1/m/s")
+            lim.kappa_rate_max = cap
+    for block in getattr(robot, "ros2_control", []):
+        for joint in block.joints:
+            bend = robot.bendables.get(joint.name)
+            for itf in joint.command_interfaces:
+                if bend is not None and itf.name == "kappa" and "max" in itf.params:
+                    itf.params["max"] = min(float(itf.params["max"]), bend.model.limits.kappa_max)
+    return out
+
+
+def write_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temp file in the same directory, then rename):
+    readers see the old file or the new one, never half; a symlink at ``path`` is replaced,
+    never followed, so no other file can be overwritten through it."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def adopt_capped(
+    descriptors: list[dict[str, Any]],
+    name: str,
+    out_path: str | Path,
+    envelope: Envelope | None = None,
+) -> tuple[Robot, list[str]]:
+    """Compose a robot from the descriptors (``ucrdf.compose``), cap its limits to ``envelope``
+    and write it atomically to ``out_path``; returns the robot and what was capped."""
     from ucrdf.compose import robot_from_descriptors  # noqa: PLC0415 - optional until used
-    from ucrdf.writer import dump  # noqa: PLC0415
+    from ucrdf.writer import dumps  # noqa: PLC0415
 
     robot = robot_from_descriptors(descriptors, name)
-    dump(robot, out_path)
+    capped = cap_limits(robot, envelope) if envelope is not None else []
+    write_atomic(out_path, dumps(robot))
     robot.source = str(out_path)
-    return robot
+    return robot, capped
+
+
+def adopt(
+    descriptors: list[dict[str, Any]],
+    name: str,
+    out_path: str | Path,
+    envelope: Envelope | None = None,
+) -> Robot:
+    """:func:`adopt_capped` without the report."""
+    return adopt_capped(descriptors, name, out_path, envelope)[0]
 
 
 def adopted_path(robot_path: str | Path | None, name: str) -> Path:
-    """Where ``--adopt`` writes: ``<file>.adopted.ucrdf`` beside the given file, else ./name."""
+    """Where ``--adopt`` writes: the state directory when there is one (``$STATE_DIRECTORY``, set
+    by systemd's StateDirectory=), else ``<file>.adopted.ucrdf`` beside the given file, else
+    ``./<name>.adopted.ucrdf``."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    stem = Path(robot_path).stem if robot_path else name
+    if state:
+        return Path(state) / f"{stem}.adopted.ucrdf"
     if robot_path:
         p = Path(robot_path)
         return p.with_name(p.stem + ".adopted.ucrdf")

@@ -28,7 +28,14 @@ from host.limits import bendable_limits
 from host.link import exchange_floor_s
 from host.motion import Motion
 from host.publisher import Fanout
-from host.topology import Comparison, adopt, chain_bendables, compare, truncate
+from host.topology import (
+    Comparison,
+    adopt_capped,
+    chain_bendables,
+    compare,
+    envelope_from,
+    truncate,
+)
 
 log = logging.getLogger("ucr.daemon")
 
@@ -137,9 +144,13 @@ class TopologyFollower:
 
     def _adopt(self, descs: list[dict], cmp: Comparison) -> None:
         try:
-            robot = adopt(descs, self.file_robot.name, self.adopt_path)
+            robot, capped = adopt_capped(
+                descs, self.file_robot.name, self.adopt_path, envelope_from(self.file_robot)
+            )
         except Exception as exc:  # noqa: BLE001 - composition failure is a user-facing error
             raise DaemonError(f"--adopt: cannot compose a robot from the chain: {exc}") from None
+        for line in capped:
+            log.warning("--adopt: %s (envelope of %s)", line, self.file_robot.source or "the file")
         log.warning(
             "chain differs from the description (%s); adopted the chain as found and wrote %s",
             cmp.text(),
@@ -151,6 +162,7 @@ class TopologyFollower:
             message=f"robot composed from the chain written to {self.adopt_path}",
             path=str(self.adopt_path),
             differences=[d.as_dict() for d in cmp.differences],
+            capped=capped,
         )
 
     def build(self, descs: list[dict], cmp: Comparison, reason: str) -> None:

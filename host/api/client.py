@@ -18,16 +18,24 @@ import collections
 import itertools
 import json
 import os
+import ssl
 import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
+from urllib.parse import urlsplit
 
 from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI, WebSocketException
 from websockets.sync.client import ClientConnection
 from websockets.sync.client import connect as ws_connect
 
-from host.api import ENV_TOKEN, default_url
+from host.api import ENV_CA, ENV_TOKEN, default_url
+from host.api.auth import AuthConfigError, read_token_file
+from host.api.guard import is_loopback
+from host.api.schema import MAX_REQUEST_BYTES
+
+_COMPACT = (",", ":")
+CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
 
 
 class ApiError(Exception):
@@ -259,7 +267,8 @@ class Client:
         with self._lock:
             self._pending[rid] = pending
         try:
-            self.ws.send(json.dumps({"id": rid, "op": op, **params}, allow_nan=False))
+            text = json.dumps({"id": rid, "op": op, **params}, allow_nan=False, separators=_COMPACT)
+            self.ws.send(text)
         except ValueError as exc:
             with self._lock:
                 self._pending.pop(rid, None)
@@ -322,10 +331,20 @@ class Client:
         ``progress`` is called with each status the daemon pushes (from the reader thread).
         ``timeout`` (s) bounds the wait for the result; None waits as long as it takes.
         """
-        params: dict[str, Any] = {"points": points}
+        params: dict[str, Any] = {}
         if controller is not None:
             params["controller"] = controller
-        result = self.call("trajectory.send", **params)
+        chunks = _chunks(points, CHUNK_BYTES)
+        if len(chunks) > 1:  # above the request limit: upload in chunks, then send
+            upload = None
+            for chunk in chunks[:-1]:
+                extra = {} if upload is None else {"upload": upload}
+                upload = self.call("trajectory.upload", points=chunk, **extra)["upload"]
+            params["upload"] = upload
+        # The daemon builds and retimes the whole path before it answers: ~0.2 ms per waypoint
+        # on a Pi-class CPU, more when loaded, so a long trajectory gets a longer reply timeout.
+        reply_s = self.timeout + 0.002 * len(points)
+        result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
         goal = result["goal"]
         self.last_goal = goal
         if progress is not None:
@@ -399,15 +418,69 @@ class Client:
         self.close()
 
 
-def connect(url: str | None = None, token: str | None = None, timeout: float = 5.0) -> Client:
-    """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to ``$UCR_TOKEN``."""
+def _chunks(points: list[dict], limit: int) -> list[list[dict]]:
+    """Split waypoints into lists whose JSON stays below ``limit`` bytes (at least one each)."""
+    out: list[list[dict]] = [[]]
+    size = 0
+    for p in points:
+        n = len(json.dumps(p, separators=_COMPACT).encode()) + 1
+        if out[-1] and size + n > limit:
+            out.append([])
+            size = 0
+        out[-1].append(p)
+        size += n
+    return out
+
+
+def read_token(token_file: str | None = None) -> str | None:
+    """The token from ``token_file`` (must be 0600) or ``$UCR_TOKEN``; None if neither."""
+    if token_file:
+        try:
+            return read_token_file(token_file)
+        except AuthConfigError as exc:
+            raise ApiAuthError(str(exc)) from None
+    return os.environ.get(ENV_TOKEN) or None
+
+
+def _token_may_travel(url: str) -> None:
+    """Refuse to send a token in clear to another machine (``ws://`` off loopback)."""
+    parts = urlsplit(url)
+    if parts.scheme == "ws" and not is_loopback(parts.hostname or ""):
+        raise ApiAuthError(
+            f"refusing to send the API token over plain ws:// to {parts.hostname}: anyone on "
+            "the network could read it; use wss:// (api.tls on the daemon)"
+        )
+
+
+def connect(
+    url: str | None = None,
+    token: str | None = None,
+    timeout: float = 5.0,
+    *,
+    cafile: str | None = None,
+) -> Client:
+    """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to ``$UCR_TOKEN``.
+
+    ``cafile`` (default ``$UCR_CA``): a CA bundle or the daemon's own certificate, to verify a
+    ``wss://`` server that uses a self-signed certificate.
+    """
     url = url or default_url()
     token = token if token is not None else os.environ.get(ENV_TOKEN) or None
     headers = {"Authorization": f"Bearer {token}"} if token else None
+    if token:
+        _token_may_travel(url)
+    ssl_ctx = None
+    cafile = cafile or os.environ.get(ENV_CA) or None
+    if url.startswith("wss:"):
+        try:
+            ssl_ctx = ssl.create_default_context(cafile=cafile)
+        except (OSError, ssl.SSLError) as exc:
+            raise ApiConnectionError(f"cannot load CA file {cafile!r}: {exc}") from None
     try:
         ws = ws_connect(
             url,
             additional_headers=headers,
+            ssl=ssl_ctx,
             open_timeout=timeout,
             max_size=16 * 1024 * 1024,
             ping_interval=20,
@@ -416,9 +489,17 @@ def connect(url: str | None = None, token: str | None = None, timeout: float = 5
         )
     except InvalidStatus as exc:
         status = exc.response.status_code
-        if status in (401, 403):
-            what = "wrong token" if token else "a token is required (--token or $UCR_TOKEN)"
+        if status == 401:
+            what = "wrong token" if token else "a token is required (--token-file or $UCR_TOKEN)"
             raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
+        if status == 429:
+            raise ApiAuthError(
+                f"the daemon at {url} refused the connection: too many failed attempts, "
+                f"retry in {exc.response.headers.get('Retry-After', '?')} s"
+            ) from None
+        if status in (400, 403, 404, 421):
+            reason = exc.response.body.decode(errors="replace").strip()[:200]
+            raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
         raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
     except InvalidURI as exc:
         raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None

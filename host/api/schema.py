@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -20,6 +21,7 @@ MAX_POINTS = 10_000
 MAX_SEGMENTS = 64
 MAX_RATE_HZ = 1000.0
 MAX_DEFLECTION = 1.0
+MAX_INT_MAGNITUDE = 2**53  # JSON integers beyond this are refused (exact in a float up to here)
 
 # Error codes (the "code" of an error reply).
 BAD_JSON = "bad_json"  # not valid JSON text (or NaN/Infinity literals)
@@ -31,6 +33,7 @@ NOT_FOUND = "not_found"  # unknown goal, subscription, controller or segment
 REJECTED = "rejected"  # the daemon refused (e.g. controller conflict, not active, limits)
 UNAVAILABLE = "unavailable"  # the daemon cannot act now (chain lost, rebuilding, stopping)
 INTERNAL = "internal"  # unexpected failure inside the daemon (logged on the server)
+FORBIDDEN = "forbidden"  # the connection's token lacks the scope this op needs
 ERROR_CODES = (
     BAD_JSON,
     TOO_LARGE,
@@ -41,6 +44,7 @@ ERROR_CODES = (
     REJECTED,
     UNAVAILABLE,
     INTERNAL,
+    FORBIDDEN,
 )
 
 # Subscription kinds on the API; the daemon publishes "event" for what the API calls "events".
@@ -76,6 +80,8 @@ def _number(
     """A finite JSON number (bool excluded) within [lo, hi] (lo exclusive if ``lo_open``)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise _bad(field, f"expected a number, got {_type_name(value)}")
+    if isinstance(value, int) and not -MAX_INT_MAGNITUDE <= value <= MAX_INT_MAGNITUDE:
+        raise _bad(field, "number out of range")  # e.g. 10**400: no float holds it
     v = float(value)
     if not math.isfinite(v):
         raise _bad(field, "must be finite")
@@ -107,6 +113,8 @@ def _goal_id(value: Any, field: str = "goal") -> str | int:
         raise _bad(field, f"expected a goal id (string or integer), got {_type_name(value)}")
     if isinstance(value, str) and not 0 < len(value) <= MAX_NAME_LEN:
         raise _bad(field, f"must be 1..{MAX_NAME_LEN} characters")
+    if isinstance(value, int) and not 0 <= value < 2**53:
+        raise _bad(field, "integer goal ids are 0 .. 2**53 - 1")
     return value
 
 
@@ -211,14 +219,36 @@ def validate_points(points: Any, field: str = "points") -> list[dict]:
     return out
 
 
+def _upload_id(value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value < 2**53:
+        raise _bad("upload", "expected an upload id (positive integer)")
+    return value
+
+
 def _trajectory_send(params: dict) -> dict:
-    _check_fields(params, ("points", "controller"), ("points",))
-    out: dict[str, Any] = {"points": validate_points(params["points"])}
+    """Waypoints in ``points``, or appended to a chunked upload named by ``upload``."""
+    _check_fields(params, ("points", "controller", "upload"))
+    upload = _upload_id(params.get("upload"))
+    if upload is None and "points" not in params:
+        raise RequestError(INVALID_PARAMS, "missing field 'points'")
+    out: dict[str, Any] = {
+        "points": validate_points(params["points"]) if "points" in params else [],
+        "upload": upload,
+    }
     if params.get("controller") is not None:
         out["controller"] = _name(params["controller"], "controller")
     else:
         out["controller"] = None
     return out
+
+
+def _trajectory_upload(params: dict) -> dict:
+    """One chunk of a long trajectory: ``points`` (validated now) and, after the first chunk,
+    the ``upload`` id the server returned."""
+    _check_fields(params, ("points", "upload"), ("points",))
+    return {"points": validate_points(params["points"]), "upload": _upload_id(params.get("upload"))}
 
 
 def _hand_back(params: dict) -> dict:
@@ -298,6 +328,7 @@ OPS: dict[str, Callable[[dict], dict]] = {
     "controllers.switch": _switch,
     "controllers.hand_back": _hand_back,
     "trajectory.send": _trajectory_send,
+    "trajectory.upload": _trajectory_upload,
     "trajectory.status": _goal_op,
     "trajectory.cancel": _goal_op,
     "ffc.input": _ffc_input,
@@ -310,6 +341,18 @@ def _reject_constant(name: str) -> Any:
     raise ValueError(f"{name} is not valid JSON")
 
 
+_LEADING_ID = re.compile(r'\s*\{\s*"id"\s*:\s*(?:(\d{1,15})|"([^"\\]{1,64})")\s*,')
+
+
+def _leading_id(data: str) -> Any:
+    """The id of a request too large to parse, if it is the first member (so the client can
+    match the error reply); None otherwise."""
+    m = _LEADING_ID.match(data[:100])
+    if m is None:
+        return None
+    return int(m.group(1)) if m.group(1) is not None else m.group(2)
+
+
 def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tuple[Any, str, dict]:
     """Decode and validate one request frame; returns ``(id, op, params)``.
 
@@ -319,9 +362,14 @@ def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tupl
     if isinstance(data, bytes | bytearray | memoryview):
         raise RequestError(BAD_REQUEST, "binary frames are not accepted: send JSON text")
     if len(data) > max_bytes:  # characters >= bytes/4, so check the cheap bound first
-        raise RequestError(TOO_LARGE, f"request of {len(data)} chars exceeds {max_bytes} bytes")
+        raise RequestError(
+            TOO_LARGE,
+            f"request of {len(data)} chars exceeds {max_bytes} bytes (long trajectories: "
+            "trajectory.upload in chunks)",
+            _leading_id(data),
+        )
     if len(data.encode("utf-8", "surrogatepass")) > max_bytes:
-        raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes")
+        raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes", _leading_id(data))
     try:
         obj = json.loads(data, parse_constant=_reject_constant)
     except (ValueError, RecursionError) as exc:

@@ -187,7 +187,7 @@ class Goal:
         self.state = "pending"
         self.reason = ""
         self.t_accepted: float | None = None
-        # the path while the goal runs; dropped when it ends (a 2000-point path is megabytes and
+        # the path while the goal runs; dropped when it ends (a 10,000-point path is megabytes and
         # hundreds of finished goals are kept), leaving only the figures below
         self.trajectory: CurvatureTrajectory | None = None
         self.duration: float | None = None  # s, after retiming

@@ -13,7 +13,7 @@ import numpy as np
 from host.controllers.base import ControllerError
 from host.limits import BendableLimits
 
-MAX_WAYPOINTS = 2000
+MAX_WAYPOINTS = 10_000  # what the API accepts (docs/api.md)
 MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
 
 

@@ -80,15 +80,20 @@ def test_no_traceback_from_a_real_process_when_daemon_is_down():
     assert proc.stderr.count("\n") == 1 and "is `ucr daemon` running?" in proc.stderr
 
 
-def test_bad_url_and_wrong_token_are_one_line_errors(capsys):
+def test_bad_url_and_wrong_token_are_one_line_errors(capsys, tmp_path):
     rc, _, err = run(capsys, "status", "--url", "http://nope")
     assert rc == 1 and "bad URL" in err and err.count("\n") == 1
     stub = FacadeStub()
-    srv = ApiServer(stub, "127.0.0.1", 0, token="s3cret-token").start()
+    srv = ApiServer(stub, "127.0.0.1", 0, token="s3cret-token-0123456").start()
+    wrong, right = tmp_path / "wrong.token", tmp_path / "right.token"
+    wrong.write_text("wrong-token-0123456789\n")
+    right.write_text("s3cret-token-0123456\n")
+    wrong.chmod(0o600)
+    right.chmod(0o600)
     try:
-        rc, _, err = run(capsys, "status", "--url", srv.url, "--token", "wrong-token")
+        rc, _, err = run(capsys, "status", "--url", srv.url, "--token-file", str(wrong))
         assert rc == 1 and "wrong token" in err and err.count("\n") == 1
-        rc, out, _ = run(capsys, "status", "--url", srv.url, "--token", "s3cret-token")
+        rc, out, _ = run(capsys, "status", "--url", srv.url, "--token-file", str(right))
         assert rc == 0 and "s1" in out
     finally:
         srv.stop()

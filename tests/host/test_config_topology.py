@@ -32,13 +32,14 @@ def test_full_config_is_read(tmp_path):
         "port: socket://localhost:7777\nbaudrate: 115200\nrate_hz: 250\n"
         "controllers:\n  traj: {type: cJTC, params: {goal_tolerance: 0.02}}\n"
         "  pad: {type: ffc}\nactive: [traj]\n"
-        "api: {bind: 0.0.0.0, port: 9000, token: secret-token}\n"
+        "api: {bind: 0.0.0.0, port: 9000, token: secret-token-0123456789}\n"
         "watchdog: {missed_cycles: 5, reply_timeout_s: 0.004}\n"
     )
+    p.chmod(0o600)  # a config holding a token must be private (issue 13)
     cfg = load_config(p)
     assert cfg.port == "socket://localhost:7777" and cfg.rate_hz == 250.0
     assert cfg.controllers["traj"] == {"type": "cJTC", "params": {"goal_tolerance": 0.02}}
-    assert cfg.active == ["traj"] and cfg.api.token == "secret-token"
+    assert cfg.active == ["traj"] and cfg.api.token == "secret-token-0123456789"
     assert cfg.watchdog.missed_cycles == 5
 
 

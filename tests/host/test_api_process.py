@@ -1,0 +1,223 @@
+"""`ucr daemon` as deployed, a process beside the emulated chain: it serves its API from a process
+of its own (issue 12, finding 7), restarted if it dies and ended with the daemon; and it takes
+10,000-waypoint trajectories through the Python client and `ucr trajectory` (issue 12, finding 6).
+Figures (200 clients at 10 Hz, latency) are in benchmarks/bench_api.py."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from daemon_helpers import REPO, ROBOT_FILE, emulated_configs, wait_for
+
+from host.api.client import ApiError, connect
+from host.link import ChainLink
+from tools.emulator import EmulatedChain
+
+pytestmark = pytest.mark.timeout(180)
+
+
+@pytest.fixture(scope="module")
+def chain(robot3):
+    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
+        with ChainLink(ch.host_port) as link:  # wait until the segments answer
+            assert wait_for(lambda: len(link.discover(timeout=0.3)) == 3, 15.0, 0.1)
+        yield ch
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _listener_pid(port: int) -> int | None:
+    """The pid holding the TCP socket that listens on ``port`` (from /proc)."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            f = line.split()
+            if int(f[1].rsplit(":", 1)[1], 16) == port and f[3] == "0A":  # LISTEN
+                inodes.add(f[9])
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            for fd in os.listdir(f"/proc/{pid}/fd"):
+                link = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if link.startswith("socket:[") and link[8:-1] in inodes:
+                    return int(pid)
+        except OSError:
+            continue
+    return None
+
+
+def _ppid(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_ucr_daemon_serves_the_api_from_its_own_process(chain, tmp_path):
+    port = _free_port()
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(f"api: {{bind: 127.0.0.1, port: {port}}}\n")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tools.cli",
+            "daemon",
+            "--robot",
+            str(ROBOT_FILE),
+            "--port",
+            chain.host_port,
+            "--config",
+            str(cfg),
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    url = f"ws://127.0.0.1:{port}"
+    try:
+
+        def api_up() -> bool:
+            try:
+                with connect(url, timeout=2) as c:
+                    return c.status()["state"] == "connected"
+            except (ConnectionError, TimeoutError):
+                return False
+
+        assert wait_for(api_up, 30.0, 0.2)
+        api_pid = _listener_pid(port)
+        assert api_pid is not None and api_pid != proc.pid
+        assert _ppid(api_pid) == proc.pid  # a child of the daemon, not the daemon
+
+        # the API process dies: the daemon goes on and starts a new one
+        os.kill(api_pid, signal.SIGKILL)
+        assert wait_for(lambda: _listener_pid(port) not in (None, api_pid), 30.0, 0.2)
+        assert proc.poll() is None
+        assert wait_for(api_up, 30.0, 0.2)
+        new_pid = _listener_pid(port)
+
+        # the daemon ends: so does its API process
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(15) == 0
+        assert wait_for(lambda: not _alive(new_pid), 10.0, 0.1)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        time.sleep(0.1)
+
+
+# ------------------------------------------------------------------ issue 12 finding 6
+@pytest.fixture(scope="module")
+def daemon_url(chain, tmp_path_factory):
+    """`ucr daemon` (API in its own process) on the module's chain; its URL."""
+    port = _free_port()
+    cfg = tmp_path_factory.mktemp("cfg") / "daemon.yaml"
+    cfg.write_text(f"api: {{bind: 127.0.0.1, port: {port}}}\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "daemon", "--robot", str(ROBOT_FILE)]
+        + ["--port", chain.host_port, "--config", str(cfg)],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    url = f"ws://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: _connected(url), 30.0, 0.2)
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _connected(url: str) -> bool:
+    try:
+        with connect(url, timeout=2) as c:
+            st = c.status()
+            return st["state"] == "connected" and len(st["segments"]) == 3
+    except (ConnectionError, TimeoutError):
+        return False
+
+
+def _long_wave(n: int) -> list[dict]:
+    """``n`` waypoints, 2 ms apart, a gentle wave on every segment (well inside the limits)."""
+    names = ("segment_1", "segment_2", "segment_3")
+    return [
+        {
+            "time_from_start": round(0.5 + 0.002 * i, 6),
+            "segments": {
+                s: {"kappa": round(0.3 + 0.2 * math.sin(i / 500 + k), 6), "phi": 0.5}
+                for k, s in enumerate(names)
+            },
+        }
+        for i in range(n)
+    ]
+
+
+def test_ten_thousand_waypoints_through_the_python_client(daemon_url):
+    points = _long_wave(10_000)
+    assert len(json.dumps(points)) > 10 * 64 * 1024  # far above one request's limit
+    with connect(daemon_url, timeout=10) as c:
+        for attempt in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+            assert wait_for(lambda: _connected(daemon_url), 30.0, 0.2)
+            try:
+                goal = c.send_trajectory(points, wait=False)
+                break
+            except ApiError as exc:
+                if attempt == 2 or exc.code not in ("unavailable", "rejected"):
+                    raise
+        try:
+            status = c.trajectory_status(goal)
+            assert status["points"] == 10_000
+            assert status["state"] in ("executing", "succeeded", "aborted"), status
+        finally:
+            c.cancel(goal)
+
+
+def test_ten_thousand_waypoints_through_ucr_trajectory(daemon_url, tmp_path, capsys):
+    from tools.cli import main as ucr
+
+    f = tmp_path / "long.json"
+    f.write_text(json.dumps({"waypoints": _long_wave(10_000)}))
+    for _ in range(3):  # a loaded machine may starve the emulated chain into a rebuild
+        assert wait_for(lambda: _connected(daemon_url), 30.0, 0.2)
+        rc = ucr(["trajectory", str(f), "--url", daemon_url, "--no-wait", "--timeout", "10"])
+        out, err = capsys.readouterr()
+        if rc == 0 or not any(w in err for w in ("unavailable", "rejected", "not controlled")):
+            break
+    assert rc == 0, err
+    goal = out.strip().splitlines()[-1].split()[-1]
+    with connect(daemon_url, timeout=10) as c:
+        try:
+            assert c.trajectory_status(goal)["points"] == 10_000
+        finally:
+            c.cancel(goal)

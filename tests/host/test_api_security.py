@@ -1,0 +1,484 @@
+"""Only those who should can reach and move the robot; no input takes the API down (issue 13
+findings 2-5, issue 12 finding 4). Driven through raw handshakes and the real client against
+the API server in front of the in-memory facade of test_api_protocol.py."""
+
+from __future__ import annotations
+
+import base64
+import importlib.util
+import json
+import logging
+import os
+import shutil
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from websockets.sync.client import connect as ws_connect
+
+from host.api import schema
+from host.api.client import ApiAuthError, ApiError, connect
+from host.api.server import ApiServer, ApiServerError
+from host.config import ConfigError, load_config
+
+# New modules are imported inside the tests that need them, so that every test here can also be
+# run against the code before issue 13 (and fail there on its own assertion).
+
+pytestmark = pytest.mark.timeout(90)
+
+_spec = importlib.util.spec_from_file_location(
+    "_api_protocol_stub_sec", Path(__file__).with_name("test_api_protocol.py")
+)
+_mod = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_mod)
+FacadeStub = _mod.FacadeStub
+rpc = _mod.rpc
+wait_for = _mod.wait_for
+
+READ_TOKEN = "read-only-token-0123456789"
+CONTROL_TOKEN = "control-token-0123456789ab"
+
+
+@pytest.fixture
+def stub():
+    s = FacadeStub(publish_hz=100.0)
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def server(stub):
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    yield srv
+    srv.stop()
+
+
+def handshake(port: int, headers: dict[str, str], path: str = "/") -> int:
+    """Send an opening handshake with exactly these headers; the HTTP status answered."""
+    key = base64.b64encode(os.urandom(16)).decode()
+    lines = [f"GET {path} HTTP/1.1"]
+    lines += [f"{k}: {v}" for k, v in headers.items()]
+    lines += [
+        "Upgrade: websocket",
+        "Connection: Upgrade",
+        f"Sec-WebSocket-Key: {key}",
+        "Sec-WebSocket-Version: 13",
+    ]
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        head = b""
+        while b"\r\n" not in head:
+            chunk = s.recv(1024)
+            if not chunk:
+                break
+            head += chunk
+    return int(head.split(b" ", 2)[1])
+
+
+# ------------------------------------------------------------------ finding 2: browsers
+@pytest.mark.parametrize(
+    ("headers", "path", "status"),
+    [
+        ({"Origin": "https://evil.example"}, "/", 403),
+        ({"Origin": "null"}, "/", 403),
+        ({"Origin": "http://127.0.0.1:1"}, "/", 403),
+        ({"Host": "rebind.evil.example:{port}"}, "/", 421),
+        ({"Host": "127.0.0.1:1"}, "/", 421),
+        ({}, "/admin", 404),
+        ({}, "/?x=1", 404),
+    ],
+)
+def test_a_browser_page_from_another_origin_host_or_path_is_refused(server, headers, path, status):
+    port = server.port
+    full = {"Host": f"127.0.0.1:{port}", **{k: v.format(port=port) for k, v in headers.items()}}
+    assert handshake(port, full, path) == status
+    # and a plain client (no Origin: not a browser) on the right host and path still gets in
+    assert handshake(port, {"Host": f"127.0.0.1:{port}"}) == 101
+
+
+def test_a_configured_origin_and_host_name_are_allowed(stub):
+    srv = ApiServer(
+        stub, "127.0.0.1", 0, origins=("http://viewer.local:8080",), names=("robot.local",)
+    ).start()
+    try:
+        ok = {"Host": f"robot.local:{srv.port}", "Origin": "http://viewer.local:8080"}
+        assert handshake(srv.port, ok) == 101
+        assert handshake(srv.port, {**ok, "Origin": "http://viewer.local:8081"}) == 403
+    finally:
+        srv.stop()
+
+
+def test_guard_is_reusable_by_other_surfaces():
+    from host.api.guard import WebGuard
+
+    g = WebGuard.build(bind="127.0.0.1", port=8080, origins=["http://127.0.0.1:8080/"], path="/v")
+    assert g.check("/v", {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:8080"}) is None
+    assert g.check("/v", {"Host": "localhost:8080"}) is None
+    assert g.check("/", {"Host": "localhost:8080"}).status == 404
+    assert g.check("/v", {"Host": "attacker.example"}).status == 421
+    assert g.check("/v", {"Host": "localhost:8080", "Origin": "null"}).status == 403
+
+
+# ------------------------------------------------------------------ finding 4/5: tokens, TLS
+def _token_file(tmp_path: Path, name: str, value: str, mode: int = 0o600) -> Path:
+    p = tmp_path / name
+    p.write_text(value + "\n")
+    p.chmod(mode)
+    return p
+
+
+def test_read_scope_may_look_but_not_move(stub):
+    from host.api.auth import CONTROL, READ, Token
+
+    tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
+    points = [{"time_from_start": 0.2, "segments": {"s1": {"kappa": 1.0}}}]
+    try:
+        with connect(srv.url, token=READ_TOKEN) as c:
+            assert wait_for(lambda: c.status()["state"] == "connected")
+            with c.subscribe(["joint_states"]) as sub:
+                assert sub.get(timeout=5) is not None
+            for op, params in (
+                ("trajectory.send", {"points": points}),
+                ("controllers.switch", {"start": ["ffc"]}),
+                ("ffc.input", {"rates": {"s1": [0.5, 0.0]}}),
+                ("trajectory.cancel", {"goal": "g1"}),
+                ("controllers.hand_back", {}),
+            ):
+                with pytest.raises(ApiError) as info:
+                    c.call(op, **params)
+                assert info.value.code == schema.FORBIDDEN, op
+        assert stub.goals == {} and stub.switch_calls == [] and stub.ffc_calls == []
+        with connect(srv.url, token=CONTROL_TOKEN) as c:
+            assert c.send_trajectory(points, timeout=5)["state"] == "succeeded"
+    finally:
+        srv.stop()
+
+
+def test_tokens_shorter_than_16_characters_are_refused(stub):
+    with pytest.raises(ApiServerError, match="at least 16"):
+        ApiServer(stub, "127.0.0.1", 0, token="eight-ch")
+
+
+def test_token_files_must_be_private(tmp_path):
+    from host.api.auth import read_token_file
+
+    good = _token_file(tmp_path, "good.token", CONTROL_TOKEN)
+    assert read_token_file(good) == CONTROL_TOKEN
+    loose = _token_file(tmp_path, "loose.token", CONTROL_TOKEN, 0o644)
+    with pytest.raises(ValueError, match="readable by others"):
+        read_token_file(loose)
+    short = _token_file(tmp_path, "short.token", "short")
+    with pytest.raises(ValueError, match="at least 16"):
+        read_token_file(short)
+
+
+def test_config_holding_a_token_must_be_private(tmp_path):
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(f"api: {{token: {CONTROL_TOKEN}}}\n")
+    cfg.chmod(0o644)
+    with pytest.raises(ConfigError, match="readable by others"):
+        load_config(cfg)
+    cfg.chmod(0o600)
+    assert load_config(cfg).api.token == CONTROL_TOKEN
+    tok = _token_file(tmp_path, "viewer.token", READ_TOKEN)
+    cfg.write_text(f"api:\n  tokens:\n    - {{file: {tok}, scope: read}}\n")
+    cfg.chmod(0o644)  # no secret in it: may be world-readable
+    (t,) = load_config(cfg).api.tokens
+    assert (t.value, t.scope) == (READ_TOKEN, "read")
+
+
+def test_non_loopback_bind_needs_tls_unless_marked_insecure(stub):
+    with pytest.raises(ApiServerError, match="without TLS"):
+        ApiServer(stub, "0.0.0.0", 0, token=CONTROL_TOKEN)
+    ApiServer(stub, "0.0.0.0", 0, token=CONTROL_TOKEN, insecure=True)  # explicit choice: allowed
+
+
+def test_client_refuses_to_send_a_token_in_clear_off_loopback():
+    t0 = time.monotonic()
+    with pytest.raises(ApiAuthError, match="plain ws://"):
+        connect("ws://192.0.2.7:8765", token=CONTROL_TOKEN, timeout=30)
+    assert time.monotonic() - t0 < 5  # refused before any connection attempt
+
+
+def test_cli_refuses_a_token_on_the_command_line(capsys):
+    from tools.cli import main as ucr
+
+    rc = ucr(["status", "--url", "ws://127.0.0.1:9", "--token", CONTROL_TOKEN])
+    err = capsys.readouterr().err
+    assert rc == 1 and "/proc" in err and "--token-file" in err
+
+
+@pytest.fixture(scope="module")
+def tls_files(tmp_path_factory):
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is not installed: cannot make a test certificate")
+    d = tmp_path_factory.mktemp("tls")
+    cert, key = d / "cert.pem", d / "key.pem"
+    subprocess.run(
+        [
+            openssl,
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:P-256",
+            "-nodes",
+            "-days",
+            "2",
+            "-subj",
+            "/CN=localhost",
+            "-addext",
+            "subjectAltName=DNS:localhost,IP:127.0.0.1",
+            "-keyout",
+            str(key),
+            "-out",
+            str(cert),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    key.chmod(0o600)
+    return cert, key
+
+
+def test_wss_with_configured_cert_and_key(stub, tls_files):
+    cert, key = tls_files
+    srv = ApiServer(
+        stub, "0.0.0.0", 0, token=CONTROL_TOKEN, tls_cert=str(cert), tls_key=str(key)
+    ).start()
+    try:
+        assert srv.url.startswith("wss://")
+        with connect(srv.url, token=CONTROL_TOKEN, cafile=str(cert)) as c:
+            assert wait_for(lambda: c.status()["state"] == "connected")
+        with pytest.raises(ConnectionError):  # plain ws:// to the TLS port gets nowhere
+            connect(f"ws://127.0.0.1:{srv.port}", token=CONTROL_TOKEN, timeout=3)
+        with pytest.raises(ConnectionError):  # and an unverified certificate is refused
+            connect(srv.url, token=CONTROL_TOKEN, timeout=3, cafile=None)
+    finally:
+        srv.stop()
+
+
+def test_repeated_auth_failures_back_off_per_peer(stub):
+    srv = ApiServer(stub, "127.0.0.1", 0, token=CONTROL_TOKEN).start()
+    try:
+        for _ in range(3):
+            with pytest.raises(ApiAuthError, match="wrong token"):
+                connect(srv.url, token="not-the-token-0123456789")
+        with pytest.raises(ApiAuthError, match="too many failed attempts"):
+            connect(srv.url, token=CONTROL_TOKEN)  # even the right token waits its turn
+        assert srv.stats()["auth_failures"] >= 4
+    finally:
+        srv.stop()
+    from host.api.auth import Backoff
+
+    b = Backoff(free=2, base_s=1.0, max_s=8.0)
+    assert [b.failed("p", now=0.0) for _ in range(6)] == [0.0, 1.0, 2.0, 4.0, 8.0, 8.0]
+    assert b.blocked_for("p", now=3.0) == 5.0 and b.blocked_for("q", now=3.0) == 0.0
+    b.succeeded("p")
+    assert b.blocked_for("p", now=3.0) == 0.0
+
+
+# ------------------------------------------------------------------ finding 4: audit
+def test_motion_and_controller_ops_are_audited_with_peer_and_role(stub):
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    audit = logging.getLogger("ucr.audit")
+    keep = Keep()
+    audit.addHandler(keep)
+    root_level = logging.getLogger().level
+    logging.getLogger().setLevel(logging.ERROR)  # other logging quiet: the audit stays on
+    srv = ApiServer(stub, "127.0.0.1", 0, token=CONTROL_TOKEN).start()
+    try:
+        with connect(srv.url, token=CONTROL_TOKEN) as c:
+            goal = c.send_trajectory(
+                [{"time_from_start": 0.2, "segments": {"s1": {"kappa": 1.0}}}], wait=False
+            )
+            c.cancel(goal)
+            c.switch(start=["ffc"], stop=["jtc"])
+            for _ in range(5):  # a stream is audited when its deflected sticks change
+                c.ffc_input({"s1": (0.5, 0.0)})
+            c.ffc_input({"s1": (0.0, 0.0)})
+            local = c.ws.local_address
+    finally:
+        srv.stop()
+        audit.removeHandler(keep)
+        logging.getLogger().setLevel(root_level)
+    lines = [r.getMessage() for r in records]
+    ops = [line.split(" op=")[1].split()[0] for line in lines]
+    assert ops == [
+        "trajectory.send",
+        "trajectory.cancel",
+        "controllers.switch",
+        "ffc.input",
+        "ffc.input",
+    ]
+    assert "deflected ['s1']" in lines[3] and "deflected []" in lines[4]
+    send = lines[0]
+    assert f"peer={local[0]}:{local[1]}" in send and "scope=control" in send
+    assert f"goal={goal}" in send and "1 waypoint(s)" in send and "token=api.token" in send
+
+
+# ------------------------------------------------------------------ issue 12 finding 4: input
+_BAD = [
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": [1e400, 0]}}',
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": [' + "1" + "0" * 400 + ", 0]}}",
+    '{"id": 1, "op": "subscribe", "kinds": ["joint_states"], "max_rate": ' + "9" * 500 + "}",
+    '{"id": 1, "op": "trajectory.send", "points": [{"t": ' + "9" * 400 + ', "segments": {}}]}',
+    '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {"kappa": '
+    + "1" * 400
+    + "}}}]}",
+    '{"id": 1, "op": "trajectory.status", "goal": ' + "7" * 300 + "}",
+    '{"id": 1, "op": "unsubscribe", "sub": ' + "7" * 300 + "}",
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": [NaN, 0]}}',
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": [Infinity, 0]}}',
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": [-Infinity, 0]}}',
+    '{"id": 1, "op": "ping", "x": ' + "[" * 5000 + "]" * 5000 + "}",
+    '{"id": 1, "op": "ping", "x": ' + "[" * 100000 + "]" * 100000 + "}",
+    '{"id": 1, "op": "trajectory.send", "points": [' + ",".join(["1"] * 20000) + "]}",
+    '{"id": 1, "op": "subscribe", "kinds": [' + ",".join(['"events"'] * 20000) + "]}",
+    '{"id": 1, "op": "ffc.input", "rates": {"s1": {"x": 1}}}',
+    '{"id": 1, "op": "controllers.switch", "start": [1, 2]}',
+    '{"id": 1, "op": "controllers.switch", "start": "jtc"}',
+    '{"id": 1, "op": "controllers.hand_back", "manual": 5}',
+    '{"id": 1, "op": "trajectory.send", "points": {"t": 1}}',
+    '{"id": 1, "op": "trajectory.send", "points": [{"t": "1", "segments": {"s1": {}}}]}',
+    '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": [1, 2]}}]}',
+    '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {"kx": "a"}}}]}',
+    (
+        '{"id": 1, "op": "trajectory.send", "points": [{"t": 1, "segments": {"s1": {}}}], '
+        '"controller": []}'
+    ),
+    '{"id": 1, "op": "trajectory.upload", "points": [], "upload": true}',
+    '{"id": 1, "op": "trajectory.cancel", "goal": null}',
+    '{"id": 1, "op": "subscribe", "kinds": null}',
+    '{"id": 1, "op": "subscribe", "kinds": ["events"], "max_rate": true}',
+    '{"id": ' + "1" * 400 + ', "op": "ping"}',
+    '{"id": 1.5, "op": "ping"}',
+    '{"id": 1, "op": null}',
+    "null",
+    '"text"',
+    "1e400",
+]
+
+
+@pytest.mark.parametrize("text", _BAD, ids=lambda t: t[:60])
+def test_every_json_value_validates_or_gets_an_error_reply_and_the_connection_stays(server, text):
+    with ws_connect(server.url, max_size=None) as ws:
+        reply = rpc(ws, text)
+        assert reply["ok"] is False and reply["error"]["code"] in schema.ERROR_CODES, reply
+        assert reply["error"]["message"]
+        assert rpc(ws, {"id": 2, "op": "ping"})["ok"] is True
+
+
+# ------------------------------------------------------------------ finding 3: bounded
+def test_subscriptions_per_connection_are_capped(stub, server):
+    with ws_connect(server.url) as ws:
+        for i in range(200):
+            ws.send(json.dumps({"id": i, "op": "subscribe", "kinds": ["events"]}))
+        replies = []
+        while len(replies) < 200:
+            msg = json.loads(ws.recv(timeout=10))
+            if "push" not in msg:
+                replies.append(msg)
+        ok = [r for r in replies if r["ok"]]
+        assert len(ok) == 16
+        assert {r["error"]["code"] for r in replies if not r["ok"]} == {schema.REJECTED}
+        assert server.stats()["subscriptions"] == 16
+
+
+def test_many_subscribers_cost_the_daemon_one_queue(stub, server):
+    """Fan-out happens in the API server: the daemon publishes each message into one queue,
+    however many clients subscribe (before: one queue and one JSON encoding per subscription)."""
+    clients = [connect(server.url) for _ in range(5)]
+    try:
+        subs = [c.subscribe(["joint_states", "events"]) for c in clients for _ in range(4)]
+        assert all(s.get(timeout=5) is not None for s in subs)
+        assert len(stub.subscribers) == 1
+    finally:
+        for c in clients:
+            c.close()
+    assert wait_for(lambda: not stub.subscribers)
+
+
+def test_connections_are_capped_in_total_and_per_peer(stub):
+    srv = ApiServer(stub, "127.0.0.1", 0, max_connections=8).start()
+    socks = []
+    try:
+        for _ in range(30):
+            s = socket.create_connection(("127.0.0.1", srv.port), timeout=5)
+            socks.append(s)
+        assert wait_for(lambda: srv.stats()["refused_connections"] >= 20)
+        assert srv.stats()["tcp_connections"] <= 8
+        for s in socks:
+            s.close()
+        assert wait_for(lambda: srv.stats()["tcp_connections"] == 0)
+        with connect(srv.url) as c:  # capacity comes back
+            assert c.ping() < 2
+    finally:
+        for s in socks:
+            s.close()
+        srv.stop()
+
+
+def test_a_client_that_stops_reading_is_closed(stub):
+    stub.pad = "x" * 16000
+    stub.period = 1 / 500
+    srv = ApiServer(stub, "127.0.0.1", 0, slow_close_s=1.0, outbox_bytes=256 * 1024).start()
+    try:
+        lazy = _mod._lazy_client(srv.port, {"id": 1, "op": "subscribe", "kinds": ["joint_states"]})
+        assert wait_for(lambda: srv.stats()["slow_closed"] >= 1, timeout=30)
+        assert wait_for(lambda: srv.stats()["clients"] == 0)
+        assert srv.stats()["queued_bytes"] == 0
+        lazy.close()
+    finally:
+        srv.stop()
+
+
+def test_request_budget_is_weighted_by_bytes(stub, server):
+    """20 large invalid trajectories cost far more budget than 20 pings: they are paced."""
+    bad = {
+        "id": 0,
+        "op": "trajectory.send",
+        "points": [{"t": 1.0, "segments": {"s1": {"kappa": -1.0, "phi": 0.0, "pad": "x" * 40}}}]
+        * 500,
+    }
+    text = json.dumps(bad)
+    assert 40_000 < len(text) < schema.MAX_REQUEST_BYTES
+    with ws_connect(server.url, max_size=None) as ws:
+        t0 = time.monotonic()
+        for _ in range(20):
+            ws.send(text)
+        for _ in range(20):
+            assert json.loads(ws.recv(timeout=30))["ok"] is False
+        elapsed = time.monotonic() - t0
+    # 20 x ~45 units (1 + 1/KiB + work) = ~900 units at 500/s after a burst of 100: >= 1.4 s
+    assert elapsed >= 1.2
+    assert server.stats()["throttled"] > 0
+
+
+def test_ucr_token_writes_a_private_token_file_usable_by_server_and_cli(tmp_path, capsys):
+    from host.api.auth import read_token_file
+    from tools.cli import main as ucr
+
+    tok = tmp_path / "operator.token"
+    assert ucr(["token", str(tok)]) == 0
+    assert (tok.stat().st_mode & 0o777) == 0o600
+    value = read_token_file(tok)
+    assert len(value) >= 16
+    assert ucr(["token", str(tok)]) == 1  # never overwrites by accident
+    victim = tmp_path / "victim"
+    victim.write_text("keep\n")
+    link = tmp_path / "link.token"
+    link.symlink_to(victim)
+    assert ucr(["token", str(link), "--force"]) == 0
+    assert victim.read_text() == "keep\n" and not link.is_symlink()
+    capsys.readouterr()
