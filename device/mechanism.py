@@ -97,7 +97,7 @@ class Mechanism:
         # outside it (a fault, reported by the segment) cannot overflow the integer path
         self.mlo = array("i", [a - _MEAS_SLACK for a in cfg.min_angle])
         self.mhi = array("i", [a + _MEAS_SLACK for a in cfg.max_angle])
-        reach = max(max(-a, b) for a, b in zip(self.mlo, self.mhi))  # 1e-4 rad
+        reach = max(max(-self.mlo[i], self.mhi[i]) for i in range(n))  # 1e-4 rad
         dl_um = reach * 100.0 * r
         k_worst = dl_um * max(sum(abs(c) for c in kx), sum(abs(c) for c in ky))
         if dl_um >= 1 << 23 or k_worst >= 1 << 29:

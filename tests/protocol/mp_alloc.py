@@ -15,7 +15,7 @@ from protocol import frame as F
 
 gc.collect()  # compiling messages.py next needs large blocks: start it on a tidy heap
 from protocol import messages as M  # noqa: E402
-from protocol.constants import FLAG_UP, HEADER_LEN, MAX_ENCODED, MAX_FRAME
+from protocol.constants import FLAG_UP, HEADER_LEN, MAX_ENCODED, MAX_FRAME  # noqa: E402
 
 # --- preallocated state, as the firmware would hold it ---------------------------------------
 reader = F.FrameReader()

@@ -172,10 +172,8 @@ def test_device_state_encoder_matches_generic_encoder(
         kx,
         ky,
     )
-    payload = {
-        **{0: cycle, 1: t_ms, 2: kappa, 3: phi, 4: tendons, 5: servos, 6: status, 7: kx, 8: ky},
-        9: 0,  # the chain position applied (default 0)
-    }
+    payload = {0: cycle, 1: t_ms, 2: kappa, 3: phi, 4: tendons, 5: servos, 6: status, 7: kx}
+    payload.update({8: ky, 9: 0})  # 9: the chain position applied (default 0)
     assert bytes(out[:n]) == encode_frame(FLAG_UP, 0, T_STATE, seq, payload)
 
 
