@@ -9,8 +9,9 @@ small int on a 32-bit ESP32 as well (no heap object, no allocation). Units:
 Accuracy (checked by tests/device against numpy): ``sin_q20``/``cos_q20`` within 1e-5 of the true
 value over (-pi, pi] and |(cos, sin)| = 1 within 6e-6 for every angle (a curvature of 100 1/m
 keeps its magnitude within 6e-4 1/m), ``sin_q14``/``cos_q14`` within 1e-4 over +-20 rad;
-``atan2_e4`` within 1.2e-4 rad (result resolution 1e-4 rad). Products go through ``mulq``, which splits the int factor into 8-bit
-pieces so no partial product exceeds 2**29 while the coefficient keeps 21 bits.
+``atan2_e4`` within 1.2e-4 rad (result resolution 1e-4 rad). Products go through ``mulq``,
+which splits the int factor into 8-bit pieces so no partial product exceeds 2**29 while the
+coefficient keeps 21 bits.
 """
 
 try:
