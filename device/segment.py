@@ -9,8 +9,10 @@ Two entry points, both allocation-free in steady state (proved by tests/device w
 
 Safety states (docs/firmware.md): boot hold (no motion before the first SYNC), HOLD (message or
 servo fault; left only by a SYNC with ``2: 1``), watchdog (no SYNC/HEARTBEAT for watchdog_ms:
-hold; cleared by the next SYNC). Whenever motion stops, the targets become the measured servo
-positions, and when it starts again the curvature is slew-limited from the measured one.
+hold; cleared by the next SYNC), FAULT (an exception in the loop, ``enter_fault``; left only by
+CLEAR_FAULT, then HOLD). Whenever motion stops, the targets become the measured servo positions,
+and when it starts again the curvature is slew-limited from the measured one. Motion starts only
+where ``_first_motion_ok`` allows it: every servo's position known and inside its range.
 """
 
 try:
@@ -25,8 +27,8 @@ from array import array
 
 import config
 import sc as scmod
-from mechanism import Mechanism
-from servos import FAULT_NONE, FAULT_STALL
+from mechanism import CLAMP_SERVO, Mechanism
+from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL
 
 from protocol import cbor
 from protocol import device as pd
@@ -42,11 +44,14 @@ from protocol.constants import (
     EV_BOOT,
     EV_DOWNSTREAM_DOWN,
     EV_DOWNSTREAM_UP,
+    EV_FAULT,
+    EV_FAULT_CLEARED,
     EV_LIMIT_CLAMPED,
     EV_SERVO_FAULT,
     EV_WATCHDOG_CLEARED,
     EV_WATCHDOG_TRIPPED,
     EVENT_MIN_INTERVAL_MS,
+    FAULT_NAMES,
     FLAG_BCAST,
     FLAG_LOCAL,
     FLAG_UP,
@@ -56,11 +61,13 @@ from protocol.constants import (
     MAX_FRAME,
     ST_CLAMPED,
     ST_DOWNSTREAM,
+    ST_FAULT,
     ST_HOLD,
     ST_SERVO_FAULT,
     ST_UNCONFIGURED,
     ST_WATCHDOG,
     T_ALIVE,
+    T_CLEAR_FAULT,
     T_DESCRIPTOR,
     T_DISCOVER,
     T_ERROR,
@@ -80,7 +87,9 @@ CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
 STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
 STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
 STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
+RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
 _EVQ = const(16)  # event queue length
+_FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
 
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
@@ -104,6 +113,8 @@ P_CONFIG_ERROR = const(16)
 P_MEM_FREE = const(17)
 P_EVENTS_LOST = const(18)
 P_SERVO_TARGETS = const(19)
+P_FAULT = const(20)
+P_FAULT_COUNT = const(21)
 
 PARAM_NAMES = (
     "watchdog_ms",
@@ -126,6 +137,8 @@ PARAM_NAMES = (
     "mem_free",
     "events_lost",
     "servo_targets",
+    "fault",
+    "fault_count",
 )
 
 
@@ -184,6 +197,18 @@ class Segment:
         self.clamped = 0  # clamp bits of the last cycle (CLAMPED status bit)
         self.sp_clamp = 0  # clamp bits of the last setpoint (kappa_max)
         self.clamp_pending = 0
+        self.clamp_queued = False  # a LIMIT_CLAMPED is in the event queue
+        self.fault_code = 0  # FAULT state: the code (protocol FAULT_*), 0 = no fault
+        self.fault_count = 0  # exceptions caught by the loop since boot
+        self.fault_msg = bytearray(_FAULT_TEXT)
+        self.fault_len = 0
+        # a servo measured outside [zero + min - tol, zero + max + tol] is faulty (FAULT_RANGE)
+        self.range_lo = array(
+            "i", [cfg.zero[i] + cfg.min_angle[i] - RANGE_TOL for i in range(cfg.n)]
+        )
+        self.range_hi = array(
+            "i", [cfg.zero[i] + cfg.max_angle[i] + RANGE_TOL for i in range(cfg.n)]
+        )
         self.position = 0
         now = hal.ticks_ms()
         self.now = now
@@ -217,14 +242,16 @@ class Segment:
         self.last_up_tx = self.now
 
     def event(self, code, detail):
-        """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS)."""
+        """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS); False if
+        the queue was full (counted in ``events_lost``)."""
         if self.ev_len >= _EVQ:
             self.events_lost += 1
-            return
+            return False
         j = ((self.ev_head + self.ev_len) % _EVQ) * 2
         self.evq[j] = code
         self.evq[j + 1] = detail
         self.ev_len += 1
+        return True
 
     def _reply(self, mtype, seq, obj):
         """Slow path: CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it."""
@@ -244,8 +271,10 @@ class Segment:
 
     def status(self):
         s = self.clamped and ST_CLAMPED
-        if self.hold or not self.armed or self.cfg.error:
+        if self.hold or not self.armed or self.cfg.error or not self.bus.known:
             s |= ST_HOLD
+        if self.fault_code:
+            s |= ST_FAULT
         if self.wd_tripped:
             s |= ST_WATCHDOG
         if self.fault_bits:
@@ -273,6 +302,7 @@ class Segment:
             self.status(),
             mc.mx,
             mc.my,
+            self.position,  # key 9: whose SYNC entry we apply (the host checks it)
         )
         self._up(end)
 
@@ -388,6 +418,8 @@ class Segment:
             self.enter_hold()
         elif t == T_PARAM_GET or t == T_PARAM_SET:
             self._param(t, raw, pe, seq)
+        elif t == T_CLEAR_FAULT:
+            self._clear_fault_msg(raw, pe, seq)
         elif t == T_ALIVE:
             return  # link-local keep-alive from the host side: nothing to do
         else:
@@ -403,7 +435,7 @@ class Segment:
         if out[3] and self.hold:
             self._try_resume()
         self.armed = True
-        if self._may_move():
+        if self._may_move() and (self.moving or self._first_motion_ok()):
             if not self.moving:
                 self._start_moving()
             if res == pd.OK:
@@ -415,6 +447,8 @@ class Segment:
         self._send_state(out[0], seq)
 
     def _try_resume(self):
+        if self.fault_code:
+            return False  # FAULT is left only by CLEAR_FAULT
         bus = self.bus
         for i in range(self.n):
             f = bus.fault[i]
@@ -429,7 +463,27 @@ class Segment:
     def _may_move(self):
         # a config.json that was present but rejected leaves the calibration unknown: never move
         # on guessed zero offsets (an absent file runs on the documented defaults)
-        return self.armed and not self.hold and not self.wd_tripped and not self.cfg.error
+        return (
+            self.armed
+            and not self.hold
+            and not self.wd_tripped
+            and not self.cfg.error
+            and not self.fault_code
+        )
+
+    def _first_motion_ok(self):
+        """The first-motion rule, decided here only (docs/firmware.md, "First motion"): motion
+        starts when every servo's position is known (bus servos: read from each; open loop: the
+        configured rest pose) and inside its range. From there the SC moves at most servo_speed
+        per tick and the MC keeps every target inside [min, max], whatever the setpoint asks."""
+        bus = self.bus
+        if not bus.known:
+            return False
+        pos = bus.pos
+        for i in range(self.n):
+            if pos[i] < self.range_lo[i] or pos[i] > self.range_hi[i]:
+                return False  # reported as SERVO_FAULT out_of_range by _faults
+        return True
 
     def _start_moving(self):
         self.moving = True
@@ -455,6 +509,74 @@ class Segment:
         if self.moving:
             self._stop_moving()
 
+    def enter_fault(self, code, text):
+        """An exception escaped the loop (``main.Runner``): enter FAULT, the one place.
+
+        Servos hold where they are (config ``fault_action`` "release": stop driving them), an
+        EVENT FAULT (detail = code, key 3 = ``text``) goes up, STATE carries the FAULT and HOLD
+        bits, ``fault_count`` counts every exception. Only CLEAR_FAULT leaves it (for HOLD).
+        """
+        self.fault_count += 1
+        if self.fault_code:
+            return  # already in FAULT: counted
+        self.fault_code = code
+        b = text.encode()
+        n = len(b)
+        if n > _FAULT_TEXT:
+            n = _FAULT_TEXT
+            while n and b[n] & 0xC0 == 0x80:
+                n -= 1  # never cut a UTF-8 sequence
+        for i in range(n):
+            self.fault_msg[i] = b[i]
+        self.fault_len = n
+        self.hold = True
+        try:
+            if self.cfg.fault_action == "release":
+                self.moving = False
+                self.bus.release()
+            elif self.moving:
+                self._stop_moving()
+        except Exception:  # noqa: BLE001 - the bus may be what failed; the fault stands
+            self.moving = False
+        self.event(EV_FAULT, code)
+
+    def clear_fault(self):
+        """CLEAR_FAULT: leave FAULT for HOLD (a SYNC with resume moves again); False if none."""
+        code = self.fault_code
+        if not code:
+            return False
+        self.fault_code = 0
+        self.fault_len = 0
+        self.event(EV_FAULT_CLEARED, code)
+        return True
+
+    def _clear_fault_msg(self, raw, pe, seq):
+        try:
+            req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
+        except ValueError:
+            req = None
+        ok = isinstance(req, dict)
+        if ok:
+            for k in req:
+                if not isinstance(k, int) or isinstance(k, bool):
+                    ok = False
+            if 15 in req and not isinstance(req[15], str):
+                ok = False
+        if not ok:
+            self.dropped += 1
+            self._error(seq, ERR_MALFORMED, T_CLEAR_FAULT, "malformed CLEAR_FAULT")
+            return
+        uid = req.get(15)
+        if uid is not None and uid.lower() != self.uid:
+            self._error(
+                seq,
+                ERR_IDENTITY_MISMATCH,
+                T_CLEAR_FAULT,
+                "identity mismatch: this segment is %s" % self.uid,
+            )
+            return
+        self.clear_fault()
+
     # ---- control tick ----------------------------------------------------------------------
     def tick(self, now):
         """One control cycle at time ``now`` (ms since boot)."""
@@ -473,9 +595,11 @@ class Segment:
             self._stop_moving()
         if self.moving:
             f = mc.update()
+            bus.command(self.sc.step(mc.servo_target), now)
+            if bus.saturated:
+                f |= CLAMP_SERVO  # output clipped (PWM pulse range): pos holds the achieved angle
             self.clamped = self.sp_clamp | f
             self.clamp_pending |= f
-            bus.command(self.sc.step(mc.servo_target), now)
         elif bus.enabled:
             bus.command(mc.servo_target, now)  # keep holding the measured position
         bus.request(now)
@@ -483,13 +607,26 @@ class Segment:
         if self.down_present and _diff(now, self.last_down_rx) > DOWNSTREAM_TIMEOUT_MS:
             self.down_present = False
             self.event(EV_DOWNSTREAM_DOWN, 0)
-        if self.clamp_pending and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS:
-            self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
+        # LIMIT_CLAMPED: one in the queue at a time, queued >= 100 ms after the previous one was
+        # *sent*, so the events on the wire are >= 100 ms apart however the queue delays them
+        if (
+            self.clamp_pending
+            and not self.clamp_queued
+            and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS
+            and self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
+        ):
             self.clamp_pending = 0
-            self.last_clamp_ev = now
+            self.clamp_queued = True
         if self.ev_len and _diff(now, self.last_event) >= EVENT_MIN_INTERVAL_MS:
             j = self.ev_head * 2
-            end = pd.event_frame(self.raw, self.wire, 0, self.evq[j], self.evq[j + 1], now)
+            code = self.evq[j]
+            if code == EV_LIMIT_CLAMPED:
+                self.last_clamp_ev = now
+                self.clamp_queued = False
+            tl = self.fault_len if code == EV_FAULT else 0
+            end = pd.event_frame(
+                self.raw, self.wire, 0, code, self.evq[j + 1], now, self.fault_msg, tl
+            )
             self._up(end)
             self.ev_head = (self.ev_head + 1) % _EVQ
             self.ev_len -= 1
@@ -505,8 +642,13 @@ class Segment:
         bus = self.bus
         fb = bus.feedback
         moving = self.moving
+        known = bus.known
         for i in range(self.n):
             f = bus.fault[i]
+            if f == FAULT_NONE and known:
+                p = bus.pos[i]
+                if p < self.range_lo[i] or p > self.range_hi[i]:
+                    f = FAULT_RANGE  # e.g. powered up outside its range: never start there
             if fb and moving and f == FAULT_NONE:
                 p = bus.pos[i]
                 e = self.sc.cmd[i] - p
@@ -543,6 +685,8 @@ class Segment:
             "servo_driver": si["servo_driver"],
             "watchdog_ms": self.watchdog_ms,
             "downstream_present": self.down_present,
+            # why config.json was refused, shortened to fit the frame (full text: PARAM 16)
+            "config_error": (self.cfg.error or "")[:40],
         }
 
     def descriptor_payload(self):
@@ -565,6 +709,7 @@ class Segment:
             13: d["servo_driver"],
             14: d["watchdog_ms"],
             15: d["downstream_present"],
+            16: d["config_error"],
         }
 
     def _param(self, t, raw, pe, seq):
@@ -655,6 +800,15 @@ class Segment:
             return self.events_lost
         if pid == P_SERVO_TARGETS:
             return [self.mc.servo_target[i] for i in range(self.n)]
+        if pid == P_FAULT:
+            if not self.fault_code:
+                return ""
+            return "%s: %s" % (
+                FAULT_NAMES.get(self.fault_code, str(self.fault_code)),
+                bytes(self.fault_msg[: self.fault_len]).decode(),
+            )
+        if pid == P_FAULT_COUNT:
+            return self.fault_count
         raise ValueError("unknown parameter")
 
     def set_param(self, pid, v):
@@ -666,8 +820,8 @@ class Segment:
             self.watchdog_ms = int(v)
         elif pid == P_KAPPA_MAX:
             top = float(self.cfg.si["kappa_max"])
-            if not num or not 0.0 <= v <= top:
-                raise ValueError("must be 0..%g 1/m (the flashed limit)" % top)
+            if not num or not 0.0 < v <= top:
+                raise ValueError("must be in (0, %g] 1/m (the flashed limit)" % top)
             self.kappa_max_si = float(v)
             self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
         elif pid == P_KAPPA_RATE_MAX:

@@ -116,6 +116,7 @@ KD_NAME = const(12)
 KD_SERVO_DRIVER = const(13)
 KD_WATCHDOG_MS = const(14)
 KD_DOWNSTREAM_PRESENT = const(15)
+KD_CONFIG_ERROR = const(16)  # why the segment refused its config.json ("" if it did not)
 
 # descriptor key -> host-side name (docs/architecture.md), in key order
 DESCRIPTOR_KEYS = (
@@ -135,6 +136,7 @@ DESCRIPTOR_KEYS = (
     "servo_driver",
     "watchdog_ms",
     "downstream_present",
+    "config_error",
 )
 
 # --- event codes -----------------------------------------------------------------------------

@@ -409,6 +409,7 @@ _DESC_KINDS = (
     "str",  # servo_driver
     "uint",  # watchdog_ms
     "bool",  # downstream_present
+    "str",  # config_error
 )
 _DESC_REQUIRED = 4  # uid, fw_version, protocol_version, model are mandatory
 
