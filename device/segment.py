@@ -603,7 +603,16 @@ class Segment:
         elif bus.enabled:
             bus.command(mc.servo_target, now)  # keep holding the measured position
         bus.request(now)
-        # chain housekeeping
+        self.service(now)
+        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
+        self.cycle_us = us
+        if us > self.cycle_us_max:
+            self.cycle_us_max = us
+
+    def service(self, now):
+        """Chain housekeeping of a tick (downstream presence, LIMIT_CLAMPED, EVENT or ALIVE).
+        ``main.Runner`` calls it on its own when the control part raised, so a segment in FAULT
+        still reports and keeps its link alive."""
         if self.down_present and _diff(now, self.last_down_rx) > DOWNSTREAM_TIMEOUT_MS:
             self.down_present = False
             self.event(EV_DOWNSTREAM_DOWN, 0)
@@ -633,10 +642,6 @@ class Segment:
             self.last_event = now
         elif _diff(now, self.last_up_tx) >= ALIVE_SILENCE_MS:
             self._up(pd.alive_frame(self.raw, self.wire, 0))
-        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
-        self.cycle_us = us
-        if us > self.cycle_us_max:
-            self.cycle_us_max = us
 
     def _faults(self, now):
         bus = self.bus
