@@ -162,7 +162,10 @@ class Config:
             if d["direction"] not in (1, -1):
                 raise ValueError("servos[%d].direction must be 1 or -1" % i)
             for k in ("zero_offset", "min_angle", "max_angle", "rest_angle"):
-                _num(d, k, -_MAX_ANGLE, _MAX_ANGLE)
+                try:
+                    _num(d, k, -_MAX_ANGLE, _MAX_ANGLE)
+                except ValueError as e:
+                    raise ValueError("servos[%d].%s" % (i, e)) from None
             if d["min_angle"] >= d["max_angle"]:
                 raise ValueError("servos[%d]: min_angle must be below max_angle" % i)
             # the rest pose is where an open-loop (PWM) servo is assumed at power-on: its first
