@@ -161,22 +161,21 @@ def test_emulated_servos_far_from_zero_start_where_they_are_and_slew(vm):
         f"""
 hal, seg = vmkit.make({{'watchdog_ms': 60000, 'emulated_start': [1.2, -0.8, 0.5]}})
 R['boot'] = list(seg.bus.true_pos)
-cmds = []
+prev = list(seg.bus.true_pos)
+step = 0
 for _ in range(120):
     hal.up.feed(bytes.fromhex('{STRAIGHT}'))
     vmkit.run(hal, seg, 5)
-    cmds.append(list(seg.sc.cmd))
+    for i in range(3):
+        step = max(step, abs(seg.sc.cmd[i] - prev[i]))
+        prev[i] = seg.sc.cmd[i]
     hal.up.discard()
-R['cmds'] = cmds
+R['step'] = step
 R['end'] = [list(seg.bus.true_pos), seg.mc.kappa]
 """
     )
     assert r["boot"] == [12000, -8000, 5000]
-    prev = r["boot"]
-    for c in r["cmds"]:
-        for a, b in zip(prev, c, strict=True):
-            assert abs(b - a) <= STEP_LIMIT * 1e4 + 1
-        prev = c
+    assert 0 < r["step"] <= STEP_LIMIT * 1e4 + 1  # the first command starts at the power-on pose
     pos, kappa = r["end"]
     assert max(abs(p) for p in pos) <= 40 and kappa <= 20  # arrived at straight, slowly
 
