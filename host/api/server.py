@@ -433,6 +433,8 @@ class ApiServer:
                     S.UNKNOWN_OP, "this daemon has no manual takeover to hand back"
                 )
             return await self._call(hand_back, p["manual"])
+        if op == "faults.clear":
+            return await self._call(d.clear_fault, p["segment"])
         if op == "trajectory.send":
             goal = await self._call(d.send_trajectory, p["points"], p["controller"])
             session.goals[goal] = None
