@@ -29,13 +29,25 @@ def _hal_module():
 
 
 def build(tick_ms=TICK_MS):
-    """Construct (hal, segment) from config.json and the platform's HAL."""
-    import config
-    import servos
-    from segment import Segment
+    """Construct (hal, segment) from config.json and the platform's HAL.
+
+    Modules are compiled one after the other on the board; a collection between them leaves each
+    compilation a tidy heap (the compiler's peak, not the firmware's size, bounds the boot).
+    """
+    import gc
 
     halmod = _hal_module()
-    cfg = config.load("config.json", halmod.DEFAULT_DRIVER)
+    gc.collect()
+    import config
+
+    cfg = config.load("config.json", halmod.DEFAULT_DRIVER)  # the board rules come and go here
+    gc.collect()
+    import servos
+
+    gc.collect()
+    from segment import Segment
+
+    gc.collect()
     hal = halmod.Hal(cfg.si.get("pins"))
     driver = cfg.driver
     if halmod.PLATFORM == "unix" and driver != "emulated":
@@ -120,14 +132,17 @@ def run(tick_ms=TICK_MS):
     import gc
 
     import micropython
-    import wdt
 
     if hasattr(micropython, "alloc_emergency_exception_buf"):  # not on the unix port
         micropython.alloc_emergency_exception_buf(128)
     hal, seg = build(tick_ms)
-    if wdt.reset_by_watchdog():
-        seg.enter_fault(FAULT_WDT_RESET, "reset by the hardware watchdog")
-    dog = wdt.make(seg.cfg.hw_watchdog_ms)
+    dog = None
+    if seg.cfg.hw_watchdog_ms:  # (without a watchdog there is no watchdog reset to report)
+        import wdt
+
+        if wdt.reset_by_watchdog():
+            seg.enter_fault(FAULT_WDT_RESET, "reset by the hardware watchdog")
+        dog = wdt.make(seg.cfg.hw_watchdog_ms)
     gc.collect()
     print("[main] segment %s up, %d Hz" % (seg.uid, 1000 // tick_ms))
     r = Runner(hal, seg, tick_ms, dog)

@@ -31,28 +31,28 @@ from protocol.constants import (
 )
 
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
-P_WATCHDOG_MS = const(0)
-P_KAPPA_MAX = const(1)
-P_KAPPA_RATE_MAX = const(2)
-P_SC = const(3)
-P_SC_GAIN = const(4)
-P_FAULTS = const(5)
-P_FRAMES_OK = const(6)
-P_CRC_ERRORS = const(7)
-P_FRAMING_ERRORS = const(8)
-P_DROPPED = const(9)
-P_UID = const(10)
-P_STATUS = const(11)
-P_SERVO_FAULTS = const(12)
-P_CYCLE_US = const(13)
-P_OVERRUNS = const(14)
-P_POSITION = const(15)
-P_CONFIG_ERROR = const(16)
-P_MEM_FREE = const(17)
-P_EVENTS_LOST = const(18)
-P_SERVO_TARGETS = const(19)
-P_FAULT = const(20)
-P_FAULT_COUNT = const(21)
+_P_WATCHDOG_MS = const(0)
+_P_KAPPA_MAX = const(1)
+_P_KAPPA_RATE_MAX = const(2)
+_P_SC = const(3)
+_P_SC_GAIN = const(4)
+_P_FAULTS = const(5)
+_P_FRAMES_OK = const(6)
+_P_CRC_ERRORS = const(7)
+_P_FRAMING_ERRORS = const(8)
+_P_DROPPED = const(9)
+_P_UID = const(10)
+_P_STATUS = const(11)
+_P_SERVO_FAULTS = const(12)
+_P_CYCLE_US = const(13)
+_P_OVERRUNS = const(14)
+_P_POSITION = const(15)
+_P_CONFIG_ERROR = const(16)
+_P_MEM_FREE = const(17)
+_P_EVENTS_LOST = const(18)
+_P_SERVO_TARGETS = const(19)
+_P_FAULT = const(20)
+_P_FAULT_COUNT = const(21)
 
 PARAM_NAMES = (
     "watchdog_ms",
@@ -203,59 +203,59 @@ def param_request(self, t, raw, pe, seq):
 
 
 def get_param(self, pid):
-    if pid == P_WATCHDOG_MS:
+    if pid == _P_WATCHDOG_MS:
         return self.watchdog_ms
-    if pid == P_KAPPA_MAX:
+    if pid == _P_KAPPA_MAX:
         return self.kappa_max_si
-    if pid == P_KAPPA_RATE_MAX:
+    if pid == _P_KAPPA_RATE_MAX:
         return self.rate_max_si
-    if pid == P_SC:
+    if pid == _P_SC:
         return self.sc.name
-    if pid == P_SC_GAIN:
+    if pid == _P_SC_GAIN:
         return float(self.sc.gain)
-    if pid == P_FAULTS:
+    if pid == _P_FAULTS:
         f = getattr(self.bus, "faults_text", None)
         return f() if f else "none"
-    if pid == P_FRAMES_OK:
+    if pid == _P_FRAMES_OK:
         return self.rd_up.ok + self.rd_dn.ok
-    if pid == P_CRC_ERRORS:
+    if pid == _P_CRC_ERRORS:
         return self.rd_up.crc_error + self.rd_dn.crc_error
-    if pid == P_FRAMING_ERRORS:
+    if pid == _P_FRAMING_ERRORS:
         u = self.rd_up
         d = self.rd_dn
         return u.framing_error + u.oversize + d.framing_error + d.oversize
-    if pid == P_DROPPED:
+    if pid == _P_DROPPED:
         return self.dropped
-    if pid == P_UID:
+    if pid == _P_UID:
         return self.uid
-    if pid == P_STATUS:
+    if pid == _P_STATUS:
         return self.status()
-    if pid == P_SERVO_FAULTS:
+    if pid == _P_SERVO_FAULTS:
         return [self.prev_fault[i] for i in range(self.n)]  # incl. stalls found here
-    if pid == P_CYCLE_US:
+    if pid == _P_CYCLE_US:
         return self.cycle_us_max
-    if pid == P_OVERRUNS:
+    if pid == _P_OVERRUNS:
         return self.overruns
-    if pid == P_POSITION:
+    if pid == _P_POSITION:
         return self.position
-    if pid == P_CONFIG_ERROR:
+    if pid == _P_CONFIG_ERROR:
         return self.cfg.error or ""
-    if pid == P_MEM_FREE:
+    if pid == _P_MEM_FREE:
         import gc
 
         return gc.mem_free() if hasattr(gc, "mem_free") else -1
-    if pid == P_EVENTS_LOST:
+    if pid == _P_EVENTS_LOST:
         return self.events_lost
-    if pid == P_SERVO_TARGETS:
+    if pid == _P_SERVO_TARGETS:
         return [self.mc.servo_target[i] for i in range(self.n)]
-    if pid == P_FAULT:
+    if pid == _P_FAULT:
         if not self.fault_code:
             return ""
         return "%s: %s" % (
             FAULT_NAMES.get(self.fault_code, str(self.fault_code)),
             bytes(self.fault_msg[: self.fault_len]).decode(),
         )
-    if pid == P_FAULT_COUNT:
+    if pid == _P_FAULT_COUNT:
         return self.fault_count
     raise ValueError("unknown parameter")
 
@@ -263,33 +263,33 @@ def get_param(self, pid):
 def set_param(self, pid, v):
     """Change a run-time parameter (SI units); ValueError with the reason if refused."""
     num = not isinstance(v, bool) and isinstance(v, (int, float))
-    if pid == P_WATCHDOG_MS:
+    if pid == _P_WATCHDOG_MS:
         if not num or not 10 <= v <= 60000 or int(v) != v:  # range first: int(inf) raises
             raise ValueError("must be an int 10..60000 (ms)")
         self.watchdog_ms = int(v)
-    elif pid == P_KAPPA_MAX:
+    elif pid == _P_KAPPA_MAX:
         top = float(self.cfg.si["kappa_max"])
         if not num or not 0.0 < v <= top:
             raise ValueError("must be in (0, %g] 1/m (the flashed limit)" % top)
         self.kappa_max_si = float(v)
         self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
-    elif pid == P_KAPPA_RATE_MAX:
+    elif pid == _P_KAPPA_RATE_MAX:
         top = float(self.cfg.si["kappa_rate_max"])
         if not num or not 0.0 < v <= top:
             raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
         self.rate_max_si = float(v)
         self.mc.set_rate_max(int(v * config.KAPPA_SCALE + 0.5))
-    elif pid == P_SC:
+    elif pid == _P_SC:
         if not isinstance(v, str):
             raise ValueError("must be text: one of %s" % ", ".join(scmod.STRATEGIES))
         self.sc.set_strategy(v)
         self.sc.reset(self.bus.pos if not self.moving else self.sc.cmd)
-    elif pid == P_SC_GAIN:
+    elif pid == _P_SC_GAIN:
         if not num or not 0.01 <= v <= 1.0:
             raise ValueError("must be 0.01..1.0")
         self.sc.gain = float(v)
         self.sc.set_strategy(self.sc.name)
-    elif pid == P_FAULTS:
+    elif pid == _P_FAULTS:
         if not isinstance(v, str):
             raise ValueError("must be text 'IDX:KIND,...' or 'none'")
         self.bus.set_faults(v)

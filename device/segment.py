@@ -79,11 +79,11 @@ from protocol.constants import (
 from protocol.frame import FrameReader, forward_into, frame_into
 
 _TMASK = const(0x3FFFFFFF)
-CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
-STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
-STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
-STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
-RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
+_CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
+_STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
+_STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
+_STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
+_RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
 _EVQ = const(16)  # event queue length
 _FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
@@ -151,16 +151,16 @@ class Segment:
         self.fault_len = 0
         # a servo measured outside [zero + min - tol, zero + max + tol] is faulty (FAULT_RANGE)
         self.range_lo = array(
-            "i", [cfg.zero[i] + cfg.min_angle[i] - RANGE_TOL for i in range(cfg.n)]
+            "i", [cfg.zero[i] + cfg.min_angle[i] - _RANGE_TOL for i in range(cfg.n)]
         )
         self.range_hi = array(
-            "i", [cfg.zero[i] + cfg.max_angle[i] + RANGE_TOL for i in range(cfg.n)]
+            "i", [cfg.zero[i] + cfg.max_angle[i] + _RANGE_TOL for i in range(cfg.n)]
         )
         self.position = 0
         now = hal.ticks_ms()
         self.now = now
         self.last_feed = now
-        self.last_clamp_ev = now - CLAMP_EVENT_MS
+        self.last_clamp_ev = now - _CLAMP_EVENT_MS
         self.last_sp = now  # arrival time of the last accepted SYNC setpoint (rate check)
         self.last_up_tx = now
         self.last_down_rx = now
@@ -541,7 +541,7 @@ class Segment:
         if (
             self.clamp_pending
             and not self.clamp_queued
-            and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS
+            and _diff(now, self.last_clamp_ev) >= _CLAMP_EVENT_MS
             and self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
         ):
             self.clamp_pending = 0
@@ -578,10 +578,10 @@ class Segment:
                 p = bus.pos[i]
                 e = self.sc.cmd[i] - p
                 d = p - self.stall_ref[i]
-                if -STALL_TOL <= e <= STALL_TOL or d > STALL_MOVE or d < -STALL_MOVE:
+                if -_STALL_TOL <= e <= _STALL_TOL or d > _STALL_MOVE or d < -_STALL_MOVE:
                     self.stall_ref[i] = p
                     self.stall_t[i] = now
-                elif _diff(now, self.stall_t[i]) > STALL_MS:
+                elif _diff(now, self.stall_t[i]) > _STALL_MS:
                     f = FAULT_STALL
             if f != FAULT_NONE and self.prev_fault[i] == FAULT_NONE:
                 self.fault_bits |= 1 << i

@@ -29,7 +29,7 @@ except ImportError:  # CPython
 
 
 MAX_DEPTH = const(8)  # nesting limit when decoding
-_KMAX = const(128)  # Reader: map keys remembered for duplicate checks (a frame holds < 122)
+_KMAX = const(48)  # Reader: keys of the open maps remembered for the duplicate check
 _LIMIT = const(0x40000000)  # Reader: ints must be within +-2**30 (small ints on a 32-bit MCU)
 
 # Reader.head() results besides majors 0..7
@@ -170,7 +170,7 @@ class Reader:
         # keys of the open maps (and of the top-level map, see key_new): major, arg/start, length
         self._km = bytearray(_KMAX)
         self._ka = array("i", [0] * _KMAX)
-        self._kl = array("i", [0] * _KMAX)
+        self._kl = bytearray(_KMAX)  # text/bytes key lengths (< 256 in a frame)
         self._kn = 0
 
     def reset(self, buf, start, end):

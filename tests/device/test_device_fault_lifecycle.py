@@ -258,3 +258,24 @@ def test_hardware_watchdog_resets_a_hung_segment_and_the_next_boot_reports_wdt_r
             p.wait(timeout=5)
         os.close(m)
         os.close(s)
+
+
+def test_main_uses_the_protocol_fault_codes():
+    """main.py keeps plain ints (a lighter boot); they must be the wire's FAULT codes."""
+    import ast
+
+    from protocol import constants as C
+
+    tree = ast.parse((mpvm.REPO / "device" / "main.py").read_text())
+    found = {
+        t.id: node.value.value
+        for node in tree.body
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant)
+        for t in node.targets
+        if isinstance(t, ast.Name) and t.id.startswith("FAULT_")
+    }
+    assert found == {
+        "FAULT_TICK": C.FAULT_TICK,
+        "FAULT_FRAME": C.FAULT_FRAME,
+        "FAULT_WDT_RESET": C.FAULT_WDT_RESET,
+    }

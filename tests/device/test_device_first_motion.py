@@ -94,7 +94,7 @@ def test_pwm_first_pulse_goes_to_the_rest_pose_inside_the_range(vm):
     cfg = {
         "servo_driver": "pwm",
         "watchdog_ms": 60000,
-        "pwm": {"pins": [4, 5, 6], "min_us": 500, "max_us": 2500, "range": math.pi},
+        "pwm": {"pins": [25, 26, 27], "min_us": 500, "max_us": 2500, "range": math.pi},
         "servos": [{"min_angle": 0.2, "max_angle": 1.0, "rest_angle": 0.5}] * 3,
     }
     r = vm(

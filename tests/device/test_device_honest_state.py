@@ -21,7 +21,7 @@ def test_pwm_saturation_is_flagged_and_state_reports_the_achieved_curvature(vm):
         "servo_driver": "pwm",
         "watchdog_ms": 60000,
         "kappa_rate_max": 100.0,
-        "pwm": {"pins": [4, 5, 6], "min_us": 1000, "max_us": 2000, "range": 1.0},
+        "pwm": {"pins": [25, 26, 27], "min_us": 1000, "max_us": 2000, "range": 1.0},
     }
     r = vm(
         f"""
