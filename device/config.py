@@ -7,8 +7,14 @@ slew and emulated servo speed), ``servo_tau`` (s, emulated servo time constant),
 map), ``pwm`` (hobby servo calibration), ``bus`` (serial bus servo settings); ``board`` and the
 pins are generated too and checked against protocol/boards.py, whose defaults fill the gaps.
 
+Device-only safety keys: ``fault_action`` ("hold" | "release": what the servos do in FAULT),
+``hw_watchdog_ms`` (0 = off: the hardware watchdog, fed only by a healthy loop), per servo
+``rest_angle`` (rad from zero: the power-on pose an open-loop servo is assumed at), and for the
+emulated driver ``emulated_start`` (raw power-on angles, rad).
+
 Floats are used here, once at boot; the control cycle only sees the ints computed here.
-If the file is absent or invalid the segment runs on the defaults and reports UNCONFIGURED.
+An absent file runs the defaults (UNCONFIGURED); an invalid one leaves the segment unable to move
+(``error`` says why): it never runs the defaults in place of a configuration it was given.
 """
 
 import math
@@ -41,9 +47,18 @@ DEFAULTS = {
     "pwm": None,
     "bus": None,
     "board": None,  # None: protocol/boards.py default_board(servo_driver)
+    "fault_action": "hold",
+    "hw_watchdog_ms": 0,
+    "emulated_start": None,
 }
 
-_SERVO_DEFAULT = {"zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
+_SERVO_DEFAULT = {
+    "zero_offset": 0.0,
+    "direction": 1,
+    "min_angle": -math.pi,
+    "max_angle": math.pi,
+    "rest_angle": 0.0,
+}
 
 #: profile of the board of the configuration loaded last (protocol/boards.py), for the HAL
 PROFILE = None
@@ -101,6 +116,8 @@ class Config:
         _num(cfg, "tendon_radius", 1e-4, 0.5)
         _num(cfg, "spool_radius", 1e-4, 0.15)
         _num(cfg, "kappa_max", 0.0, _MAX_KAPPA)
+        if not cfg["kappa_max"] > 0.0:
+            raise ValueError("kappa_max must be > 0 1/m, got %r" % (cfg["kappa_max"],))
         _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
         _num(cfg, "mass", 0.0, 1e3)
         _num(cfg, "backbone_radius", 0.0, 0.5)
@@ -120,6 +137,13 @@ class Config:
             raise ValueError("sc must be 'direct' or 'p_slew', got %r" % (cfg["sc"],))
         if cfg["servo_driver"] not in ("emulated", "pwm", "feetech_sts", "feetech_scs"):
             raise ValueError("unknown servo_driver %r" % (cfg["servo_driver"],))
+        if cfg["fault_action"] not in ("hold", "release"):
+            raise ValueError(
+                "fault_action must be 'hold' or 'release', got %r" % (cfg["fault_action"],)
+            )
+        hw = cfg["hw_watchdog_ms"]
+        if isinstance(hw, bool) or not isinstance(hw, int) or not (hw == 0 or 50 <= hw <= 60000):
+            raise ValueError("hw_watchdog_ms must be 0 (off) or an int 50..60000, got %r" % (hw,))
         servos = cfg["servos"]
         if servos is None:
             servos = [{"id": i} for i in range(len(ang))]
@@ -137,13 +161,37 @@ class Config:
                 raise ValueError("servos[%d].id must be an int 0..253" % i)
             if d["direction"] not in (1, -1):
                 raise ValueError("servos[%d].direction must be 1 or -1" % i)
-            for k in ("zero_offset", "min_angle", "max_angle"):
-                _num(d, k, -_MAX_ANGLE, _MAX_ANGLE)
+            for k in ("zero_offset", "min_angle", "max_angle", "rest_angle"):
+                try:
+                    _num(d, k, -_MAX_ANGLE, _MAX_ANGLE)
+                except ValueError as e:
+                    raise ValueError("servos[%d].%s" % (i, e)) from None
             if d["min_angle"] >= d["max_angle"]:
                 raise ValueError("servos[%d]: min_angle must be below max_angle" % i)
+            # the rest pose is where an open-loop (PWM) servo is assumed at power-on: its first
+            # pulse goes there, so it must lie inside the range (docs/firmware.md, First motion)
+            if (cfg["servo_driver"] == "pwm" or "rest_angle" in s) and not (
+                d["min_angle"] <= d["rest_angle"] <= d["max_angle"]
+            ):
+                raise ValueError(
+                    "servos[%d]: rest pose %r rad (rest_angle, from zero) outside its range "
+                    "[%r, %r]: the first PWM pulse would drive it there"
+                    % (i, d["rest_angle"], d["min_angle"], d["max_angle"])
+                )
             full.append(d)
         cfg["servos"] = full
         _wiring(cfg, len(ang))
+        start = cfg["emulated_start"]
+        if start is not None:
+            if not isinstance(start, list) or len(start) != len(ang):
+                raise ValueError("emulated_start must list one raw angle (rad) per servo")
+            for a in start:
+                if (
+                    isinstance(a, bool)
+                    or not isinstance(a, (int, float))
+                    or not abs(a) <= 2 * _MAX_ANGLE
+                ):
+                    raise ValueError("emulated_start: bad angle %r" % (a,))
         if cfg["uid_override"] is not None and not isinstance(cfg["uid_override"], str):
             raise ValueError("uid_override must be a string")
 
@@ -161,6 +209,9 @@ class Config:
         self.direction = [d["direction"] for d in s]
         self.min_angle = [_e4(d["min_angle"]) for d in s]
         self.max_angle = [_e4(d["max_angle"]) for d in s]
+        self.rest = [_e4(d["rest_angle"]) for d in s]
+        self.fault_action = cfg["fault_action"]
+        self.hw_watchdog_ms = cfg["hw_watchdog_ms"]
         self.driver = cfg["servo_driver"]
         self.sc = cfg["sc"]
         self.uid_override = cfg["uid_override"]

@@ -1,15 +1,21 @@
 """Segment firmware entry point (ESP32 and the MicroPython unix port).
 
 Picks the HAL by platform, loads config.json (defaults when absent), builds servo driver, MC, SCs
-and the segment coordinator, then runs forever: frames are handled as they arrive, the control
-tick runs every TICK_MS. The loop never reads stdin, so the USB REPL stays free; Ctrl-C
-(KeyboardInterrupt) ends it and leaves the board (or ``micropython -i``) at the REPL.
+and the segment coordinator, then runs forever (``Runner``): frames are handled as they arrive,
+the control tick runs every TICK_MS. An exception in either puts the segment in FAULT
+(``Segment.enter_fault``) and the loop goes on, so the chain keeps forwarding; the optional
+hardware watchdog (``wdt.py``) is fed only after a pass that raised nothing. The loop never reads
+stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends it and leaves the board (or
+``micropython -i``) at the REPL.
 """
 
 import sys
 
 TICK_MS = 5  # 200 Hz control tick
 _TMASK = 0x3FFFFFFF
+FAULT_TICK = 1  # protocol.constants FAULT_* (plain ints: main.py imports nothing heavy at top)
+FAULT_FRAME = 2
+FAULT_WDT_RESET = 3
 
 
 def _hal_module():
@@ -23,13 +29,25 @@ def _hal_module():
 
 
 def build(tick_ms=TICK_MS):
-    """Construct (hal, segment) from config.json and the platform's HAL."""
-    import config
-    import servos
-    from segment import Segment
+    """Construct (hal, segment) from config.json and the platform's HAL.
+
+    Modules are compiled one after the other on the board; a collection between them leaves each
+    compilation a tidy heap (the compiler's peak, not the firmware's size, bounds the boot).
+    """
+    import gc
 
     halmod = _hal_module()
-    cfg = config.load("config.json", halmod.DEFAULT_DRIVER)
+    gc.collect()
+    import config
+
+    cfg = config.load("config.json", halmod.DEFAULT_DRIVER)  # the board rules come and go here
+    gc.collect()
+    import servos
+
+    gc.collect()
+    from segment import Segment
+
+    gc.collect()
     hal = halmod.Hal(cfg.si.get("pins"))
     driver = cfg.driver
     if halmod.PLATFORM == "unix" and driver != "emulated":
@@ -50,6 +68,66 @@ def build(tick_ms=TICK_MS):
     return hal, Segment(hal, cfg, bus, tick_ms)
 
 
+def _why(where, e):
+    """Short reason of an exception for the FAULT event: "tick: ZeroDivisionError: ..."."""
+    return "%s: %s: %s" % (where, type(e).__name__, e)
+
+
+class Runner:
+    """The main loop, one pass at a time (``once``), so tests drive the very same code."""
+
+    def __init__(self, hal, seg, tick_ms=TICK_MS, wdt=None):
+        self.hal = hal
+        self.seg = seg
+        self.tick_ms = tick_ms
+        self.wdt = wdt
+        self.next_t = hal.ticks_ms()
+        self.printed = 0
+
+    def _fault(self, code, where, e):
+        if self.printed < 10:  # the REPL shows the first tracebacks
+            self.printed += 1
+            sys.print_exception(e)
+        self.seg.enter_fault(code, _why(where, e))
+
+    def once(self):
+        """Handle frames, run the tick when due, feed the watchdog after a clean pass; return
+        the ms to wait before the next pass (0: none)."""
+        hal = self.hal
+        seg = self.seg
+        tick_ms = self.tick_ms
+        healthy = True
+        try:
+            seg.poll()
+        except KeyboardInterrupt:
+            raise
+        except Exception as e:  # noqa: BLE001 - any exception: FAULT, the loop goes on
+            healthy = False
+            self._fault(FAULT_FRAME, "frame", e)
+        now = hal.ticks_ms()
+        d = (now - self.next_t) & _TMASK
+        if d < 0x20000000:  # the tick is due
+            if d > 4 * tick_ms:
+                seg.overruns += 1
+                self.next_t = now
+            self.next_t = (self.next_t + tick_ms) & _TMASK
+            try:
+                seg.tick(now)
+            except KeyboardInterrupt:
+                raise
+            except Exception as e:  # noqa: BLE001
+                healthy = False
+                self._fault(FAULT_TICK, "tick", e)
+                try:
+                    seg.service(now)  # still report (EVENT FAULT) and keep the link alive
+                except Exception as e2:  # noqa: BLE001
+                    self._fault(FAULT_TICK, "service", e2)
+        if healthy and self.wdt is not None:
+            self.wdt.feed()
+        wait = (self.next_t - hal.ticks_ms()) & _TMASK
+        return wait if 0 < wait <= tick_ms else 0
+
+
 def run(tick_ms=TICK_MS):
     import gc
 
@@ -58,31 +136,20 @@ def run(tick_ms=TICK_MS):
     if hasattr(micropython, "alloc_emergency_exception_buf"):  # not on the unix port
         micropython.alloc_emergency_exception_buf(128)
     hal, seg = build(tick_ms)
+    dog = None
+    if seg.cfg.hw_watchdog_ms:  # (without a watchdog there is no watchdog reset to report)
+        import wdt
+
+        if wdt.reset_by_watchdog():
+            seg.enter_fault(FAULT_WDT_RESET, "reset by the hardware watchdog")
+        dog = wdt.make(seg.cfg.hw_watchdog_ms)
     gc.collect()
     print("[main] segment %s up, %d Hz" % (seg.uid, 1000 // tick_ms))
-    next_t = hal.ticks_ms()
-    errors = 0
+    r = Runner(hal, seg, tick_ms, dog)
     while True:
-        try:
-            seg.poll()
-            now = hal.ticks_ms()
-            d = (now - next_t) & _TMASK
-            if d < 0x20000000:  # the tick is due
-                if d > 4 * tick_ms:
-                    seg.overruns += 1
-                    next_t = now
-                seg.tick(now)
-                next_t = (next_t + tick_ms) & _TMASK
-            wait = (next_t - hal.ticks_ms()) & _TMASK
-            if 0 < wait <= tick_ms:
-                hal.wait(wait)
-        except KeyboardInterrupt:
-            raise
-        except Exception as e:  # noqa: BLE001 - report and keep the segment alive
-            errors += 1
-            if errors <= 10:
-                sys.print_exception(e)
-            hal.wait(10)
+        w = r.once()
+        if w:
+            hal.wait(w)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ except ImportError:  # CPython
 from array import array
 
 import fxp
-from fxp import atan2_e4, cos_q14, mulq, sin_q14
+from fxp import atan2_e4, cos_q20, mulq, sin_q20
 
 CLAMP_KAPPA = const(1)  # LIMIT_CLAMPED detail bits (contract)
 CLAMP_RATE = const(2)
@@ -33,6 +33,7 @@ CLAMP_SERVO = const(4)
 _PHI_HOLD_EPS = const(10)  # 1e-3 1/m: below this measured kappa, phi keeps its last value
 _RATE_WINDOW_MS = const(100)  # longest setpoint interval credited to the rate check
 _MAX_DL_UM = const(1 << 23)  # largest tendon length change the fixed-point scheme allows
+_MEAS_SLACK = const(10000)  # 1 rad: how far outside its range a measured joint angle is used
 
 
 class Mechanism:
@@ -72,7 +73,14 @@ class Mechanism:
         # kx [1e-4 1/m] = sum_i Px_i / (l d 100) * (-dl_i [um])
         kx = [p / (ld * 100.0) for p in px]
         ky = [p / (ld * 100.0) for p in py]
-        self.q_i = fxp.q_for(kx + ky)
+        try:
+            self.q_i = fxp.q_for(kx + ky)
+        except ValueError:
+            raise ValueError(
+                "length * tendon_radius = %.3g m^2 is too small for the fixed-point curvature "
+                "map (needs >= %.2g m^2 for these tendon angles)"
+                % (ld, max(abs(c) for c in kx + ky) * ld / ((1 << 21) >> 12))
+            ) from None
         self.ix = array("i", [fxp.to_q(c, self.q_i) for c in kx])
         self.iy = array("i", [fxp.to_q(c, self.q_i) for c in ky])
         # spool: angle [1e-4 rad] = -dl [um] / (100 r); back: dl [um] = -angle * 100 r
@@ -85,6 +93,19 @@ class Mechanism:
         self.dir = array("b", cfg.direction)
         self.amin = array("i", cfg.min_angle)
         self.amax = array("i", cfg.max_angle)
+        # measure() clamps each joint angle to its range +- _MEAS_SLACK, so a servo read far
+        # outside it (a fault, reported by the segment) cannot overflow the integer path
+        self.mlo = array("i", [a - _MEAS_SLACK for a in cfg.min_angle])
+        self.mhi = array("i", [a + _MEAS_SLACK for a in cfg.max_angle])
+        reach = max(max(-self.mlo[i], self.mhi[i]) for i in range(n))  # 1e-4 rad
+        dl_um = reach * 100.0 * r
+        k_worst = dl_um * max(sum(abs(c) for c in kx), sum(abs(c) for c in ky))
+        if dl_um >= 1 << 23 or k_worst >= 1 << 29:
+            raise ValueError(
+                "servo travel (+-%.4g rad) too large for this geometry: the measured curvature "
+                "could reach %.4g 1/m, beyond the fixed-point range"
+                % (reach * 1e-4, k_worst * 1e-4)
+            )
         # state (all ints / preallocated arrays)
         self.tx = 0  # target curvature vector after kappa clamp (1e-4 1/m)
         self.ty = 0
@@ -114,11 +135,11 @@ class Mechanism:
         ty = self.ty
         if tx or ty:
             psi = atan2_e4(ty, tx)
-            c = cos_q14(psi)
-            s = sin_q14(psi)
-            if mulq(tx, c, 14) + mulq(ty, s, 14) > kappa_max:
-                self.tx = mulq(kappa_max, c, 14)
-                self.ty = mulq(kappa_max, s, 14)
+            c = cos_q20(psi)
+            s = sin_q20(psi)
+            if mulq(tx, c, 20) + mulq(ty, s, 20) > kappa_max:
+                self.tx = mulq(kappa_max, c, 20)
+                self.ty = mulq(kappa_max, s, 20)
 
     # ---- forward ---------------------------------------------------------------------------
     def set_target(self, kappa, phi, dt_ms=-1):
@@ -142,8 +163,8 @@ class Mechanism:
         if kappa < 0:
             kappa = -kappa
             phi += fxp.ANGLE_PI
-        tx = mulq(kappa, cos_q14(phi), 14)
-        ty = mulq(kappa, sin_q14(phi), 14)
+        tx = mulq(kappa, cos_q20(phi), 20)
+        ty = mulq(kappa, sin_q20(phi), 20)
         if dt_ms < 0:
             self.tx = tx
             self.ty = ty
@@ -158,7 +179,7 @@ class Mechanism:
             self.rate_excess = True  # beyond the box: certainly beyond the disc
         elif dx or dy:
             psi = atan2_e4(dy, dx)
-            self.rate_excess = mulq(dx, cos_q14(psi), 14) + mulq(dy, sin_q14(psi), 14) > allowed
+            self.rate_excess = mulq(dx, cos_q20(psi), 20) + mulq(dy, sin_q20(psi), 20) > allowed
         self.tx = tx
         self.ty = ty
         if self.rate_excess:
@@ -177,15 +198,15 @@ class Mechanism:
             self.cy = self.ty
         else:
             psi = atan2_e4(dy, dx)
-            c = cos_q14(psi)
-            s = sin_q14(psi)
-            mag = mulq(dx, c, 14) + mulq(dy, s, 14)
+            c = cos_q20(psi)
+            s = sin_q20(psi)
+            mag = mulq(dx, c, 20) + mulq(dy, s, 20)
             if mag <= st:
                 self.cx = self.tx
                 self.cy = self.ty
             else:
-                self.cx += mulq(st, c, 14)
-                self.cy += mulq(st, s, 14)
+                self.cx += mulq(st, c, 20)
+                self.cy += mulq(st, s, 20)
                 if self.rate_excess:
                     flags = CLAMP_RATE
         if self.cx == self.tx and self.cy == self.ty:
@@ -223,6 +244,10 @@ class Mechanism:
         sy = 0
         for i in range(self.n):
             rel = positions[i] - self.zero[i]
+            if rel < self.mlo[i]:
+                rel = self.mlo[i]
+            elif rel > self.mhi[i]:
+                rel = self.mhi[i]
             a = rel if self.dir[i] > 0 else -rel
             self.joint[i] = a
             dl = -mulq(a, self.spool_back, qb)
@@ -238,7 +263,7 @@ class Mechanism:
             self.kappa = ax if ax > ay else ay
             return
         phi = atan2_e4(sy, sx)
-        self.kappa = mulq(sx, cos_q14(phi), 14) + mulq(sy, sin_q14(phi), 14)
+        self.kappa = mulq(sx, cos_q20(phi), 20) + mulq(sy, sin_q20(phi), 20)
         self.phi = phi
 
     def hold_here(self, positions):

@@ -9,8 +9,10 @@ Two entry points, both allocation-free in steady state (proved by tests/device w
 
 Safety states (docs/firmware.md): boot hold (no motion before the first SYNC), HOLD (message or
 servo fault; left only by a SYNC with ``2: 1``), watchdog (no SYNC/HEARTBEAT for watchdog_ms:
-hold; cleared by the next SYNC). Whenever motion stops, the targets become the measured servo
-positions, and when it starts again the curvature is slew-limited from the measured one.
+hold; cleared by the next SYNC), FAULT (an exception in the loop, ``enter_fault``; left only by
+CLEAR_FAULT, then HOLD). Whenever motion stops, the targets become the measured servo positions,
+and when it starts again the curvature is slew-limited from the measured one. Motion starts only
+where ``_first_motion_ok`` allows it: every servo's position known and inside its range.
 """
 
 try:
@@ -23,10 +25,10 @@ except ImportError:  # CPython
 
 from array import array
 
-import config
+import params
 import sc as scmod
-from mechanism import Mechanism
-from servos import FAULT_NONE, FAULT_STALL
+from mechanism import CLAMP_SERVO, Mechanism
+from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL
 
 from protocol import cbor
 from protocol import device as pd
@@ -34,14 +36,14 @@ from protocol.constants import (
     ALIVE_SILENCE_MS,
     DOWNSTREAM_TIMEOUT_MS,
     ERR_BAD_VALUE,
-    ERR_IDENTITY_MISMATCH,
     ERR_MALFORMED,
-    ERR_UNKNOWN_PARAM,
     ERR_UNKNOWN_TYPE,
     ERR_UNSUPPORTED_VERSION,
     EV_BOOT,
     EV_DOWNSTREAM_DOWN,
     EV_DOWNSTREAM_UP,
+    EV_FAULT,
+    EV_FAULT_CLEARED,
     EV_LIMIT_CLAMPED,
     EV_SERVO_FAULT,
     EV_WATCHDOG_CLEARED,
@@ -56,11 +58,13 @@ from protocol.constants import (
     MAX_FRAME,
     ST_CLAMPED,
     ST_DOWNSTREAM,
+    ST_FAULT,
     ST_HOLD,
     ST_SERVO_FAULT,
     ST_UNCONFIGURED,
     ST_WATCHDOG,
     T_ALIVE,
+    T_CLEAR_FAULT,
     T_DESCRIPTOR,
     T_DISCOVER,
     T_ERROR,
@@ -68,7 +72,6 @@ from protocol.constants import (
     T_HOLD,
     T_PARAM_GET,
     T_PARAM_SET,
-    T_PARAM_VALUE,
     T_SYNC,
     VERSION_MAX,
     VERSION_MIN,
@@ -76,57 +79,14 @@ from protocol.constants import (
 from protocol.frame import FrameReader, forward_into, frame_into
 
 _TMASK = const(0x3FFFFFFF)
-CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
-STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
-STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
-STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
+_CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
+_STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
+_STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
+_STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
+_RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
 _EVQ = const(16)  # event queue length
+_FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
-
-# parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
-P_WATCHDOG_MS = const(0)
-P_KAPPA_MAX = const(1)
-P_KAPPA_RATE_MAX = const(2)
-P_SC = const(3)
-P_SC_GAIN = const(4)
-P_FAULTS = const(5)
-P_FRAMES_OK = const(6)
-P_CRC_ERRORS = const(7)
-P_FRAMING_ERRORS = const(8)
-P_DROPPED = const(9)
-P_UID = const(10)
-P_STATUS = const(11)
-P_SERVO_FAULTS = const(12)
-P_CYCLE_US = const(13)
-P_OVERRUNS = const(14)
-P_POSITION = const(15)
-P_CONFIG_ERROR = const(16)
-P_MEM_FREE = const(17)
-P_EVENTS_LOST = const(18)
-P_SERVO_TARGETS = const(19)
-
-PARAM_NAMES = (
-    "watchdog_ms",
-    "kappa_max",
-    "kappa_rate_max",
-    "sc",
-    "sc_gain",
-    "faults",
-    "frames_ok",
-    "crc_errors",
-    "framing_errors",
-    "dropped",
-    "uid",
-    "status",
-    "servo_faults",
-    "cycle_us",
-    "overruns",
-    "position",
-    "config_error",
-    "mem_free",
-    "events_lost",
-    "servo_targets",
-)
 
 
 def _diff(a, b):
@@ -184,11 +144,23 @@ class Segment:
         self.clamped = 0  # clamp bits of the last cycle (CLAMPED status bit)
         self.sp_clamp = 0  # clamp bits of the last setpoint (kappa_max)
         self.clamp_pending = 0
+        self.clamp_queued = False  # a LIMIT_CLAMPED is in the event queue
+        self.fault_code = 0  # FAULT state: the code (protocol FAULT_*), 0 = no fault
+        self.fault_count = 0  # exceptions caught by the loop since boot
+        self.fault_msg = bytearray(_FAULT_TEXT)
+        self.fault_len = 0
+        # a servo measured outside [zero + min - tol, zero + max + tol] is faulty (FAULT_RANGE)
+        self.range_lo = array(
+            "i", [cfg.zero[i] + cfg.min_angle[i] - _RANGE_TOL for i in range(cfg.n)]
+        )
+        self.range_hi = array(
+            "i", [cfg.zero[i] + cfg.max_angle[i] + _RANGE_TOL for i in range(cfg.n)]
+        )
         self.position = 0
         now = hal.ticks_ms()
         self.now = now
         self.last_feed = now
-        self.last_clamp_ev = now - CLAMP_EVENT_MS
+        self.last_clamp_ev = now - _CLAMP_EVENT_MS
         self.last_sp = now  # arrival time of the last accepted SYNC setpoint (rate check)
         self.last_up_tx = now
         self.last_down_rx = now
@@ -217,14 +189,16 @@ class Segment:
         self.last_up_tx = self.now
 
     def event(self, code, detail):
-        """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS)."""
+        """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS); False if
+        the queue was full (counted in ``events_lost``)."""
         if self.ev_len >= _EVQ:
             self.events_lost += 1
-            return
+            return False
         j = ((self.ev_head + self.ev_len) % _EVQ) * 2
         self.evq[j] = code
         self.evq[j + 1] = detail
         self.ev_len += 1
+        return True
 
     def _reply(self, mtype, seq, obj):
         """Slow path: CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it."""
@@ -244,8 +218,10 @@ class Segment:
 
     def status(self):
         s = self.clamped and ST_CLAMPED
-        if self.hold or not self.armed or self.cfg.error:
+        if self.hold or not self.armed or self.cfg.error or not self.bus.known:
             s |= ST_HOLD
+        if self.fault_code:
+            s |= ST_FAULT
         if self.wd_tripped:
             s |= ST_WATCHDOG
         if self.fault_bits:
@@ -273,6 +249,7 @@ class Segment:
             self.status(),
             mc.mx,
             mc.my,
+            self.position,  # key 9: whose SYNC entry we apply (the host checks it)
         )
         self._up(end)
 
@@ -387,7 +364,9 @@ class Segment:
                 return
             self.enter_hold()
         elif t == T_PARAM_GET or t == T_PARAM_SET:
-            self._param(t, raw, pe, seq)
+            params.param_request(self, t, raw, pe, seq)
+        elif t == T_CLEAR_FAULT:
+            params.clear_fault_request(self, raw, pe, seq)
         elif t == T_ALIVE:
             return  # link-local keep-alive from the host side: nothing to do
         else:
@@ -403,7 +382,7 @@ class Segment:
         if out[3] and self.hold:
             self._try_resume()
         self.armed = True
-        if self._may_move():
+        if self._may_move() and (self.moving or self._first_motion_ok()):
             if not self.moving:
                 self._start_moving()
             if res == pd.OK:
@@ -415,6 +394,8 @@ class Segment:
         self._send_state(out[0], seq)
 
     def _try_resume(self):
+        if self.fault_code:
+            return False  # FAULT is left only by CLEAR_FAULT
         bus = self.bus
         for i in range(self.n):
             f = bus.fault[i]
@@ -429,7 +410,27 @@ class Segment:
     def _may_move(self):
         # a config.json that was present but rejected leaves the calibration unknown: never move
         # on guessed zero offsets (an absent file runs on the documented defaults)
-        return self.armed and not self.hold and not self.wd_tripped and not self.cfg.error
+        return (
+            self.armed
+            and not self.hold
+            and not self.wd_tripped
+            and not self.cfg.error
+            and not self.fault_code
+        )
+
+    def _first_motion_ok(self):
+        """The first-motion rule, decided here only (docs/firmware.md, "First motion"): motion
+        starts when every servo's position is known (bus servos: read from each; open loop: the
+        configured rest pose) and inside its range. From there the SC moves at most servo_speed
+        per tick and the MC keeps every target inside [min, max], whatever the setpoint asks."""
+        bus = self.bus
+        if not bus.known:
+            return False
+        pos = bus.pos
+        for i in range(self.n):
+            if pos[i] < self.range_lo[i] or pos[i] > self.range_hi[i]:
+                return False  # reported as SERVO_FAULT out_of_range by _faults
+        return True
 
     def _start_moving(self):
         self.moving = True
@@ -455,6 +456,47 @@ class Segment:
         if self.moving:
             self._stop_moving()
 
+    def enter_fault(self, code, text):
+        """An exception escaped the loop (``main.Runner``): enter FAULT, the one place.
+
+        Servos hold where they are (config ``fault_action`` "release": stop driving them), an
+        EVENT FAULT (detail = code, key 3 = ``text``) goes up, STATE carries the FAULT and HOLD
+        bits, ``fault_count`` counts every exception. Only CLEAR_FAULT leaves it (for HOLD).
+        """
+        self.fault_count += 1
+        if self.fault_code:
+            return  # already in FAULT: counted
+        self.fault_code = code
+        b = text.encode()
+        n = len(b)
+        if n > _FAULT_TEXT:
+            n = _FAULT_TEXT
+            while n and b[n] & 0xC0 == 0x80:
+                n -= 1  # never cut a UTF-8 sequence
+        for i in range(n):
+            self.fault_msg[i] = b[i]
+        self.fault_len = n
+        self.hold = True
+        try:
+            if self.cfg.fault_action == "release":
+                self.moving = False
+                self.bus.release()
+            elif self.moving:
+                self._stop_moving()
+        except Exception:  # noqa: BLE001 - the bus may be what failed; the fault stands
+            self.moving = False
+        self.event(EV_FAULT, code)
+
+    def clear_fault(self):
+        """CLEAR_FAULT: leave FAULT for HOLD (a SYNC with resume moves again); False if none."""
+        code = self.fault_code
+        if not code:
+            return False
+        self.fault_code = 0
+        self.fault_len = 0
+        self.event(EV_FAULT_CLEARED, code)
+        return True
+
     # ---- control tick ----------------------------------------------------------------------
     def tick(self, now):
         """One control cycle at time ``now`` (ms since boot)."""
@@ -473,48 +515,73 @@ class Segment:
             self._stop_moving()
         if self.moving:
             f = mc.update()
+            bus.command(self.sc.step(mc.servo_target), now)
+            if bus.saturated:
+                f |= CLAMP_SERVO  # output clipped (PWM pulse range): pos holds the achieved angle
             self.clamped = self.sp_clamp | f
             self.clamp_pending |= f
-            bus.command(self.sc.step(mc.servo_target), now)
         elif bus.enabled:
             bus.command(mc.servo_target, now)  # keep holding the measured position
         bus.request(now)
-        # chain housekeeping
+        self.service(now)
+        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
+        self.cycle_us = us
+        if us > self.cycle_us_max:
+            self.cycle_us_max = us
+
+    def service(self, now):
+        """Chain housekeeping of a tick (downstream presence, LIMIT_CLAMPED, EVENT or ALIVE).
+        ``main.Runner`` calls it on its own when the control part raised, so a segment in FAULT
+        still reports and keeps its link alive."""
         if self.down_present and _diff(now, self.last_down_rx) > DOWNSTREAM_TIMEOUT_MS:
             self.down_present = False
             self.event(EV_DOWNSTREAM_DOWN, 0)
-        if self.clamp_pending and _diff(now, self.last_clamp_ev) >= CLAMP_EVENT_MS:
-            self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
+        # LIMIT_CLAMPED: one in the queue at a time, queued >= 100 ms after the previous one was
+        # *sent*, so the events on the wire are >= 100 ms apart however the queue delays them
+        if (
+            self.clamp_pending
+            and not self.clamp_queued
+            and _diff(now, self.last_clamp_ev) >= _CLAMP_EVENT_MS
+            and self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
+        ):
             self.clamp_pending = 0
-            self.last_clamp_ev = now
+            self.clamp_queued = True
         if self.ev_len and _diff(now, self.last_event) >= EVENT_MIN_INTERVAL_MS:
             j = self.ev_head * 2
-            end = pd.event_frame(self.raw, self.wire, 0, self.evq[j], self.evq[j + 1], now)
+            code = self.evq[j]
+            if code == EV_LIMIT_CLAMPED:
+                self.last_clamp_ev = now
+                self.clamp_queued = False
+            tl = self.fault_len if code == EV_FAULT else 0
+            end = pd.event_frame(
+                self.raw, self.wire, 0, code, self.evq[j + 1], now, self.fault_msg, tl
+            )
             self._up(end)
             self.ev_head = (self.ev_head + 1) % _EVQ
             self.ev_len -= 1
             self.last_event = now
         elif _diff(now, self.last_up_tx) >= ALIVE_SILENCE_MS:
             self._up(pd.alive_frame(self.raw, self.wire, 0))
-        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
-        self.cycle_us = us
-        if us > self.cycle_us_max:
-            self.cycle_us_max = us
 
     def _faults(self, now):
         bus = self.bus
         fb = bus.feedback
         moving = self.moving
+        known = bus.known
         for i in range(self.n):
             f = bus.fault[i]
+            if f == FAULT_NONE and known:
+                p = bus.pos[i]
+                if p < self.range_lo[i] or p > self.range_hi[i]:
+                    f = FAULT_RANGE  # e.g. powered up outside its range: never start there
             if fb and moving and f == FAULT_NONE:
                 p = bus.pos[i]
                 e = self.sc.cmd[i] - p
                 d = p - self.stall_ref[i]
-                if -STALL_TOL <= e <= STALL_TOL or d > STALL_MOVE or d < -STALL_MOVE:
+                if -_STALL_TOL <= e <= _STALL_TOL or d > _STALL_MOVE or d < -_STALL_MOVE:
                     self.stall_ref[i] = p
                     self.stall_t[i] = now
-                elif _diff(now, self.stall_t[i]) > STALL_MS:
+                elif _diff(now, self.stall_t[i]) > _STALL_MS:
                     f = FAULT_STALL
             if f != FAULT_NONE and self.prev_fault[i] == FAULT_NONE:
                 self.fault_bits |= 1 << i
@@ -522,173 +589,18 @@ class Segment:
                 self.enter_hold()
             self.prev_fault[i] = f
 
-    # ---- slow path -------------------------------------------------------------------------
+    # ---- slow path (device/params.py: compiled apart, so boot needs less heap at once) --------
     def descriptor(self):
         """Descriptor dict with the contract's names (SI floats)."""
-        si = self.cfg.si
-        return {
-            "uid": self.uid,
-            "fw_version": config.FW_VERSION,
-            "protocol_version": 1,
-            "model": si["model"],
-            "length": float(si["length"]),
-            "tendon_angles": [float(a) for a in si["tendon_angles"]],
-            "tendon_radius": float(si["tendon_radius"]),
-            "spool_radius": float(si["spool_radius"]),
-            "kappa_max": self.kappa_max_si,
-            "kappa_rate_max": self.rate_max_si,
-            "mass": float(si["mass"]),
-            "backbone_radius": float(si["backbone_radius"]),
-            "name": si["name"],
-            "servo_driver": si["servo_driver"],
-            "watchdog_ms": self.watchdog_ms,
-            "downstream_present": self.down_present,
-        }
+        return params.descriptor(self)
 
     def descriptor_payload(self):
-        """DESCRIPTOR payload: int keys 0..15 of the contract, SI floats."""
-        d = self.descriptor()
-        return {
-            0: d["uid"],
-            1: d["fw_version"],
-            2: d["protocol_version"],
-            3: d["model"],
-            4: d["length"],
-            5: d["tendon_angles"],
-            6: d["tendon_radius"],
-            7: d["spool_radius"],
-            8: d["kappa_max"],
-            9: d["kappa_rate_max"],
-            10: d["mass"],
-            11: d["backbone_radius"],
-            12: d["name"],
-            13: d["servo_driver"],
-            14: d["watchdog_ms"],
-            15: d["downstream_present"],
-        }
-
-    def _param(self, t, raw, pe, seq):
-        try:
-            req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
-        except ValueError as e:
-            req = "CBOR: %s" % (e,)
-        err = None
-        if not isinstance(req, dict):
-            err = req if isinstance(req, str) else "payload is not a map"
-        elif not isinstance(req.get(0), int) or isinstance(req.get(0), bool):
-            err = "key 0 (param_id) must be an int"
-        elif 15 in req and not isinstance(req[15], str):
-            err = "key 15 (uid) must be text"
-        elif t == T_PARAM_SET and 1 not in req:
-            err = "key 1 (value) missing"
-        if err is not None:
-            self.dropped += 1
-            self._error(seq, ERR_MALFORMED, t, err)
-            return
-        uid = req.get(15)
-        if uid is not None and uid.lower() != self.uid:
-            self._error(
-                seq, ERR_IDENTITY_MISMATCH, t, "identity mismatch: this segment is %s" % self.uid
-            )
-            return
-        pid = req[0]
-        if not 0 <= pid < len(PARAM_NAMES):
-            self._error(
-                seq,
-                ERR_UNKNOWN_PARAM,
-                t,
-                "unknown parameter %d (0..%d)" % (pid, len(PARAM_NAMES) - 1),
-            )
-            return
-        try:
-            if t == T_PARAM_SET:
-                self.set_param(pid, req[1])
-            value = self.get_param(pid)
-        except Exception as e:  # noqa: BLE001 - any refused value is answered, never escapes poll()
-            self._error(seq, ERR_BAD_VALUE, t, "%s: %s" % (PARAM_NAMES[pid], e))
-            return
-        self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
+        """DESCRIPTOR payload: int keys 0..16 of the contract, SI floats."""
+        return params.descriptor_payload(self)
 
     def get_param(self, pid):
-        if pid == P_WATCHDOG_MS:
-            return self.watchdog_ms
-        if pid == P_KAPPA_MAX:
-            return self.kappa_max_si
-        if pid == P_KAPPA_RATE_MAX:
-            return self.rate_max_si
-        if pid == P_SC:
-            return self.sc.name
-        if pid == P_SC_GAIN:
-            return float(self.sc.gain)
-        if pid == P_FAULTS:
-            f = getattr(self.bus, "faults_text", None)
-            return f() if f else "none"
-        if pid == P_FRAMES_OK:
-            return self.rd_up.ok + self.rd_dn.ok
-        if pid == P_CRC_ERRORS:
-            return self.rd_up.crc_error + self.rd_dn.crc_error
-        if pid == P_FRAMING_ERRORS:
-            u = self.rd_up
-            d = self.rd_dn
-            return u.framing_error + u.oversize + d.framing_error + d.oversize
-        if pid == P_DROPPED:
-            return self.dropped
-        if pid == P_UID:
-            return self.uid
-        if pid == P_STATUS:
-            return self.status()
-        if pid == P_SERVO_FAULTS:
-            return [self.prev_fault[i] for i in range(self.n)]  # incl. stalls found here
-        if pid == P_CYCLE_US:
-            return self.cycle_us_max
-        if pid == P_OVERRUNS:
-            return self.overruns
-        if pid == P_POSITION:
-            return self.position
-        if pid == P_CONFIG_ERROR:
-            return self.cfg.error or ""
-        if pid == P_MEM_FREE:
-            import gc
-
-            return gc.mem_free() if hasattr(gc, "mem_free") else -1
-        if pid == P_EVENTS_LOST:
-            return self.events_lost
-        if pid == P_SERVO_TARGETS:
-            return [self.mc.servo_target[i] for i in range(self.n)]
-        raise ValueError("unknown parameter")
+        return params.get_param(self, pid)
 
     def set_param(self, pid, v):
         """Change a run-time parameter (SI units); ValueError with the reason if refused."""
-        num = not isinstance(v, bool) and isinstance(v, (int, float))
-        if pid == P_WATCHDOG_MS:
-            if not num or not 10 <= v <= 60000 or int(v) != v:  # range first: int(inf) raises
-                raise ValueError("must be an int 10..60000 (ms)")
-            self.watchdog_ms = int(v)
-        elif pid == P_KAPPA_MAX:
-            top = float(self.cfg.si["kappa_max"])
-            if not num or not 0.0 <= v <= top:
-                raise ValueError("must be 0..%g 1/m (the flashed limit)" % top)
-            self.kappa_max_si = float(v)
-            self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
-        elif pid == P_KAPPA_RATE_MAX:
-            top = float(self.cfg.si["kappa_rate_max"])
-            if not num or not 0.0 < v <= top:
-                raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
-            self.rate_max_si = float(v)
-            self.mc.set_rate_max(int(v * config.KAPPA_SCALE + 0.5))
-        elif pid == P_SC:
-            if not isinstance(v, str):
-                raise ValueError("must be text: one of %s" % ", ".join(scmod.STRATEGIES))
-            self.sc.set_strategy(v)
-            self.sc.reset(self.bus.pos if not self.moving else self.sc.cmd)
-        elif pid == P_SC_GAIN:
-            if not num or not 0.01 <= v <= 1.0:
-                raise ValueError("must be 0.01..1.0")
-            self.sc.gain = float(v)
-            self.sc.set_strategy(self.sc.name)
-        elif pid == P_FAULTS:
-            if not isinstance(v, str):
-                raise ValueError("must be text 'IDX:KIND,...' or 'none'")
-            self.bus.set_faults(v)
-        else:
-            raise ValueError("read-only")
+        params.set_param(self, pid, v)

@@ -63,6 +63,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true", help="print the raw status as JSON")
     p.set_defaults(func=cmd_status)
 
+    p = subparsers.add_parser(
+        "clear-fault", help="clear a segment's FAULT (it then holds until resumed)"
+    )
+    _common(p)
+    p.add_argument("segment", nargs="?", help="bendable name (default: every segment)")
+    p.set_defaults(func=cmd_clear_fault)
+
     p = subparsers.add_parser("watch", help="print live joint states, transforms or events")
     _common(p)
     p.add_argument(
@@ -161,10 +168,19 @@ def format_status(st: dict) -> list[str]:
         lines.append(f"running goals: {', '.join(map(str, st['running_goals']))}")
     js = st.get("joint_states") or {}
     lines.append(f"segments ({len(js)}):")
+    faults = st.get("faults") or {}
     for name, j in js.items():
         flag = "" if j.get("valid", True) else "  (no answer)"
+        if name in faults:
+            f = faults[name]
+            flag += f"  FAULT {f.get('name')}: {f.get('text') or '?'}"
         lines.append(
             f"  {name:<16} kappa {kap(j.get('kappa'))} 1/m   phi {deg(j.get('phi'))}{flag}"
+        )
+    if faults:
+        lines.append(
+            f"{len(faults)} segment(s) in FAULT, holding: `ucr clear-fault [SEGMENT]` clears it "
+            "once the cause is understood"
         )
     return lines
 
@@ -176,6 +192,20 @@ def cmd_status(args: argparse.Namespace) -> int:
             print(json.dumps(st, indent=2))
         else:
             print("\n".join(format_status(st)))
+        return 0
+
+    return with_client(args, body)
+
+
+def cmd_clear_fault(args: argparse.Namespace) -> int:
+    def body(c: Any) -> int:
+        res = c.clear_fault(args.segment)
+        had = res.get("faults") or {}
+        sent = res.get("sent_to") or []
+        print(f"CLEAR_FAULT sent to {', '.join(sent) or 'no segment'}")
+        for name in sent:
+            if name in had:
+                print(f"  {name}: was in FAULT {had[name].get('name')}: {had[name].get('text')}")
         return 0
 
     return with_client(args, body)

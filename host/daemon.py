@@ -265,7 +265,38 @@ class Daemon:
                     n: {"kappa": st.kappa[i], "phi": st.phi[i], "valid": st.valid[i]}
                     for i, n in enumerate(st.names)
                 },
+                # segments in FAULT (held until cleared: clear_fault / `ucr clear-fault`)
+                "faults": {n: dict(f) for n, f in self.supervisor.faults.items()},
             }
+
+    def clear_fault(self, segment: str | None = None) -> dict[str, Any]:
+        """Send CLEAR_FAULT to ``segment`` (identity checked by its uid) or to every segment.
+
+        A cleared segment goes from FAULT to HOLD; the daemon then resumes it like any held
+        segment. Returns ``{"sent_to": [names], "faults": {...}}`` (faults as known now; the
+        next STATE shows whether the segment left FAULT).
+        """
+        with self._lock:
+            topo = self.topo
+            if topo.link is None or topo.link_state != "connected" or topo.hwi is None:
+                raise DaemonError(f"chain not available ({topo.link_state}: {topo.link_error})")
+            names = list(topo.hwi.names)
+            if segment is not None and segment not in names:
+                raise LookupError(
+                    f"unknown segment {segment!r} (segments: {', '.join(names) or 'none'})"
+                )
+            link = topo.link
+            position = None if segment is None else names.index(segment)
+            uid = None if position is None else topo.descriptors[position].get("uid")
+            faults = {n: dict(f) for n, f in self.supervisor.faults.items()}
+        link.clear_fault(position, uid)
+        sent = names if segment is None else [segment]
+        self.fanout.emit_event(
+            "fault_clear_sent",
+            message=f"CLEAR_FAULT sent to {', '.join(sent)}",
+            segments=sent,
+        )
+        return {"sent_to": sent, "faults": faults}
 
     def topology(self) -> dict[str, Any]:
         """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts."""

@@ -246,17 +246,19 @@ class ChainLink:
         if len(self._events) == self._events.maxlen:
             self._counters["events_dropped"] += 1
         self._counters["events"] += 1
-        self._events.append(
-            {
-                "position": position,
-                "code": code,
-                "name": C.EVENT_NAMES.get(code, f"EVENT_{code}"),
-                # detail and t_ms are ints on the wire; anything else is shown as absent
-                "detail": detail if _small_int(detail, -(2**31), 2**32) else None,
-                "t_ms": t_ms if _small_int(t_ms, 0, 2**32) else None,
-                "t": time.monotonic(),
-            }
-        )
+        ev = {
+            "position": position,
+            "code": code,
+            "name": C.EVENT_NAMES.get(code, f"EVENT_{code}"),
+            # detail and t_ms are ints on the wire; anything else is shown as absent
+            "detail": detail if _small_int(detail, -(2**31), 2**32) else None,
+            "t_ms": t_ms if _small_int(t_ms, 0, 2**32) else None,
+            "t": time.monotonic(),
+        }
+        text = payload.get(C.KE_TEXT)
+        if isinstance(text, str):
+            ev["text"] = text[:200]  # e.g. a FAULT's reason (untrusted: bounded)
+        self._events.append(ev)
 
     # -- requests -------------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -416,6 +418,18 @@ class ChainLink:
                 self._send(C.FLAG_BCAST, 0, C.T_HOLD, {}, ())
             else:
                 self._send(0, self._position(position), C.T_HOLD, {}, ())
+            with self._cond:
+                self._collector = None
+
+    def clear_fault(self, position: int | None = None, uid: str | None = None) -> None:
+        """CLEAR_FAULT to every segment (broadcast) or the one at ``position`` (``uid`` checked
+        by the segment); no reply: the next STATE shows the FAULT bit gone."""
+        payload: dict[int, Any] = {} if uid is None else {C.K_UID: uid}
+        with self._call_lock:
+            if position is None:
+                self._send(C.FLAG_BCAST, 0, C.T_CLEAR_FAULT, payload, ())
+            else:
+                self._send(0, self._position(position), C.T_CLEAR_FAULT, payload, ())
             with self._cond:
                 self._collector = None
 

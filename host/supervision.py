@@ -1,6 +1,8 @@
 """Per-cycle supervision of the chain (ACROSET SMCS), beside the control path: turns segment
 EVENTs into readable events, notices a topology change (event, silent segment, a segment behind
-the tip) and handles segments that hold on their own (watchdog or HOLD).
+the tip, a segment that applied another position's setpoint) and handles segments that hold on
+their own (watchdog, HOLD or FAULT). Segments in FAULT are listed in :attr:`Supervisor.faults`
+until their STATE shows the fault cleared (only an explicit CLEAR_FAULT does that).
 
 It decides and reports; it does not rebuild. :meth:`Supervisor.check` returns the reason for a
 topology change, and the topology follower acts on it.
@@ -15,6 +17,7 @@ from typing import Any
 from host.config import WatchdogConfig
 from host.controllers.base import RobotState
 from host.hwi import HardwareInterface
+from protocol.constants import FAULT_NAMES
 
 TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
 
@@ -28,6 +31,13 @@ def describe_event(ev: dict, descriptors: list[dict]) -> str:
     if name == "LIMIT_CLAMPED" and isinstance(detail, int):
         bits = [b for i, b in enumerate(("kappa", "rate", "servo range")) if detail >> i & 1]
         what = f"setpoint clamped by the segment ({', '.join(bits) or detail})"
+    elif name == "FAULT":
+        what = (
+            f"FAULT {FAULT_NAMES.get(detail, detail)}: {ev.get('text') or 'no reason given'}; "
+            "it holds until the fault is cleared (ucr clear-fault)"
+        )
+    elif name == "FAULT_CLEARED":
+        what = f"fault {FAULT_NAMES.get(detail, detail)} cleared: holding until resumed"
     else:
         what = {
             "DOWNSTREAM_UP": "a segment appeared on its downstream port",
@@ -38,6 +48,13 @@ def describe_event(ev: dict, descriptors: list[dict]) -> str:
             "BOOT": "booted",
         }.get(name, f"{name} (detail {detail})")
     return f"{who}: {what}"
+
+
+def _after(t: Any, ref: Any) -> bool:
+    """Segment time ``t`` (ms mod 2**30) is later than ``ref`` (unknown times: yes)."""
+    if not isinstance(t, int) or not isinstance(ref, int):
+        return True
+    return 0 < (t - ref) % (1 << 30) < (1 << 29)
 
 
 def is_news(event: str, position: Any, descriptors: list[dict]) -> bool:
@@ -68,6 +85,8 @@ class Supervisor:
         self._emit = emit_event
         self._rehold = rehold
         self.silent = False  # the last reason was silence (no event): verify before aborting
+        # segments in FAULT: name -> {position, code, name, text}
+        self.faults: dict[str, dict[str, Any]] = {}
 
     def check(
         self,
@@ -81,6 +100,7 @@ class Supervisor:
         self.silent = False
         for ev in events:
             name = ev.get("name", "")
+            extra = {"text": ev["text"]} if "text" in ev else {}
             self._emit(
                 name.lower(),
                 message=describe_event(ev, descriptors),
@@ -88,9 +108,15 @@ class Supervisor:
                 detail=ev.get("detail"),
                 segment_t_ms=ev.get("t_ms"),
                 source="segment",
+                **extra,
             )
+            if name == "FAULT":
+                self._note_fault(hwi, ev)
             if reason is None and is_news(name, ev.get("position"), descriptors):
                 reason = f"{name} from position {ev.get('position')}"
+        self._track_faults(hwi)
+        if reason is None:
+            reason = self._misaddressed(hwi)
         if reason is None:
             wd = self.watchdog
             limit = max(wd.missed_cycles, math.ceil(wd.silence_s / self.period))
@@ -115,10 +141,56 @@ class Supervisor:
                 if st is not None and "HOLD" in st["status"]
             ]
             if held and not hwi.resume_pending:
-                msg = f"segment(s) {', '.join(held)} holding (watchdog or HOLD)"
+                msg = f"segment(s) {', '.join(held)} holding (watchdog, HOLD or FAULT)"
                 self._rehold(state, msg)
                 hwi.resume_pending = True
                 self._emit(
                     "segments_held", message=msg + "; controllers re-held, resuming", segments=held
                 )
         return reason
+
+    # -- FAULT and addressing ---------------------------------------------------------------------
+    def _note_fault(self, hwi: HardwareInterface, ev: dict) -> None:
+        pos = ev.get("position")
+        if isinstance(pos, int) and 0 <= pos < len(hwi.names):
+            code = ev.get("detail")
+            self.faults[hwi.names[pos]] = {
+                "position": pos,
+                "code": code,
+                "name": FAULT_NAMES.get(code, f"FAULT_{code}"),
+                "text": ev.get("text", ""),
+                "t_ms": ev.get("t_ms"),  # segment clock of the report
+            }
+
+    def _track_faults(self, hwi: HardwareInterface) -> None:
+        """Keep :attr:`faults` in step with the FAULT status bit of every STATE."""
+        for i, st in enumerate(hwi.raw_states):
+            if st is None or i >= len(hwi.names):
+                continue
+            name = hwi.names[i]
+            if "FAULT" in st["status"]:
+                if name not in self.faults:  # the FAULT event not (yet) seen: the bit says it
+                    self.faults[name] = {
+                        "position": i,
+                        "code": None,
+                        "name": "FAULT",
+                        "text": "",
+                        "t_ms": st.get("t_ms"),
+                    }
+            elif name in self.faults and _after(st.get("t_ms"), self.faults[name]["t_ms"]):
+                del self.faults[name]  # a STATE made after the report shows it cleared
+
+    def _misaddressed(self, hwi: HardwareInterface) -> str | None:
+        """A STATE whose applied position (key 9) is not its own: that segment applied another
+        segment's setpoint. Reported as a reason, so the chain is held and rediscovered."""
+        for i, st in enumerate(hwi.raw_states):
+            applied = None if st is None else st.get("applied_position")
+            if applied is not None and applied != i:
+                name = hwi.names[i] if i < len(hwi.names) else f"position {i}"
+                msg = (
+                    f"{name} (position {i}) applied the setpoint of position {applied}: "
+                    "misaddressed SYNC"
+                )
+                self._emit("misaddressed", message=msg + "; holding", position=i, applied=applied)
+                return msg
+        return None

@@ -5,7 +5,10 @@ length, definite lengths only, map keys sorted by their encoded bytes (length fi
 bytewise), floats in the shortest of float16/float32/float64 that holds the value exactly
 (NaN -> f9 7e00). Supported types: int (|n| < 2**64), bool, None, float, str, bytes, list/tuple,
 dict. Decoding rejects tags, indefinite lengths, undefined/simple values, duplicate map keys,
-nesting deeper than ``MAX_DEPTH`` and trailing bytes, raising ``MalformedError``.
+nesting deeper than ``MAX_DEPTH``, text that is not UTF-8 (checked by ``utf8_ok`` on both
+runtimes: MicroPython's ``bytes.decode`` does not validate) and trailing bytes, raising
+``MalformedError``. The in-place ``Reader.skip`` applies the same rules to items it skips (map keys
+there must be ints or text), so content a decoder ignores is still validated.
 
 ``dumps``/``loads`` allocate (slow path). ``put_*`` write into caller buffers and ``Reader``
 walks a buffer in place: both allocate nothing, for the device hot path.
@@ -13,6 +16,7 @@ walks a buffer in place: both allocate nothing, for the device hot path.
 
 import math
 import struct
+from array import array
 
 from protocol.errors import MalformedError
 
@@ -25,6 +29,7 @@ except ImportError:  # CPython
 
 
 MAX_DEPTH = const(8)  # nesting limit when decoding
+_KMAX = const(48)  # Reader: keys of the open maps remembered for the duplicate check
 _LIMIT = const(0x40000000)  # Reader: ints must be within +-2**30 (small ints on a 32-bit MCU)
 
 # Reader.head() results besides majors 0..7
@@ -94,6 +99,50 @@ def put_bytes_str(buf, off, data, major):
     return off + n
 
 
+def utf8_ok(buf, p, end):
+    """True if ``buf[p:end]`` is well-formed UTF-8 (RFC 3629: no overlongs, no surrogates, no
+    code points above U+10FFFF), as CPython's strict decoder and cbor2 require. No allocation."""
+    while p < end:
+        b = buf[p]
+        if b < 0x80:
+            p += 1
+            continue
+        lo = 0x80
+        hi = 0xBF
+        if 0xC2 <= b <= 0xDF:
+            n = 1
+        elif b == 0xE0:
+            n = 2
+            lo = 0xA0
+        elif b == 0xED:
+            n = 2
+            hi = 0x9F
+        elif 0xE1 <= b <= 0xEF:
+            n = 2
+        elif b == 0xF0:
+            n = 3
+            lo = 0x90
+        elif 0xF1 <= b <= 0xF3:
+            n = 3
+        elif b == 0xF4:
+            n = 3
+            hi = 0x8F
+        else:
+            return False
+        if p + n >= end:
+            return False
+        c = buf[p + 1]
+        if c < lo or c > hi:
+            return False
+        i = 2
+        while i <= n:
+            if buf[p + i] & 0xC0 != 0x80:
+                return False
+            i += 1
+        p += n + 1
+    return True
+
+
 # --------------------------------------------------------------------------------------------
 # in-place reader (no allocation)
 # --------------------------------------------------------------------------------------------
@@ -114,12 +163,22 @@ class Reader:
         self.arg = 0
         self.val = 0
         self.fpos = 0
+        # skip(): items left per open container level, map flag, first key index per level
+        self._rem = array("i", [0] * (MAX_DEPTH + 2))
+        self._map = bytearray(MAX_DEPTH + 2)
+        self._kb = array("i", [0] * (MAX_DEPTH + 2))
+        # keys of the open maps (and of the top-level map, see key_new): major, arg/start, length
+        self._km = bytearray(_KMAX)
+        self._ka = array("i", [0] * _KMAX)
+        self._kl = bytearray(_KMAX)  # text/bytes key lengths (< 256 in a frame)
+        self._kn = 0
 
     def reset(self, buf, start, end):
         """Point the reader at ``buf[start:end]``."""
         self.buf = buf
         self.pos = start
         self.end = end
+        self._kn = 0
 
     def head(self):
         """Read one head; return major type, END (no bytes left) or BAD."""
@@ -162,6 +221,8 @@ class Reader:
             if p + 4 > end or buf[p] >= 0x40:
                 return BAD  # >= 2**30: outside the wire int range
             arg = (buf[p] << 24) | (buf[p + 1] << 16) | (buf[p + 2] << 8) | buf[p + 3]
+            if major == 1 and arg == 0x3FFFFFFF:
+                return BAD  # -1 - arg = -2**30: outside the wire range too (|n| < 2**30)
             p += 4
         else:
             return BAD  # 8-byte arguments and indefinite lengths are not used
@@ -177,22 +238,91 @@ class Reader:
         m = self.head()
         return m == 0 or m == 1
 
-    def skip(self):
-        """Skip one complete item (any nesting); return False if malformed."""
-        todo = 1
-        while todo > 0:
+    def _key(self, m, base):
+        """Record key (major ``m``, just read by head) against keys[base:]; False if invalid."""
+        n = self._kn
+        if n >= _KMAX:
+            return False
+        if m == 0 or m == 1:
+            a = self.arg
+            for i in range(base, n):
+                if self._km[i] == m and self._ka[i] == a:
+                    return False
+        elif m == 2 or m == 3:
+            a = self.pos
+            ln = self.arg
+            buf = self.buf
+            if m == 3 and not utf8_ok(buf, a, a + ln):
+                return False
+            for i in range(base, n):
+                if self._km[i] == m and self._kl[i] == ln:
+                    b = self._ka[i]
+                    j = 0
+                    while j < ln and buf[a + j] == buf[b + j]:
+                        j += 1
+                    if j == ln:
+                        return False
+            self._kl[n] = ln
+            self.pos = a + ln
+        else:
+            return False  # keys are ints (protocol maps), or text / bytes (nested maps)
+        self._km[n] = m
+        self._ka[n] = a
+        self._kn = n + 1
+        return True
+
+    def top_key(self):
+        """Read one key of the top-level map: an int not seen before in it (``val``); False if
+        it is not an int or repeats one. Call ``reset`` before the map's head."""
+        m = self.head()
+        if m != 0 and m != 1:
+            return False
+        return self._key(m, 0)
+
+    def skip(self, depth=0):
+        """Skip one complete item that sits at nesting ``depth`` (the payload map is depth 0);
+        return False if it is malformed: any rule of ``loads`` broken inside it (nesting deeper
+        than MAX_DEPTH, text not UTF-8, duplicate map keys, truncation); map keys inside must be
+        ints, text or bytes (the protocol uses no others)."""
+        rem = self._rem
+        ismap = self._map
+        kb = self._kb
+        lvl = 0
+        rem[0] = 1
+        ismap[0] = 0
+        kb[0] = self._kn
+        while lvl >= 0:
+            r = rem[lvl]
+            if r == 0:
+                self._kn = kb[lvl]  # forget the keys of a closed map
+                lvl -= 1
+                continue
+            rem[lvl] = r - 1
             m = self.head()
             if m < 0:
                 return False
-            todo -= 1
-            if m == 2 or m == 3:
+            if ismap[lvl] and r & 1 == 0:  # a key of the map open at this level
+                if not self._key(m, kb[lvl]):
+                    return False
+                continue
+            if m == 2:
                 self.pos += self.arg
-            elif m == 4:
-                todo += self.arg
-            elif m == 5:
-                todo += 2 * self.arg
-            if todo > self.end - self.pos:
-                return False
+            elif m == 3:
+                p = self.pos
+                if not utf8_ok(self.buf, p, p + self.arg):
+                    return False
+                self.pos = p + self.arg
+            elif m == 4 or m == 5:
+                n = self.arg if m == 4 else 2 * self.arg
+                if n:
+                    if depth + lvl + 1 > MAX_DEPTH:
+                        return False  # a child would sit deeper than loads() accepts
+                    if n > self.end - self.pos:
+                        return False
+                    lvl += 1
+                    rem[lvl] = n
+                    ismap[lvl] = 1 if m == 5 else 0
+                    kb[lvl] = self._kn
         return True
 
     def at_end(self):
@@ -424,10 +554,9 @@ class _Dec:
             raw = bytes(buf[p : p + n])
             if major == 2:
                 return raw
-            try:
-                return raw.decode("utf-8")
-            except UnicodeError:
-                raise MalformedError("CBOR text is not UTF-8") from None
+            if not utf8_ok(buf, p, p + n):  # MicroPython's decode() would accept it
+                raise MalformedError("CBOR text is not UTF-8")
+            return raw.decode("utf-8")
         if n > self.end - self.pos:
             raise MalformedError("CBOR container longer than the data")
         if major == 4:

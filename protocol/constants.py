@@ -47,6 +47,7 @@ T_PARAM_GET = const(0x04)  # host -> addressed, {0: param_id, 15: uid?}
 T_PARAM_SET = const(0x05)  # host -> addressed, {0: param_id, 1: value, 15: uid?}
 T_HOLD = const(0x06)  # host -> bcast or addressed, {}
 T_ALIVE = const(0x07)  # segment -> upstream neighbour, LOCAL, {}
+T_CLEAR_FAULT = const(0x08)  # host -> bcast or addressed, {15: uid?}; ends FAULT (-> HOLD)
 T_DESCRIPTOR = const(0x81)  # up
 T_STATE = const(0x83)  # up
 T_PARAM_VALUE = const(0x84)  # up
@@ -61,6 +62,7 @@ TYPE_NAMES = {
     0x05: "PARAM_SET",
     0x06: "HOLD",
     0x07: "ALIVE",
+    0x08: "CLEAR_FAULT",
     0x81: "DESCRIPTOR",
     0x83: "STATE",
     0x84: "PARAM_VALUE",
@@ -87,10 +89,12 @@ KS_SERVOS = const(5)
 KS_STATUS = const(6)
 KS_KX = const(7)
 KS_KY = const(8)
+KS_POSITION = const(9)  # chain position whose SYNC entry the segment applies
 # EVENT
 KE_CODE = const(0)
 KE_DETAIL = const(1)
 KE_T_MS = const(2)
+KE_TEXT = const(3)  # optional short text (FAULT: the reason)
 # ERROR
 KR_CODE = const(0)
 KR_TYPE = const(1)
@@ -112,6 +116,7 @@ KD_NAME = const(12)
 KD_SERVO_DRIVER = const(13)
 KD_WATCHDOG_MS = const(14)
 KD_DOWNSTREAM_PRESENT = const(15)
+KD_CONFIG_ERROR = const(16)  # why the segment refused its config.json ("" if it did not)
 
 # descriptor key -> host-side name (docs/architecture.md), in key order
 DESCRIPTOR_KEYS = (
@@ -131,6 +136,7 @@ DESCRIPTOR_KEYS = (
     "servo_driver",
     "watchdog_ms",
     "downstream_present",
+    "config_error",
 )
 
 # --- event codes -----------------------------------------------------------------------------
@@ -141,6 +147,8 @@ EV_WATCHDOG_CLEARED = const(4)
 EV_SERVO_FAULT = const(5)  # detail = servo index
 EV_LIMIT_CLAMPED = const(6)  # detail: bit0 kappa, bit1 rate, bit2 servo range
 EV_BOOT = const(7)
+EV_FAULT = const(8)  # detail = fault code (FAULT_*), key 3 = short text
+EV_FAULT_CLEARED = const(9)  # detail = the fault code that was cleared
 
 EVENT_NAMES = {
     1: "DOWNSTREAM_UP",
@@ -150,7 +158,16 @@ EVENT_NAMES = {
     5: "SERVO_FAULT",
     6: "LIMIT_CLAMPED",
     7: "BOOT",
+    8: "FAULT",
+    9: "FAULT_CLEARED",
 }
+
+# FAULT codes (EVENT FAULT detail, PARAM fault): why a segment entered its FAULT state
+FAULT_TICK = const(1)  # an exception in the control tick
+FAULT_FRAME = const(2)  # an exception while handling received frames
+FAULT_WDT_RESET = const(3)  # the board was reset by its hardware watchdog (machine.WDT)
+
+FAULT_NAMES = {1: "TICK_EXCEPTION", 2: "FRAME_EXCEPTION", 3: "WDT_RESET"}
 
 # LIMIT_CLAMPED detail bits
 CLAMP_KAPPA = const(0x01)
@@ -181,6 +198,7 @@ ST_SERVO_FAULT = const(0x04)
 ST_CLAMPED = const(0x08)
 ST_DOWNSTREAM = const(0x10)
 ST_UNCONFIGURED = const(0x20)
+ST_FAULT = const(0x40)  # in FAULT: servos held (or released); only CLEAR_FAULT ends it
 
 STATUS_NAMES = (
     (0x01, "HOLD"),
@@ -189,6 +207,7 @@ STATUS_NAMES = (
     (0x08, "CLAMPED"),
     (0x10, "DOWNSTREAM"),
     (0x20, "UNCONFIGURED"),
+    (0x40, "FAULT"),
 )
 
 # --- fixed-point scales (cyclic messages carry ints) -----------------------------------------

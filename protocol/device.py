@@ -75,14 +75,11 @@ def decode_sync(buf, start, end, position, out):
     out[SYNC_RESUME] = 0
     ik = 2 * position
     for _ in range(pairs):
-        if r.head() != 0:
-            return MALFORMED
+        if not r.top_key() or r.val < 0:
+            return MALFORMED  # not a non-negative int, or a duplicate key
         key = r.arg
-        if key < 16:
-            bit = 1 << key
-            if seen & bit:
-                return MALFORMED  # duplicate key
-            seen |= bit
+        if key < 2:
+            seen |= 1 << key
         if key == 0:
             if r.head() != 0:
                 return MALFORMED
@@ -120,8 +117,8 @@ def decode_sync(buf, start, end, position, out):
                 out[SYNC_RESUME] = 1 if r.arg else 0
             else:
                 return MALFORMED
-        elif not r.skip():
-            return MALFORMED
+        elif not r.skip(1):
+            return MALFORMED  # unknown keys are ignored, but must be valid (cbor.Reader.skip)
     if not (seen & 3 == 3) or not r.at_end():
         return MALFORMED  # cycle and setpoint list are mandatory
     return found
@@ -135,13 +132,13 @@ def decode_cycle(buf, start, end):
         return MALFORMED
     cycle = MALFORMED
     for _ in range(r.arg):
-        if r.head() != 0:
+        if not r.top_key() or r.val < 0:
             return MALFORMED
         if r.arg == 0:
-            if cycle >= 0 or r.head() != 0:
+            if r.head() != 0:
                 return MALFORMED
             cycle = r.arg
-        elif not r.skip():
+        elif not r.skip(1):
             return MALFORMED
     if not r.at_end():
         return MALFORMED
@@ -159,8 +156,8 @@ def decode_empty(buf, start, end):
     r.reset(buf, start, end)
     if r.head() != 5:
         return MALFORMED
-    for _ in range(2 * r.arg):
-        if not r.skip():
+    for _ in range(r.arg):
+        if not r.top_key() or not r.skip(1):
             return MALFORMED
     return OK if r.at_end() else MALFORMED
 
@@ -173,14 +170,15 @@ def _put_int_list(buf, off, items, n):
 
 
 def encode_state(
-    buf, off, cycle, t_ms, kappa, phi, tendons, n_tendons, servos, n_servos, status, kx, ky
+    buf, off, cycle, t_ms, kappa, phi, tendons, n_tendons, servos, n_servos, status, kx, ky, pos=0
 ):
     """Write a STATE payload (wire ints, see constants) into ``buf`` at ``off``; return end.
 
-    ``tendons``/``servos``: sequences of ints (µm, 1e-4 rad), first ``n_*`` used. Allocates
-    nothing. Typical: ``end = encode_state(raw, HEADER_LEN, ...)`` then ``frame_into``.
+    ``tendons``/``servos``: sequences of ints (µm, 1e-4 rad), first ``n_*`` used; ``pos``: the
+    chain position whose SYNC entry this segment applies (key 9). Allocates nothing. Typical:
+    ``end = encode_state(raw, HEADER_LEN, ...)`` then ``frame_into``.
     """
-    buf[off] = 0xA9  # map of 9 pairs, keys 0..8
+    buf[off] = 0xAA  # map of 10 pairs, keys 0..9
     buf[off + 1] = 0
     off = put_int(buf, off + 2, cycle)
     buf[off] = 1
@@ -198,18 +196,30 @@ def encode_state(
     buf[off] = 7
     off = put_int(buf, off + 1, kx)
     buf[off] = 8
-    return put_int(buf, off + 1, ky)
+    off = put_int(buf, off + 1, ky)
+    buf[off] = 9
+    return put_int(buf, off + 1, pos)
 
 
-def encode_event(buf, off, code, detail, t_ms):
-    """Write an EVENT payload ``{0: code, 1: detail, 2: t_ms}`` at ``off``; return end."""
-    buf[off] = 0xA3
+def encode_event(buf, off, code, detail, t_ms, text=None, tlen=0):
+    """Write an EVENT payload ``{0: code, 1: detail, 2: t_ms}`` at ``off``; return end.
+
+    With ``tlen`` > 0, key 3 carries ``text[:tlen]`` (UTF-8 bytes, e.g. a FAULT's reason).
+    """
+    buf[off] = 0xA4 if tlen else 0xA3
     buf[off + 1] = 0
     off = put_int(buf, off + 2, code)
     buf[off] = 1
     off = put_int(buf, off + 1, detail)
     buf[off] = 2
-    return put_int(buf, off + 1, t_ms)
+    off = put_int(buf, off + 1, t_ms)
+    if tlen:
+        buf[off] = 3
+        off = put_head(buf, off + 1, 3, tlen)
+        for i in range(tlen):
+            buf[off + i] = text[i]
+        off += tlen
+    return off
 
 
 def encode_empty(buf, off):
@@ -233,6 +243,7 @@ def state_frame(
     status,
     kx,
     ky,
+    pos=0,
 ):
     """Build a complete STATE wire frame (UP, hop 0) into ``out``; return its length.
 
@@ -252,13 +263,14 @@ def state_frame(
         status,
         kx,
         ky,
+        pos,
     )
     return frame_into(raw, end, FLAG_UP, 0, T_STATE, seq, out, 0)
 
 
-def event_frame(raw, out, seq, code, detail, t_ms):
+def event_frame(raw, out, seq, code, detail, t_ms, text=None, tlen=0):
     """Build a complete EVENT wire frame (UP, hop 0) into ``out``; return its length."""
-    end = encode_event(raw, HEADER_LEN, code, detail, t_ms)
+    end = encode_event(raw, HEADER_LEN, code, detail, t_ms, text, tlen)
     return frame_into(raw, end, FLAG_UP, 0, T_EVENT, seq, out, 0)
 
 

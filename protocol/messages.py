@@ -23,6 +23,7 @@ from protocol.constants import (
     LENGTH_SCALE,
     STATUS_NAMES,
     T_ALIVE,
+    T_CLEAR_FAULT,
     T_DESCRIPTOR,
     T_DISCOVER,
     T_ERROR,
@@ -363,6 +364,25 @@ def encode_alive(seq: int) -> bytes:
     return encode_frame(FLAG_UP | FLAG_LOCAL, 0, T_ALIVE, _seq(seq), {})
 
 
+def encode_clear_fault(seq: int, position=None, uid=None) -> bytes:
+    """CLEAR_FAULT to every segment (``position`` None) or to one; ``uid`` checks identity.
+
+    A segment in FAULT leaves it for HOLD (a SYNC with resume then moves it again)."""
+    d = {}
+    if uid is not None:
+        if not isinstance(uid, str):
+            raise BadValueError("uid must be text")
+        d[15] = uid
+    if position is None:
+        return encode_frame(FLAG_BCAST, 0, T_CLEAR_FAULT, _seq(seq), d)
+    return encode_frame(0, _uint(position, "position", 256), T_CLEAR_FAULT, _seq(seq), d)
+
+
+def decode_clear_fault(payload) -> dict:
+    """CLEAR_FAULT payload -> ``{uid (None if absent)}``."""
+    return {"uid": _get(decode_map(payload), 15, "uid", "str", False)}
+
+
 def decode_empty(payload) -> dict:
     """Payload of DISCOVER / HOLD / ALIVE: ``{}`` (unknown keys ignored) -> {}."""
     decode_map(payload)
@@ -389,6 +409,7 @@ _DESC_KINDS = (
     "str",  # servo_driver
     "uint",  # watchdog_ms
     "bool",  # downstream_present
+    "str",  # config_error
 )
 _DESC_REQUIRED = 4  # uid, fw_version, protocol_version, model are mandatory
 
@@ -459,10 +480,12 @@ def state_payload(
     status=0,
     kx=None,
     ky=None,
+    applied_position=None,
 ) -> dict:
     """STATE payload from SI values (kappa 1/m, phi rad, tendon lengths m, servo angles rad).
 
-    kx/ky default to kappa*(cos phi, sin phi).
+    kx/ky default to kappa*(cos phi, sin phi); ``applied_position`` (key 9, the chain position
+    whose SYNC entry the segment applies) is sent when given.
     """
     kappa = _finite(kappa, "kappa")
     phi = wrap_angle(_finite(phi, "phi"))
@@ -470,7 +493,7 @@ def state_payload(
         kx = kappa * math.cos(phi)
     if ky is None:
         ky = kappa * math.sin(phi)
-    return {
+    d = {
         0: _uint(cycle, "cycle"),
         1: _uint(t_ms, "t_ms"),
         2: to_fixed(kappa, KAPPA_SCALE, "kappa"),
@@ -481,6 +504,9 @@ def state_payload(
         7: to_fixed(kx, KAPPA_SCALE, "kx"),
         8: to_fixed(ky, KAPPA_SCALE, "ky"),
     }
+    if applied_position is not None:
+        d[9] = _uint(applied_position, "position", 256)
+    return d
 
 
 def encode_state(seq: int, **fields) -> bytes:
@@ -489,12 +515,19 @@ def encode_state(seq: int, **fields) -> bytes:
 
 
 def decode_state(payload, position=None) -> dict:
-    """STATE payload -> SI dict ``{position, cycle, t_ms, kappa, phi, kx, ky, tendon_lengths,
-    servo_angles, status: set of names, raw_status}``."""
+    """STATE payload -> SI dict ``{position, applied_position, cycle, t_ms, kappa, phi, kx, ky,
+    tendon_lengths, servo_angles, status: set of names, raw_status}``.
+
+    ``applied_position`` (key 9, None if absent) is the chain position whose SYNC entry the
+    segment applies; it differs from ``position`` (the hop count of the reply) when a SYNC
+    reached the segment with a wrong hop byte: its setpoint was meant for another segment.
+    """
     d = decode_map(payload)
     raw_status = _get(d, 6, "status", "uint")
+    applied = _get(d, 9, "applied position", "uint", False)
     return {
         "position": position,
+        "applied_position": applied,
         "cycle": _get(d, 0, "cycle", "uint"),
         "t_ms": _get(d, 1, "t_ms", "uint"),
         "kappa": _get(d, 2, "kappa", "int") / KAPPA_SCALE,
@@ -525,9 +558,13 @@ def decode_param_value(payload) -> dict:
     return {"param_id": _get(d, 0, "param_id", "uint"), "value": _value(d)}
 
 
-def encode_event(seq: int, code: int, detail: int, t_ms: int) -> bytes:
-    """EVENT frame (UP, hop 0, unsolicited)."""
+def encode_event(seq: int, code: int, detail: int, t_ms: int, text=None) -> bytes:
+    """EVENT frame (UP, hop 0, unsolicited); ``text`` (optional) goes in key 3."""
     payload = {0: _uint(code, "code"), 1: _check_wire_int(detail, "detail"), 2: _uint(t_ms, "t_ms")}
+    if text is not None:
+        if not isinstance(text, str):
+            raise BadValueError("event text must be str")
+        payload[3] = text
     return encode_frame(FLAG_UP, 0, T_EVENT, _seq(seq), payload)
 
 
@@ -535,12 +572,16 @@ def decode_event(payload) -> dict:
     """EVENT payload -> ``{code, name, detail, t_ms}`` (name "UNKNOWN_<n>" for new codes)."""
     d = decode_map(payload)
     code = _get(d, 0, "code", "uint")
-    return {
+    out = {
         "code": code,
         "name": EVENT_NAMES.get(code, "UNKNOWN_%d" % code),
         "detail": _get(d, 1, "detail", "int"),
         "t_ms": _get(d, 2, "t_ms", "uint"),
     }
+    text = _get(d, 3, "text", "str", False)
+    if text is not None:
+        out["text"] = text
+    return out
 
 
 def error_payload(code: int, offending_type: int, text: str = "", versions=None) -> dict:
@@ -595,6 +636,7 @@ _DECODERS = {
     T_PARAM_SET: decode_param_set,
     T_HOLD: decode_empty,
     T_ALIVE: decode_empty,
+    T_CLEAR_FAULT: decode_clear_fault,
     T_DESCRIPTOR: decode_descriptor,
     T_STATE: decode_state,
     T_PARAM_VALUE: decode_param_value,

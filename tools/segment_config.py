@@ -13,13 +13,13 @@ import os
 from pathlib import Path
 
 from ucrdf import boards as board_plan
+from ucrdf.checks import DEFAULT_KAPPA_RATE_MAX, firmware_refusal, segment_config
 from ucrdf.model import Actuation, Bendable, Robot
 
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
 #: ten to twenty missed cycles.
 DEFAULT_WATCHDOG_MS = 200
-#: Curvature rate limit (1/m/s) when the model's <limits> gives none (the firmware's default).
-DEFAULT_KAPPA_RATE_MAX = 10.0
+__all__ = ["DEFAULT_KAPPA_RATE_MAX", "DEFAULT_WATCHDOG_MS", "SegmentConfigError", "config_for"]
 
 CONFIG_KEYS = (
     "name",
@@ -43,7 +43,28 @@ CONFIG_KEYS = (
 
 
 class SegmentConfigError(ValueError):
-    """The robot description cannot produce a segment configuration (message says why)."""
+    """The robot description cannot produce a segment configuration (message says why, as
+    ``path:line: message`` when the robot was read from a file)."""
+
+    def __init__(self, message: str, where: str = "") -> None:
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+def _where(robot: Robot, line: int) -> str:
+    return f"{robot.source}:{line}" if robot.source else ""
+
+
+def validate(config: dict, where: str = "") -> dict:
+    """``config`` if the segment firmware runs it exactly; SegmentConfigError with the firmware's
+    reason otherwise (it would refuse to move). ``ucr flash`` calls this on what it writes."""
+    reason = firmware_refusal(config)
+    if reason is not None:
+        raise SegmentConfigError(
+            f"segment {config.get('name')!r}: the firmware would refuse this configuration "
+            f"(and not move): {reason}",
+            where,
+        )
+    return config
 
 
 def _watchdog_ms(robot: Robot, bendable: Bendable) -> int:
@@ -91,37 +112,9 @@ def config_for(robot: Robot, bendable_name: str) -> dict:
         raise SegmentConfigError(
             f"bendable {bendable_name!r}: {len(act.servos)} servos for {len(act.angles)} tendons"
         )
-    servos = [
-        {
-            "id": s.id,
-            "zero_offset": s.zero_offset,
-            "direction": s.direction,
-            "min_angle": s.min_angle,
-            "max_angle": s.max_angle,
-        }
-        for s in act.servos
-    ] or [
-        {"id": i, "zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
-        for i in range(len(act.angles))
-    ]
-    limits = bendable.model.limits
-    rate = limits.kappa_rate_max if limits.kappa_rate_max is not None else DEFAULT_KAPPA_RATE_MAX
-    return {
-        "name": bendable.name,
-        "length": bendable.model.backbone.length,
-        "tendon_angles": list(act.angles),
-        "tendon_radius": act.radius,
-        "spool_radius": act.spool_radius,
-        "kappa_max": limits.kappa_max,
-        "kappa_rate_max": rate,
-        "mass": bendable.inertial.mass if bendable.inertial is not None else 0.0,
-        "backbone_radius": bendable.model.backbone.radius,
-        "model": bendable.model.type,
-        "servo_driver": act.driver,
-        "servos": servos,
-        "watchdog_ms": _watchdog_ms(robot, bendable),
-        **_wiring(bendable_name, act),
-    }
+    config = segment_config(bendable, _watchdog_ms(robot, bendable))
+    config.update(_wiring(bendable_name, act))
+    return validate(config, _where(robot, bendable.line))
 
 
 def _wiring(name: str, act: Actuation) -> dict:

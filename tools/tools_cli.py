@@ -87,20 +87,25 @@ def _load_robot(path: Path):
 
 def cmd_flash(args: argparse.Namespace) -> int:
     from tools.flash import FlashError, flash  # noqa: PLC0415 - keeps `ucr --help` fast
-    from tools.segment_config import SegmentConfigError, config_for  # noqa: PLC0415 - keeps `ucr --help` fast
+    from tools.segment_config import (  # noqa: PLC0415 - keeps `ucr --help` fast
+        SegmentConfigError,
+        config_for,
+        validate,
+    )
 
     robot, err = _load_robot(args.robot)
     if robot is None:
         return _error(err or "cannot load robot")
     try:
         config = config_for(robot, args.segment)
+        if args.servo_driver:
+            config["servo_driver"] = args.servo_driver
+            err = _plan_problem(config)
+            if err:
+                return _error(f"--servo-driver {args.servo_driver}: {err}")
+            validate(config, str(args.robot))  # e.g. PWM needs a rest pose inside each range
     except SegmentConfigError as exc:
         return _error(str(exc))
-    if args.servo_driver:
-        config["servo_driver"] = args.servo_driver
-        err = _plan_problem(config)
-        if err:
-            return _error(f"--servo-driver {args.servo_driver}: {err}")
     try:
         flash(
             args.port,

@@ -4,7 +4,11 @@ Cross references (links named by joints and bendables, ros2_control joints namin
 joints), tree shape (one parent per link, no cycles, one root), physical ranges (positive lengths
 and curvature limits, tendons that keep a positive length), consistency with the kinematic model
 plugin (variables named by interfaces, the model's own ``validate()``, interface bounds inside the
-model limits) and actuation (tendon/servo counts, servo direction ±1).
+model limits) and actuation (tendon/servo counts, servo direction ±1). Each bendable's segment
+configuration (:func:`segment_config`) is also run through the segment firmware's own validation
+(``device/config.py`` and the fixed-point set-up of ``device/mechanism.py``, loaded from the
+source tree by :func:`firmware_refusal`), so whatever ``ucr check`` accepts the firmware runs
+exactly, and whatever it would refuse is reported here with its reason.
 
 :func:`check` returns every problem found, each as a :class:`ucrdf.errors.Diagnostic`; it never
 raises on bad content. The parser passes its line table so each message points at the offending
@@ -13,12 +17,19 @@ element; for robots built in code (``ucrdf.compose``) the lines fall back to 0.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import re
+import sys
 from collections.abc import Callable
+from functools import cache
+from pathlib import Path
+from types import ModuleType
 
 import ucrdf.models as registry
 from ucrdf.boards import check as board_plans
+from ucrdf.boards import plan as board_wiring
+from ucrdf.boards import problems as board_problems
 from ucrdf.errors import Diagnostic
 from ucrdf.model import Bendable, ControlJoint, Inertial, Interface, Joint, Robot
 from ucrdf.models.base import CurvatureModel, ModelError
@@ -51,6 +62,97 @@ def model_registry() -> tuple[Callable[[str], type[CurvatureModel]], Callable[[]
     if get_model is None or available is None:
         raise LookupError("model registry ucrdf.models has no get_model()/available()")
     return get_model, available
+
+
+#: Curvature rate limit (1/m/s) when the model's <limits> gives none (the firmware's default).
+DEFAULT_KAPPA_RATE_MAX = 10.0
+_DEVICE = Path(__file__).resolve().parent.parent / "device"
+#: Servo drivers of the ucr segment firmware: a bendable actuated through one of them is a ucr
+#: segment, and its configuration must be one the firmware runs. Other driver names belong to
+#: other hardware and are only checked for their U(C)RDF ranges.
+FIRMWARE_DRIVERS = ("emulated", "pwm", "feetech_sts", "feetech_scs")
+
+
+def segment_config(b: Bendable, watchdog_ms: int = 200) -> dict:
+    """The segment configuration (``config.json`` contract, SI units) of bendable ``b`` with a
+    tendon actuation; the one mapping from U(C)RDF to firmware keys (tools/segment_config.py
+    adds its own checks and the watchdog time)."""
+    act = b.actuation
+    assert act is not None
+    servos = [
+        {
+            "id": s.id,
+            "zero_offset": s.zero_offset,
+            "direction": s.direction,
+            "min_angle": s.min_angle,
+            "max_angle": s.max_angle,
+        }
+        for s in act.servos
+    ] or [
+        {"id": i, "zero_offset": 0.0, "direction": 1, "min_angle": -math.pi, "max_angle": math.pi}
+        for i in range(len(act.angles))
+    ]
+    limits = b.model.limits
+    rate = limits.kappa_rate_max if limits.kappa_rate_max is not None else DEFAULT_KAPPA_RATE_MAX
+    return {
+        "name": b.name,
+        "length": b.model.backbone.length,
+        "tendon_angles": list(act.angles),
+        "tendon_radius": act.radius,
+        "spool_radius": act.spool_radius,
+        "kappa_max": limits.kappa_max,
+        "kappa_rate_max": rate,
+        "mass": b.inertial.mass if b.inertial is not None else 0.0,
+        "backbone_radius": b.model.backbone.radius,
+        "model": b.model.type,
+        "servo_driver": act.driver,
+        "servos": servos,
+        "watchdog_ms": watchdog_ms,
+        # the board and its wiring (ucrdf/boards.py) when the plan is possible (else reported
+        # by the board check, and config_for refuses it)
+        **({} if board_problems(act) else board_wiring(act)),
+    }
+
+
+@cache
+def _firmware() -> tuple[ModuleType, ModuleType] | None:
+    """(config, mechanism) modules of the segment firmware loaded by path from ``device/``, or
+    None when the firmware sources are not installed beside this package."""
+    if not (_DEVICE / "config.py").is_file():
+        return None
+    names = ("fxp", "config", "mechanism")  # mechanism imports fxp by its plain name
+    saved = {n: sys.modules.get(n) for n in names}
+    loaded: dict[str, ModuleType] = {}
+    try:
+        for name in names:
+            spec = importlib.util.spec_from_file_location(name, _DEVICE / f"{name}.py")
+            assert spec is not None and spec.loader is not None
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+            loaded[name] = module
+    finally:
+        for n, m in saved.items():
+            if m is None:
+                sys.modules.pop(n, None)
+            else:
+                sys.modules[n] = m
+    return loaded["config"], loaded["mechanism"]
+
+
+def firmware_refusal(config: dict) -> str | None:
+    """Why the segment firmware would refuse ``config`` (and stay unable to move), or None if it
+    runs it: the firmware's own validation, run on the host."""
+    fw = _firmware()
+    if fw is None:
+        return None
+    fw_config, fw_mechanism = fw
+    try:
+        cfg = fw_config.Config(dict(config), "emulated")
+        fw_mechanism.Mechanism(cfg, 5)
+    except (ValueError, TypeError, KeyError, ZeroDivisionError) as exc:
+        return str(exc)
+    return None
 
 
 def check(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
@@ -390,6 +492,26 @@ class _Checker:
                     f"cannot reach kappa_max: the spool must turn ±{travel:.4g} rad "
                     "(tendon radius * kappa_max * length / spool radius)",
                 )
+        if sound and act.type == "tendon" and act.angles and act.driver in FIRMWARE_DRIVERS:
+            self.firmware(b, aline)
+
+    def firmware(self, b: Bendable, aline: int) -> None:
+        """Run the firmware's own validation on the segment configuration of ``b``, unless an
+        error above already explains the problem."""
+        if any(f"bendable {b.name!r}" in d.message for d in self.diagnostics):
+            return
+        reason = firmware_refusal(segment_config(b))
+        if reason is None:
+            return
+        line = aline
+        m = re.search(r"servos\[(\d+)\]", reason)
+        if m:
+            line = self.line(("bendable", b.name, "servo", int(m.group(1))), aline)
+        self.error(
+            line,
+            f"bendable {b.name!r}: the segment firmware would refuse this configuration "
+            f"(and not move): {reason}",
+        )
 
     # -- ros2_control ----------------------------------------------------------------------------
     def ros2_control(self) -> None:

@@ -7,6 +7,12 @@ as the servo itself sees them (the MC applies zero offset and direction). Interf
 * ``poll(now_ms)``: refresh ``pos`` (array of n ints) and ``fault`` (bytearray of fault codes).
 * ``request(now_ms)``: called at the end of every cycle (bus drivers send their read request).
 * ``feedback``: True when ``pos`` is measured, False when it is the last command (open loop).
+* ``known``: True once ``pos`` holds a real position for every servo (bus drivers: a present
+  position was read from each; open loop: the configured rest pose). The segment commands
+  nothing before (docs/firmware.md, "First motion").
+* ``saturated``: True when the last ``command`` could not be output exactly (a pulse or a step
+  count clipped at its end): ``pos`` then holds what was achieved, and the segment reports CLAMPED.
+* ``release()``: stop driving the servos (FAULT with ``fault_action`` "release").
 * ``set_faults(spec)``: fault injection (emulated driver only; others raise ValueError).
 
 Drivers are imported lazily, so a board without ``machine`` never imports the PWM/bus drivers.
@@ -25,8 +31,9 @@ FAULT_NO_REPLY = const(1)  # disconnected / read timeout
 FAULT_STALL = const(2)  # commanded to move, did not move (detected by the segment)
 FAULT_OVERLOAD = const(3)  # servo reports overload / overcurrent
 FAULT_ERROR = const(4)  # other error flag from the servo (voltage, temperature, sensor)
+FAULT_RANGE = const(5)  # measured outside its configured range (detected by the segment)
 
-FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error")
+FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
 
 
 class ServoBus:
@@ -42,10 +49,20 @@ class ServoBus:
         self.pos = array("i", [0] * n)
         self.fault = bytearray(n)
         self.enabled = False
+        self.known = False
+        self.saturated = False
 
     def command(self, targets, now_ms):
         self.enabled = True
         self._send(targets, now_ms)
+
+    def release(self):
+        """Stop driving the servos (they go limp); the next ``command`` drives them again."""
+        self.enabled = False
+        self._release()
+
+    def _release(self):
+        pass
 
     def poll(self, now_ms):
         self._refresh(now_ms)

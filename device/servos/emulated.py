@@ -6,7 +6,13 @@ Faults (injected by ``UCR_FAULTS`` or PARAM_SET ``faults``), spec ``"IDX:KIND[,I
 
 * ``stuck``: the servo stops moving but still answers (the segment detects a stall);
 * ``disconnected``: no reply; its position is unknown (kept at the last value read);
-* ``overload``: the servo reports overload in its status and does not move.
+* ``overload``: the servo reports overload in its status and does not move;
+* ``raise``: reading the servos raises an exception (an exception inside the control tick);
+* ``hang``: reading the servos never returns (a hung loop, for the hardware watchdog).
+
+Config key ``emulated_start`` (list of raw angles in rad, one per servo; default the zero
+offsets) is where the servos are at power-on: far from zero, even outside their range, to test
+the first-motion rules. Travel limits stop a servo moving outwards, never pull it inwards.
 """
 
 from array import array
@@ -15,7 +21,7 @@ from fxp import mulq
 
 from servos import FAULT_NO_REPLY, FAULT_NONE, FAULT_OVERLOAD, ServoBus
 
-_KINDS = ("none", "stuck", "disconnected", "overload")
+_KINDS = ("none", "stuck", "disconnected", "overload", "raise", "hang")
 
 
 def parse_faults(spec, n):
@@ -63,7 +69,11 @@ class EmulatedBus(ServoBus):
         n = cfg.n
         self.lo = array("i", [cfg.zero[i] + cfg.min_angle[i] for i in range(n)])
         self.hi = array("i", [cfg.zero[i] + cfg.max_angle[i] for i in range(n)])
-        self.true_pos = array("i", cfg.zero)  # physical angle; starts at the calibrated zero
+        self.true_pos = array("i", cfg.zero)  # physical angle; at the calibrated zero, or:
+        start = si.get("emulated_start")
+        if start is not None:
+            for i in range(n):
+                self.true_pos[i] = int(start[i] * 10000.0 + (0.5 if start[i] >= 0 else -0.5))
         for i in range(n):
             self.pos[i] = self.true_pos[i]
         self.target = array("i", cfg.zero)
@@ -85,7 +95,17 @@ class EmulatedBus(ServoBus):
         for i in range(self.n):
             self.target[i] = targets[i]
 
+    def _release(self):
+        for i in range(self.n):
+            self.target[i] = self.true_pos[i]  # limp: stays where it is
+
     def _refresh(self, now_ms):
+        for i in range(self.n):
+            if self.kinds[i] == 4:
+                raise RuntimeError("injected fault: servo %d read raised" % i)
+            if self.kinds[i] == 5:
+                while True:  # injected fault: a hung servo read (only a watchdog gets out)
+                    pass
         last = self.last_ms
         self.last_ms = now_ms
         dt = 0 if last is None else (now_ms - last) & 0x3FFFFFFF
@@ -107,14 +127,16 @@ class EmulatedBus(ServoBus):
                     step = vmax
                 elif step < -vmax:
                     step = -vmax
-                p += step
-                if p < self.lo[i]:
-                    p = self.lo[i]
-                elif p > self.hi[i]:
-                    p = self.hi[i]
+                q = p + step
+                if step < 0 and q < self.lo[i]:  # end stop: blocks outward motion only
+                    q = self.lo[i] if p >= self.lo[i] else p
+                elif step > 0 and q > self.hi[i]:
+                    q = self.hi[i] if p <= self.hi[i] else p
+                p = q
                 self.true_pos[i] = p
             if kind == 2:  # disconnected: no reply, position unknown (last read stays)
                 self.fault[i] = FAULT_NO_REPLY
                 continue
             self.pos[i] = p
             self.fault[i] = FAULT_OVERLOAD if kind == 3 else FAULT_NONE
+        self.known = True

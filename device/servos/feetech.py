@@ -77,7 +77,9 @@ class FeetechBus(ServoBus):
         self.temperature = bytearray(n)  # deg C
         self.err = bytearray(n)  # last error byte
         for i in range(n):
-            self.pos[i] = cfg.zero[i]
+            self.pos[i] = cfg.zero[i]  # placeholder: nothing is commanded before every read
+        self.seen = bytearray(n)  # 1 once a present position was read from servo i
+        self.limp = False
         t = self.tx
         t[0] = 0xFF
         t[1] = 0xFF
@@ -102,14 +104,20 @@ class FeetechBus(ServoBus):
             self.uart.write(p)
 
     def _send(self, targets, now_ms):
+        if self.limp:  # after a release: torque back on first (slow path, once)
+            self.torque(True)
+            self.limp = False
         t = self.tx
         j = 7
+        sat = False
         for i in range(self.n):
             s = self.centre + fxp.mulq(targets[i], self.k_f, self.q_f)
             if s < 0:
                 s = 0
+                sat = True
             elif s > self.max_step:
                 s = self.max_step
+                sat = True
             t[j] = self.ids[i]
             if self.big_endian:
                 t[j + 1] = s >> 8
@@ -120,6 +128,11 @@ class FeetechBus(ServoBus):
             j += 3
         t[j] = checksum(t, 2, j)
         self.uart.write(t)
+        self.saturated = sat
+
+    def _release(self):
+        self.torque(False)
+        self.limp = True
 
     def request(self, now_ms):
         """Ask one servo (round robin) for its state; the reply is parsed by the next poll."""
@@ -177,6 +190,13 @@ class FeetechBus(ServoBus):
                 self.voltage[k] = buf[d + 6]
                 self.temperature[k] = buf[d + 7]
                 self.err[k] = err
+                if not self.seen[k]:
+                    self.seen[k] = 1
+                    known = True
+                    for j in range(self.n):
+                        if not self.seen[j]:
+                            known = False
+                    self.known = known
                 if err & 0x28:
                     self.fault[k] = FAULT_OVERLOAD
                 elif err:

@@ -3,8 +3,13 @@
 Calibration (config key ``pwm``, all optional): ``pins`` (GPIO per servo, default 25, 26, 27),
 ``freq`` (Hz, 50), ``min_us``/``max_us`` (pulse at the ends of the travel, 500/2500),
 ``range`` (rad of travel between min_us and max_us, pi). Raw angle 0 is the centre pulse.
-Position "feedback" is the last command (``feedback = False``: no stall or fault detection).
+Position "feedback" is the last command as output (``feedback = False``: no stall or fault
+detection). A hobby servo cannot say where it is, so at power-on it is assumed at its configured
+rest pose (servo key ``rest_angle``, rad from zero, inside [min_angle, max_angle]; checked by
+config.py and ``ucr check``): the first pulse goes there, and motion starts from it slew-limited.
 No pulse is output before the first command, so the servos stay limp in the boot hold.
+A target beyond the pulse range is output at min_us/max_us: ``pos`` holds the angle actually
+output and ``saturated`` is set, so the segment reports CLAMPED and the achieved curvature.
 """
 
 from array import array
@@ -43,19 +48,23 @@ class PwmBus(ServoBus):
         self.pwm = None
         self.hal = hal
         for i in range(cfg.n):
-            self.pos[i] = cfg.zero[i]
+            self.pos[i] = cfg.zero[i] + cfg.rest[i]  # assumed: the configured rest pose
+        self.known = True
         self.pulse_ns = array("i", [self.centre_ns] * cfg.n)
 
     def _send(self, targets, now_ms):
         if self.pwm is None:  # first command: create the outputs (no pulses during boot hold)
             self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
         h = self.half
+        sat = False
         for i in range(self.n):
             raw = targets[i]
             if raw > h:
                 raw = h
+                sat = True
             elif raw < -h:
                 raw = -h
+                sat = True
             ns = self.centre_ns + ((raw * self.k256 + 128) >> 8)
             if ns < self.min_ns:
                 ns = self.min_ns
@@ -63,7 +72,13 @@ class PwmBus(ServoBus):
                 ns = self.max_ns
             self.pulse_ns[i] = ns
             self.pwm[i].duty_ns(ns)
-            self.pos[i] = targets[i]
+            self.pos[i] = raw  # what the pulse asks for: the achieved angle
+        self.saturated = sat
+
+    def _release(self):
+        if self.pwm is not None:
+            for p in self.pwm:
+                p.duty_ns(0)  # no pulses: the servos go limp
 
     def _refresh(self, now_ms):
         pass  # open loop: pos is the last command, no faults observable

@@ -51,6 +51,7 @@ METHODS: dict[str, bool] = {
     "trajectory_status": False,
     "switch_controllers": True,
     "hand_back": True,
+    "clear_fault": True,
     "send_trajectory": True,
     "cancel_trajectory": True,
     "ffc_input": False,  # a snapshot follows only if it took over (see DaemonBridge._serve)

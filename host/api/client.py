@@ -317,6 +317,10 @@ class Client:
         """End a manual (cFFC) takeover and restart the controllers it preempted."""
         return self.call("controllers.hand_back", **({} if manual is None else {"manual": manual}))
 
+    def clear_fault(self, segment: str | None = None) -> Any:
+        """Send CLEAR_FAULT to ``segment`` (or every segment): it leaves FAULT for HOLD."""
+        return self.call("faults.clear", **({} if segment is None else {"segment": segment}))
+
     def send_trajectory(
         self,
         points: list[dict],

@@ -257,6 +257,12 @@ def _hand_back(params: dict) -> dict:
     return {"manual": None if manual is None else _name(manual, "manual")}
 
 
+def _clear_fault(params: dict) -> dict:
+    _check_fields(params, ("segment",))
+    segment = params.get("segment")
+    return {"segment": None if segment is None else _name(segment, "segment")}
+
+
 def _goal_op(params: dict) -> dict:
     _check_fields(params, ("goal",), ("goal",))
     return {"goal": _goal_id(params["goal"])}
@@ -327,6 +333,7 @@ OPS: dict[str, Callable[[dict], dict]] = {
     "controllers.list": _no_params,
     "controllers.switch": _switch,
     "controllers.hand_back": _hand_back,
+    "faults.clear": _clear_fault,
     "trajectory.send": _trajectory_send,
     "trajectory.upload": _trajectory_upload,
     "trajectory.status": _goal_op,

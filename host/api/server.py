@@ -773,6 +773,9 @@ class ApiServer:
         if op == "controllers.hand_back":
             self._audit(session, op, None, f"manual {p['manual']}")
             return await call("hand_back", p["manual"])
+        if op == "faults.clear":
+            self._audit(session, op, None, f"clear fault on {p['segment'] or 'every segment'}")
+            return await call("clear_fault", p["segment"])
         if op == "trajectory.upload":
             return self._upload(session, p)
         if op == "trajectory.send":

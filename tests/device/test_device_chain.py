@@ -226,7 +226,11 @@ for bad in ({'servos': [{}]}, {'tendon_angles': [0, 0]}, {'sc': 'x'}, {'servo_dr
         R.setdefault('accepted', []).append(bad)
     except ValueError as e:
         R.setdefault('errors', []).append(str(e))
-"""
+""",
+        # eight configurations in one VM, each compiling protocol/boards.py anew (the firmware
+        # frees it after its one boot): more than a boot needs. A boot's fit in the ESP32 heap
+        # is proven by test_device_unix_port (the real main.py) and benchmarks/bench_firmware.py.
+        heap="200k",
     )
     assert r["default"] == 0x20 and r["configured"] == 0
     assert r["bad"][0] is True and "length" in r["bad"][1] and r["bad"][2] == 0.316

@@ -64,9 +64,10 @@ def _checked_mulq(orig):
     worst = {"v": 0}
 
     def mulq(a, c, q):
-        assert abs(a) < 1 << 24 and abs(c) < 1 << 16 and 12 <= q <= 27, (a, c, q)
-        hi, lo = a >> 12, a & 4095
-        worst["v"] = max(worst["v"], abs(hi * c), abs(lo * c))
+        assert abs(a) < 1 << 24 and abs(c) < 1 << 21 and 12 <= q <= 29, (a, c, q)
+        hi, mid, lo = a >> 16, (a >> 8) & 255, a & 255
+        top = abs(hi * c) << max(0, 16 - q)  # the top partial is shifted left when q < 16
+        worst["v"] = max(worst["v"], top, abs(mid * c), abs(lo * c) + (1 << (q - 1)))
         return orig(a, c, q)
 
     return mulq, worst

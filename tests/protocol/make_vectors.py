@@ -126,6 +126,15 @@ SPECS = [
     ("hold_all", "HOLD broadcast", "encode_hold", [18], {}, {}),
     ("hold_one", "HOLD addressed to position 1", "encode_hold", [19, 1], {}, {}),
     ("alive", "ALIVE (LOCAL, to the upstream neighbour)", "encode_alive", [20], {}, {}),
+    ("clear_fault_all", "CLEAR_FAULT broadcast", "encode_clear_fault", [22], {}, {}),
+    (
+        "clear_fault_one",
+        "CLEAR_FAULT addressed to position 2, identity checked",
+        "encode_clear_fault",
+        [23, 2, "24a1600c3b5e"],
+        {},
+        {},
+    ),
     ("descriptor", "DESCRIPTOR of a 3-tendon PCC segment", "encode_descriptor", [DESC, 1], {}, {}),
     (
         "state_3t",
@@ -160,6 +169,7 @@ SPECS = [
             16,
             17677,
             17678,
+            2,
         ],
         {},
         {},
@@ -171,6 +181,14 @@ SPECS = [
         "encode_event",
         [0, 6, 3, 5000],
         {},
+        {},
+    ),
+    (
+        "event_fault",
+        "EVENT FAULT (tick exception) with its reason in key 3",
+        "encode_event",
+        [0, 8, 1, 5000],
+        {"text": "tick: ZeroDivisionError"},
         {},
     ),
     (
@@ -247,6 +265,46 @@ SPECS = [
         {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x01\x01\x82\x01")},
     ),
     ("dec_bad_crc", "DISCOVER with a corrupted CRC byte", "decode", [None], {}, {"badcrc": True}),
+    (
+        "dec_unknown_key_too_deep",
+        "SYNC whose unknown key 9 nests 9 lists (deeper than the limit of 8): malformed",
+        "decode",
+        [None],
+        {},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa3\x00\x01\x01\x82\x01\x02\x09" + b"\x81" * 8 + b"\x80")},
+    ),
+    (
+        "dec_unknown_key_bad_utf8",
+        "SYNC whose unknown key 9 carries text that is not UTF-8: malformed",
+        "decode",
+        [None],
+        {},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa3\x00\x01\x01\x82\x01\x02\x09\x62\xc3\x28")},
+    ),
+    (
+        "dec_duplicate_unknown_keys",
+        "SYNC with unknown key 20 twice: malformed",
+        "decode",
+        [None],
+        {},
+        {
+            "frame": (
+                0x02,
+                0,
+                0x02,
+                1,
+                b"\xa4\x00\x01\x01\x82\x01\x02\x14\x00\x14\x01",
+            )
+        },
+    ),
+    (
+        "dec_int_below_range",
+        "SYNC whose kappa is -2**30 (outside the wire range): malformed",
+        "decode",
+        [None],
+        {},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x01\x01\x82\x3a\x3f\xff\xff\xff\x00")},
+    ),
 ]
 
 

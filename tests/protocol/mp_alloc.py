@@ -5,13 +5,17 @@ with the heap locked; any allocation raises MemoryError. ``main()`` prints one l
 ``<name> ok`` or ``<name> ALLOC <error>``.
 """
 
+import gc
+
 import micropython
 
 from protocol import cobs, crc
 from protocol import device as D
 from protocol import frame as F
-from protocol import messages as M
-from protocol.constants import FLAG_UP, HEADER_LEN, MAX_ENCODED, MAX_FRAME
+
+gc.collect()  # compiling messages.py next needs large blocks: start it on a tidy heap
+from protocol import messages as M  # noqa: E402
+from protocol.constants import FLAG_UP, HEADER_LEN, MAX_ENCODED, MAX_FRAME  # noqa: E402
 
 # --- preallocated state, as the firmware would hold it ---------------------------------------
 reader = F.FrameReader()

@@ -20,6 +20,7 @@ _FRAME_CALLS = {
     "encode_param_get": M.encode_param_get,
     "encode_param_set": M.encode_param_set,
     "encode_hold": M.encode_hold,
+    "encode_clear_fault": M.encode_clear_fault,
     "encode_alive": M.encode_alive,
     "encode_descriptor": M.encode_descriptor,
     "encode_state": M.encode_state,

@@ -75,6 +75,7 @@ def _every_message() -> list[bytes]:
         M.encode_param_set(5, 1, 8, "text"),
         M.encode_hold(6),
         M.encode_hold(6, 2),
+        M.encode_clear_fault(6),
         M.encode_alive(7),
         M.encode_descriptor(DESC, 8),
         M.encode_state(9, cycle=1, t_ms=2, kappa=3.0, phi=1.0, tendon_lengths=[0.1], status=3),
@@ -171,7 +172,8 @@ def test_device_state_encoder_matches_generic_encoder(
         kx,
         ky,
     )
-    payload = {0: cycle, 1: t_ms, 2: kappa, 3: phi, 4: tendons, 5: servos, 6: status, 7: kx, 8: ky}
+    payload = {0: cycle, 1: t_ms, 2: kappa, 3: phi, 4: tendons, 5: servos, 6: status, 7: kx}
+    payload.update({8: ky, 9: 0})  # 9: the chain position applied (default 0)
     assert bytes(out[:n]) == encode_frame(FLAG_UP, 0, T_STATE, seq, payload)
 
 
@@ -217,6 +219,7 @@ def test_state_names_match_the_contract() -> None:
     )
     assert set(m) == {
         "position",
+        "applied_position",
         "cycle",
         "t_ms",
         "kappa",

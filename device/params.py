@@ -1,0 +1,297 @@
+"""Slow path of a segment: parameters (PARAM_GET / PARAM_SET), the descriptor, CLEAR_FAULT.
+
+Functions of the ``Segment`` (passed as ``self``), kept out of segment.py so that each module is
+compiled on its own at boot (the compiler's peak heap grows with a module's size). They allocate
+(CBOR decoding and replies); the control cycle never calls them. Parameter ids and names:
+docs/firmware.md.
+"""
+
+try:
+    from micropython import const
+except ImportError:  # CPython
+
+    def const(x):
+        return x
+
+
+import config
+import sc as scmod
+
+from protocol import cbor
+from protocol.constants import (
+    ERR_BAD_VALUE,
+    ERR_IDENTITY_MISMATCH,
+    ERR_MALFORMED,
+    ERR_UNKNOWN_PARAM,
+    FAULT_NAMES,
+    HEADER_LEN,
+    T_CLEAR_FAULT,
+    T_PARAM_SET,
+    T_PARAM_VALUE,
+)
+
+# parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
+_P_WATCHDOG_MS = const(0)
+_P_KAPPA_MAX = const(1)
+_P_KAPPA_RATE_MAX = const(2)
+_P_SC = const(3)
+_P_SC_GAIN = const(4)
+_P_FAULTS = const(5)
+_P_FRAMES_OK = const(6)
+_P_CRC_ERRORS = const(7)
+_P_FRAMING_ERRORS = const(8)
+_P_DROPPED = const(9)
+_P_UID = const(10)
+_P_STATUS = const(11)
+_P_SERVO_FAULTS = const(12)
+_P_CYCLE_US = const(13)
+_P_OVERRUNS = const(14)
+_P_POSITION = const(15)
+_P_CONFIG_ERROR = const(16)
+_P_MEM_FREE = const(17)
+_P_EVENTS_LOST = const(18)
+_P_SERVO_TARGETS = const(19)
+_P_FAULT = const(20)
+_P_FAULT_COUNT = const(21)
+
+PARAM_NAMES = (
+    "watchdog_ms",
+    "kappa_max",
+    "kappa_rate_max",
+    "sc",
+    "sc_gain",
+    "faults",
+    "frames_ok",
+    "crc_errors",
+    "framing_errors",
+    "dropped",
+    "uid",
+    "status",
+    "servo_faults",
+    "cycle_us",
+    "overruns",
+    "position",
+    "config_error",
+    "mem_free",
+    "events_lost",
+    "servo_targets",
+    "fault",
+    "fault_count",
+)
+
+
+def clear_fault_request(self, raw, pe, seq):
+    """CLEAR_FAULT: check the request (uid), then ``Segment.clear_fault``."""
+    try:
+        req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
+    except ValueError:
+        req = None
+    ok = isinstance(req, dict)
+    if ok:
+        for k in req:
+            if not isinstance(k, int) or isinstance(k, bool):
+                ok = False
+        if 15 in req and not isinstance(req[15], str):
+            ok = False
+    if not ok:
+        self.dropped += 1
+        self._error(seq, ERR_MALFORMED, T_CLEAR_FAULT, "malformed CLEAR_FAULT")
+        return
+    uid = req.get(15)
+    if uid is not None and uid.lower() != self.uid:
+        self._error(
+            seq,
+            ERR_IDENTITY_MISMATCH,
+            T_CLEAR_FAULT,
+            "identity mismatch: this segment is %s" % self.uid,
+        )
+        return
+    self.clear_fault()
+
+
+def descriptor(self):
+    """Descriptor dict with the contract's names (SI floats)."""
+    si = self.cfg.si
+    return {
+        "uid": self.uid,
+        "fw_version": config.FW_VERSION,
+        "protocol_version": 1,
+        "model": si["model"],
+        "length": float(si["length"]),
+        "tendon_angles": [float(a) for a in si["tendon_angles"]],
+        "tendon_radius": float(si["tendon_radius"]),
+        "spool_radius": float(si["spool_radius"]),
+        "kappa_max": self.kappa_max_si,
+        "kappa_rate_max": self.rate_max_si,
+        "mass": float(si["mass"]),
+        "backbone_radius": float(si["backbone_radius"]),
+        "name": si["name"],
+        "servo_driver": si["servo_driver"],
+        "watchdog_ms": self.watchdog_ms,
+        "downstream_present": self.down_present,
+        # why config.json was refused, shortened to fit the frame (full text: PARAM 16)
+        "config_error": (self.cfg.error or "")[:40],
+    }
+
+
+def descriptor_payload(self):
+    """DESCRIPTOR payload: int keys 0..16 of the contract, SI floats."""
+    d = descriptor(self)
+    return {
+        0: d["uid"],
+        1: d["fw_version"],
+        2: d["protocol_version"],
+        3: d["model"],
+        4: d["length"],
+        5: d["tendon_angles"],
+        6: d["tendon_radius"],
+        7: d["spool_radius"],
+        8: d["kappa_max"],
+        9: d["kappa_rate_max"],
+        10: d["mass"],
+        11: d["backbone_radius"],
+        12: d["name"],
+        13: d["servo_driver"],
+        14: d["watchdog_ms"],
+        15: d["downstream_present"],
+        16: d["config_error"],
+    }
+
+
+def param_request(self, t, raw, pe, seq):
+    """PARAM_GET / PARAM_SET: decode, check identity and id, answer PARAM_VALUE or ERROR."""
+    try:
+        req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
+    except ValueError as e:
+        req = "CBOR: %s" % (e,)
+    err = None
+    if not isinstance(req, dict):
+        err = req if isinstance(req, str) else "payload is not a map"
+    elif not isinstance(req.get(0), int) or isinstance(req.get(0), bool):
+        err = "key 0 (param_id) must be an int"
+    elif 15 in req and not isinstance(req[15], str):
+        err = "key 15 (uid) must be text"
+    elif t == T_PARAM_SET and 1 not in req:
+        err = "key 1 (value) missing"
+    if err is not None:
+        self.dropped += 1
+        self._error(seq, ERR_MALFORMED, t, err)
+        return
+    uid = req.get(15)
+    if uid is not None and uid.lower() != self.uid:
+        self._error(
+            seq, ERR_IDENTITY_MISMATCH, t, "identity mismatch: this segment is %s" % self.uid
+        )
+        return
+    pid = req[0]
+    if not 0 <= pid < len(PARAM_NAMES):
+        self._error(
+            seq,
+            ERR_UNKNOWN_PARAM,
+            t,
+            "unknown parameter %d (0..%d)" % (pid, len(PARAM_NAMES) - 1),
+        )
+        return
+    try:
+        if t == T_PARAM_SET:
+            set_param(self, pid, req[1])
+        value = get_param(self, pid)
+    except Exception as e:  # noqa: BLE001 - any refused value is answered, never escapes poll()
+        self._error(seq, ERR_BAD_VALUE, t, "%s: %s" % (PARAM_NAMES[pid], e))
+        return
+    self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
+
+
+def get_param(self, pid):
+    if pid == _P_WATCHDOG_MS:
+        return self.watchdog_ms
+    if pid == _P_KAPPA_MAX:
+        return self.kappa_max_si
+    if pid == _P_KAPPA_RATE_MAX:
+        return self.rate_max_si
+    if pid == _P_SC:
+        return self.sc.name
+    if pid == _P_SC_GAIN:
+        return float(self.sc.gain)
+    if pid == _P_FAULTS:
+        f = getattr(self.bus, "faults_text", None)
+        return f() if f else "none"
+    if pid == _P_FRAMES_OK:
+        return self.rd_up.ok + self.rd_dn.ok
+    if pid == _P_CRC_ERRORS:
+        return self.rd_up.crc_error + self.rd_dn.crc_error
+    if pid == _P_FRAMING_ERRORS:
+        u = self.rd_up
+        d = self.rd_dn
+        return u.framing_error + u.oversize + d.framing_error + d.oversize
+    if pid == _P_DROPPED:
+        return self.dropped
+    if pid == _P_UID:
+        return self.uid
+    if pid == _P_STATUS:
+        return self.status()
+    if pid == _P_SERVO_FAULTS:
+        return [self.prev_fault[i] for i in range(self.n)]  # incl. stalls found here
+    if pid == _P_CYCLE_US:
+        return self.cycle_us_max
+    if pid == _P_OVERRUNS:
+        return self.overruns
+    if pid == _P_POSITION:
+        return self.position
+    if pid == _P_CONFIG_ERROR:
+        return self.cfg.error or ""
+    if pid == _P_MEM_FREE:
+        import gc
+
+        return gc.mem_free() if hasattr(gc, "mem_free") else -1
+    if pid == _P_EVENTS_LOST:
+        return self.events_lost
+    if pid == _P_SERVO_TARGETS:
+        return [self.mc.servo_target[i] for i in range(self.n)]
+    if pid == _P_FAULT:
+        if not self.fault_code:
+            return ""
+        return "%s: %s" % (
+            FAULT_NAMES.get(self.fault_code, str(self.fault_code)),
+            bytes(self.fault_msg[: self.fault_len]).decode(),
+        )
+    if pid == _P_FAULT_COUNT:
+        return self.fault_count
+    raise ValueError("unknown parameter")
+
+
+def set_param(self, pid, v):
+    """Change a run-time parameter (SI units); ValueError with the reason if refused."""
+    num = not isinstance(v, bool) and isinstance(v, (int, float))
+    if pid == _P_WATCHDOG_MS:
+        if not num or not 10 <= v <= 60000 or int(v) != v:  # range first: int(inf) raises
+            raise ValueError("must be an int 10..60000 (ms)")
+        self.watchdog_ms = int(v)
+    elif pid == _P_KAPPA_MAX:
+        top = float(self.cfg.si["kappa_max"])
+        if not num or not 0.0 < v <= top:
+            raise ValueError("must be in (0, %g] 1/m (the flashed limit)" % top)
+        self.kappa_max_si = float(v)
+        self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
+    elif pid == _P_KAPPA_RATE_MAX:
+        top = float(self.cfg.si["kappa_rate_max"])
+        if not num or not 0.0 < v <= top:
+            raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
+        self.rate_max_si = float(v)
+        self.mc.set_rate_max(int(v * config.KAPPA_SCALE + 0.5))
+    elif pid == _P_SC:
+        if not isinstance(v, str):
+            raise ValueError("must be text: one of %s" % ", ".join(scmod.STRATEGIES))
+        self.sc.set_strategy(v)
+        self.sc.reset(self.bus.pos if not self.moving else self.sc.cmd)
+    elif pid == _P_SC_GAIN:
+        if not num or not 0.01 <= v <= 1.0:
+            raise ValueError("must be 0.01..1.0")
+        self.sc.gain = float(v)
+        self.sc.set_strategy(self.sc.name)
+    elif pid == _P_FAULTS:
+        if not isinstance(v, str):
+            raise ValueError("must be text 'IDX:KIND,...' or 'none'")
+        self.bus.set_faults(v)
+    else:
+        raise ValueError("read-only")

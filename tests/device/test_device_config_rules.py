@@ -1,0 +1,204 @@
+"""One rule for what a segment can be (issue 11, finding 4): what `ucr check` accepts the firmware
+runs exactly (short segments included, curvature within 1e-3 1/m up to 100 1/m); what the
+firmware cannot run, `ucr check` and `ucr flash` refuse with ``path:line: message``; a segment
+never runs defaults in place of a configuration it was given; kappa_max <= 0 or NaN is refused
+everywhere."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol import messages as M
+from tests.device.conftest import decode
+from tools import mpvm
+
+REPO = mpvm.REPO
+# a short segment: length * tendon radius = 0.05 * 0.008 = 4e-4 m^2 (the old limit: ~4.2e-4)
+SHORT = {"name": "short", "length": 0.05, "tendon_radius": 0.008, "spool_radius": 0.01}
+SHORT.update({"kappa_max": 20.0, "kappa_rate_max": 200.0, "watchdog_ms": 60000})
+
+
+def test_short_segment_runs_its_own_geometry_exactly(vm):
+    sync = M.encode_sync(1, 1, [(12.5, 0.7)]).hex()
+    disc = M.encode_discover(2).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({SHORT!r})
+for _ in range(40):
+    hal.up.feed(bytes.fromhex('{sync}'))
+    vmkit.run(hal, seg, 10)
+    hal.up.discard()
+hal.up.feed(bytes.fromhex('{disc}'))
+vmkit.run(hal, seg, 10)
+R['s'] = [seg.cfg.error, seg.status(), seg.mc.kappa, seg.mc.phi, list(seg.mc.tendon),
+          vmkit.hexs(hal.up.take()), seg.mc.cx, seg.mc.cy]
+"""
+    )
+    error, status, kappa, phi, tendons, out, cx, cy = r["s"]
+    assert error is None and status & 0x21 == 0  # configured, not holding
+    # commanded exactly (1e-3 1/m); measured within the servo angle quantum (1e-4 rad of spool
+    # is 1e-4 * 0.01 / 4e-4 = 2.5e-3 1/m on this short segment) and the servos' settling
+    assert abs(cx - 125000 * math.cos(0.7)) <= 10 and abs(cy - 125000 * math.sin(0.7)) <= 10
+    assert abs(kappa - 125000) <= 40 and abs(phi - 7000) <= 3
+    sig = np.array([0.0, 2 * math.pi / 3, 4 * math.pi / 3])
+    want = 0.05 * (1 - 0.008 * 12.5 * np.cos(sig - 0.7))
+    assert np.abs(np.array(tendons) * 1e-6 - want).max() <= 3e-6
+    desc = [m for m in decode(out) if m["type"] == "DESCRIPTOR"][0]
+    assert desc["length"] == 0.05 and desc["name"] == "short" and desc["config_error"] == ""
+
+
+def test_curvature_resolution_is_within_1e_3_per_m_up_to_100_per_m(vm):
+    """A bendy segment (kappa_max 100 1/m): the commanded curvature vector and the curvature
+    measured back from (quantised) servo angles both stay within 1e-3 1/m of exact."""
+    cfg = {"length": 0.1, "tendon_radius": 0.005, "spool_radius": 0.01, "kappa_max": 100.0}
+    cfg["servos"] = [{"min_angle": -6.0, "max_angle": 6.0}] * 3
+    rng = np.random.default_rng(11)
+    targets = [
+        [int(k), int(p)]
+        for k, p in zip(rng.integers(1, 1000000, 60), rng.integers(-31415, 31416, 60), strict=True)
+    ]
+    targets += [[999999, 0], [999999, 31416], [500000, -15708]]
+    r = vm(
+        f"""
+import config, mechanism
+cfg = config.Config({cfg!r})
+mc = mechanism.Mechanism(cfg, 5)
+out = []
+for k, p in {targets!r}:
+    mc.set_target(k, p)
+    mc.cx = mc.tx
+    mc.cy = mc.ty
+    mc._servo_targets()
+    mc.measure(mc.servo_target)
+    out.append([mc.tx, mc.ty, list(mc.servo_target), mc.mx, mc.my, mc.kappa])
+R['o'] = out
+""",
+        heap="1m",  # the sample data, not the firmware, needs it
+    )
+    sig = np.array([0.0, 2 * math.pi / 3, 4 * math.pi / 3])
+    mat = np.stack([np.cos(sig), np.sin(sig)], axis=1)
+    worst_cmd = worst_meas = 0.0
+    for (k, p), (tx, ty, servo, mx, my, kappa) in zip(targets, r["o"], strict=True):
+        kx, ky = k * math.cos(p * 1e-4), k * math.sin(p * 1e-4)  # 1e-4 1/m
+        worst_cmd = max(worst_cmd, abs(tx - kx), abs(ty - ky), abs(math.hypot(tx, ty) - k))
+        # exact least squares from the same quantised servo angles (what measure() sees)
+        dl = -np.array(servo) * 1e-4 * 0.01
+        ex, ey = np.linalg.lstsq(mat, -dl / (0.1 * 0.005), rcond=None)[0] * 1e4
+        worst_meas = max(worst_meas, abs(mx - ex), abs(my - ey), abs(kappa - math.hypot(ex, ey)))
+    assert worst_cmd <= 10, worst_cmd  # 1e-3 1/m
+    assert worst_meas <= 10, worst_meas
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
+def test_invalid_kappa_max_is_refused_by_the_config_and_by_param_set(vm, value):
+    wire = M.encode_param_set(3, 0, 1, 0.5 if value != value else value)
+    if value != value:  # the host encoder refuses NaN: build the frame by hand
+        from protocol.frame import encode_frame
+
+        wire = encode_frame(0, 0, 0x05, 3, b"\xa2\x00\x01\x01\xf9\x7e\x00")
+    r = vm(
+        f"""
+import config
+try:
+    config.Config({{'kappa_max': float('{value}')}})
+    R['cfg'] = None
+except ValueError as e:
+    R['cfg'] = str(e)
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+hal.up.feed(bytes.fromhex('{wire.hex()}'))
+vmkit.run(hal, seg, 10)
+R['k'] = [seg.kappa_max_si, vmkit.hexs(hal.up.take())]
+"""
+    )
+    assert r["cfg"] and "kappa_max" in r["cfg"]
+    kmax, out = r["k"]
+    errs = [m for m in decode(out) if m["type"] == "ERROR"]
+    assert errs and errs[0]["name"] == "BAD_VALUE" and "kappa_max" in errs[0]["text"]
+    assert kmax > 3.0  # unchanged
+
+
+def test_a_rejected_config_never_runs_defaults_and_says_why(vm, tmp_path):
+    bad = dict(SHORT, kappa_max=150.0)  # beyond the firmware's 100 1/m
+    sync = M.encode_sync(1, 1, [(1.0, 0.0)], resume=True).hex()
+    disc = M.encode_discover(2).hex()
+    (tmp_path / "config.json").write_text(json.dumps(bad))
+    r = vm(
+        f"""
+import config, servos
+from segment import Segment
+cfg = config.load('{tmp_path / "config.json"}')
+hal = vmkit.LoopHal()
+seg = Segment(hal, cfg, servos.make('emulated', cfg, hal), 5)
+pos = list(seg.bus.true_pos)
+for _ in range(20):
+    hal.up.feed(bytes.fromhex('{sync}'))
+    vmkit.run(hal, seg, 10)
+    hal.up.discard()
+hal.up.feed(bytes.fromhex('{disc}'))
+vmkit.run(hal, seg, 10)
+R['s'] = [cfg.error, pos, list(seg.bus.true_pos), seg.status(), vmkit.hexs(hal.up.take())]
+"""
+    )
+    error, pos, later, status, out = r["s"]
+    assert error and "kappa_max" in error
+    assert pos == later and status & 0x21 == 0x21  # HOLD + UNCONFIGURED, nothing moved
+    desc = [m for m in decode(out) if m["type"] == "DESCRIPTOR"][0]
+    assert desc["config_error"].startswith("config.json rejected: kappa_max")
+
+
+def _robot(tmp_path: Path, **edits: str) -> Path:
+    text = (REPO / "robots" / "softrobot3.ucrdf").read_text()
+    for old, new in edits.items():
+        assert old in text
+        text = text.replace(old, new, 1)
+    path = tmp_path / "robot.ucrdf"
+    path.write_text(text)
+    return path
+
+
+def _ucr(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "tools.cli", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def _line_of(path: Path, needle: str) -> int:
+    for i, line in enumerate(path.read_text().splitlines(), 1):
+        if needle in line:
+            return i
+    raise AssertionError(needle)
+
+
+def test_ucr_check_and_flash_refuse_what_the_firmware_cannot_run_with_path_and_line(tmp_path):
+    # servo 0 of segment_1 may turn 60 rad: beyond the firmware's +-50 rad integer range
+    path = _robot(
+        tmp_path,
+        **{
+            'id="1" zero_offset="0.0" direction="1" min_angle="-3.141592653589793"': (
+                'id="1" zero_offset="0.0" direction="1" min_angle="-60.0"'
+            )
+        },
+    )
+    line = _line_of(path, 'min_angle="-60.0"')
+    res = _ucr("check", str(path))
+    assert res.returncode != 0
+    assert f"{path}:{line}: " in res.stdout + res.stderr
+    assert "firmware would refuse" in res.stdout + res.stderr and "Traceback" not in res.stderr
+    # ucr flash generates the same configuration and refuses it before touching the board
+    res = _ucr(
+        "flash", "--port", "/dev/null-no-such-port", "--robot", str(path), "--segment", "segment_1"
+    )
+    out = res.stdout + res.stderr
+    assert res.returncode != 0 and "firmware would refuse" in out and "Traceback" not in out
+    assert f"{path}:" in out

@@ -1,0 +1,159 @@
+"""Strict protocol on the MicroPython VM (issue 11, finding 7): invalid content anywhere in a
+frame, even under keys the segment ignores, is answered with ERROR MALFORMED and nothing is
+executed; wire ints stop short of -2**30; LIMIT_CLAMPED events are >= 100 ms apart on the wire;
+STATE names the chain position whose setpoint was applied, so a misaddressed SYNC shows."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from protocol import messages as M
+from protocol.frame import decode_frame, encode_frame
+from tests.device.conftest import decode
+
+BCAST = 0x02
+_HEAD = b"\xa3\x00\x01\x01\x82\x19\x75\x30\x19\x0b\xb8"  # {0: 1, 1: [30000, 3000], ...}
+
+
+def _sync_with(extra_key_value: bytes) -> bytes:
+    """SYNC {0: 1, 1: [3 1/m, 0.3 rad], 9: <raw CBOR>} (9 is a key the firmware ignores)."""
+    return encode_frame(BCAST, 0, 0x02, 7, _HEAD + b"\x09" + extra_key_value)
+
+
+CORPUS = {
+    "too_deep": b"\x81" * 8 + b"\x80",  # 9 nested lists under the ignored key
+    "bad_utf8": b"\x62\xc3\x28",
+    "overlong_utf8": b"\x62\xc0\xaf",
+    "surrogate_utf8": b"\x63\xed\xa0\x80",
+    "dup_nested_keys": b"\xa2\x01\x00\x01\x00",
+    "nested_map_float_key": b"\xa1\xf9\x3c\x00\x00",
+}
+
+
+def _frames():
+    out = {name: _sync_with(v) for name, v in CORPUS.items()}
+    # many duplicate unknown top-level keys
+    many = b"\xa8\x00\x01\x01\x82\x19\x75\x30\x19\x0b\xb8" + b"\x14\x00" * 6
+    out["dup_top_keys"] = encode_frame(BCAST, 0, 0x02, 7, many)
+    # -2**30 as kappa: outside the wire range (|n| < 2**30)
+    out["int_minus_2_30"] = encode_frame(
+        BCAST, 0, 0x02, 7, b"\xa2\x00\x01\x01\x82\x3a\x3f\xff\xff\xff\x00"
+    )
+    out["discover_bad_utf8"] = encode_frame(BCAST, 0, 0x01, 7, b"\xa1\x09\x62\xc3\x28")
+    out["hold_too_deep"] = encode_frame(BCAST, 0, 0x06, 7, b"\xa1\x09" + b"\x81" * 8 + b"\x80")
+    out["heartbeat_dup_keys"] = encode_frame(BCAST, 0, 0x03, 7, b"\xa3\x00\x01\x14\x00\x14\x00")
+    return out
+
+
+FRAMES = _frames()
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_invalid_content_anywhere_is_malformed_and_nothing_runs(vm, name):
+    frame = FRAMES[name].hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+vmkit.run(hal, seg, 30)
+hal.up.discard()
+hal.up.feed(bytes.fromhex('{frame}'))
+vmkit.run(hal, seg, 200)
+R['s'] = [seg.armed, seg.hold, seg.wd_armed, seg.mc.tx, seg.dropped, vmkit.hexs(hal.up.take())]
+"""
+    )
+    armed, hold, wd_armed, tx, dropped, out = r["s"]
+    msgs = decode(out)
+    errs = [m for m in msgs if m["type"] == "ERROR"]
+    assert len(errs) == 1 and errs[0]["name"] == "MALFORMED", (name, msgs)
+    assert not [m for m in msgs if m["type"] in ("STATE", "DESCRIPTOR")], name
+    assert not armed and not hold and not wd_armed and tx == 0 and dropped == 1, name
+
+
+def test_valid_unknown_content_is_still_ignored(vm):
+    """The same keys with valid content (8 levels, good UTF-8, distinct keys) are accepted."""
+    ok = _sync_with(b"\xa2\x01\x81" + b"\x81" * 5 + b"\x80" + b"\x62\xc3\xa9\x00").hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+hal.up.feed(bytes.fromhex('{ok}'))
+vmkit.run(hal, seg, 30)
+R['s'] = [seg.armed, seg.mc.tx, vmkit.hexs(hal.up.take())]
+"""
+    )
+    armed, tx, out = r["s"]
+    assert armed and abs(tx - 30000 * math.cos(0.3)) <= 3
+    assert not [m for m in decode(out) if m["type"] == "ERROR"]
+
+
+def test_micropython_cbor_decoder_rejects_invalid_utf8_like_cbor2(vm):
+    cases = ["62c328", "62c0af", "63eda080", "64f4908080", "61ff", "62e282"]
+    good = ["62c3a9", "63e282ac", "64f09f9880", "6161"]
+    r = vm(
+        f"""
+from protocol import cbor
+def ok(h):
+    try:
+        cbor.loads(bytes.fromhex(h))
+        return True
+    except ValueError:
+        return False
+R['bad'] = [ok(h) for h in {cases!r}]
+R['good'] = [ok(h) for h in {good!r}]
+"""
+    )
+    assert r["bad"] == [False] * len(cases)
+    assert r["good"] == [True] * len(good)
+
+
+def test_limit_clamped_events_are_at_least_100_ms_apart_on_the_wire(vm):
+    """Other events queued at the same time delay the first LIMIT_CLAMPED; the spacing must be
+    measured where it counts, between the events actually sent."""
+    over = M.encode_sync(1, 1, [(50.0, 0.0)]).hex()  # beyond kappa_max: clamped every cycle
+    alive_from_down = M.encode_alive(0).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+vmkit.run(hal, seg, 5)
+seg.event(3, 0)   # two events already waiting (e.g. a watchdog trip and a servo fault report)
+seg.event(5, 1)
+hal.down.feed(bytes.fromhex('{alive_from_down}'))   # and a DOWNSTREAM_UP on its way
+from protocol.frame import FrameReader
+from protocol import cobs
+rd = FrameReader()
+ev = []
+for _ in range(100):
+    hal.up.feed(bytes.fromhex('{over}'))
+    hal.down.feed(bytes.fromhex('{alive_from_down}'))
+    vmkit.run(hal, seg, 10)
+    for f in rd.feed(hal.up.take()):
+        if f.mtype == 0x85:
+            ev.append(vmkit.hexs(cobs.encode(f.raw()) + bytes(1)))
+R['out'] = ev
+"""
+    )
+    msgs = decode("".join(r["out"]))
+    t = [m["t_ms"] for m in msgs if m["type"] == "EVENT" and m["name"] == "LIMIT_CLAMPED"]
+    assert len(t) >= 5
+    gaps = [b - a for a, b in zip(t, t[1:], strict=False)]
+    assert min(gaps) >= 100, gaps
+
+
+def test_state_names_the_position_whose_setpoint_was_applied(vm):
+    """A broadcast SYNC that reaches the first segment with hop 1 (a corrupted or misrouted
+    header) applies entry 1: STATE says so (key 9) while the reply's hop says position 0."""
+    f = decode_frame(M.encode_sync(1, 1, [(1.0, 0.0), (3.0, 1.0)]))
+    wrong = encode_frame(f.flags, 1, f.mtype, f.seq, bytes(f.payload)).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+hal.up.feed(bytes.fromhex('{wrong}'))
+vmkit.run(hal, seg, 10)
+R['s'] = [seg.mc.tx, vmkit.hexs(hal.up.take())]
+"""
+    )
+    tx, out = r["s"]
+    assert abs(tx - 30000 * math.cos(1.0)) <= 3  # it applied entry 1 (3 1/m), not entry 0
+    st = [m for m in decode(out) if m["type"] == "STATE"]
+    assert st and st[0]["position"] == 0 and st[0]["applied_position"] == 1
