@@ -17,35 +17,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from host.api import ENV_TOKEN, ENV_URL
-from host.client_common import deg, kap, say_error, with_client
+from host.client_common import add_connection_args, deg, kap, say_error, with_client
 from host.client_motion import cmd_move, cmd_teleop, cmd_trajectory
 
 
 # --------------------------------------------------------------------------- registration
-def _common(p: argparse.ArgumentParser, nested: bool = False) -> None:
-    """--url/--token/--timeout; ``nested`` parsers must not overwrite the parent's values."""
-    kw: dict[str, Any] = {"default": argparse.SUPPRESS} if nested else {}
-    p.add_argument(
-        "--url",
-        help=f"daemon API URL (default ${ENV_URL} or ws://127.0.0.1:8765)",
-        **({"default": None} | kw),
-    )
-    p.add_argument(
-        "--token-file",
-        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN})",
-        **({"default": None} | kw),
-    )
-    # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
-    p.add_argument("--token", help=argparse.SUPPRESS, **({"default": None} | kw))
-    p.add_argument(
-        "--ca", help="CA file to verify a wss:// daemon ($UCR_CA)", **({"default": None} | kw)
-    )
-    p.add_argument(
-        "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
-    )
-
-
 def register(subparsers: Any) -> None:
     """Add the client commands to the ``ucr`` dispatcher."""
     t = subparsers.add_parser(
@@ -59,7 +35,7 @@ def register(subparsers: Any) -> None:
     t.add_argument("--force", action="store_true", help="replace an existing file")
     t.set_defaults(func=cmd_token)
     p = subparsers.add_parser("status", help="show the daemon's state and the robot's joints")
-    _common(p)
+    add_connection_args(p)
     p.add_argument("--json", action="store_true", help="print the raw status as JSON")
     p.set_defaults(func=cmd_status)
 
@@ -71,7 +47,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_clear_fault)
 
     p = subparsers.add_parser("watch", help="print live joint states, transforms or events")
-    _common(p)
+    add_connection_args(p)
     p.add_argument(
         "--kind",
         action="append",
@@ -88,7 +64,7 @@ def register(subparsers: Any) -> None:
         help="bend one segment to a curvature in a given time (cJTC)",
         description="Move one segment to (kappa, phi) in DURATION seconds; other segments hold.",
     )
-    _common(p)
+    add_connection_args(p)
     p.add_argument("--segment", required=True, help="bendable name (see `ucr status`)")
     p.add_argument("--kappa", type=float, required=True, help="curvature K, 1/m (>= 0)")
     p.add_argument("--phi", type=float, default=0.0, help="bending-plane angle P, degrees (0)")
@@ -101,7 +77,7 @@ def register(subparsers: Any) -> None:
         help="send a waypoint file (YAML or JSON) to the cJTC",
         description="Send timed waypoints from FILE (format: docs/api.md); shows progress.",
     )
-    _common(p)
+    add_connection_args(p)
     p.add_argument("file", help="YAML or JSON waypoint file")
     p.add_argument("--controller", default=None, help="trajectory controller (default: active)")
     p.add_argument("--check", action="store_true", help="only validate the file, do not send")
@@ -109,18 +85,18 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_trajectory)
 
     p = subparsers.add_parser("controllers", help="list or switch controllers")
-    _common(p)
+    add_connection_args(p)
     csub = p.add_subparsers(dest="action", metavar="ACTION")
     p.set_defaults(func=cmd_controllers, action="list")
     lp = csub.add_parser("list", help="list controllers and their state (default)")
-    _common(lp, nested=True)
+    add_connection_args(lp, nested=True)
     lp.add_argument("--json", action="store_true")
     sp = csub.add_parser("switch", help="activate --start and deactivate --stop together")
-    _common(sp, nested=True)
+    add_connection_args(sp, nested=True)
     sp.add_argument("--start", action="append", default=[], help="controller to activate")
     sp.add_argument("--stop", action="append", default=[], help="controller to deactivate")
     hp = csub.add_parser("hand-back", help="end a manual (cFFC) takeover, restart what it stopped")
-    _common(hp, nested=True)
+    add_connection_args(hp, nested=True)
     hp.add_argument("--manual", default=None, help="manual controller (default: the one active)")
     for q in (lp, sp, hp):
         q.set_defaults(func=cmd_controllers)
@@ -133,7 +109,7 @@ def register(subparsers: Any) -> None:
         "the first gamepad with two sticks. Stops when you let go; if input stops the "
         "daemon's deadman stops the robot.",
     )
-    _common(p)
+    add_connection_args(p)
     src = p.add_mutually_exclusive_group()
     src.add_argument("--device", default=None, help="evdev device, e.g. /dev/input/event5")
     src.add_argument("--keyboard", action="store_true", help="use the keyboard in this terminal")

@@ -8,7 +8,7 @@ import math
 import sys
 from typing import Any
 
-from host.api import default_url
+from host.api import ENV_TOKEN, ENV_URL, default_url
 
 _PROG = "ucr"
 
@@ -22,9 +22,32 @@ def say_error(message: str) -> None:
     print(f"{_PROG}: {message}", file=sys.stderr)
 
 
+def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> None:
+    """--url, --token-file, --ca, --timeout of every API client command; ``nested`` parsers must
+    not overwrite the parent's values. A ``--token`` is parsed only to be refused with advice."""
+    kw: dict[str, Any] = {"default": argparse.SUPPRESS} if nested else {}
+    p.add_argument(
+        "--url",
+        help=f"daemon API URL (default ${ENV_URL} or ws://127.0.0.1:8765)",
+        **({"default": None} | kw),
+    )
+    p.add_argument(
+        "--token-file",
+        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN})",
+        **({"default": None} | kw),
+    )
+    # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
+    p.add_argument("--token", help=argparse.SUPPRESS, **({"default": None} | kw))
+    p.add_argument(
+        "--ca", help="CA file to verify a wss:// daemon ($UCR_CA)", **({"default": None} | kw)
+    )
+    p.add_argument(
+        "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
+    )
+
+
 def connect_daemon(args: argparse.Namespace) -> Any:
     """Connect with ``--url``, the token from ``--token-file`` or ``$UCR_TOKEN``, ``--ca``."""
-    from host.api import ENV_TOKEN  # noqa: PLC0415
     from host.api.client import (  # noqa: PLC0415
         ApiAuthError,
         ApiConnectionError,

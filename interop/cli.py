@@ -43,12 +43,9 @@ def _guard(command: str, fn: Any) -> Any:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    from host.api import ENV_TOKEN, ENV_URL, default_url  # noqa: PLC0415 - fast `ucr --help`
+    from host.client_common import add_connection_args  # noqa: PLC0415 - fast `ucr --help`
 
-    p.add_argument("--url", default=None,
-                   help=f"daemon API URL (default ${ENV_URL} or {default_url()})")  # fmt: skip
-    p.add_argument("--token", default=None, help=f"API token (default ${ENV_TOKEN})")
-    p.add_argument("--timeout", type=float, default=5.0, help="API reply timeout, s (5)")
+    add_connection_args(p)  # --url, --token-file, --ca, --timeout: as every API client
     p.add_argument(
         "--robot", default=None, help="U(C)RDF file (default: the file the daemon reports)"
     )
@@ -56,9 +53,14 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _serve(p: argparse.ArgumentParser) -> None:
     """Options of the Foxglove server's door (interop/guard.py)."""
-    p.add_argument("--serve-token", default=None,
-                   help="token Foxglove clients must present (default $UCR_FOXGLOVE_TOKEN); "
-                   "required for a non-loopback address")  # fmt: skip
+    p.add_argument("--serve-token-file", default=None, metavar="FILE",
+                   help="file (mode 0600) holding the token Foxglove clients must present "
+                   "(default $UCR_FOXGLOVE_TOKEN); needed for a non-loopback address")  # fmt: skip
+    # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
+    p.add_argument("--serve-token", default=None, help=argparse.SUPPRESS)
+    p.add_argument("--insecure", action="store_true",
+                   help="allow a non-loopback address without TLS (the token crosses the "
+                   "network in clear: trusted networks only)")  # fmt: skip
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
                    help="browser origin allowed to connect, e.g. https://app.foxglove.dev "
                    "(repeatable; default none: only clients that send no Origin)")  # fmt: skip
@@ -115,7 +117,7 @@ def register(subparsers: Any) -> None:
         help="also serve the same data live to Foxglove on this port",
     )
     p.add_argument("--foxglove-host", default="127.0.0.1",
-                   help="address of that server (loopback; others need --serve-token)")  # fmt: skip
+                   help="address of that server (loopback; else --serve-token-file)")  # fmt: skip
     _serve(p)
     _common(p)
     p.set_defaults(func=_guard("record", _record))
@@ -128,7 +130,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("file", help="MCAP file written by `ucr record`")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed, x recorded (1)")
     p.add_argument(
-        "--host", default="127.0.0.1", help="server address (loopback; others need --serve-token)"
+        "--host", default="127.0.0.1", help="server address (loopback; else --serve-token-file)"
     )
     p.add_argument("--port", type=int, default=8766, help="Foxglove server port (8766)")
     p.add_argument(
@@ -160,10 +162,10 @@ def register(subparsers: Any) -> None:
         "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
         description="Serve the same topics as `ucr record` live on the Foxglove WebSocket "
         "protocol (foxglove-sdk), read-only. Loopback by default; any other address needs "
-        "--serve-token (docs/recording.md, security).",
+        "--serve-token-file and --insecure (docs/recording.md, security).",
     )  # fmt: skip
     p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (loopback; others need --serve-token)")  # fmt: skip
+                   help="address to listen on (loopback; else --serve-token-file)")  # fmt: skip
     p.add_argument("--port", type=int, default=8766, help="port (8766; 0: any free port)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many s")
     p.add_argument(

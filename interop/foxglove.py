@@ -18,7 +18,9 @@ from typing import Any
 
 import foxglove
 
-from host.api.client import ApiError, connect
+from host.api.auth import AuthConfigError, read_token_file
+from host.api.client import ApiError
+from host.client_common import CliError, connect_daemon
 from interop import ros2
 from interop.guard import FoxgloveGuard, GuardError
 from interop.live import FeedError, LiveFeed, robot_for
@@ -41,8 +43,11 @@ class FoxgloveSink:
         name: str = "ucr",
         token: str | None = None,
         allowed_origins: tuple[str, ...] | list[str] = (),
+        insecure: bool = False,
     ) -> None:
-        self.guard = FoxgloveGuard("ws://127.0.0.1:0", host, port, token, allowed_origins)
+        self.guard = FoxgloveGuard(
+            "ws://127.0.0.1:0", host, port, token, allowed_origins, insecure=insecure
+        )
         self._fg = foxglove
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
@@ -111,9 +116,26 @@ class FoxgloveSink:
 
 
 def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
-    """A FoxgloveSink with the command line's token (or $UCR_FOXGLOVE_TOKEN) and origins."""
-    token = getattr(args, "serve_token", None) or os.environ.get(ENV_SERVE_TOKEN) or None
-    return FoxgloveSink(host, port, token=token, allowed_origins=args.allow_origin or ())
+    """A FoxgloveSink with the token of ``--serve-token-file`` (or $UCR_FOXGLOVE_TOKEN), the
+    allowed origins and ``--insecure``. GuardError for a token given on the command line."""
+    if getattr(args, "serve_token", None):
+        raise GuardError(
+            "--serve-token is refused: a token on the command line is visible to every user in "
+            f"/proc; use --serve-token-file FILE (mode 0600) or ${ENV_SERVE_TOKEN}"
+        )
+    token = os.environ.get(ENV_SERVE_TOKEN) or None
+    if getattr(args, "serve_token_file", None):
+        try:
+            token = read_token_file(args.serve_token_file)
+        except AuthConfigError as exc:
+            raise GuardError(str(exc)) from None
+    return FoxgloveSink(
+        host,
+        port,
+        token=token,
+        allowed_origins=args.allow_origin or (),
+        insecure=getattr(args, "insecure", False),
+    )
 
 
 def run(args: Any) -> int:
@@ -122,8 +144,8 @@ def run(args: Any) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
-        client = connect(args.url, args.token, timeout=args.timeout)
-    except ApiError as exc:
+        client = connect_daemon(args)
+    except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     sink = None

@@ -1,13 +1,16 @@
 """The door in front of the Foxglove server: foxglove-sdk's server cannot check a token, an
 ``Origin`` or a ``Host`` header, so it listens on a private loopback port and this small
-WebSocket proxy (``websockets``) takes the public address and checks every opening handshake:
+WebSocket proxy (``websockets``) takes the public address and checks every opening handshake
+with the same rules as the daemon's API (one implementation: :mod:`host.api.guard` for Origin,
+Host and path, :mod:`host.api.auth` for tokens and the bind policy):
 
 - ``Origin``: refused (403) unless absent (desktop apps, scripts) or listed (``allowed_origins``,
   e.g. ``https://app.foxglove.dev``): a web page in a local browser cannot read the robot;
-- ``Host``: on a loopback bind it must name loopback (refuses DNS-rebinding pages);
-- token: the API's rule: required for any non-loopback bind, and when given, required on loopback
-  too; presented as ``Authorization: Bearer <token>`` or, for viewers that cannot set headers, a
-  ``?token=`` query parameter; compared in constant time.
+- ``Host``: an IP literal or a name of this server (refuses DNS-rebinding pages); path ``/``;
+- token: required for any non-loopback bind (which also needs TLS or ``insecure``), and when
+  given, required on loopback too; at least 16 characters; presented as
+  ``Authorization: Bearer <token>`` or, for viewers that cannot set headers, a ``?token=`` query
+  parameter; compared in constant time.
 
 Frames are forwarded unchanged both ways (the Foxglove protocol is the server's business).
 """
@@ -15,10 +18,7 @@ Frames are forwarded unchanged both ways (the Foxglove protocol is the server's 
 from __future__ import annotations
 
 import asyncio
-import hmac
-import ipaddress
 import logging
-import socket
 import threading
 from http import HTTPStatus
 from typing import Any
@@ -29,30 +29,15 @@ from websockets.asyncio.server import ServerConnection, serve
 from websockets.exceptions import ConnectionClosed, WebSocketException
 from websockets.http11 import Request, Response
 
+from host.api.auth import AuthConfigError, Token, check_bind, check_token_text, find_token
+from host.api.guard import GuardConfigError, WebGuard
+
 log = logging.getLogger(__name__)
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # the same protocol, two names
-_LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 
 
 class GuardError(ValueError):
-    """A refused configuration (non-loopback without token, bad token)."""
-
-
-def is_loopback(host: str) -> bool:
-    """True if every address ``host`` resolves to is a loopback address."""
-    try:
-        addrs = {info[4][0] for info in socket.getaddrinfo(host, None)}
-    except OSError as exc:
-        raise GuardError(f"cannot resolve {host!r}: {exc}") from None
-    return all(ipaddress.ip_address(a.split("%")[0]).is_loopback for a in addrs)
-
-
-def check_token(token: str | None) -> None:
-    """The API's token rule: at least 8 printable characters, no spaces."""
-    if token is None:
-        return
-    if len(token) < 8 or not token.isprintable() or any(c.isspace() for c in token):
-        raise GuardError("a token needs at least 8 printable characters and no spaces")
+    """A refused configuration (non-loopback without token or TLS, bad token, bad origin)."""
 
 
 class FoxgloveGuard:
@@ -66,19 +51,27 @@ class FoxgloveGuard:
         port: int,
         token: str | None = None,
         allowed_origins: tuple[str, ...] | list[str] = (),
+        insecure: bool = False,
     ) -> None:
-        check_token(token)
-        self.loopback = is_loopback(host)
-        if not self.loopback and token is None:
-            raise GuardError(
-                f"refusing to serve Foxglove on {host} without a token (--serve-token or "
-                "$UCR_FOXGLOVE_TOKEN): anyone on the network could watch the robot"
+        try:
+            tokens = (
+                (Token(check_token_text(token, "the Foxglove token"), "read", "foxglove"),)
+                if token is not None
+                else ()
             )
+            check_bind(host, tokens, tls=False, insecure=insecure)
+            self.web = WebGuard.build(bind=host, port=port, origins=allowed_origins, path="/")
+        except (AuthConfigError, GuardConfigError) as exc:
+            msg = (
+                str(exc)
+                .replace("api.tokens", "--serve-token-file")
+                .replace("api.tls (cert, key), or set api.insecure: true", "--insecure")
+            )
+            raise GuardError(f"Foxglove server: {msg}") from None
         self.upstream = upstream
         self.host = host
         self.requested_port = port
-        self.token = token
-        self.origins = {o.rstrip("/") for o in allowed_origins}
+        self.tokens = tokens
         self.port: int | None = None
         self.refused = 0
         self.connections = 0
@@ -119,6 +112,7 @@ class FoxgloveGuard:
             ping_interval=20, ping_timeout=20, server_header="ucr-foxglove",
         ) as server:  # fmt: skip
             self.port = next(iter(server.sockets)).getsockname()[1]
+            self.web = self.web.with_port(self.port)
             self._ready.set()
             await self._stop.wait()
             server.close(close_connections=True)
@@ -130,20 +124,16 @@ class FoxgloveGuard:
         return conn.respond(status, why + "\n")
 
     def _authorize(self, conn: ServerConnection, request: Request) -> Response | None:
-        origin = request.headers.get("Origin")
-        if origin is not None and origin.rstrip("/") not in self.origins:
-            return self._refuse(
-                conn, HTTPStatus.FORBIDDEN, f"origin {origin} not allowed (--allow-origin)"
-            )
-        if self.loopback:
-            host = (request.headers.get("Host") or "").rsplit(":", 1)[0].lower()
-            if host not in _LOOPBACK_NAMES:
-                return self._refuse(conn, HTTPStatus.FORBIDDEN, f"host {host!r} is not loopback")
-        if self.token is not None:
-            scheme, _, given = request.headers.get("Authorization", "").partition(" ")
-            if scheme.lower() != "bearer":
-                given = (parse_qs(urlsplit(request.path).query).get("token") or [""])[0]
-            if not hmac.compare_digest(given.strip().encode(), self.token.encode()):
+        parts = urlsplit(request.path)
+        refusal = self.web.check(parts.path, request.headers)
+        if refusal is not None:
+            return self._refuse(conn, HTTPStatus(refusal.status), refusal.reason)
+        if self.tokens:
+            header = request.headers.get("Authorization", "")
+            if not header.lower().startswith("bearer "):
+                given = (parse_qs(parts.query).get("token") or [""])[0]
+                header = f"Bearer {given}"
+            if find_token(self.tokens, header) is None:
                 return self._refuse(conn, HTTPStatus.UNAUTHORIZED, "missing or wrong token")
         return None
 

@@ -19,7 +19,8 @@ from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
 
-from host.api.client import ApiError, connect
+from host.api.client import ApiError
+from host.client_common import CliError, connect_daemon
 from interop import ros2
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
@@ -151,8 +152,8 @@ def run(args: Any) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     try:
-        client = connect(args.url, args.token, timeout=args.timeout)
-    except ApiError as exc:
+        client = connect_daemon(args)
+    except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     sinks: list[Any] = []

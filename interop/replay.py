@@ -24,7 +24,8 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2._dynamic import generate_dynamic
 
-from host.api.client import ApiError, connect
+from host.api.client import ApiError
+from host.client_common import CliError, connect_daemon
 from interop import ros2
 from interop.live import robot_for
 from interop.sinks import Fanout
@@ -235,7 +236,7 @@ def execute(args: Any) -> int:
         if args.robot:
             robot = load(args.robot)
         else:
-            client = connect(args.url, args.token, timeout=args.timeout)
+            client = connect_daemon(args)
             robot, _ = robot_for(client, None)
         plan = make_plan(args.file, robot, args.sample_period, args.lead_in)
         print(describe(plan))
@@ -243,7 +244,7 @@ def execute(args: Any) -> int:
             print("dry run: nothing moved (add --go to run it on the robot)")
             return 0
         if client is None:
-            client = connect(args.url, args.token, timeout=args.timeout)
+            client = connect_daemon(args)
         live = set(client.status().get("segments") or [])
         missing = [n for n in plan.segments if n not in live]
         if missing:
@@ -264,7 +265,7 @@ def execute(args: Any) -> int:
               f"{result.get('duration') or 0:.2f} s"
               + (" (retimed)" if result.get("retimed") else ""))  # fmt: skip
         return 0 if result.get("state") == "succeeded" else 1
-    except (RecordingError, UcrdfError) as exc:
+    except (RecordingError, UcrdfError, CliError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     except ApiError as exc:

@@ -17,7 +17,7 @@ from interop.guard import GuardError  # noqa: E402
 from interop.topics import Message  # noqa: E402
 
 PROTO = ["foxglove.sdk.v1"]
-TOKEN = "s3cret-token-42"
+TOKEN = "s3cret-token-42-foxglove"  # the API's rule: 16+ characters
 
 
 @pytest.fixture
@@ -77,7 +77,7 @@ def test_non_loopback_host_header_is_refused_on_loopback(sink_factory):
             b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
             b"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
         )
-        assert s.recv(100).startswith(b"HTTP/1.1 403")
+        assert s.recv(100).startswith(b"HTTP/1.1 421")  # host.api.guard: not a name of ours
 
 
 def test_token_is_required_when_set_as_header_or_query(sink_factory):
@@ -92,13 +92,40 @@ def test_token_is_required_when_set_as_header_or_query(sink_factory):
     assert _hello(f"{sink.url}/?token={TOKEN}")["channels"]
 
 
-def test_non_loopback_address_needs_a_token(sink_factory):
+def test_non_loopback_address_needs_a_token_and_tls_or_insecure(sink_factory):
     with pytest.raises(GuardError, match="without a token"):
         sink_factory(host="0.0.0.0")
-    with pytest.raises(GuardError, match="8 printable"):
+    with pytest.raises(GuardError, match="at least 16 characters"):
         sink_factory(host="0.0.0.0", token="short")
-    sink = sink_factory(host="0.0.0.0", token=TOKEN)
+    with pytest.raises(GuardError, match="without TLS.*--insecure"):
+        sink_factory(host="0.0.0.0", token=TOKEN)
+    sink = sink_factory(host="0.0.0.0", token=TOKEN, insecure=True)
     url = f"ws://127.0.0.1:{sink.port}"
     with pytest.raises(InvalidStatus):
         _hello(url)
     assert _hello(url, additional_headers={"Authorization": f"Bearer {TOKEN}"})["channels"]
+
+
+def test_a_token_on_the_command_line_is_refused(tmp_path):
+    """Like every ucr command: a token in argv is visible in /proc; a 0600 file is the way."""
+    import argparse
+    import os
+
+    from interop.foxglove import sink_from_args
+
+    args = argparse.Namespace(serve_token=TOKEN, serve_token_file=None, allow_origin=[])
+    with pytest.raises(GuardError, match="--serve-token-file"):
+        sink_from_args("127.0.0.1", 0, args)
+    f = tmp_path / "tok"
+    f.write_text(TOKEN + "\n")
+    os.chmod(f, 0o644)
+    args = argparse.Namespace(serve_token=None, serve_token_file=str(f), allow_origin=[])
+    with pytest.raises(GuardError, match="chmod 600"):
+        sink_from_args("127.0.0.1", 0, args)
+    os.chmod(f, 0o600)
+    sink = sink_from_args("127.0.0.1", 0, args)
+    try:
+        with pytest.raises(InvalidStatus):
+            _hello(sink.url)
+    finally:
+        sink.close()
