@@ -42,7 +42,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "clear-fault", help="clear a segment's FAULT (it then holds until resumed)"
     )
-    _common(p)
+    add_connection_args(p)
     p.add_argument("segment", nargs="?", help="bendable name (default: every segment)")
     p.set_defaults(func=cmd_clear_fault)
 
