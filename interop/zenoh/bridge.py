@@ -1,9 +1,10 @@
 """``ucr zenoh``: the robot as a ROS 2 node on a Zenoh network, in rmw_zenoh's wire format.
 
 A client of the daemon's API in its own process (like ``ucr record``):
-:class:`~interop.live.LiveFeed` turns the daemon's stream into the ROS 2 messages of :mod:`interop.topics`, :class:`ZenohSink`
-publishes them under the robot's namespace. With ``--enable-commands`` a subscription on
-``<controller>/joint_trajectory`` feeds :class:`~interop.zenoh.commands.TrajectoryCommands`.
+:class:`~interop.live.LiveFeed` turns the daemon's stream into the ROS 2 messages of
+:mod:`interop.topics`, :class:`ZenohSink` publishes them under the robot's namespace. With
+``--enable-commands`` a subscription on ``<controller>/joint_trajectory`` feeds
+:class:`~interop.zenoh.commands.TrajectoryCommands`.
 """
 
 from __future__ import annotations
