@@ -31,24 +31,71 @@ def _openssl(*args: str, cwd) -> None:
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory):
     d = tmp_path_factory.mktemp("pki")
-    _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out",
-             "ca.pem", "-days", "2", "-subj", "/CN=ucr test CA", cwd=d)  # fmt: skip
-    _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "router.key", "-out",
-             "router.csr", "-subj", "/CN=localhost", cwd=d)  # fmt: skip
+    _openssl(
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=ucr test CA",
+        cwd=d,
+    )
+    _openssl(
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "router.key",
+        "-out",
+        "router.csr",
+        "-subj",
+        "/CN=localhost",
+        cwd=d,
+    )
     (d / "ext.cnf").write_text(
         "subjectAltName=IP:127.0.0.1,DNS:localhost\nbasicConstraints=CA:FALSE\n"
         "keyUsage=digitalSignature,keyEncipherment\nextendedKeyUsage=serverAuth,clientAuth\n"
     )
-    _openssl("x509", "-req", "-in", "router.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-             "-CAcreateserial", "-out", "router.pem", "-days", "2", "-extfile", "ext.cnf", cwd=d)  # fmt: skip
+    _openssl(
+        "x509",
+        "-req",
+        "-in",
+        "router.csr",
+        "-CA",
+        "ca.pem",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-out",
+        "router.pem",
+        "-days",
+        "2",
+        "-extfile",
+        "ext.cnf",
+        cwd=d,
+    )
     port = free_port()
     router = {
         "mode": "router",
         "listen": {"endpoints": [f"tls/127.0.0.1:{port}"]},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {"listen_certificate": str(d / "router.pem"),
-                                       "listen_private_key": str(d / "router.key")}}},
-    }  # fmt: skip
+        "transport": {
+            "link": {
+                "tls": {
+                    "listen_certificate": str(d / "router.pem"),
+                    "listen_private_key": str(d / "router.key"),
+                }
+            }
+        },
+    }
     client = {
         "mode": "client",
         "connect": {"endpoints": [f"tls/127.0.0.1:{port}"]},
@@ -73,12 +120,23 @@ def test_bridge_over_tls_reaches_a_subscriber_with_the_ca_only(rig, pki):
     bridge = None
     try:
         assert wait_for(lambda: _connectable(port), 30)
-        bridge = ucr("zenoh", "--url", srv.url, "--zenoh-config", str(d / "client.json5"),
-                     "--namespace", "/tls_robot")  # fmt: skip
+        bridge = ucr(
+            "zenoh",
+            "--url",
+            srv.url,
+            "--zenoh-config",
+            str(d / "client.json5"),
+            "--namespace",
+            "/tls_robot",
+        )
         line = bridge.stderr.readline()
         assert "mode client" in line and f"tls/127.0.0.1:{port}" in line, line
-        key = rmw.topic_key(0, "/tls_robot/joint_states", "sensor_msgs/msg/JointState",
-                            type_hash("sensor_msgs/msg/JointState"))  # fmt: skip
+        key = rmw.topic_key(
+            0,
+            "/tls_robot/joint_states",
+            "sensor_msgs/msg/JointState",
+            type_hash("sensor_msgs/msg/JointState"),
+        )
         got: list[bytes] = []
         with zenoh.open(zenoh.Config.from_file(str(d / "client.json5"))) as session:
             sub = session.declare_subscriber(key, lambda s: got.append(s.payload.to_bytes()))
@@ -96,8 +154,13 @@ def test_bridge_over_tls_reaches_a_subscriber_with_the_ca_only(rig, pki):
             "try:\n    zenoh.open(c)\nexcept Exception as e:\n    print('refused', e)\n"
             "else:\n    print('joined')\n"
         )
-        out = subprocess.run([sys.executable, "-c", probe, str(d / "client.json5")],
-                             capture_output=True, text=True, timeout=60, cwd=REPO)  # fmt: skip
+        out = subprocess.run(
+            [sys.executable, "-c", probe, str(d / "client.json5")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
         assert out.stdout.startswith("refused"), out.stdout + out.stderr[-1000:]
     finally:
         if bridge is not None:
