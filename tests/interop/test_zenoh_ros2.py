@@ -168,8 +168,7 @@ def measured(client, name: str, timeout: float = 30.0) -> tuple[float, float]:
 @pytest.fixture(scope="module")
 def bridge(rig, router):
     """`ucr zenoh --enable-commands` for softrobot3 (namespace from the U(C)RDF)."""
-    _, srv = rig
-    proc, line = start_bridge(srv.url, router, "--enable-commands")
+    proc, line = start_bridge(rig.ensure_whole(), router, "--enable-commands")
     try:
         yield proc, line
     finally:
@@ -181,8 +180,7 @@ def bridge(rig, router):
 def client(rig):
     from host.api.client import connect
 
-    _, srv = rig
-    c = connect(srv.url)
+    c = connect(rig.url)
     yield c
     c.close()
 
@@ -317,8 +315,7 @@ def test_joint_trajectory_beyond_limits_is_refused_by_the_daemon(bridge, router,
 def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
     rig, router, msgdir, client
 ):
-    _, srv = rig
-    proc, line = start_bridge(srv.url, router, "--namespace", "/watch_only")
+    proc, line = start_bridge(rig.url, router, "--namespace", "/watch_only")
     assert "commands off" in line
     try:
         assert wait_for(lambda: "/watch_only/joint_states" in topic_list(router), 60, step=0.5)
@@ -357,7 +354,7 @@ def rig2():
         deadline = time.monotonic() + 20
         while True:
             try:
-                daemon = Daemon(robot, port=chain.host_port).start()
+                daemon = Daemon(robot, port=chain.host_port, rate_hz=50.0).start()
                 break
             except DaemonError:
                 if time.monotonic() > deadline:

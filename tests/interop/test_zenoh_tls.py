@@ -115,7 +115,7 @@ def test_bridge_over_tls_reaches_a_subscriber_with_the_ca_only(rig, pki):
     from interop.zenoh import rmw
 
     d, port = pki
-    _, srv = rig
+    url = rig.ensure_whole()
     router = ucr("zenoh-router", "--zenoh-config", str(d / "router.json5"))
     bridge = None
     try:
@@ -123,7 +123,7 @@ def test_bridge_over_tls_reaches_a_subscriber_with_the_ca_only(rig, pki):
         bridge = ucr(
             "zenoh",
             "--url",
-            srv.url,
+            url,
             "--zenoh-config",
             str(d / "client.json5"),
             "--namespace",
