@@ -19,6 +19,7 @@ _AREAS = (
     "tools.demo",
     "host.client_cli",
     "interop.cli",
+    "interop.zenoh.cli",
 )
 
 

@@ -1,0 +1,159 @@
+"""``ucr zenoh`` (the robot as a ROS 2 node over rmw_zenoh's protocol) and ``ucr zenoh-router``
+(a Zenoh router with rmw_zenoh's router defaults, for a network with no ROS 2 machine running
+``rmw_zenohd``). Without the optional ``ros2`` dependencies each says so in one line."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from typing import Any
+
+NEEDS = ("zenoh", "mcap_ros2", "rosbags")
+
+
+def missing_dependency() -> str | None:
+    for mod in NEEDS:
+        try:
+            importlib.import_module(mod)
+        except ImportError:
+            return mod
+    return None
+
+
+def _guard(fn: Any) -> Any:
+    def run(args: argparse.Namespace) -> int:
+        mod = missing_dependency()
+        if mod:
+            print(
+                f"ucr: `ucr {args.command}` needs the optional ROS 2 dependencies (module "
+                f"{mod!r} is missing): pip install 'ucr[ros2]'",
+                file=sys.stderr,
+            )
+            return 1
+        return int(fn(args) or 0)
+
+    return run
+
+
+def _bridge(args: argparse.Namespace) -> int:
+    from interop.zenoh.bridge import run  # noqa: PLC0415 - after the dependency check
+
+    return run(args)
+
+
+def _router(args: argparse.Namespace) -> int:
+    from interop.zenoh.router import run  # noqa: PLC0415
+
+    return run(args)
+
+
+def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on, repeatable (peer: tcp/localhost:0; "
+        "router: tcp/[::]:7447)",
+    )
+    p.add_argument(
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to, repeatable (peer/client: "
+        "tcp/localhost:7447, the host's router)",
+    )
+    p.add_argument(
+        "--zenoh-config",
+        default=None,
+        metavar="FILE",
+        help="Zenoh JSON5 configuration (TLS, access control; default "
+        "$ZENOH_SESSION_CONFIG_URI); the flags above override it",
+    )
+    p.add_argument(
+        "--multicast-scouting",
+        action="store_true",
+        help="enable UDP multicast scouting (off, as in rmw_zenoh)",
+    )
+
+
+def register(subparsers: Any) -> None:
+    from host.api import ENV_TOKEN, ENV_URL, default_url  # noqa: PLC0415 - fast `ucr --help`
+    from interop.zenoh.bridge import DISTROS  # noqa: PLC0415 - no zenoh import there
+
+    p = subparsers.add_parser(
+        "zenoh",
+        help="the robot as a ROS 2 node on Zenoh (rmw_zenoh protocol; no ROS install)",
+        description="Publish the live robot in rmw_zenoh's wire format: /joint_states, /tf, "
+        "/tf_static, /robot_description (transient local), /ucr/arcs, /ucr/segments, "
+        "/ucr/loop_stats, /rosout, … under the robot's namespace. ROS 2 users set "
+        "RMW_IMPLEMENTATION=rmw_zenoh_cpp (docs/ros2.md). Commands from ROS 2 only with "
+        "--enable-commands.",
+    )
+    p.add_argument(
+        "--namespace", default=None, help="ROS namespace (default: /<robot name> from the U(C)RDF)"
+    )
+    p.add_argument(
+        "--domain-id",
+        type=int,
+        default=int(os.environ.get("ROS_DOMAIN_ID") or 0),
+        help="ROS domain id (default $ROS_DOMAIN_ID or 0)",
+    )
+    p.add_argument(
+        "--distro",
+        choices=DISTROS,
+        default="jazzy",
+        help="ROS 2 distribution of the peers (jazzy; all listed share the message "
+        "definitions ucr ships)",
+    )
+    p.add_argument("--node-name", default="ucr_bridge", help="ROS node name (ucr_bridge)")
+    p.add_argument(
+        "--mode",
+        choices=("peer", "client"),
+        default=None,
+        help="Zenoh mode (peer, as rmw_zenoh sessions; client: through a router only)",
+    )
+    _zenoh_options(p, router=False)
+    p.add_argument(
+        "--enable-commands",
+        action="store_true",
+        help="accept trajectory_msgs/JointTrajectory on <namespace>/<controller>/"
+        "joint_trajectory (off: the robot ignores ROS 2)",
+    )
+    p.add_argument(
+        "--controller",
+        default="jtc",
+        help="daemon trajectory controller, also the topic's prefix (jtc)",
+    )
+    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument(
+        "--subdivisions",
+        type=int,
+        default=10,
+        help="pseudo-rigid links per bendable in /robot_description and /tf (10)",
+    )
+    p.add_argument(
+        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+    )
+    p.add_argument(
+        "--url", default=None, help=f"daemon API URL (default ${ENV_URL} or {default_url()})"
+    )
+    p.add_argument("--token", default=None, help=f"API token (default ${ENV_TOKEN})")
+    p.add_argument("--timeout", type=float, default=5.0, help="API reply timeout, s (5)")
+    p.add_argument(
+        "--robot", default=None, help="U(C)RDF file (default: the file the daemon reports)"
+    )
+    p.set_defaults(func=_guard(_bridge))
+
+    p = subparsers.add_parser(
+        "zenoh-router",
+        help="a Zenoh router with rmw_zenoh's defaults (when no rmw_zenohd runs)",
+        description="Run a Zenoh router as `ros2 run rmw_zenoh_cpp rmw_zenohd` does (listen "
+        "tcp/[::]:7447, gossip scouting, multicast off) for a network without ROS 2 installed.",
+    )
+    _zenoh_options(p, router=True)
+    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.set_defaults(func=_guard(_router))

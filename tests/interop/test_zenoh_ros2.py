@@ -1,0 +1,415 @@
+"""`ucr zenoh` against the emulated chain, seen by a ROS 2 client nobody here wrote: ROBOTIS'
+zenoh-ros2-sdk (an independent Python implementation of rmw_zenoh's protocol) lists our topics,
+decodes /joint_states and commands the robot; Zenoh's own advanced subscriber (what rmw_zenoh
+uses for TRANSIENT_LOCAL) receives /robot_description late. All traffic stays on 127.0.0.1: a
+router listens there, every session connects to it, multicast scouting is off."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from .conftest import REPO, stop, ucr, wait_for
+
+pytest.importorskip("zenoh", reason="the 'ros2' extra (eclipse-zenoh) is not installed")
+pytest.importorskip("rosbags", reason="the 'ros2' extra (rosbags) is not installed")
+pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk (dev extra) is not installed")
+
+pytestmark = pytest.mark.timeout(300)
+PEER = str(Path(__file__).with_name("zenoh_sdk_peer.py"))
+NS = "/softrobot3"
+EXPECTED = {
+    "/softrobot3/joint_states": "sensor_msgs/msg/JointState",
+    "/softrobot3/tf": "tf2_msgs/msg/TFMessage",
+    "/softrobot3/tf_static": "tf2_msgs/msg/TFMessage",
+    "/softrobot3/robot_description": "std_msgs/msg/String",
+    "/softrobot3/ucr/arcs": "visualization_msgs/msg/MarkerArray",
+    "/softrobot3/ucr/segments": "diagnostic_msgs/msg/DiagnosticArray",
+    "/softrobot3/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
+    "/rosout": "rcl_interfaces/msg/Log",
+}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def router():
+    """A Zenoh router on loopback (`ucr zenoh-router`); yields its ``host:port``."""
+    port = free_port()
+    proc = ucr("zenoh-router", "--listen", f"tcp/127.0.0.1:{port}")
+    try:
+        assert wait_for(lambda: _connectable(port), 30), proc.stderr.read() if proc.poll() else ""
+        yield f"127.0.0.1:{port}"
+    finally:
+        stop(proc)
+
+
+def _connectable(port: int) -> bool:
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+        return True
+    except OSError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def msgdir(tmp_path_factory):
+    """The SDK's local message folder (``<pkg>/msg/<Type>.msg``) from ucr's one copy."""
+    from interop import ros2
+
+    root = tmp_path_factory.mktemp("sdk_msgs")
+    for p in ros2.MSG_DIR.glob("*/*.msg"):
+        d = root / p.parent.name / "msg"
+        d.mkdir(parents=True, exist_ok=True)
+        (d / p.name).write_text(p.read_text())
+    return str(root)
+
+
+def start_bridge(url: str, router: str, *extra: str):
+    """`ucr zenoh` as its own process, connected to the loopback router only."""
+    proc = ucr(
+        "zenoh", "--url", url, "--connect", f"tcp/{router}", "--listen", "tcp/127.0.0.1:0", *extra
+    )
+    line = proc.stderr.readline()
+    assert "ROS 2 node" in line, line + (proc.stderr.read() if proc.poll() is not None else "")
+    return proc, line
+
+
+def sdk(router: str, msgdir: str, *args: str, timeout: float = 90) -> subprocess.CompletedProcess:
+    env = {**os.environ, "ZENOH_ROS2_SDK_CACHE": str(Path(msgdir) / "cache")}
+    return subprocess.run(
+        [sys.executable, PEER, router, msgdir, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+        env=env,
+    )
+
+
+def topic_list(router: str) -> dict[str, str]:
+    """`zenoh-ros2 topic list -t` (the SDK's own CLI) as {topic: type}."""
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from zenoh_ros2_sdk.cli import main; sys.exit(main())",
+            "--router",
+            router,
+            "--no-daemon",
+            "--timeout",
+            "1.0",
+            "topic",
+            "list",
+            "-t",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+    )
+    topics = {}
+    for line in out.stdout.splitlines():
+        name, _, rest = line.partition(" [")
+        if rest:
+            topics[name.strip()] = rest.rstrip("]")
+    return topics
+
+
+def move(client, segments: dict, tries: int = 4) -> None:
+    """Run one waypoint to the end; retried when a goal is aborted by a topology change (an
+    emulated segment missing replies on a heavily loaded machine)."""
+    res: dict = {}
+    for _ in range(tries):
+        if client.status()["manual_control"]:
+            client.hand_back()
+        pts = [{"time_from_start": 1.5, "segments": segments}]
+        try:
+            res = client.send_trajectory(pts, timeout=60)
+        except Exception:  # noqa: BLE001 - unavailable while rebuilding: try again
+            time.sleep(1.0)
+            continue
+        if res["state"] == "succeeded":
+            return
+        time.sleep(1.0)
+    raise AssertionError(f"goal never succeeded: {res}")
+
+
+def straighten(client, names=("segment_1", "segment_2", "segment_3")) -> None:
+    move(client, {n: {"kx": 0.0, "ky": 0.0} for n in names})
+
+
+def measured(client, name: str, timeout: float = 30.0) -> tuple[float, float]:
+    """(kappa, phi) of one segment; waits out a moment without a valid state (the daemon
+    rebuilding after a segment missed replies on a heavily loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        st = client.status()
+        js = st["joint_states"].get(name)
+        if js is not None and js["valid"] and st["state"] == "connected":
+            return js["kappa"], js["phi"]
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no valid state for {name}: {st}")
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def bridge(rig, router):
+    """`ucr zenoh --enable-commands` for softrobot3 (namespace from the U(C)RDF)."""
+    proc, line = start_bridge(rig.ensure_whole(), router, "--enable-commands")
+    try:
+        yield proc, line
+    finally:
+        if proc.poll() is None:
+            stop(proc)
+
+
+@pytest.fixture
+def client(rig):
+    from host.api.client import connect
+
+    c = connect(rig.url)
+    yield c
+    c.close()
+
+
+def test_sdk_topic_list_shows_our_topics_with_their_types(bridge, router):
+    _, line = bridge
+    assert (
+        f"node {NS}/ucr_bridge" in line and "commands on /softrobot3/jtc/joint_trajectory" in line
+    )
+    got: dict[str, str] = {}
+
+    def listed():
+        got.clear()
+        got.update(topic_list(router))
+        return all(got.get(t) == ty for t, ty in want.items())
+
+    want = {**EXPECTED, "/softrobot3/jtc/joint_trajectory": "trajectory_msgs/msg/JointTrajectory"}
+    assert wait_for(listed, 60, step=0.5), got
+
+
+def test_sdk_subscriber_decodes_joint_states_of_the_emulated_robot(bridge, router, msgdir, client):
+    goal = {"segment_2": {"kappa": 1.5, "phi": 0.7}}
+    move(client, goal)
+    kappa, phi = measured(client, "segment_2")
+    out = sdk(router, msgdir, "echo", f"{NS}/joint_states", "sensor_msgs/msg/JointState", "3")
+    assert out.returncode == 0, out.stderr[-2000:]
+    msgs = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    assert len(msgs) >= 3
+    m = msgs[-1]
+    assert m["name"] == [f"segment_{i}/{a}" for i in (1, 2, 3) for a in ("kappa", "phi")]
+    assert m["header"]["frame_id"] == "base"
+    assert abs(m["header"]["stamp"]["sec"] - time.time()) < 60
+    pos = dict(zip(m["name"], m["position"], strict=True))
+    assert pos["segment_2/kappa"] == pytest.approx(kappa, abs=0.05)
+    assert pos["segment_2/phi"] == pytest.approx(phi, abs=0.05)
+    assert pos["segment_2/kappa"] == pytest.approx(1.5, abs=0.1)
+    straighten(client)
+
+
+def test_robot_description_is_transient_local_for_a_late_subscriber(bridge, router):
+    """Zenoh's advanced subscriber with history (rmw_zenoh's TRANSIENT_LOCAL subscription),
+    declared long after the bridge published the URDF once, still receives it."""
+    import zenoh
+    import zenoh.ext
+
+    from interop import ros2
+    from interop.ros2.type_hash import type_hash
+    from interop.zenoh import rmw
+    from ucrdf.export import export_urdf
+    from ucrdf.parser import load
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/{router}"]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    key = rmw.topic_key(
+        0, f"{NS}/robot_description", "std_msgs/msg/String", type_hash("std_msgs/msg/String")
+    )
+    got: list[bytes] = []
+    atts: list[bytes] = []
+
+    def on_sample(s):
+        got.append(s.payload.to_bytes())
+        if s.attachment is not None:
+            atts.append(s.attachment.to_bytes())
+
+    with zenoh.open(conf) as session:
+        sub = zenoh.ext.declare_advanced_subscriber(
+            session,
+            key,
+            on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
+        assert wait_for(lambda: got, 30), "no /robot_description from the publication cache"
+        sub.undeclare()
+    text = ros2.codec("std_msgs/msg/String").decode(got[0]).data
+    assert text == export_urdf(load(REPO / "robots" / "softrobot3.ucrdf"), 10)
+    att = rmw.Attachment.decode(atts[0])
+    assert len(att.gid) == 16 and att.sequence >= 1
+
+
+def test_joint_trajectory_from_sdk_moves_the_robot_when_enabled(bridge, router, msgdir, client):
+    spec = {"joint_names": ["segment_1/kappa", "segment_1/phi"], "points": [[1.0, [2.0, -0.4]]]}
+    for _ in range(3):  # again only if a topology change aborted the goal (loaded machine)
+        out = sdk(router, msgdir, "trajectory", f"{NS}/jtc/joint_trajectory", json.dumps(spec))
+        assert out.returncode == 0, out.stderr[-2000:]
+        if wait_for(lambda: abs(measured(client, "segment_1")[0] - 2.0) < 0.05, 20):
+            break
+    assert measured(client, "segment_1")[0] == pytest.approx(2.0, abs=0.05)
+    assert measured(client, "segment_1")[1] == pytest.approx(-0.4, abs=0.05)
+    straighten(client)
+
+
+def test_joint_trajectory_beyond_limits_is_refused_by_the_daemon(bridge, router, msgdir, client):
+    """Same limits as every other source: kappa_max (3.31 1/m) exceeded -> rejected, no motion,
+    and the refusal is logged where ROS 2 users look (/rosout, read here by the SDK)."""
+    import threading
+
+    before = measured(client, "segment_3")
+    spec = {"joint_names": ["segment_3/kappa", "segment_3/phi"], "points": [[1.0, [50.0, 0.0]]]}
+    log: dict = {}
+    watcher = threading.Thread(
+        target=lambda: log.update(
+            out=sdk(
+                router,
+                msgdir,
+                "echo",
+                "/rosout",
+                "rcl_interfaces/msg/Log",
+                "1",
+                "--until",
+                "refused by the daemon (rejected)",
+            )
+        )
+    )
+    watcher.start()
+    time.sleep(4.0)  # the watcher's subscription is discovered
+    out = sdk(router, msgdir, "trajectory", f"{NS}/jtc/joint_trajectory", json.dumps(spec))
+    assert out.returncode == 0, out.stderr[-2000:]
+    watcher.join(100)
+    assert log["out"].returncode == 0, log["out"].stdout[-2000:] + log["out"].stderr[-2000:]
+    entry = json.loads(
+        next(ln for ln in log["out"].stdout.splitlines() if "refused by the daemon" in ln)
+    )
+    assert entry["level"] == 40 and entry["name"] == "ucr.softrobot3.commands"
+    assert "kappa_max" in entry["msg"] or "limit" in entry["msg"], entry["msg"]
+    assert measured(client, "segment_3")[0] == pytest.approx(before[0], abs=0.02)
+    assert client.status()["running_goals"] == []
+
+
+def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
+    rig, router, msgdir, client
+):
+    proc, line = start_bridge(rig.url, router, "--namespace", "/watch_only")
+    assert "commands off" in line
+    try:
+        assert wait_for(lambda: "/watch_only/joint_states" in topic_list(router), 60, step=0.5)
+        assert "/watch_only/jtc/joint_trajectory" not in topic_list(router)
+        before = measured(client, "segment_2")
+        spec = {"joint_names": ["segment_2/kappa", "segment_2/phi"], "points": [[1.0, [2.5, 1.0]]]}
+        out = sdk(
+            router, msgdir, "trajectory", "/watch_only/jtc/joint_trajectory", json.dumps(spec), "3"
+        )
+        assert out.returncode == 0, out.stderr[-2000:]
+        time.sleep(3.0)
+        assert measured(client, "segment_2")[0] == pytest.approx(before[0], abs=0.02)
+        assert client.status()["running_goals"] == []
+    finally:
+        code, _, err = stop(proc)
+    assert code == 0, err
+    assert "JointTrajectory" not in err
+    assert wait_for(
+        lambda: not any(t.startswith("/watch_only/") for t in topic_list(router)), 30, step=0.5
+    ), topic_list(router)
+
+
+@pytest.fixture(scope="module")
+def rig2():
+    """A second emulated robot (softrobot2: 2 segments) with its own daemon and API."""
+    from host.api.server import ApiServer
+    from host.daemon import Daemon, DaemonError
+    from tools.emulator import EmulatedChain
+    from tools.segment_config import configs
+    from ucrdf.parser import load
+
+    robot = load(REPO / "robots" / "softrobot2.ucrdf")
+    chain = EmulatedChain(2, config_for=configs(robot))
+    daemon = srv = None
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                daemon = Daemon(robot, port=chain.host_port, rate_hz=50.0).start()
+                break
+            except DaemonError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.2)
+        srv = ApiServer(daemon, "127.0.0.1", 0).start()
+        yield daemon, srv
+    finally:
+        if srv is not None:
+            srv.stop()
+        if daemon is not None:
+            daemon.stop()
+        chain.close()
+
+
+def test_two_robots_on_one_network_stay_apart_by_namespace(bridge, rig2, router, msgdir, client):
+    from host.api.client import connect
+
+    _, srv2 = rig2
+    proc2, line = start_bridge(srv2.url, router, "--enable-commands")
+    assert "node /softrobot2/ucr_bridge" in line
+    c2 = connect(srv2.url)
+    try:
+        names2 = c2.status()["segments"]
+        assert wait_for(
+            lambda: (
+                "/softrobot2/joint_states" in topic_list(router)
+                and "/softrobot3/joint_states" in topic_list(router)
+            ),
+            60,
+            step=0.5,
+        )
+        before3 = {n: measured(client, n) for n in ("segment_1", "segment_2")}
+        spec = {
+            "joint_names": [f"{names2[0]}/kappa", f"{names2[0]}/phi"],
+            "points": [[1.0, [1.8, 0.9]]],
+        }
+        for _ in range(3):  # again only if a topology change aborted the goal
+            out = sdk(
+                router, msgdir, "trajectory", "/softrobot2/jtc/joint_trajectory", json.dumps(spec)
+            )
+            assert out.returncode == 0, out.stderr[-2000:]
+            if wait_for(lambda: abs(measured(c2, names2[0])[0] - 1.8) < 0.05, 20):
+                break
+        assert measured(c2, names2[0])[0] == pytest.approx(1.8, abs=0.05)
+        for n, (k, _) in before3.items():  # robot 3 never saw robot 2's command
+            assert measured(client, n)[0] == pytest.approx(k, abs=0.02)
+        # each robot's joint states stay on its own topic
+        out3 = sdk(
+            router, msgdir, "echo", "/softrobot2/joint_states", "sensor_msgs/msg/JointState", "1"
+        )
+        m = json.loads(next(ln for ln in out3.stdout.splitlines() if ln.startswith("{")))
+        assert m["name"] == [f"{n}/{a}" for n in names2 for a in ("kappa", "phi")]
+        pos = dict(zip(m["name"], m["position"], strict=True))
+        assert math.isclose(pos[f"{names2[0]}/kappa"], 1.8, abs_tol=0.1)
+    finally:
+        c2.close()
+        stop(proc2)
