@@ -103,7 +103,8 @@ def run(args: Any) -> int:
     """The ``ucr zenoh`` command (dependencies already checked)."""
     import zenoh  # noqa: PLC0415
 
-    from host.api.client import ApiError, connect  # noqa: PLC0415
+    from host.api.client import ApiError  # noqa: PLC0415
+    from host.client_common import CliError, connect_daemon  # noqa: PLC0415
     from interop.live import FeedError, LiveFeed, robot_for  # noqa: PLC0415
     from interop.topics import RobotTopics  # noqa: PLC0415
     from interop.zenoh import config  # noqa: PLC0415
@@ -129,8 +130,8 @@ def run(args: Any) -> int:
         print(f"ucr: {exc}", file=sys.stderr)
         return 2
     try:
-        client = connect(args.url, args.token, timeout=args.timeout)
-    except ApiError as exc:
+        client = connect_daemon(args)
+    except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     session = node = commands = None

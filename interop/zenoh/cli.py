@@ -81,7 +81,7 @@ def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
 
 
 def register(subparsers: Any) -> None:
-    from host.api import ENV_TOKEN, ENV_URL, default_url  # noqa: PLC0415 - fast `ucr --help`
+    from host.client_common import add_connection_args  # noqa: PLC0415 - fast `ucr --help`
     from interop.zenoh.bridge import DISTROS  # noqa: PLC0415 - no zenoh import there
 
     p = subparsers.add_parser(
@@ -138,11 +138,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
-    p.add_argument(
-        "--url", default=None, help=f"daemon API URL (default ${ENV_URL} or {default_url()})"
-    )
-    p.add_argument("--token", default=None, help=f"API token (default ${ENV_TOKEN})")
-    p.add_argument("--timeout", type=float, default=5.0, help="API reply timeout, s (5)")
+    add_connection_args(p)  # --url, --token-file, --ca, --timeout: as every API client
     p.add_argument(
         "--robot", default=None, help="U(C)RDF file (default: the file the daemon reports)"
     )
