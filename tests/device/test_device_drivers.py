@@ -18,11 +18,13 @@ def _run_bus(vm, driver, big, centre, steps_per_rev):
     }
     return vm(
         f"""
-import config, servos, vmfakes
+import gc, config
+cfg = config.Config({cfg!r})  # as main.build: the board rules come and go before the rest loads
+gc.collect()
+import servos, vmfakes
 from segment import Segment
 fake = vmfakes.FakeFeetech([11, 12, 13], big={big}, centre={centre})
 hal = vmfakes.BusHal(fake)
-cfg = config.Config({cfg!r})
 bus = servos.make('{driver}', cfg, hal)
 seg = Segment(hal, cfg, bus, 5)
 vmkit.run(hal, seg, 100)
