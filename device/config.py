@@ -31,7 +31,7 @@ DEFAULTS = {
     "tendon_radius": 0.05,
     "spool_radius": 0.02,
     "kappa_max": (math.pi / 3.0) / 0.316,
-    "kappa_rate_max": 10.0,
+    "kappa_rate_max": None,  # None: protocol/constants.py's DEFAULT_KAPPA_RATE_MAX (one default)
     "mass": 0.5,
     "backbone_radius": 0.003,
     "model": "pcc",
@@ -106,6 +106,13 @@ class Config:
         if cfg["servo_driver"] is None:
             cfg["servo_driver"] = default_driver
         self._validate(cfg)
+        if cfg["kappa_rate_max"] is None:  # loaded after the board rules left (heap peak)
+            import gc
+
+            gc.collect()
+            from protocol.constants import DEFAULT_KAPPA_RATE_MAX
+
+            cfg["kappa_rate_max"] = DEFAULT_KAPPA_RATE_MAX
         self.si = cfg
         self._derive(cfg)
 
@@ -118,7 +125,8 @@ class Config:
         _num(cfg, "kappa_max", 0.0, _MAX_KAPPA)
         if not cfg["kappa_max"] > 0.0:
             raise ValueError("kappa_max must be > 0 1/m, got %r" % (cfg["kappa_max"],))
-        _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
+        if cfg["kappa_rate_max"] is not None:
+            _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
         _num(cfg, "mass", 0.0, 1e3)
         _num(cfg, "backbone_radius", 0.0, 0.5)
         _num(cfg, "watchdog_ms", 10, 60000)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from host.errors import ConfigError
+from protocol import constants as C
 
 
 @dataclass
@@ -32,7 +33,8 @@ class BendableLimits:
         return self.phi_min <= -math.pi + 1e-9 and self.phi_max >= math.pi - 1e-9
 
 
-DEFAULT_KAPPA_RATE_MAX = 2.0  # 1/m/s, used when the U(C)RDF gives no kappa_rate_max
+# 1/m/s, used when the U(C)RDF gives no kappa_rate_max: one value for host, segment and spec
+DEFAULT_KAPPA_RATE_MAX = C.DEFAULT_KAPPA_RATE_MAX
 
 
 def _fparam(params: dict, key: str, robot_src: str, where: str) -> float | None:

@@ -222,3 +222,9 @@ ALIVE_SILENCE_MS = const(50)  # a segment sends ALIVE upstream after this much u
 DOWNSTREAM_TIMEOUT_MS = const(150)  # neighbour marked absent after this much silence
 EVENT_MIN_INTERVAL_MS = const(20)  # min spacing of unsolicited EVENTs from one segment
 REPLY_DEADLINE_MS = const(5)  # a segment starts its reply within this after the request's end
+
+# --- defaults shared by the spec, the host and the segments ------------------------------------
+# Curvature rate limit (1/m/s) when a U(C)RDF <limits> gives no kappa_rate_max: the host plans
+# with it (host/limits.py), the segment configuration carries it (ucrdf/checks.py) and an
+# unconfigured segment slews at it (device/config.py). One value, so the two sides never disagree.
+DEFAULT_KAPPA_RATE_MAX = 10.0

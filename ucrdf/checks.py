@@ -27,6 +27,7 @@ from pathlib import Path
 from types import ModuleType
 
 import ucrdf.models as registry
+from protocol import constants as C
 from ucrdf.boards import check as board_plans
 from ucrdf.boards import plan as board_wiring
 from ucrdf.boards import problems as board_problems
@@ -64,8 +65,9 @@ def model_registry() -> tuple[Callable[[str], type[CurvatureModel]], Callable[[]
     return get_model, available
 
 
-#: Curvature rate limit (1/m/s) when the model's <limits> gives none (the firmware's default).
-DEFAULT_KAPPA_RATE_MAX = 10.0
+#: Curvature rate limit (1/m/s) when the model's <limits> gives none: one value for the host, the
+#: segment configuration and the firmware (protocol/constants.py).
+DEFAULT_KAPPA_RATE_MAX = C.DEFAULT_KAPPA_RATE_MAX
 _DEVICE = Path(__file__).resolve().parent.parent / "device"
 #: Servo drivers of the ucr segment firmware: a bendable actuated through one of them is a ucr
 #: segment, and its configuration must be one the firmware runs. Other driver names belong to

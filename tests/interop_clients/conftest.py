@@ -187,8 +187,8 @@ NODE_DIR = Path(__file__).resolve().parent / "node"
 
 @pytest.fixture(scope="session")
 def node_clients():
-    """Directory holding the npm packages of tests/interop_clients/node (installed once with `npm ci`
-    into a cache outside the repository, keyed by the lock file) and the test scripts."""
+    """Directory holding the npm packages of tests/interop_clients/node (installed once with
+    `npm ci` into a cache outside the repository, keyed by the lock file) and the test scripts."""
     import hashlib
     import shutil
 

@@ -1,0 +1,31 @@
+"""One default, one source (issue 19): a robot file without kappa_rate_max is planned by the host
+at the same rate its segments slew at."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+from host.limits import bendable_limits
+from protocol import constants as C
+from tools.mpvm import run_code
+from tools.segment_config import config_for
+from ucrdf.parser import parse_string
+
+ROBOT_FILE = Path(__file__).resolve().parent.parent / "robots" / "softrobot2.ucrdf"
+
+
+def test_host_segment_config_and_firmware_share_the_kappa_rate_default():
+    text = re.sub(r'\s+kappa_rate_max="[^"]*"', "", ROBOT_FILE.read_text())
+    assert "kappa_rate_max" not in text
+    robot = parse_string(text)
+    name = next(iter(robot.bendables))
+    host_rate = bendable_limits(robot)[name].kappa_rate_max
+    seg_rate = config_for(robot, name)["kappa_rate_max"]
+    out = run_code(
+        "import config\nc = config.Config(None)\nprint('@@', c.si['kappa_rate_max'])\n",
+    )
+    fw_rate = float(out.split("@@", 1)[1])
+    assert host_rate == seg_rate == fw_rate == C.DEFAULT_KAPPA_RATE_MAX
+    assert math.isfinite(host_rate) and host_rate > 0
