@@ -43,8 +43,9 @@ plan_extras() {
     if [ ${#missing[@]} -eq 0 ]; then
         EXTRAS="$EXTRAS gamepad"
     else
-        local IFS=,
-        SKIPS+=("gamepad (evdev==2.0.0, source only): this machine lacks ${missing[*]}; for ucr teleop --device: sudo apt install build-essential python3-dev and rerun ./run.sh setup, or sudo apt install python3-evdev and UCR_VENV_SYSTEM_SITE=1 ./run.sh setup")
+        local lacks
+        lacks=$(printf '%s, ' "${missing[@]}")
+        SKIPS+=("gamepad (evdev==2.0.0, source only): this machine lacks ${lacks%, }; for ucr teleop --device: sudo apt install build-essential python3-dev and rerun ./run.sh setup, or sudo apt install python3-evdev and UCR_VENV_SYSTEM_SITE=1 ./run.sh setup")
     fi
 }
 
@@ -64,7 +65,7 @@ ensure_venv() {
     fi
     plan_extras
     local spec=.
-    if [ "$EXTRAS" = "$ALL_EXTRAS" ] || [ "$(tr ' ' '\n' <<<"$EXTRAS" | sort | xargs)" = "$(tr ' ' '\n' <<<"$ALL_EXTRAS" | sort | xargs)" ]; then
+    if [ "$(xargs -n1 <<<"$EXTRAS" | sort | xargs)" = "$(xargs -n1 <<<"$ALL_EXTRAS" | sort | xargs)" ]; then
         spec=".[dev]"
     elif [ -n "${EXTRAS// /}" ]; then
         spec=".[$(xargs <<<"$EXTRAS" | tr ' ' ',')]"
