@@ -194,6 +194,7 @@ def fresh_root(tar: Path, keep: bool) -> Iterator[Path]:
         # A person answers apt's question with "y"; the check cannot.
         (root / "etc" / "apt" / "apt.conf.d" / "90pi-check").write_text(
             'APT::Get::Assume-Yes "true";\nDpkg::Use-Pty "false";\n'
+            'Binary::apt::APT::Keep-Downloaded-Packages "true";\n'
         )
         yield root
     finally:
