@@ -12,7 +12,6 @@ import sys
 from pathlib import Path
 
 from host.extras import MissingPart
-
 from protocol.boards import BOARDS
 
 REPO = Path(__file__).resolve().parent.parent
