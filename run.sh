@@ -1,27 +1,91 @@
 #!/usr/bin/env bash
 # One entry point for people and CI. Creates or refreshes .venv, then runs a job.
-#   ./run.sh demo   the daemon driving an emulated 3-segment robot (no hardware needed)
-#   ./run.sh test   the whole test suite (what CI runs)
-#   ./run.sh bench  all benchmarks (on demand; prints figures)
-#   ./run.sh ucr …  any ucr command inside the environment
+#   ./run.sh demo      the daemon driving an emulated 3-segment robot (no hardware needed)
+#   ./run.sh test      the whole test suite (what CI runs)
+#   ./run.sh bench     all benchmarks (on demand; prints figures)
+#   ./run.sh ucr …     any ucr command inside the environment
+#   ./run.sh setup     only create/refresh .venv; says which optional parts were skipped and why
+#   ./run.sh pi-check  install as docs/daemon.md says inside an arm64 Debian rootfs (qemu), run it
 set -euo pipefail
 cd "$(dirname "$0")"
 VENV=${UCR_VENV:-.venv}
 PY=${PYTHON:-python3}
+ALL_EXTRAS="test emulator gamepad view record ros2"   # with gamepad: the 'dev' extra
+
+# Which optional parts (pyproject extras) to install here. Platform markers leave out what has no
+# wheel for this machine (reported by host/extras.py after the install); evdev, an sdist, is only
+# attempted where it can be built. UCR_EXTRAS="a b" overrides the choice ("" = runtime only).
+plan_extras() {
+    SKIPS=()
+    if [ -n "${UCR_EXTRAS+set}" ]; then
+        EXTRAS=${UCR_EXTRAS//,/ }
+        return
+    fi
+    EXTRAS="test emulator view record ros2"
+    local missing=()
+    if [ "$(uname -s)" != Linux ]; then
+        SKIPS+=("gamepad (evdev): Linux only; ucr teleop --keyboard works everywhere")
+        return
+    fi
+    if "$VENV/bin/python" -m pip show -q evdev >/dev/null 2>&1; then
+        EXTRAS="$EXTRAS gamepad"   # installed before: keep it pinned
+        return
+    fi
+    if "$VENV/bin/python" -c "import evdev" >/dev/null 2>&1; then
+        SKIPS+=("gamepad (evdev): not installed from PyPI; using the system's evdev (python3-evdev)")
+        return
+    fi
+    command -v cc >/dev/null 2>&1 || missing+=("a C compiler")
+    local inc
+    inc=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
+    [ -f "$inc/Python.h" ] || missing+=("Python.h")
+    [ -f /usr/include/linux/input.h ] || missing+=("the kernel headers (linux/input.h)")
+    if [ ${#missing[@]} -eq 0 ]; then
+        EXTRAS="$EXTRAS gamepad"
+    else
+        local lacks
+        lacks=$(printf '%s, ' "${missing[@]}")
+        SKIPS+=("gamepad (evdev==2.0.0, source only): this machine lacks ${lacks%, }; for ucr teleop --device: sudo apt install build-essential python3-dev and rerun ./run.sh setup, or sudo apt install python3-evdev and UCR_VENV_SYSTEM_SITE=1 ./run.sh setup")
+    fi
+}
 
 ensure_venv() {
+    if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+        echo "[setup] error: ucr needs Python >= 3.11; $PY is $("$PY" -V 2>&1)" >&2
+        exit 1
+    fi
     if [ ! -x "$VENV/bin/python" ]; then
         echo "[setup] creating virtual environment in $VENV" >&2
         "$PY" -m venv "$VENV"
     fi
-    local stamp="$VENV/.ucr-installed"
+    if [ "${UCR_VENV_SYSTEM_SITE:-0}" = 1 ]; then
+        # see the system's packages (e.g. Debian's python3-evdev) behind the pinned ones
+        sed -i 's/^include-system-site-packages = false/include-system-site-packages = true/' \
+            "$VENV/pyvenv.cfg"
+    fi
+    plan_extras
+    local spec=.
+    if [ "$(xargs -n1 <<<"$EXTRAS" | sort | xargs)" = "$(xargs -n1 <<<"$ALL_EXTRAS" | sort | xargs)" ]; then
+        spec=".[dev]"
+    elif [ -n "${EXTRAS// /}" ]; then
+        spec=".[$(xargs <<<"$EXTRAS" | tr ' ' ',')]"
+    fi
+    local stamp="$VENV/.ucr-installed" report="$VENV/.ucr-setup-report"
     local want
-    want=$(cat pyproject.toml | sha256sum | cut -c1-16)
+    want=$( (cat pyproject.toml; echo "$spec"; cat "$VENV/pyvenv.cfg") | sha256sum | cut -c1-16)
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-        echo "[setup] installing dependencies (pinned in pyproject.toml)" >&2
+        echo "[setup] installing $spec (pinned in pyproject.toml)" >&2
         "$VENV/bin/python" -m pip install -q --upgrade pip >&2
-        "$VENV/bin/python" -m pip install -q -e ".[dev]" >&2
+        "$VENV/bin/python" -m pip install -q -e "$spec" >&2
+        {
+            echo "[setup] installed: runtime${EXTRAS:+ + extras: $EXTRAS} ($spec)"
+            for s in ${SKIPS[@]+"${SKIPS[@]}"}; do echo "[setup] skipped $s"; done
+            # shellcheck disable=SC2086
+            "$VENV/bin/python" -m host.extras $EXTRAS
+        } > "$report"
+        cat "$report" >&2
         echo "$want" > "$stamp"
+        REPORTED=1
     fi
     export PATH="$PWD/$VENV/bin:$PATH"
 }
@@ -56,9 +120,14 @@ case "$job" in
         ;;
     setup)
         ensure_venv
+        [ -n "${REPORTED:-}" ] || cat "$VENV/.ucr-setup-report" 2>/dev/null || true
+        ;;
+    pi-check)
+        ensure_venv
+        exec "$VENV/bin/python" -m tools.pi_check "$@"
         ;;
     *)
-        sed -n '2,7p' "$0"
+        sed -n '2,8p' "$0"
         exit 2
         ;;
 esac

@@ -205,6 +205,10 @@ def cmd_teleop(args: argparse.Namespace) -> int:
     if not (0 < args.rate <= 500):
         say_error("--rate must be in (0, 500] Hz")
         return 2
+    if not (args.keyboard or args.replay) and sys.platform.startswith("linux"):
+        from host.extras import require  # noqa: PLC0415
+
+        require("evdev", extra="gamepad")  # say what to install before connecting
 
     def body(c: Any) -> int:
         names = list(c.topology().get("controlled") or [])

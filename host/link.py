@@ -18,6 +18,7 @@ from typing import Any
 
 import serial
 
+from host.serialport import describe_open_error
 from protocol import constants as C
 from protocol import messages as M
 from protocol.cbor import loads
@@ -104,7 +105,7 @@ class ChainLink:
                 url, baudrate=baudrate, timeout=0.02, exclusive=exclusive
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open chain port {url!r}: {exc}") from exc
+            raise LinkError(describe_open_error(url, exc)) from exc
         self.url = url
         self.baudrate = baudrate
         try:

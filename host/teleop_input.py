@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from host.extras import require
+
 Deflection = tuple[float, float]
 
 
@@ -282,12 +284,11 @@ class KeyboardSource(InputSource):
 
 # --------------------------------------------------------------------------- gamepad
 def _evdev() -> Any:
-    """evdev is Linux-only, so it is imported when a gamepad is actually used."""
-    try:
-        import evdev  # noqa: PLC0415
-    except ImportError:
-        raise TeleopError("the evdev package is not installed (Linux only)") from None
-    return evdev
+    """evdev (the 'gamepad' extra, Linux only) is imported when a gamepad is actually used;
+    without it the user gets one line saying what to install (:class:`MissingPart`)."""
+    if not sys.platform.startswith("linux"):
+        raise TeleopError("gamepad input uses Linux evdev; on this system use --keyboard")
+    return require("evdev", extra="gamepad")
 
 
 def find_gamepad() -> str:

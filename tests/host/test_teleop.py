@@ -9,9 +9,7 @@ import os
 import time
 from types import SimpleNamespace
 
-import evdev
 import pytest
-from evdev import ecodes
 
 from host.teleop import (
     GamepadSource,
@@ -25,6 +23,11 @@ from host.teleop import (
     parse_keys,
     parse_recording,
 )
+
+evdev = pytest.importorskip(
+    "evdev", reason="evdev (the 'gamepad' extra) is not installed: pip install -e '.[gamepad]'"
+)
+ecodes = evdev.ecodes
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from host.link import ChainLink
 
 REPO = Path(__file__).resolve().parents[2]
@@ -25,6 +27,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
+@pytest.mark.needs_micropython  # the emulator runs in a child process
 def test_emulate_robot_with_control_socket_and_sigterm(tmp_path) -> None:
     sock_path = tmp_path / "ctl.sock"
     proc = subprocess.Popen(

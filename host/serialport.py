@@ -1,0 +1,138 @@
+"""Why a serial port did not open, in one line a person can act on (docs/daemon.md, Serial ports).
+
+pyserial reports ``[Errno 13] Permission denied``; on a Raspberry Pi the fix is nearly always the
+same few things, so say them: the group that owns the device (``dialout``) and whether this user
+is in it, the process that holds a busy port (from ``/proc/*/fd``, where this user may see it),
+where the stable names are (``/dev/serial/by-id/``), how ``/dev/serial0`` is enabled.
+"""
+
+from __future__ import annotations
+
+import errno
+import grp
+import os
+import pwd
+from pathlib import Path
+
+#: The alias Raspberry Pi OS gives the UART on GPIO 14/15 (when enabled).
+PI_UART_ALIAS = "/dev/serial0"
+BY_ID = "/dev/serial/by-id"
+
+
+def _is_path(url: str) -> bool:
+    return "://" not in url
+
+
+def _user() -> str:
+    try:
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except KeyError:
+        return f"uid {os.geteuid()}"
+
+
+def _group_name(gid: int) -> str:
+    try:
+        return grp.getgrgid(gid).gr_name
+    except KeyError:
+        return f"gid {gid}"
+
+
+def holders(path: str, proc: Path = Path("/proc")) -> list[tuple[int, str]]:
+    """(pid, command name) of the other processes that have ``path`` open, as far as this user
+    can see them (another user's /proc/PID/fd is unreadable without privileges)."""
+    try:
+        target = os.path.realpath(path)
+    except OSError:
+        return []
+    found = []
+    me = os.getpid()
+    for entry in proc.iterdir() if proc.is_dir() else []:
+        if not entry.name.isdigit() or int(entry.name) == me:
+            continue
+        try:
+            fds = list((entry / "fd").iterdir())
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                if os.readlink(fd) == target:
+                    comm = (entry / "comm").read_text().strip()
+                    found.append((int(entry.name), comm))
+                    break
+            except OSError:
+                continue
+    return sorted(found)
+
+
+def _permission(path: str) -> str:
+    """Advice for EACCES: the owning group, and whether (and since when) this user is in it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return "permission denied"
+    group = _group_name(st.st_gid)
+    user = _user()
+    members = set()
+    try:
+        members = set(grp.getgrgid(st.st_gid).gr_mem)
+    except KeyError:
+        pass
+    if st.st_gid in os.getgroups() or st.st_gid == os.getegid():
+        return (
+            f"permission denied although this process is in the group '{group}' that owns it "
+            f"(mode {st.st_mode & 0o777:o}: does the group have rw?)"
+        )
+    if user in members:
+        return (
+            f"permission denied: the user '{user}' was added to the group '{group}' that owns "
+            "it after this process started (log in again, or restart the service)"
+        )
+    return (
+        f"permission denied: the user '{user}' is not in the group '{group}' that owns it "
+        f"(sudo usermod -aG {group} {user}, then log in again or restart the service)"
+    )
+
+
+def _busy(path: str) -> str:
+    held = holders(path)
+    if held:
+        names = ", ".join(f"PID {pid} ({comm})" for pid, comm in held)
+        return f"busy: held by {names}; stop it, then retry"
+    return (
+        "busy: another process holds it, not one this user can see "
+        f"(sudo fuser -v {path}; on a Pi often a serial console: raspi-config, Serial Port)"
+    )
+
+
+def _missing(path: str) -> str:
+    if path == PI_UART_ALIAS:
+        return (
+            "does not exist: the Pi's UART is not enabled (raspi-config → Interface Options → "
+            "Serial Port: login shell no, hardware yes; or enable_uart=1 in config.txt)"
+        )
+    stable = sorted(os.listdir(BY_ID)) if os.path.isdir(BY_ID) else []
+    where = f"present: {', '.join(BY_ID + '/' + n for n in stable)}" if stable else "none present"
+    return f"does not exist (adapter plugged in? stable names under {BY_ID}/: {where})"
+
+
+def describe_open_error(url: str, exc: BaseException) -> str:
+    """One line saying why ``url`` did not open and what to do (``exc`` from pyserial/OS)."""
+    code = getattr(exc, "errno", None)
+    if not _is_path(url) or code is None:
+        return f"cannot open chain port {url!r}: {exc}"
+    if code == errno.ENOENT:
+        why = _missing(url)
+    elif code == errno.EACCES:
+        why = _permission(url)
+    elif code == errno.EPERM:
+        why = (
+            "operation not permitted (a sandbox refused it: under systemd the unit's "
+            "DeviceAllow= must list this device's class, e.g. char-ttyUSB rw)"
+        )
+    elif code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
+        why = _busy(url)
+    else:
+        why = str(exc)
+    real = os.path.realpath(url)
+    shown = url if real == url else f"{url} (→ {real})"
+    return f"cannot open chain port {shown}: {why}"

@@ -1,0 +1,102 @@
+"""A serial port that will not open says why and what to do (host/serialport.py, issue 10).
+
+Real ports: pseudo-terminals stand in for /dev/ttyUSB0, with the group and mode udev gives an
+adapter (root:dialout 0660); the busy port is held the way the daemon holds it (pyserial's
+exclusive lock) by another process.
+"""
+
+from __future__ import annotations
+
+import grp
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from host.link import ChainLink, LinkError
+from host.serialport import describe_open_error, holders
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def pty_port():
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    yield path
+    os.close(slave)
+    os.close(master)
+
+
+def test_missing_port_points_at_the_stable_names() -> None:
+    with pytest.raises(LinkError) as info:
+        ChainLink("/dev/ttyUCRnothere0")
+    msg = str(info.value)
+    assert "/dev/ttyUCRnothere0" in msg and "does not exist" in msg
+    assert "/dev/serial/by-id/" in msg
+
+
+def test_missing_pi_uart_says_how_to_enable_it() -> None:
+    msg = describe_open_error("/dev/serial0", FileNotFoundError(2, "No such file or directory"))
+    assert "raspi-config" in msg and "enable_uart=1" in msg
+
+
+def test_busy_port_names_the_process_that_holds_it(pty_port) -> None:
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(
+                f"""
+                import serial, sys, time
+                s = serial.Serial({pty_port!r}, exclusive=True)
+                print("held", flush=True)
+                sys.stdin.read()
+                """
+            ),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert holder.pid in [pid for pid, _ in holders(pty_port)]
+        with pytest.raises(LinkError) as info:
+            ChainLink(pty_port)
+        msg = str(info.value)
+        assert "busy" in msg and f"PID {holder.pid} (" in msg, msg
+        assert "Errno" not in msg
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to open the port as another user")
+def test_permission_error_names_the_dialout_group_and_the_fix(pty_port) -> None:
+    dialout = grp.getgrnam("dialout").gr_gid
+    os.chown(pty_port, 0, dialout)
+    os.chmod(pty_port, 0o660)
+    code = textwrap.dedent(
+        f"""
+        import os, sys
+        sys.path.insert(0, {str(REPO)!r})
+        from host.link import ChainLink, LinkError
+        import serial.serialposix, termios, fcntl, pwd, grp
+        os.setgroups([]); os.setgid(65534); os.setuid(65534)  # imported first: /root is private
+        try:
+            ChainLink({pty_port!r})
+        except LinkError as exc:
+            print(exc)
+        """
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd="/"
+    )
+    msg = proc.stdout.strip()
+    assert proc.returncode == 0, proc.stderr
+    assert "permission denied" in msg and "'nobody'" in msg, msg
+    assert "group 'dialout'" in msg and "usermod -aG dialout nobody" in msg, msg
