@@ -90,6 +90,24 @@ ensure_venv() {
     export PATH="$PWD/$VENV/bin:$PATH"
 }
 
+# The browser tests drive Debian's chromium (no browser download) and the TLS tests need openssl.
+# Where they are missing and this is a Debian machine run as root (CI), install them; otherwise
+# those tests skip and say why. UCR_NO_APT=1 never installs anything.
+ensure_browser() {
+    local need=()
+    command -v chromium >/dev/null 2>&1 || need+=(chromium)
+    command -v openssl >/dev/null 2>&1 || need+=(openssl)
+    [ ${#need[@]} -eq 0 ] && return 0
+    if [ "${UCR_NO_APT:-0}" != 1 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "[setup] installing ${need[*]} (Debian packages) for the browser and TLS tests" >&2
+        if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}"; } >/dev/null 2>&1; then
+            echo "[setup] could not install ${need[*]}: those tests will skip and say why" >&2
+        fi
+    else
+        echo "[setup] ${need[*]} missing: the browser/TLS tests will skip (sudo apt install ${need[*]})" >&2
+    fi
+}
+
 job=${1:-help}
 shift || true
 case "$job" in
@@ -99,6 +117,7 @@ case "$job" in
         ;;
     test)
         ensure_venv
+        ensure_browser
         set +e
         "$VENV/bin/python" -m pytest "$@"
         rc=$?
