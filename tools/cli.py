@@ -22,6 +22,7 @@ _AREAS = (
     "host.client_cli",
     "interop.cli",
     "interop.zenoh.cli",
+    "view.cli",
 )
 
 

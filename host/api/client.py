@@ -489,7 +489,6 @@ def connect(
             max_size=16 * 1024 * 1024,
             ping_interval=20,
             close_timeout=2,
-            legacy=True,  # a plain connection object; Client.close() ends it
         )
     except InvalidStatus as exc:
         status = exc.response.status_code

@@ -208,7 +208,7 @@ def test_teleop_replay_moves_a_segment_and_deadman_stops_it(client, tmp_path):
 def test_client_vanishing_mid_ffc_stream_stops_motion_and_is_cleaned_up(rig, client):
     daemon, srv = rig
     subs_before = len(daemon._subs)
-    ws = ws_connect(srv.url, legacy=True)
+    ws = ws_connect(srv.url)
     ws.send(json.dumps({"id": 0, "op": "subscribe", "kinds": ["joint_states", "transforms"]}))
     for i in range(15):
         ws.send(json.dumps({"id": i + 1, "op": "ffc.input", "rates": {"segment_3": [0.8, 0.0]}}))

@@ -338,7 +338,7 @@ def test_trajectory_progress_and_result_are_pushed_to_the_sender(server):
 
 
 def test_client_disconnect_mid_stream_releases_subscription_and_stops_ffc(server, stub):
-    ws = ws_connect(server.url, legacy=True)
+    ws = ws_connect(server.url)
     assert rpc(ws, {"id": 1, "op": "subscribe", "kinds": ["joint_states", "events"]})["ok"]
     for i in range(5):
         assert rpc(ws, {"id": 10 + i, "op": "ffc.input", "rates": {"s1": [0.8, 0.0]}})["ok"]

@@ -1,0 +1,100 @@
+"""Fixtures for the view tests: an emulated chain with a daemon and its API, the view process's
+app on it, and headless Chromium (Debian's /usr/bin/chromium) driven by Playwright."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+ROBOT = ROOT / "robots" / "softrobot3.ucrdf"
+CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
+
+
+def chromium_path() -> str | None:
+    for cand in (os.environ.get("UCR_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium")):
+        if cand and Path(cand).is_file():
+            return cand
+    return None
+
+
+def wait_for(cond, timeout: float, step: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(step)
+    return bool(cond())
+
+
+@pytest.fixture(scope="session")
+def browser():
+    pytest.importorskip("viser", reason="the view extra (viser) is not installed")
+    path = chromium_path()
+    if path is None:
+        pytest.skip("no chromium: install Debian's `chromium` package (apt-get install chromium)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ModuleNotFoundError:
+        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=path, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """(chain, daemon, api server) on an emulated softrobot3 chain (real firmware, MicroPython)."""
+    from host.api.server import ApiServer
+    from host.daemon import Daemon, DaemonError
+    from tools.emulator import EmulatedChain
+    from tools.segment_config import configs
+    from ucrdf.parser import load
+
+    robot = load(ROBOT)
+    chain = EmulatedChain(3, config_for=configs(robot))
+    daemon = srv = None
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                daemon = Daemon(robot, port=chain.host_port).start()
+                break
+            except DaemonError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.2)
+        srv = ApiServer(daemon, "127.0.0.1", 0).start()
+        yield chain, daemon, srv
+    finally:
+        if srv is not None:
+            srv.stop()
+        if daemon is not None:
+            daemon.stop()
+        chain.close()
+
+
+@pytest.fixture(scope="module")
+def live_view(rig, browser):
+    """The view app (as `ucr view` runs it) connected to the rig's API."""
+    from view.app import ViewApp
+    from view.source import LiveSource
+
+    _, _, srv = rig
+    app = ViewApp(LiveSource(srv.url, None).start(), port=0).start()
+    yield app
+    app.stop()
+
+
+@pytest.fixture
+def page(browser, live_view):
+    ctx = browser.new_context(viewport={"width": 1000, "height": 700})
+    pg = ctx.new_page()
+    pg.goto(live_view.url)
+    yield pg
+    ctx.close()

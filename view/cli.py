@@ -1,0 +1,104 @@
+"""``ucr view [FILE]``: serve the 3D view of the robot (live from the daemon, or offline on FILE)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+INSTALL_HINT = "ucr view needs the `view` extra: pip install 'ucr[view]' (viser)"
+ENV_TOKEN_FILE = "UCR_TOKEN_FILE"
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "view",
+        help="the robot in a browser: live 3D with true arcs, sliders, tip gizmo",
+        description=(
+            "Without FILE: connect to the daemon (--url) and show the live robot with controls. "
+            "With FILE and --offline (or no daemon reachable): show the U(C)RDF file, sliders "
+            "drive FK only, the file reloads on save and its check errors show on the page."
+        ),
+    )
+    p.add_argument("file", nargs="?", help="U(C)RDF file (offline mode, or the daemon's robot)")
+    p.add_argument("--offline", action="store_true", help="never contact the daemon")
+    p.add_argument("--url", default=None, help="daemon API (default $UCR_URL or loopback)")
+    p.add_argument(
+        "--token-file",
+        default=os.environ.get(ENV_TOKEN_FILE),
+        help="file holding the daemon API token (default $UCR_TOKEN_FILE; or set $UCR_TOKEN)",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to serve the page on (loopback)")
+    p.add_argument("--port", type=int, default=8080, help="port of the page (8080)")
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        help="extra host name the page may be reached under (Host/Origin check; repeatable)",
+    )
+    p.add_argument("--rate", type=float, default=60.0, help="scene updates per second (60)")
+    p.set_defaults(func=cmd_view)
+
+
+def _token(args: argparse.Namespace) -> str | None:
+    if args.token_file:
+        try:
+            return Path(args.token_file).read_text().strip() or None
+        except OSError as exc:
+            raise SystemExit(f"ucr: cannot read token file {args.token_file}: {exc.strerror}")
+    return os.environ.get("UCR_TOKEN") or None
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    try:
+        import viser  # noqa: F401
+    except ModuleNotFoundError:
+        print(f"ucr: {INSTALL_HINT}", file=sys.stderr)
+        return 1
+    logging.basicConfig(level=logging.WARNING, format="ucr view: %(message)s")
+    from view.app import ViewApp
+    from view.guard import is_loopback
+    from view.source import LiveSource, OfflineSource
+
+    control = True
+    if not is_loopback(args.host):
+        # the page can move hardware and has no login of its own: off loopback it only shows
+        control = False
+        print(
+            f"ucr view: serving on {args.host} (not loopback): view only, no controls. "
+            "To control remotely use an SSH tunnel to the loopback page.",
+            file=sys.stderr,
+        )
+    source: Any
+    if args.offline:
+        if not args.file:
+            print("ucr: --offline needs a U(C)RDF FILE", file=sys.stderr)
+            return 2
+        source = OfflineSource(args.file).start()
+    else:
+        try:
+            source = LiveSource(args.url, _token(args), args.file).start()
+        except (ConnectionError, PermissionError, RuntimeError) as exc:
+            if not args.file:
+                print(f"ucr: {exc}", file=sys.stderr)
+                return 1
+            print(f"ucr view: no daemon ({exc}); offline on {args.file}", file=sys.stderr)
+            source = OfflineSource(args.file).start()
+    try:
+        app = ViewApp(
+            source, args.host, args.port, tuple(args.allow_host), control, args.rate
+        ).start()
+    except OSError as exc:
+        source.stop()
+        print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        return 1
+    print(f"ucr view: {app.url}  ({source.mode}; Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    finally:
+        app.stop()

@@ -1,0 +1,260 @@
+"""Where the view's robot state comes from: the daemon's API (live) or a U(C)RDF file (offline).
+
+Both keep a small :class:`Snapshot` under a lock; the view's update thread polls it, so a slow page
+never slows the source and the daemon never waits for the view (the API drops stream messages for
+a slow reader; we read with a bounded queue of our own).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ucrdf.errors import UcrdfError
+from ucrdf.parser import load
+
+log = logging.getLogger("ucr.view")
+
+#: A segment event keeps its colour this long (s).
+EVENT_HOLD_S = 1.5
+
+
+@dataclass
+class Snapshot:
+    """What the view knows now. ``t_daemon``: daemon monotonic time (s) of the joint states."""
+
+    robot_file: str = ""
+    robot_version: int = 0  # bumps when the robot file (re)loads
+    present: list[str] = field(default_factory=list)  # bendables on the chain (live) / all
+    expected: list[str] = field(default_factory=list)
+    state: dict[str, dict[str, float]] = field(default_factory=dict)  # name -> kappa, phi
+    valid: dict[str, bool] = field(default_factory=dict)
+    status: dict[str, str] = field(default_factory=dict)  # ok | clamped | fault | missing
+    t_daemon: float = 0.0
+    t_received: float = 0.0  # our monotonic clock when it arrived
+    seq: int = 0  # bumps with every joint state
+    topology_seq: int = 0  # bumps with every topology change
+    control: dict[str, Any] = field(default_factory=dict)  # from status(): who controls
+    errors: list[str] = field(default_factory=list)  # file problems (offline) / connection
+    connected: bool = False
+
+
+class OfflineSource:
+    """A U(C)RDF file, reloaded when it changes on disk; the sliders are the configuration."""
+
+    mode = "offline"
+
+    def __init__(self, path: str | Path, poll_s: float = 0.3):
+        self.path = Path(path)
+        self.poll_s = poll_s
+        self.lock = threading.Lock()
+        self.snap = Snapshot(robot_file=str(self.path))
+        self.robot = None
+        self._mtime: float | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ucr-view-file", daemon=True)
+        self._reload()
+
+    def start(self) -> OfflineSource:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _stamp(self) -> float | None:
+        try:
+            st = self.path.stat()
+            return st.st_mtime_ns + st.st_size
+        except OSError:
+            return None
+
+    def _reload(self) -> None:
+        self._mtime = self._stamp()
+        try:
+            robot = load(self.path)
+        except UcrdfError as exc:
+            with self.lock:
+                self.snap.errors = [str(d) for d in exc.diagnostics]
+                self.snap.seq += 1
+            return
+        with self.lock:
+            self.robot = robot
+            s = self.snap
+            s.errors = []
+            s.robot_version += 1
+            s.present = s.expected = list(robot.bendables)
+            s.state = {n: dict(v) for n, v in s.state.items() if n in robot.bendables}
+            s.status = {n: "ok" for n in robot.bendables}
+            s.valid = {n: True for n in robot.bendables}
+            s.topology_seq += 1
+            s.seq += 1
+
+    def set_target(self, name: str, kappa: float, phi: float) -> None:
+        """Offline sliders drive FK directly."""
+        with self.lock:
+            self.snap.state[name] = {"kappa": kappa, "phi": phi}
+            self.snap.t_received = time.monotonic()
+            self.snap.seq += 1
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            if self._stamp() != self._mtime:
+                self._reload()
+
+
+class LiveSource:
+    """The daemon: topology, joint states, events and who has control, over its API."""
+
+    mode = "live"
+
+    def __init__(
+        self, url: str | None, token: str | None, robot_file: str | None = None, rate_hz=60.0
+    ):
+        from host.api.client import connect
+
+        self.client = connect(url, token=token)
+        self.url = self.client_url = url
+        self.rate_hz = rate_hz
+        self.lock = threading.Lock()
+        self.snap = Snapshot(connected=True)
+        self.robot = None
+        self._robot_file = robot_file
+        self._stop = threading.Event()
+        self._events: dict[str, tuple[str, float]] = {}  # bendable -> (status, until)
+        self._topology_locked_refresh()
+        self._threads = [
+            threading.Thread(target=self._stream, name="ucr-view-stream", daemon=True),
+            threading.Thread(target=self._poll_status, name="ucr-view-status", daemon=True),
+        ]
+
+    def start(self) -> LiveSource:
+        for t in self._threads:
+            t.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        try:
+            self.client.close()
+        except Exception:  # noqa: BLE001 - closing a broken connection
+            pass
+
+    # -- topology ------------------------------------------------------------------------------
+    def _topology_locked_refresh(self) -> None:
+        topo = self.client.topology()
+        path = self._robot_file or topo.get("file")
+        robot = self.robot
+        errors: list[str] = []
+        if robot is None:
+            if not path:
+                raise RuntimeError(
+                    "the daemon did not say which U(C)RDF file it runs: pass it (ucr view FILE)"
+                )
+            try:
+                robot = load(path)
+            except UcrdfError as exc:
+                raise RuntimeError(str(exc)) from None
+        with self.lock:
+            s = self.snap
+            if self.robot is None:
+                self.robot = robot
+                s.robot_file = str(path)
+                s.robot_version += 1
+            s.expected = [n for n in topo.get("expected", []) if n in robot.bendables] or list(
+                robot.bendables
+            )
+            s.present = [n for n in topo.get("controlled", []) if n in robot.bendables]
+            s.errors = errors
+            s.topology_seq += 1
+
+    # -- streams -------------------------------------------------------------------------------
+    def _stream(self) -> None:
+        from host.api.client import ApiError
+
+        try:
+            with self.client.subscribe(
+                ["joint_states", "events", "topology"], max_rate=self.rate_hz
+            ) as sub:
+                while not self._stop.is_set():
+                    msg = sub.get(timeout=0.5)
+                    if msg is None:
+                        continue
+                    kind = msg.get("kind")
+                    if kind == "joint_states":
+                        self._on_joints(msg)
+                    elif kind == "event":
+                        self._on_event(msg)
+                    elif kind == "topology":
+                        self._topology_locked_refresh()
+        except StopIteration:
+            self._lost(ConnectionError("subscription closed"))
+        except (ConnectionError, ApiError, OSError) as exc:
+            self._lost(exc)
+
+    def _lost(self, exc: BaseException) -> None:
+        with self.lock:
+            self.snap.connected = False
+            self.snap.errors = [f"daemon connection lost: {exc}"]
+            self.snap.seq += 1
+
+    def _on_joints(self, msg: dict) -> None:
+        now = time.monotonic()
+        with self.lock:
+            s = self.snap
+            for i, n in enumerate(msg.get("names", [])):
+                k, p = msg["kappa"][i], msg["phi"][i]
+                if k is not None and p is not None:
+                    s.state[n] = {"kappa": float(k), "phi": float(p)}
+                s.valid[n] = bool(msg["valid"][i])
+            s.t_daemon = float(msg.get("t", 0.0))
+            s.t_received = now
+            s.seq += 1
+            self._recolour(now)
+
+    def _on_event(self, msg: dict) -> None:
+        ev = msg.get("event", "")
+        pos = msg.get("position")
+        status = {"limit_clamped": "clamped", "servo_fault": "fault"}.get(ev)
+        if ev == "watchdog_tripped":
+            status = "fault"
+        with self.lock:
+            names = self.snap.expected
+            if status and isinstance(pos, int) and 0 <= pos < len(names):
+                self._events[names[pos]] = (status, time.monotonic() + EVENT_HOLD_S)
+            self.snap.control.setdefault("events", [])
+            self.snap.control["last_event"] = msg.get("message") or ev
+
+    def _recolour(self, now: float) -> None:
+        s = self.snap
+        for n in s.expected:
+            st = "ok"
+            if n not in s.present:
+                st = "missing"
+            elif not s.valid.get(n, False):
+                st = "fault"
+            ev = self._events.get(n)
+            if ev is not None and ev[1] > now and st == "ok":
+                st = ev[0]
+            s.status[n] = st
+
+    def _poll_status(self) -> None:
+        """Who has control (controllers, takeovers, goals), 5 times a second."""
+        while not self._stop.wait(0.2):
+            try:
+                st = self.client.status()
+            except Exception as exc:  # noqa: BLE001 - shown on the page, retried
+                if isinstance(exc, ConnectionError):
+                    self._lost(exc)
+                    return
+                continue
+            with self.lock:
+                c = self.snap.control
+                c["active"] = st.get("active_controllers", [])
+                c["manual"] = st.get("manual_control", [])
+                c["goals"] = st.get("running_goals", [])
+                c["state"] = st.get("state", "")
