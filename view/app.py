@@ -9,6 +9,7 @@ reloads or the chain's topology changes. Facts a test or a person can read are p
 from __future__ import annotations
 
 import collections
+import copy
 import logging
 import math
 import threading
@@ -16,7 +17,11 @@ import time
 from typing import Any
 
 import numpy as np
+import trimesh
+import viser
+import viser.transforms as vtf
 
+from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
 from view.guard import allowed_hosts, guarded_viser
 from view.scene import SceneModel
@@ -34,8 +39,6 @@ TRAIL_POINTS = 300
 
 
 def _wxyz(t: np.ndarray) -> np.ndarray:
-    import viser.transforms as vtf
-
     return vtf.SO3.from_matrix(t[:3, :3]).wxyz
 
 
@@ -51,8 +54,6 @@ class ViewApp:
         control: bool = True,
         rate_hz: float = 60.0,
     ):
-        import viser
-
         self.source = source
         self.period = 1.0 / rate_hz
         self.live = isinstance(source, LiveSource)
@@ -135,6 +136,9 @@ class ViewApp:
         self.g_facts = gui.add_markdown("scene: loading")
         self.g_control = gui.add_markdown("")
         self.g_errors = gui.add_markdown("")
+        # wall-clock time (ms) the shown state was sampled by the daemon: the page-side latency
+        # figure of benchmarks/bench_view.py reads it
+        self.g_stamp = gui.add_markdown("sample: -")
         self.g_frames = gui.add_checkbox("Frames", initial_value=False)
         self.g_tendons = gui.add_checkbox("Tendons", initial_value=True)
         self.g_trail = gui.add_checkbox("Tip trail", initial_value=True)
@@ -348,8 +352,6 @@ class ViewApp:
         elif vis.kind == "sphere":
             node = scene.add_icosphere(name, vis.size[0], vis.color, **kw)
         else:
-            import trimesh
-
             mesh = trimesh.load(vis.mesh, force="mesh")
             mesh.apply_scale(vis.scale)
             node = scene.add_mesh_trimesh(name, mesh, **kw)
@@ -387,7 +389,8 @@ class ViewApp:
         status = ", ".join(f"{n}: {snap.status.get(n, '?')}" for n in snap.expected)
         self.g_facts.content = (
             f"tubes: {len(tubes)} ({', '.join(tubes) or '-'}) · update {self.rate:.0f} Hz · "
-            f"daemon→page {p50:.1f} ms (p50) · pushes {self.pushes}<br/>status: {status or '-'}"
+            f"{'daemon' if self.live else 'slider'}→page {p50:.1f} ms (p50, until sent) · "
+            f"pushes {self.pushes}<br/>status: {status or '-'}"
         )
         self.g_errors.content = (
             "**check errors:**<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
@@ -415,8 +418,11 @@ class ViewApp:
                             self._update(snap)
                             self.pushes += 1
                             n_rate += 1
-                            if self.live and snap.t_daemon:
-                                self.latency_ms.append((time.monotonic() - snap.t_daemon) * 1e3)
+                            if snap.t_daemon or snap.t_received:
+                                t0 = snap.t_daemon if self.live else snap.t_received
+                                age = time.monotonic() - t0
+                                self.latency_ms.append(age * 1e3)
+                                self.g_stamp.content = f"sample: {(time.time() - age) * 1e3:.1f}"
                     now = time.monotonic()
                     if now - t_rate >= 1.0:
                         self.rate, t_rate, n_rate = n_rate / (now - t_rate), now, 0
@@ -428,8 +434,6 @@ class ViewApp:
 
 
 def _copy(s: Any) -> Any:
-    import copy
-
     return copy.copy(s) if s is None else type(s)(**{
         k: (dict(v) if isinstance(v, dict) else list(v) if isinstance(v, list) else v)
         for k, v in s.__dict__.items()
@@ -443,8 +447,6 @@ def _segments(paths: list[np.ndarray]) -> np.ndarray:
 
 
 def _solver(model: SceneModel):
-    from ucrdf.ik import IKSolver
-
     return IKSolver(model.kin, model.tip_link)
 
 

@@ -1,4 +1,9 @@
-"""``ucr view [FILE]``: serve the 3D view of the robot (live from the daemon, or offline on FILE)."""
+"""``ucr view [FILE]``: serve the 3D view of the robot (live from the daemon, or offline on FILE).
+
+Heavy imports (viser, the app) stay inside the command so ``ucr --help`` stays fast on a Pi.
+"""
+
+# ruff: noqa: PLC0415
 
 from __future__ import annotations
 
@@ -49,7 +54,8 @@ def _token(args: argparse.Namespace) -> str | None:
         try:
             return Path(args.token_file).read_text().strip() or None
         except OSError as exc:
-            raise SystemExit(f"ucr: cannot read token file {args.token_file}: {exc.strerror}")
+            msg = f"ucr: cannot read token file {args.token_file}: {exc.strerror}"
+            raise SystemExit(msg) from None
     return os.environ.get("UCR_TOKEN") or None
 
 

@@ -17,6 +17,10 @@ from collections.abc import Callable, Iterable
 from typing import Any
 from urllib.parse import urlsplit
 
+import websockets.asyncio.server as wss
+from websockets.datastructures import Headers
+from websockets.http11 import Response
+
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
 
 
@@ -60,10 +64,6 @@ def guarded_viser(factory: Callable[[], Any], allowed: set[str], log: Callable[[
     ``websockets.asyncio.server.serve`` is wrapped only while the server starts (viser looks it
     up at call time and the constructor returns once it listens); other servers are unaffected.
     """
-    import websockets.asyncio.server as wss
-    from websockets.datastructures import Headers
-    from websockets.http11 import Response
-
     original = wss.serve
 
     def serve(*args: Any, **kwargs: Any) -> Any:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from host.api.client import ApiError, connect
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -115,8 +116,6 @@ class LiveSource:
     def __init__(
         self, url: str | None, token: str | None, robot_file: str | None = None, rate_hz=60.0
     ):
-        from host.api.client import connect
-
         self.client = connect(url, token=token)
         self.url = self.client_url = url
         self.rate_hz = rate_hz
@@ -126,6 +125,7 @@ class LiveSource:
         self._robot_file = robot_file
         self._stop = threading.Event()
         self._events: dict[str, tuple[str, float]] = {}  # bendable -> (status, until)
+        self._topo_dirty = False
         self._topology_locked_refresh()
         self._threads = [
             threading.Thread(target=self._stream, name="ucr-view-stream", daemon=True),
@@ -174,8 +174,6 @@ class LiveSource:
 
     # -- streams -------------------------------------------------------------------------------
     def _stream(self) -> None:
-        from host.api.client import ApiError
-
         try:
             with self.client.subscribe(
                 ["joint_states", "events", "topology"], max_rate=self.rate_hz
@@ -190,7 +188,7 @@ class LiveSource:
                     elif kind == "event":
                         self._on_event(msg)
                     elif kind == "topology":
-                        self._topology_locked_refresh()
+                        self._topo_dirty = True  # refreshed by the status thread (may retry)
         except StopIteration:
             self._lost(ConnectionError("subscription closed"))
         except (ConnectionError, ApiError, OSError) as exc:
@@ -252,6 +250,17 @@ class LiveSource:
                     self._lost(exc)
                     return
                 continue
+            with self.lock:
+                present = list(self.snap.present)
+            # a topology push, or a missed one: the status names other segments than we draw
+            if self._topo_dirty or (
+                st.get("state") == "connected" and st.get("segments", present) != present
+            ):
+                try:
+                    self._topo_dirty = False
+                    self._topology_locked_refresh()
+                except ApiError:  # rebuilding right now: try again on the next poll
+                    self._topo_dirty = True
             with self.lock:
                 c = self.snap.control
                 c["active"] = st.get("active_controllers", [])

@@ -5,6 +5,7 @@ the daemon's arbitration, a hot-plug rebuilds the scene, and closing the page st
 from __future__ import annotations
 
 import math
+import re
 import time
 
 import numpy as np
@@ -91,8 +92,12 @@ def test_closing_the_page_stops_a_slider_driven_motion(rig, live_view, browser):
     pg.get_by_text("tubes: 3").wait_for(timeout=60000)
     set_number(pg, 2, 3.0)  # segment_2 kappa to 3 1/m at phi 0
     assert wait_for(lambda: abs(kvec(daemon, "segment_2")[0] - 3.0) < 0.1, 20), (
-        kvec(daemon, "segment_2"), live_view.driver.targets, live_view.driver.sent,
-        live_view.driver.stopped_reason, live_view.refusal, daemon.status(),
+        kvec(daemon, "segment_2"),
+        live_view.driver.targets,
+        live_view.driver.sent,
+        live_view.driver.stopped_reason,
+        live_view.refusal,
+        daemon.status(),
     )
     # now the far side: phi 180 deg, a 6 1/m path through straight at <= 5 1/m/s
     set_number(pg, 3, 180)
@@ -123,7 +128,7 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
     # drag from the gizmo's centre (the camera looks at the robot; the gizmo sits at the tip)
     moved = drag_gizmo(page, live_view, box)
     assert moved, f"the gizmo did not follow the mouse (still at {start})"
-    page.get_by_text("reachable").wait_for(timeout=20000)
+    page.get_by_text(re.compile(r"m — reachable")).wait_for(timeout=20000)
     target = live_view.planner.target
     assert live_view.planner.result.success
     page.get_by_role("button", name="Execute move").click()

@@ -1,0 +1,109 @@
+"""What the view draws, without a browser: tubes follow the model plugin's true curve, tendon
+routes have the lengths the tendon model gives, visuals come from the U(C)RDF; plus the slider
+servo law, the Host/Origin guard and the missing-extra message."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROBOT
+
+from ucrdf.fk import RobotKinematics
+from ucrdf.parser import load
+from ucrdf.tendons import TendonMap
+from view.control import ARRIVED, FFC_DEADZONE, deflection
+from view.guard import allowed_hosts, is_loopback, refuse_reason
+from view.scene import SceneModel, tube_faces
+
+ROOT = ROBOT.parents[1]
+
+
+@pytest.fixture(scope="module")
+def model():
+    return SceneModel(load(ROBOT))
+
+
+def test_tubes_wrap_the_true_pcc_arc_not_a_straight_link(model):
+    state = {"segment_1": {"kappa": 3.0, "phi": 0.7}, "segment_2": {"kappa": 1.0, "phi": -2.0}}
+    fr = model.frame(state)
+    kin = RobotKinematics(model.robot)
+    links = kin.fk(state)
+    for name in model.bendables:
+        verts, faces = fr.tubes[name]
+        assert faces.shape == ((model.samples - 1) * model.sides * 2, 3)
+        rings = verts.reshape(model.samples, model.sides, 3)
+        centres = rings.mean(axis=1)
+        # the ring centres are the backbone samples: base and tip frames of the segment
+        b = model.robot.bendables[name]
+        assert np.allclose(centres[0], links[b.parent][:3, 3], atol=1e-6)
+        assert np.allclose(centres[-1], links[b.child][:3, 3], atol=1e-6)
+        # every vertex at the tube radius from its centre
+        r = np.linalg.norm(rings - centres[:, None, :], axis=2)
+        assert np.allclose(r, model.radius[name], atol=1e-6)
+    # segment_1 bent at kappa = 3 1/m: its midpoint lies on the arc of radius 1/3 m, off the chord
+    c = fr.tubes["segment_1"][0].reshape(model.samples, model.sides, 3).mean(axis=1)
+    mid = c[model.samples // 2]
+    chord_mid = (c[0] + c[-1]) / 2
+    theta = 3.0 * model.robot.bendables["segment_1"].length
+    sagitta = (1 / 3.0) * (1 - math.cos(theta / 2))
+    assert np.linalg.norm(mid - chord_mid) == pytest.approx(sagitta, rel=0.02)
+
+
+def test_tendon_routes_have_the_lengths_of_the_tendon_model(model):
+    state = {"segment_2": {"kappa": 2.5, "phi": 1.1}}
+    fr = model.frame(state)
+    b = model.robot.bendables["segment_2"]
+    tmap = TendonMap.for_bendable(b)
+    want = tmap.lengths(2.5 * math.cos(1.1), 2.5 * math.sin(1.1))
+    got = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in fr.tendons["segment_2"]]
+    assert got == pytest.approx(list(want), rel=5e-3)
+
+
+def test_rigid_visuals_come_from_the_ucrdf():
+    m = SceneModel(load(ROOT / "robots" / "hybrid_arm.ucrdf"))
+    kinds = sorted(v.kind for v in m.visuals)
+    assert kinds == ["box", "cylinder", "cylinder", "cylinder"]
+    assert not any(v.problem for v in m.visuals)
+    assert tube_faces(3, 4).max() == 3 * 4 - 1
+
+
+def test_slider_deflection_points_at_the_target_and_never_stalls_in_the_deadzone():
+    ux, uy = deflection((1.0, 0.0), (0.0, 0.0), 5.0)
+    assert uy == 0.0 and 0 < ux <= 1.0
+    assert deflection((3.0, 0.0), (-3.0, 0.0), 5.0) == (1.0, 0.0)
+    small = deflection((0.1, 0.0), (0.0, 0.0), 5.0)
+    assert FFC_DEADZONE < math.hypot(*small) <= 1.0
+    assert deflection((0.5, 0.5), (0.5, 0.5 + ARRIVED / 2), 5.0) == (0.0, 0.0)
+
+
+def test_guard_allows_loopback_page_and_refuses_rebinding_and_cross_site():
+    allowed = allowed_hosts("127.0.0.1", 8080)
+    ok = {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:8080"}
+    assert refuse_reason(ok, allowed) is None
+    assert refuse_reason({"Host": "localhost:8080"}, allowed) is None
+    assert "Host" in refuse_reason({"Host": "attacker.example:8080"}, allowed)
+    assert "Host" in refuse_reason({}, allowed)
+    bad_origin = {"Host": "127.0.0.1:8080", "Origin": "https://attacker.example"}
+    assert "Origin" in refuse_reason(bad_origin, allowed)
+    assert "Origin" in refuse_reason({"Host": "127.0.0.1:8080", "Origin": "null"}, allowed)
+    lan = allowed_hosts("0.0.0.0", 8080, ["robot.local"])
+    assert refuse_reason({"Host": "robot.local:8080"}, lan) is None
+    assert is_loopback("127.0.0.2") and is_loopback("::1") and not is_loopback("0.0.0.0")
+
+
+def test_missing_viser_gives_one_line_telling_what_to_install(tmp_path):
+    # a site dir that hides viser
+    hide = "raise ModuleNotFoundError(\"No module named 'viser'\", name='viser')\n"
+    (tmp_path / "viser.py").write_text(hide)
+    code = (
+        f"import sys; sys.path.insert(0, {str(tmp_path)!r}); from tools.cli import main; "
+        "sys.exit(main(['view']))"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 1
+    hint = "ucr: ucr view needs the `view` extra: pip install 'ucr[view]' (viser)"
+    assert r.stderr.strip() == hint
