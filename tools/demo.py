@@ -31,11 +31,26 @@ def register(subparsers: Any) -> None:
     )
     d.add_argument("--no-api", action="store_true", help="do not start the network API")
     d.add_argument("--api-port", type=int, default=0, help="API port (default: a free one)")
+    d.add_argument("--no-view", action="store_true", help="do not start `ucr view`")
+    d.add_argument("--view-port", type=int, default=0, help="view page port (default: a free one)")
     d.add_argument("--quiet-log", action="store_true", help="only warnings from the daemon log")
     d.set_defaults(func=cmd_demo)
 
 
 # -- demo -------------------------------------------------------------------------------------
+
+
+def _start_view(api_url: str, port: int) -> Any:
+    """`ucr view` on the demo's API in its own process; None (with the reason) if it cannot."""
+    try:
+        from view.launch import start_view_process  # noqa: PLC0415 - optional part
+
+        view = start_view_process(api_url, port)
+    except (ModuleNotFoundError, RuntimeError, OSError) as exc:
+        print(f"view not started: {exc}", flush=True)
+        return None
+    print(f"view on {view.url} (open it in a browser)", flush=True)
+    return view
 
 
 def _fmt_state(js: dict | None, tf: dict | None) -> str:
@@ -178,7 +193,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 if time.monotonic() > deadline:
                     return print_error(f"demo: {exc}")
                 time.sleep(0.3)
-        api = None
+        api = view = None
         try:
             if not args.no_api:
                 try:
@@ -187,6 +202,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                         print(f"API on {api.url} (try `ucr status --url {api.url}`)", flush=True)
                 except Exception as exc:  # noqa: BLE001 - the demo runs without API
                     print(f"API not started: {exc}", flush=True)
+            if api is not None and not args.no_view:
+                view = _start_view(api.url, args.view_port)
             topo = daemon.topology()
             print(
                 f"discovered {len(topo['segments'])} segment(s): "
@@ -217,6 +234,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                     flush=True,
                 )
         finally:
+            if view is not None:
+                view.stop()
             if api is not None:
                 api.stop()
             daemon.stop(hold=True)

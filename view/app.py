@@ -310,7 +310,7 @@ class ViewApp:
                 if name in frame.tendons:
                     self.nodes[f"tendons:{name}"] = scene.add_line_segments(
                         f"/robot/tendons/{name}", _segments(frame.tendons[name]),
-                        (40, 40, 40), thickness=0.002, visible=bool(self.g_tendons.value),
+                        (30, 30, 30), thickness=0.004, visible=bool(self.g_tendons.value),
                     )  # fmt: skip
             else:  # missing after a hot-plug: a grey outline where it was, not a tube
                 self.nodes[f"missing:{name}"] = scene.add_mesh_simple(

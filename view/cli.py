@@ -46,6 +46,7 @@ def register(subparsers: Any) -> None:
         help="extra host name the page may be reached under (Host/Origin check; repeatable)",
     )
     p.add_argument("--rate", type=float, default=60.0, help="scene updates per second (60)")
+    p.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_view)
 
 
@@ -103,8 +104,10 @@ def cmd_view(args: argparse.Namespace) -> int:
         print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 1
     print(f"ucr view: {app.url}  ({source.mode}; Ctrl-C to stop)", flush=True)
+    parent = os.getppid()
     try:
-        while True:
+        while not (args.exit_with_parent and os.getppid() != parent):  # started by the demo
             time.sleep(1.0)
+        return 0
     finally:
         app.stop()

@@ -151,8 +151,9 @@ class SceneModel:
             b = robot.bendables[name]
             act = b.actuation
             r_tendon = act.radius if act is not None and act.radius > 0 else 0.0
-            # tube radius: the tendon disc when known (what the eye sees), else 3 % of the length
-            self.radius[name] = r_tendon or 0.03 * b.length
+            # tube radius: just inside the tendon circle (the tendons show on its surface), else
+            # 3 % of the length
+            self.radius[name] = 0.85 * r_tendon if r_tendon else 0.03 * b.length
             if act is not None and act.type == "tendon" and act.angles and act.radius > 0:
                 self.tendons[name] = (list(act.angles), act.radius)
         self.tip_link = self._tip_link()
