@@ -170,6 +170,8 @@ class ViewApp:
             k.remove()
             p.remove()
         self.sliders = {}
+        if self.live and not self.control_enabled:
+            return  # view only (not on loopback): no controls on the page
         with self.slider_folder:
             for name in model.bendables:
                 kmax, _ = model.limits(name)

@@ -224,7 +224,6 @@ class LiveSource:
             names = self.snap.expected
             if status and isinstance(pos, int) and 0 <= pos < len(names):
                 self._events[names[pos]] = (status, time.monotonic() + EVENT_HOLD_S)
-            self.snap.control.setdefault("events", [])
             self.snap.control["last_event"] = msg.get("message") or ev
 
     def _recolour(self, now: float) -> None:
