@@ -23,7 +23,7 @@ import viser.transforms as vtf
 
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
-from view.guard import allowed_hosts, guarded_viser
+from view.guard import guarded_viser, page_guard
 from view.scene import SceneModel
 from view.source import LiveSource, OfflineSource
 
@@ -58,16 +58,16 @@ class ViewApp:
         self.period = 1.0 / rate_hz
         self.live = isinstance(source, LiveSource)
         self.control_enabled = control and self.live
-        # filled once the port is known (port 0: any free port); until then everything is refused
-        allowed: set[str] = set()
+        # set once the port is known (port 0: any free port); until then everything is refused
+        guard: list = []
         self.server = guarded_viser(
-            lambda: viser.ViserServer(host=host, port=port, verbose=False), allowed, log.warning
+            lambda: viser.ViserServer(host=host, port=port, verbose=False), guard, log.warning
         )
         actual = self.server.get_port()
         if port and actual != port:  # viser silently moves on to the next free port
             self.server.stop()
             raise OSError(f"port {port} is in use (pass --port)")
-        allowed |= allowed_hosts(host, actual, allow_hosts)
+        guard.append(page_guard(host, actual, allow_hosts))
         self.host, self.port = host, actual
         self.server.scene.set_up_direction("+z")  # U(C)RDF frames: z along the base segment
         self.server.scene.add_grid("/grid", width=1.0, height=1.0, cell_size=0.1)

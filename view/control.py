@@ -155,6 +155,7 @@ class MovePlanner:
         self.solver = solver
         self.target: np.ndarray | None = None
         self.result: IKResult | None = None
+        self.executed: tuple[np.ndarray | None, IKResult] | None = None
         self.lock = threading.Lock()
 
     def plan(self, target_xyz: np.ndarray, current: dict[str, dict[str, float]]) -> IKResult:
@@ -170,13 +171,15 @@ class MovePlanner:
         self, current: dict[str, dict[str, float]], present: list[str], rate_max: Callable
     ) -> list[dict]:
         """One waypoint to the planned solution (segments on the chain only), timed so the
-        largest curvature-vector change takes 1.5x its slew-limited time (at least 1 s)."""
+        largest curvature-vector change takes 3x its slew-limited time (at least 2 s): a dragged
+        target is a calm move, well inside the cJTC's path tolerance."""
         with self.lock:
-            res = self.result
+            res, target = self.result, self.target
         if res is None:
             raise ValueError("drag the tip gizmo first")
+        self.executed = (target, res)  # what was sent (a later drag update may replan)
         segs: dict[str, dict[str, float]] = {}
-        duration = 1.0
+        duration = 2.0
         for name in present:
             cfg = res.config.get(name)
             if not isinstance(cfg, dict) or "kappa" not in cfg:
@@ -186,7 +189,7 @@ class MovePlanner:
             a, b = kvec(cur["kappa"], cur["phi"]), kvec(segs[name]["kappa"], segs[name]["phi"])
             rm = rate_max(name)
             if math.isfinite(rm) and rm > 0:
-                duration = max(duration, 1.5 * math.hypot(b[0] - a[0], b[1] - a[1]) / rm)
+                duration = max(duration, 3.0 * math.hypot(b[0] - a[0], b[1] - a[1]) / rm)
         if not segs:
             raise ValueError("no segment of the solution is on the chain")
         return [{"time_from_start": round(duration, 3), "segments": segs}]

@@ -9,7 +9,7 @@ import urllib.error
 import urllib.request
 
 import pytest
-from conftest import ROBOT, wait_for
+from view_helpers import ROBOT, wait_for
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -10,13 +10,13 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROBOT
+from view_helpers import ROBOT
 
 from ucrdf.fk import RobotKinematics
 from ucrdf.parser import load
 from ucrdf.tendons import TendonMap
 from view.control import ARRIVED, FFC_DEADZONE, deflection
-from view.guard import allowed_hosts, is_loopback, refuse_reason
+from view.guard import is_loopback, page_guard, refuse_reason
 from view.scene import SceneModel, tube_faces
 
 ROOT = ROBOT.parents[1]
@@ -81,17 +81,23 @@ def test_slider_deflection_points_at_the_target_and_never_stalls_in_the_deadzone
 
 
 def test_guard_allows_loopback_page_and_refuses_rebinding_and_cross_site():
-    allowed = allowed_hosts("127.0.0.1", 8080)
+    guard = page_guard("127.0.0.1", 8080)
     ok = {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:8080"}
-    assert refuse_reason(ok, allowed) is None
-    assert refuse_reason({"Host": "localhost:8080"}, allowed) is None
-    assert "Host" in refuse_reason({"Host": "attacker.example:8080"}, allowed)
-    assert "Host" in refuse_reason({}, allowed)
+    assert refuse_reason(ok, guard) is None
+    assert refuse_reason({"Host": "localhost:8080"}, guard) is None
+    local = {"Host": "localhost:8080", "Origin": "http://localhost:8080"}
+    assert refuse_reason(local, guard) is None
+    assert "host" in refuse_reason({"Host": "attacker.example:8080"}, guard)
+    assert "Host" in refuse_reason({}, guard)
     bad_origin = {"Host": "127.0.0.1:8080", "Origin": "https://attacker.example"}
-    assert "Origin" in refuse_reason(bad_origin, allowed)
-    assert "Origin" in refuse_reason({"Host": "127.0.0.1:8080", "Origin": "null"}, allowed)
-    lan = allowed_hosts("0.0.0.0", 8080, ["robot.local"])
-    assert refuse_reason({"Host": "robot.local:8080"}, lan) is None
+    assert "origin" in refuse_reason(bad_origin, guard)
+    assert "origin" in refuse_reason({"Host": "127.0.0.1:8080", "Origin": "null"}, guard)
+    other_port = {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:9999"}
+    assert "origin" in refuse_reason(other_port, guard)
+    assert refuse_reason(ok, None) is not None  # not started yet: nothing passes
+    lan = page_guard("0.0.0.0", 8080, ["robot.local"])
+    lan_page = {"Host": "robot.local:8080", "Origin": "http://robot.local:8080"}
+    assert refuse_reason(lan_page, lan) is None
     assert is_loopback("127.0.0.2") and is_loopback("::1") and not is_loopback("0.0.0.0")
 
 
