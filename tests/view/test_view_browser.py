@@ -129,7 +129,7 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
     moved = drag_gizmo(page, live_view, box)
     assert moved, f"the gizmo did not follow the mouse (still at {start})"
     page.get_by_text(re.compile(r"m — reachable")).wait_for(timeout=20000)
-    for attempt in range(3):
+    for _attempt in range(3):
         before = live_view.g_plan.content
         page.get_by_role("button", name="Execute move").click()
         sent = lambda b=before: live_view.g_plan.content.startswith("move ") and (  # noqa: E731
