@@ -132,12 +132,11 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
     for _attempt in range(3):
         before = live_view.g_plan.content
         page.get_by_role("button", name="Execute move").click()
-        sent = lambda b=before: (
-            live_view.g_plan.content.startswith("move ")
-            and (  # noqa: E731
-                live_view.g_plan.content != b
-            )
-        )
+
+        def sent(b: str = before) -> bool:
+            content = live_view.g_plan.content
+            return content.startswith("move ") and content != b
+
         assert wait_for(sent, 10), (live_view.g_plan.content, live_view.refusal)
         page.get_by_text(live_view.g_plan.content).wait_for(timeout=10000)  # shown on the page
         target, planned = live_view.planner.executed  # the plan the page showed when clicked
