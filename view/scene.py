@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
+from protocol.constants import DEFAULT_KAPPA_RATE_MAX
 from ucrdf.fk import RobotKinematics
 from ucrdf.model import Origin, Robot
 
@@ -166,9 +167,10 @@ class SceneModel:
         return leaves[-1] if leaves else self.kin.root
 
     def limits(self, name: str) -> tuple[float, float]:
-        """(kappa_max 1/m, kappa_rate_max 1/m/s) of a bendable (rate: inf when not declared)."""
+        """(kappa_max 1/m, kappa_rate_max 1/m/s) of a bendable; an undeclared rate is the one the
+        host plans with and the segments slew at (protocol.constants.DEFAULT_KAPPA_RATE_MAX)."""
         lim = self.robot.bendables[name].model.limits
-        return float(lim.kappa_max), float(lim.kappa_rate_max or math.inf)
+        return float(lim.kappa_max), float(lim.kappa_rate_max or DEFAULT_KAPPA_RATE_MAX)
 
     def coordinates(self, state: Mapping[str, Mapping[str, float]]) -> dict[str, np.ndarray]:
         """Model coordinates per bendable from ``{name: {"kappa", "phi"}}`` (missing: defaults).

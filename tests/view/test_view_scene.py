@@ -63,6 +63,16 @@ def test_tendon_routes_have_the_lengths_of_the_tendon_model(model):
     assert got == pytest.approx(list(want), rel=5e-3)
 
 
+def test_a_segment_without_a_declared_rate_uses_the_project_default(model):
+    from protocol.constants import DEFAULT_KAPPA_RATE_MAX
+
+    m = SceneModel(load(ROOT / "robots" / "hybrid_arm.ucrdf"))
+    for name in m.bendables:
+        declared = m.robot.bendables[name].model.limits.kappa_rate_max
+        assert m.limits(name)[1] == (declared or DEFAULT_KAPPA_RATE_MAX)
+    assert model.limits("segment_1") == (pytest.approx(3.3139163), 5.0)
+
+
 def test_rigid_visuals_come_from_the_ucrdf():
     m = SceneModel(load(ROOT / "robots" / "hybrid_arm.ucrdf"))
     kinds = sorted(v.kind for v in m.visuals)
