@@ -57,6 +57,8 @@ def settle(daemon, view) -> None:
 
 def test_page_shows_one_tube_per_discovered_segment(rig, live_view, page):
     _, daemon, _ = rig
+    # a starved emulator may cut the chain for a moment on a loaded machine: start whole
+    assert wait_for(lambda: len(daemon.status()["segments"]) == 3, 30)
     segments = daemon.status()["segments"]
     page.get_by_text(f"tubes: {len(segments)} ({', '.join(segments)})").wait_for(timeout=60000)
     assert live_view.facts["tubes"] == sorted(segments)
@@ -129,7 +131,23 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
     moved = drag_gizmo(page, live_view, box)
     assert moved, f"the gizmo did not follow the mouse (still at {start})"
     page.get_by_text(re.compile(r"m — reachable")).wait_for(timeout=20000)
+    tip_link = live_view.model.tip_link
+    names = ["segment_1", "segment_2", "segment_3"]
+
+    def tip_error(target) -> float:
+        st = daemon.status()["joint_states"]
+        cfg = {n: {"kappa": v["kappa"], "phi": v["phi"]} for n, v in st.items()}
+        tip = live_view.model.kin.fk(cfg, strict=False)[tip_link][:3, 3]
+        return float(math.dist(tip, target))
+
+    def whole() -> bool:
+        return daemon.status()["segments"] == names and live_view.source.snap.present == names
+
     for _attempt in range(3):
+        # a starved emulator on a loaded machine may cut the chain for a moment (the view then
+        # plans for the segments present) or trip the path tolerance: execute on a whole chain,
+        # and try again when the daemon's supervision got in the way
+        assert wait_for(whole, 30), daemon.status()["segments"]
         before = live_view.g_plan.content
         page.get_by_role("button", name="Execute move").click()
 
@@ -144,19 +162,10 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
         goal = re.search(r"move (\S+) sent", live_view.g_plan.content).group(1)
         assert wait_for(lambda g=goal: daemon.trajectory_status(g)["done"], 30)
         status = daemon.trajectory_status(goal)
-        # a starved emulator on a loaded machine trips the daemon's path tolerance: try again
-        if status["state"] != "aborted" or "tolerance" not in status["reason"]:
+        if status["state"] == "succeeded" and wait_for(lambda t=target: tip_error(t) < 0.01, 10):
             break
     assert status["state"] == "succeeded", status
-    tip_link = live_view.model.tip_link
-
-    def tip_error() -> float:
-        st = daemon.status()["joint_states"]
-        cfg = {n: {"kappa": v["kappa"], "phi": v["phi"]} for n, v in st.items()}
-        tip = live_view.model.kin.fk(cfg, strict=False)[tip_link][:3, 3]
-        return float(math.dist(tip, target))
-
-    assert wait_for(lambda: tip_error() < 0.01, 10), (tip_error(), status)
+    assert tip_error(target) < 0.01, (tip_error(target), status)
     settle(daemon, live_view)
 
 
