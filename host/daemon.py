@@ -115,6 +115,7 @@ class Daemon:
         )
         self.topo.gap_cycles = gap_cycles(self.period, self.cfg.watchdog)
         self.health = LinkHealth(self.period, REPLY_SHARE, min_rate_hz=10.0)
+        self._late_mark: int | None = None  # link's late-reply count at the last stall
         self.supervisor = Supervisor(
             self.cfg.watchdog, self.period, self.fanout.emit_event, self.motion.rehold
         )
@@ -177,6 +178,10 @@ class Daemon:
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.topo.open()
+        try:
+            self._late_mark = int(self.topo.link.stats.get("unmatched", 0))
+        except (OSError, AttributeError):
+            self._late_mark = None
         self._t_started = time.monotonic()
         self._publisher.start()
         self.loop.start()
@@ -231,9 +236,13 @@ class Daemon:
         state = robot_state_from(hwi, now)
         reason = self.supervisor.check(hwi, state, events, topo.descriptors)
         if reason is not None:
+            stalls = topo.stalls
+            missing = [i for i, m in enumerate(hwi.missing) if m > 0]
             topo.hotplug(reason, now, verify=self.supervisor.silent)
             if topo.hwi is not hwi:
                 self.health.reset()
+            elif topo.stalls > stalls and missing:
+                self._stall_health(hwi, missing[0], now)
             return None
         self.motion.update(hwi, state, now)
         compute = time.perf_counter() - t0
@@ -255,6 +264,21 @@ class Daemon:
             now,
             lambda: int(link.stats.get("unmatched", 0)),
         )
+        self._report_health(hwi, change)
+
+    def _stall_health(self, hwi: HardwareInterface, position: int, now: float) -> None:
+        """A stall (silence, same chain): late replies meanwhile mean a slow link."""
+        link = self.topo.link
+        try:
+            count = int(link.stats.get("unmatched", 0))
+        except OSError:
+            return
+        late = count - (self._late_mark if self._late_mark is not None else 0)
+        self._late_mark = count
+        self._report_health(hwi, self.health.stall(position, late, now))
+
+    def _report_health(self, hwi: HardwareInterface, change: dict[str, Any] | None) -> None:
+        """Apply and report a change of the usable rate."""
         if change is None:
             return
         self._apply_period(change["period"])

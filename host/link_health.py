@@ -86,24 +86,10 @@ class LinkHealth:
         else:
             self._late_seen = None
         if lossy and late >= DEGRADE_LATE and self.period < self.min_period * 0.999:
-            if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
-                self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
-            self._t_restored = None
-            self.period = min(self.period * 2, self.min_period)
-            self.degradations += 1
-            self.reset()
-            self._late_seen = None
             # the first position whose replies miss: the slow link is the one into it (or, for
             # a throughput limit, one before it whose own replies still fit)
             first = next(i for i, x in enumerate(loss) if x >= loss[worst] / 2)
-            self.last = {
-                "position": first,
-                "loss": round(loss[worst], 3),
-                "latency_ms": round(p90 * 1e3, 2),
-                "usable_rate_hz": round(1.0 / self.period, 2),
-                "cause": "loss",
-            }
-            return {"period": self.period, "change": "degraded", **self.last}
+            return self._degrade(first, loss[worst], now)
         if not self.degraded:
             return None
         clean = len(self._answered) == DEGRADE_WINDOW and max(loss) == 0.0
@@ -126,6 +112,34 @@ class LinkHealth:
             "cause": "recovered",
         }
         return {"period": self.period, "change": "restored", **self.last}
+
+    def _degrade(self, position: int, loss: float, now: float) -> dict[str, Any]:
+        """Halve the rate (not below the floor); the change as reported."""
+        p90 = float(np.percentile(self._latency, 90)) if len(self._latency) >= 5 else 0.0
+        if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
+            self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
+        self._t_restored = None
+        self.period = min(self.period * 2, self.min_period)
+        self.degradations += 1
+        self.reset()
+        self._late_seen = None
+        self.last = {
+            "position": position,
+            "loss": round(loss, 3),
+            "latency_ms": round(p90 * 1e3, 2),
+            "usable_rate_hz": round(1.0 / self.period, 2),
+            "cause": "loss",
+        }
+        return {"period": self.period, "change": "degraded", **self.last}
+
+    def stall(self, position: int, late: int, now: float) -> dict[str, Any] | None:
+        """Supervision found a silent stretch and the very same chain behind it (a stall): with
+        replies arriving late meanwhile (``late`` > 0) the link is slow — degrade at once,
+        without waiting for a full window. Returns a change as :meth:`observe` does."""
+        if late <= 0 or self.period >= self.min_period * 0.999:
+            return None
+        loss = self.loss()
+        return self._degrade(position, loss[position] if position < len(loss) else 1.0, now)
 
     def loss(self) -> list[float]:
         """Share of the window in which each position did not answer."""

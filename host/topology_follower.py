@@ -289,6 +289,17 @@ class TopologyFollower:
                 return
             self.link_lost(exc)
             return
+        if verify and self.hwi is not None and 0 < len(descs) < len(self.descriptors):
+            # silence, no event, and fewer answers: a loaded host or a slow link loses replies
+            # as well as a cut does; ask once more with the full discovery time before cutting
+            uids = [d.get("uid") for d in self.descriptors]
+            if [d.get("uid") for d in descs] == uids[: len(descs)]:
+                try:
+                    again = self.discover_retrying()
+                except OSError:
+                    again = []
+                if len(again) > len(descs):
+                    descs = again
         if verify and self.hwi is not None:
             same = [d.get("uid") for d in descs] == [d.get("uid") for d in self.descriptors]
             if same and descs:

@@ -116,8 +116,8 @@ class JointTrajectoryController(Controller):
     def adopt_measured(self, names: list[str], state: RobotState) -> None:
         """Bendables measured again after a gap in their states (or for the first time): their
         command restarts from where they are measured. A running goal keeps them only if its
-        path is within its ``path_tolerance`` (``goal_tolerance`` if that is off) of every such
-        measurement now — the deviation it accepts while moving; otherwise it is aborted (cause
+        path is within ``goal_tolerance`` of every such measurement now (taking them back is then
+        no jump: e.g. a segment the goal holds still); otherwise it is aborted (cause
         ``link_loss``) and they hold where measured.
         """
         idx = [self._index[n] for n in names if n in self._index]
@@ -130,7 +130,7 @@ class JointTrajectoryController(Controller):
             dev[self.joints[i]] = math.hypot(state.kx[si] - hold[i][0], state.ky[si] - hold[i][1])
         if self._goal is not None:
             worst = max(dev, key=dev.get)
-            tol = self.path_tolerance or self.goal_tolerance
+            tol = self.goal_tolerance
             if dev[worst] <= tol:
                 return  # the path passes near where they are: the goal takes them on
             self._goal.finish(

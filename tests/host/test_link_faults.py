@@ -61,6 +61,8 @@ def health_loss(d) -> list[float]:
 
 
 def kappa_of(d, name: str) -> float:
+    """Measured kappa of ``name``, waiting out a moment it is not controlled (a rebuild)."""
+    assert wait_for(lambda: (d.status()["joint_states"].get(name) or {}).get("valid"), 10.0)
     return d.status()["joint_states"][name]["kappa"]
 
 
@@ -68,8 +70,8 @@ def sample_kappa(d, name: str, seconds: float) -> list[float]:
     """Measured kappa of ``name`` (only fresh, valid states) every 20 ms for ``seconds``."""
     out, end = [], time.monotonic() + seconds
     while time.monotonic() < end:
-        js = d.status()["joint_states"][name]
-        if js["valid"]:
+        js = d.status()["joint_states"].get(name)
+        if js is not None and js["valid"]:
             out.append(js["kappa"])
         time.sleep(0.02)
     return out
@@ -145,7 +147,7 @@ def test_a_segment_invalid_during_latency_does_not_move_to_a_stale_target(ready,
     chain.set_link(1, latency=0.0)
     t_clean = time.monotonic()
     # no command is sent from here on: segment_3 must stay where it is measured
-    assert wait_for(lambda: d.status()["joint_states"]["segment_3"]["valid"], 5.0)
+    assert wait_for(lambda: (d.status()["joint_states"].get("segment_3") or {}).get("valid"), 10.0)
     first = kappa_of(d, "segment_3")
     ks = sample_kappa(d, "segment_3", 2.5)
     assert ks, "segment_3 never valid again"

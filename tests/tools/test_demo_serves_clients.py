@@ -49,9 +49,22 @@ def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> N
                 url = m.group(1)
         assert url, "".join(lines)
         # at once, while the demo's own trajectory runs
-        moved = _ucr(
-            "move", "--url", url, "--segment", "segment_2", "--kappa", "0.5", "--duration", "1.0"
-        )
+        # (a goal may abort with cause link_loss when the loaded machine starves the emulated
+        # segments — docs/daemon.md "No motion without a command": then it is sent again)
+        for _ in range(3):
+            moved = _ucr(
+                "move",
+                "--url",
+                url,
+                "--segment",
+                "segment_2",
+                "--kappa",
+                "0.5",
+                "--duration",
+                "1.0",
+            )
+            if "link loss" not in moved.stderr:
+                break
         assert moved.returncode == 0, moved.stdout + moved.stderr
         # the demo yields; the daemon keeps serving
         end = time.monotonic() + 60
@@ -65,9 +78,20 @@ def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> N
         assert "== running until Ctrl-C" in text and proc.poll() is None, text
         st = _ucr("status", "--url", url)
         assert st.returncode == 0 and "segment_2" in st.stdout, st.stdout + st.stderr
-        again = _ucr(
-            "move", "--url", url, "--segment", "segment_2", "--kappa", "0.0", "--duration", "1.0"
-        )
+        for _ in range(3):
+            again = _ucr(
+                "move",
+                "--url",
+                url,
+                "--segment",
+                "segment_2",
+                "--kappa",
+                "0.0",
+                "--duration",
+                "1.0",
+            )
+            if "link loss" not in again.stderr:
+                break
         assert again.returncode == 0, again.stdout + again.stderr
         assert proc.poll() is None
     finally:
