@@ -136,11 +136,11 @@ def test_segments_rejoin_by_themselves_after_a_corruption_burst(ready, chain):
 # -- finding 2: no motion without a command ---------------------------------------------------
 def test_a_segment_invalid_during_latency_does_not_move_to_a_stale_target(ready, chain):
     d = ready
+    chain.set_link(1, latency=0.005)  # link 2 (into segment_2): replies from 2 and 3 come late
+    time.sleep(0.3)
     gid = d.send_trajectory(
         [{"time_from_start": 2.0, "segments": {"segment_3": {"kappa": 1.0, "phi": 0.0}}}]
     )
-    time.sleep(0.5)
-    chain.set_link(1, latency=0.005)  # link 2 (into segment_2): replies from 2 and 3 come late
     assert wait_for(lambda: d.trajectory_status(gid)["done"], 15.0)
     check_abort_is_coherent(d.trajectory_status(gid))
     time.sleep(0.5)
