@@ -172,6 +172,8 @@ def _events(q: queue.Queue) -> list[dict]:
 )
 def test_a_slow_link_lowers_the_rate_keeps_control_and_recovers(ready, chain, fault, clean):
     d = ready
+    # at the nominal rate first (an earlier test may have left it lowered)
+    assert wait_for(lambda: not d.status()["link_health"]["degraded"], 40.0)
     q = d.subscribe(["event"])
     try:
         chain.set_link(1, **fault)
