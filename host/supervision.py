@@ -78,7 +78,7 @@ class Supervisor:
         watchdog: WatchdogConfig,
         period: float,
         emit_event: Callable[..., None],
-        rehold: Callable[..., None],
+        rehold: Callable[[RobotState, str], None],
     ):
         self.watchdog = watchdog
         self.period = period
@@ -125,7 +125,7 @@ class Supervisor:
                 names = ", ".join(f"{hwi.names[i]} (position {i})" for i in silent)
                 reason = f"no STATE from {names} for {limit} cycles"
                 self.silent = True
-        if reason is None and hwi.extra_states:
+        if reason is None and getattr(hwi, "extra_states", None):
             tip = hwi.names[-1] if hwi.names else "the host"
             reason = f"{len(hwi.extra_states)} segment(s) answer beyond {tip} (rejoin)"
         if reason is None and hwi.raw_states and descriptors:
@@ -145,7 +145,7 @@ class Supervisor:
             ]
             if held and not hwi.resume_pending:
                 msg = f"segment(s) {', '.join(held)} holding (watchdog, HOLD or FAULT)"
-                self._rehold(state, msg, held)
+                self._rehold(state, msg)
                 hwi.resume_pending = True
                 self._emit(
                     "segments_held", message=msg + "; controllers re-held, resuming", segments=held
