@@ -120,10 +120,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    try:
-        daemon.start()
-    except (DaemonError, ConfigError) as exc:
-        return print_error(str(exc))
+    # The API first: its errors (bind, token) are configuration errors, reported before the
+    # chain port is opened. Until the chain runs, its requests answer "daemon is not running".
     api = None
     if cfg.api.enabled and not args.no_api:
         try:
@@ -136,8 +134,13 @@ def cmd_daemon(args: argparse.Namespace) -> int:
                 options=cfg.api.server_options(),
             )
         except Exception as exc:  # noqa: BLE001 - bind/token errors are user errors
-            daemon.stop()
-            return print_error(f"API: {exc}")
+            return print_error(f"{cfg.source}: api: {exc}")
+    try:
+        daemon.start()
+    except (DaemonError, ConfigError) as exc:
+        if api is not None:
+            api.stop()
+        return print_error(str(exc))
     while not stop.wait(0.5):
         pass
     logging.getLogger("ucr").info("signal received: holding and stopping")

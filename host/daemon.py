@@ -21,6 +21,7 @@ controller update, never while waiting on the bus.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import sys
 import threading
@@ -36,6 +37,7 @@ from host.controller_manager import ControllerManager
 from host.errors import DaemonError, GoalNotFound, TopologyError
 from host.hwi import ACTIVE, HardwareInterface, robot_state_from
 from host.link import ChainLink
+from host.link_health import LinkHealth
 from host.loop import FixedRateLoop
 from host.motion import Motion
 from host.publisher import KINDS, Fanout, PublisherThread
@@ -49,6 +51,14 @@ log = logging.getLogger("ucr.daemon")
 __all__ = ["KINDS", "Daemon", "DaemonError", "GoalNotFound", "PublisherThread", "TopologyError"]
 
 SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while the daemon runs (s)
+REPLY_SHARE = 0.8  # share of the loop period one exchange may wait for the states
+
+
+def gap_cycles(period: float, watchdog: Any) -> int:
+    """Consecutive cycles without a STATE that make a gap (docs/daemon.md): the silence limit
+    of supervision (``missed_cycles`` and ``silence_s``), so a gap and a silent segment are one
+    notion."""
+    return max(2, watchdog.missed_cycles, math.ceil(watchdog.silence_s / period - 1e-9))
 
 
 class Daemon:
@@ -81,7 +91,7 @@ class Daemon:
         if not 1.0 <= self.rate_hz <= 2000.0:
             raise DaemonError(f"loop rate {self.rate_hz} Hz outside 1..2000 Hz")
         self.period = 1.0 / self.rate_hz
-        self.reply_timeout = min(self.cfg.watchdog.reply_timeout_s, 0.8 * self.period)
+        self.reply_timeout = min(self.cfg.watchdog.reply_timeout_s, REPLY_SHARE * self.period)
         self._lock = threading.RLock()
         self._t_started = 0.0
         self.fanout = Fanout()
@@ -103,6 +113,9 @@ class Daemon:
             fanout=self.fanout,
             submit=self._publisher.submit,
         )
+        self.topo.gap_cycles = gap_cycles(self.period, self.cfg.watchdog)
+        self.health = LinkHealth(self.period, REPLY_SHARE, min_rate_hz=10.0)
+        self._late_mark: int | None = None  # link's late-reply count at the last stall
         self.supervisor = Supervisor(
             self.cfg.watchdog, self.period, self.fanout.emit_event, self.motion.rehold
         )
@@ -165,6 +178,10 @@ class Daemon:
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.topo.open()
+        try:
+            self._late_mark = int(self.topo.link.stats.get("unmatched", 0))
+        except (OSError, AttributeError):
+            self._late_mark = None
         self._t_started = time.monotonic()
         self._publisher.start()
         self.loop.start()
@@ -214,13 +231,22 @@ class Daemon:
         except OSError as exc:
             topo.link_lost(exc)
             return None
+        if not hwi.exchange_probed and hwi.exchanges:
+            self._observe_health(hwi, now)
         state = robot_state_from(hwi, now)
         reason = self.supervisor.check(hwi, state, events, topo.descriptors)
         if reason is not None:
+            stalls = topo.stalls
+            missing = [i for i, m in enumerate(hwi.missing) if m > 0]
             topo.hotplug(reason, now, verify=self.supervisor.silent)
+            if topo.hwi is not hwi:
+                self.health.reset()
+            elif topo.stalls > stalls and missing:
+                self._stall_health(hwi, missing[0], now)
             return None
         self.motion.update(hwi, state, now)
         compute = time.perf_counter() - t0
+        hwi.probe_extra = topo.probe_due(now)
         try:
             hwi.write()
         except OSError as exc:
@@ -228,6 +254,64 @@ class Daemon:
         except ValueError as exc:  # a setpoint the codec refuses: never send it
             log.error("setpoints refused by the codec: %s", exc)
         return compute
+
+    def _observe_health(self, hwi: HardwareInterface, now: float) -> None:
+        """Feed the link health; apply and report a change of the usable rate."""
+        link = self.topo.link
+        change = self.health.observe(
+            [s is not None for s in hwi.raw_states],
+            hwi.exchange_s,
+            now,
+            lambda: int(link.stats.get("unmatched", 0)),
+        )
+        self._report_health(hwi, change)
+
+    def _stall_health(self, hwi: HardwareInterface, position: int, now: float) -> None:
+        """A stall (silence, same chain): late replies meanwhile mean a slow link."""
+        link = self.topo.link
+        try:
+            count = int(link.stats.get("unmatched", 0))
+        except OSError:
+            return
+        late = count - (self._late_mark if self._late_mark is not None else 0)
+        self._late_mark = count
+        self._report_health(hwi, self.health.stall(position, late, now))
+
+    def _report_health(self, hwi: HardwareInterface, change: dict[str, Any] | None) -> None:
+        """Apply and report a change of the usable rate."""
+        if change is None:
+            return
+        self._apply_period(change["period"])
+        rate, nominal = change["usable_rate_hz"], round(self.rate_hz, 2)
+        if change["change"] == "degraded":
+            pos = change["position"]
+            into = hwi.names[pos] if pos < len(hwi.names) else f"position {pos + 1}"
+            msg = (
+                f"link {pos + 1} (into {into}) is slow: its replies come late, "
+                f"{change['loss']:.0%} missed at {round(1.0 / (change['period'] / 2), 2)} Hz; "
+                f"loop slowed to {rate} Hz (nominal {nominal} Hz)"
+            )
+            self.fanout.emit_event(
+                "link_degraded", message=msg, link=pos + 1, segment=into, **change
+            )
+        else:
+            msg = f"link recovered (exchange p90 {change['latency_ms']} ms): loop back to {rate} Hz"
+            self.fanout.emit_event("link_recovered", message=msg, **change)
+        log.warning("%s", msg)
+
+    def _apply_period(self, period: float) -> None:
+        """Run the loop at ``period`` s (the usable rate): reply time, gap and silence limits
+        follow. At the nominal rate the configured reply timeout applies again."""
+        nominal = abs(period - self.period) < 1e-9
+        timeout = self.reply_timeout if nominal else REPLY_SHARE * period
+        self.loop.set_period(period, keep_counts=True)  # timing windows restart at the new period
+        self.supervisor.period = period
+        self.topo.reply_timeout = timeout
+        self.topo.gap_cycles = gap_cycles(period, self.cfg.watchdog)
+        hwi = self.topo.hwi
+        if hwi is not None:
+            hwi.reply_timeout = timeout
+            hwi.gap_cycles = self.topo.gap_cycles
 
     def _on_loop_error(self, exc: BaseException) -> None:
         log.exception("control cycle failed: %s", exc, exc_info=exc)
@@ -260,6 +344,7 @@ class Daemon:
                 "manual_control": motion["manual_control"],
                 "topology_changes": topo.topology_changes,
                 "stalls": topo.stalls,
+                "link_health": self.health.snapshot(),
                 "uptime_s": time.monotonic() - self._t_started if self._t_started else 0.0,
                 "joint_states": {
                     n: {"kappa": st.kappa[i], "phi": st.phi[i], "valid": st.valid[i]}
@@ -306,7 +391,8 @@ class Daemon:
     def loop_stats(self) -> dict[str, Any]:
         """Loop timing (µs: period, jitter, compute without I/O wait; overruns), link counters,
         hot-plug timings."""
-        out = self.loop.stats.snapshot(self.period)
+        out = self.loop.stats.snapshot(self.loop.period)  # the usable rate (link health)
+        out["nominal_rate_hz"] = self.rate_hz
         with self._lock:
             out["hotplug"] = list(self.topo.hotplug_log)
             out["subscriber_drops"] = self.fanout.dropped

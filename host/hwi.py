@@ -12,6 +12,17 @@ Lifecycle, as ros2_control's hardware components:
 
 A segment is only commanded once it has been measured since activation: until its first STATE,
 its SYNC entry is a hold entry (None: the segment keeps its own setpoint), never a made-up (0, 0).
+
+No motion without a command (docs/daemon.md "No motion without a command"), enforced here and
+nowhere else: a segment whose STATE is missing for ``gap_cycles`` consecutive cycles loses its
+command — its SYNC entries become hold entries, so it never follows a setpoint computed while
+the host could not see it. When a valid STATE comes back, the HWI takes the measured pose as its
+command (``first_measured`` lists it, and every active controller re-anchors there before it may
+command it again): after a gap or a rejoin a segment holds where it is measured.
+
+While the chain is shorter than its description, ``probe_extra`` asks the SYNC to wait for that
+many positions beyond the known tip (their entries are hold entries): a segment that answers
+there lands in ``extra_states``, and supervision rejoins it.
 An interface without a command interface keeps the value measured at activation (a bendable
 declaring only ``kappa`` keeps its measured phi), and a bendable with no command interface at all
 always gets a hold entry. ``last_states`` keeps the last STATE of every segment across missed
@@ -29,6 +40,7 @@ STATE frames up.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 from host.controllers.base import RobotState
@@ -53,8 +65,11 @@ class HardwareInterface:
         link: Any,
         reply_timeout: float = 0.02,
         known: dict[str, dict] | None = None,
+        gap_cycles: int = 2,
     ):
-        """``known``: last STATE per bendable from a previous HWI of this chain (a rebuild)."""
+        """``known``: last STATE per bendable from a previous HWI of this chain (a rebuild);
+        ``gap_cycles``: consecutive cycles without a STATE after which a segment loses its
+        command (held where measured when it answers again)."""
         self.limits = limits
         self.names = list(limits)
         self.link = link
@@ -77,6 +92,11 @@ class HardwareInterface:
         self.first_measured: list[str] = []  # measured for the first time in the last read()
         self.missing = [0] * len(self.names)  # consecutive cycles without a STATE, per position
         self.extra_states: list[dict] = []  # STATEs from positions beyond the known chain
+        self.gap_cycles = max(1, int(gap_cycles))
+        self.gaps = 0  # segments that lost their command after a gap (count)
+        self.probe_extra = 0  # positions beyond the tip the next SYNC waits for (0 = none)
+        self.exchange_s = 0.0  # how long the last exchange waited for its states (s)
+        self.exchange_probed = False  # the last exchange waited for positions beyond the tip
         self.exchanges = 0
         self.resume_pending = False  # next SYNCs carry "resume" until no segment reports HOLD
         self._pending: list[dict | None] | None = None
@@ -192,12 +212,17 @@ class HardwareInterface:
             return self.raw_states
         self.first_measured = []
         n = len(self.names)
-        self.extra_states = [s for s in states[n:] if s is not None]
+        # only a probe asks beyond the tip (a HEARTBEAT may wait for every discovered segment)
+        self.extra_states = [s for s in states[n:] if s is not None] if self.exchange_probed else []
         for i in range(n):
             st = states[i] if i < len(states) else None
             if st is None:
                 self.missing[i] += 1
                 self.raw_states[i] = None
+                name = self.names[i]
+                if self.missing[i] >= self.gap_cycles and self.held[name] is not None:
+                    self.held[name] = None  # a gap: hold entries until measured again
+                    self.gaps += 1
                 continue
             self.missing[i] = 0
             self.raw_states[i] = st
@@ -218,12 +243,25 @@ class HardwareInterface:
         """One bus exchange: SYNC with the setpoints when active, else HEARTBEAT."""
         if self.state == UNCONFIGURED:
             raise LifecycleError("write: HWI is unconfigured")
+        t0 = time.perf_counter()
+        self.exchange_probed = False
         if self.state == ACTIVE:
-            self._pending = self.link.sync(
-                self.setpoints(), timeout=self.reply_timeout, resume=self.resume_pending
-            )
+            sp = self.setpoints()
+            self.exchange_probed = self.probe_extra > 0
+            if self.probe_extra > 0:
+                self._pending = self.link.sync(
+                    sp,
+                    timeout=self.reply_timeout,
+                    resume=self.resume_pending,
+                    expected=len(sp) + self.probe_extra,
+                )
+            else:
+                self._pending = self.link.sync(
+                    sp, timeout=self.reply_timeout, resume=self.resume_pending
+                )
         else:
             self._pending = self.link.heartbeat(timeout=self.reply_timeout)
+        self.exchange_s = time.perf_counter() - t0
         self.exchanges += 1
 
 

@@ -487,6 +487,11 @@ class ChainLink:
         with self._write_lock:
             self._ser.write(bytes(data))
 
+    @property
+    def port_ok(self) -> bool:
+        """False once the port failed or was closed (a missing answer alone leaves it True)."""
+        return not self._closed and self._error is None
+
     def events(self) -> list[dict]:
         """Unsolicited events received so far, oldest first (the queue is drained)."""
         with self._cond:

@@ -99,11 +99,19 @@ class FixedRateLoop:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def set_period(self, period: float) -> None:
+    def set_period(self, period: float, keep_counts: bool = False) -> None:
+        """Run at ``period`` s from the next cycle on; the statistics restart (``keep_counts``:
+        only the timing windows do, cycle/overrun counts go on)."""
         if not period > 0:
             raise ValueError(f"loop period must be > 0 s, got {period}")
         self.period = period
-        self.stats.reset()
+        if keep_counts:
+            with self.stats.lock:
+                self.stats.period.clear()
+                self.stats.jitter.clear()
+                self.stats.compute.clear()
+        else:
+            self.stats.reset()
 
     def _run(self) -> None:
         st = self.stats

@@ -85,14 +85,18 @@ class Motion:
                 if name in hwi.limits:
                     hwi.set_curvature(name, kx, ky)
 
-    def rehold(self, state: RobotState, msg: str) -> None:
+    def rehold(self, state: RobotState, msg: str, segments: list[str] | None = None) -> None:
         """Segments held on their own: abort goals, controllers hold the measured state."""
         with self.lock:
-            self.abort_goals(msg)
+            self.abort_goals(msg, "segment_fault", (segments or [None])[0])
             self.cm.rebuild(self.cm.ctx, state, msg)
 
-    def abort_goals(self, reason: str) -> list[str]:
-        """Abort the running goal of every active controller; returns their ids."""
+    def abort_goals(
+        self, reason: str, cause: str | None = None, segment: str | None = None
+    ) -> list[str]:
+        """Abort the running goal of every active controller; returns their ids. ``cause``:
+        one of ``host.controllers.trajectory.ABORT_CAUSES`` (default: inferred from the reason);
+        ``segment``: the segment it concerns, if one."""
         out = []
         with self.lock:
             if self.cm is None:
@@ -100,7 +104,7 @@ class Motion:
             for c in self.cm.controllers.values():
                 abort = getattr(c, "abort_active", None)
                 if c.active and abort is not None:
-                    gid = abort(reason)
+                    gid = abort(reason, cause=cause, segment=segment)
                     if gid:
                         out.append(gid)
         return out

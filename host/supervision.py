@@ -125,6 +125,9 @@ class Supervisor:
                 names = ", ".join(f"{hwi.names[i]} (position {i})" for i in silent)
                 reason = f"no STATE from {names} for {limit} cycles"
                 self.silent = True
+        if reason is None and getattr(hwi, "extra_states", None):
+            tip = hwi.names[-1] if hwi.names else "the host"
+            reason = f"{len(hwi.extra_states)} segment(s) answer beyond {tip} (rejoin)"
         if reason is None and hwi.raw_states and descriptors:
             tip = hwi.raw_states[-1]
             known_tip = descriptors[len(hwi.names) - 1]

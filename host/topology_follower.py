@@ -40,6 +40,10 @@ from host.topology import (
 log = logging.getLogger("ucr.daemon")
 
 _DESCRIPTOR_BYTES = 200  # a DESCRIPTOR frame on the wire, bytes (upper estimate)
+PROBE_INTERVAL_S = 0.1  # while the chain is shorter than its description: one probe per 0.1 s
+REJOIN_RETRY_S = 0.2  # longest wait between discoveries while the port is fine but no segment
+# answers (the port's own reopen back-off goes up to watchdog.reconnect_max_s)
+_DISCOVER_TRIES = 3  # an incomplete discovery (a lost reply) is retried this often at once
 
 
 class TopologyFollower:
@@ -89,6 +93,9 @@ class TopologyFollower:
         self._reconnect_at = 0.0
         self._backoff = cfg.watchdog.reconnect_min_s
         self.stopping = False
+        self.gap_cycles = 2  # set by the daemon from its (usable) period
+        self.rejoins = 0  # segments probed back beyond a cut
+        self._next_probe = 0.0
 
     @property
     def connected(self) -> bool:
@@ -139,8 +146,37 @@ class TopologyFollower:
         if quick:
             n = max(len(self.descriptors), 1) + 1
             line_s = 2 * n * _DESCRIPTOR_BYTES * 10 / self.cfg.baudrate
-            timeout = min(timeout, max(0.08, line_s + 0.04))
+            # at a lowered (usable) rate the link is slow: allow two reply times
+            timeout = min(timeout, max(0.08, line_s + 0.04, 2.0 * self.reply_timeout))
         return self.link.discover(timeout=timeout)
+
+    def port_ok(self) -> bool:
+        """The port works (a lost reply or a silent chain leave it working)."""
+        return self.link is not None and bool(getattr(self.link, "port_ok", True))
+
+    def discover_retrying(self, quick: bool = False) -> list[dict]:
+        """:meth:`discover`, retried at once when a reply was lost on a working port (a glitch
+        or corrupted bytes); raises OSError when the port failed or every try was incomplete."""
+        for attempt in range(_DISCOVER_TRIES):
+            try:
+                return self.discover(quick=quick)
+            except OSError:
+                if attempt == _DISCOVER_TRIES - 1 or not self.port_ok():
+                    raise
+        return []
+
+    def probe_due(self, now: float) -> int:
+        """Positions beyond the tip the next SYNC should wait for: while the chain is shorter
+        than its description, once per ``PROBE_INTERVAL_S`` (a cut that healed by itself, a
+        segment that missed the rediscovery), else 0."""
+        hwi = self.hwi
+        if hwi is None:
+            return 0
+        missing = len(chain_bendables(self.full_robot)) - len(hwi.names)
+        if missing <= 0 or now < self._next_probe or len(self.descriptors) > len(hwi.names):
+            return 0  # (a segment found beyond the tip that does not match: reported, held)
+        self._next_probe = now + PROBE_INTERVAL_S
+        return missing
 
     def _adopt(self, descs: list[dict], cmp: Comparison) -> None:
         try:
@@ -179,7 +215,9 @@ class TopologyFollower:
             known = {
                 n: st for n, st in zip(self.hwi.names, self.hwi.last_states, strict=True) if st
             }
-        hwi = HardwareInterface(limits, self.link, self.reply_timeout, known=known)
+        hwi = HardwareInterface(
+            limits, self.link, self.reply_timeout, known=known, gap_cycles=self.gap_cycles
+        )
         hwi.configure()
         hwi.activate()
         state = robot_state_from(hwi, time.monotonic())
@@ -240,10 +278,28 @@ class TopologyFollower:
             aborted = self._motion.abort_goals(f"topology changed: {reason}")
         try:
             self.link.hold()
-            descs = self.discover(quick=True)
+            descs = self.discover_retrying(quick=True)
         except OSError as exc:
+            if self.port_ok():  # replies lost on a working port: rediscover shortly
+                if verify:
+                    log.warning("topology change: %s", reason)
+                    self._motion.abort_goals(f"link loss: {reason}", "link_loss")
+                self.topology_changes += 1
+                self._lost_chain(f"{reason}; discovery incomplete: {exc}")
+                return
             self.link_lost(exc)
             return
+        if verify and self.hwi is not None and 0 < len(descs) < len(self.descriptors):
+            # silence, no event, and fewer answers: a loaded host or a slow link loses replies
+            # as well as a cut does; ask once more with the full discovery time before cutting
+            uids = [d.get("uid") for d in self.descriptors]
+            if [d.get("uid") for d in descs] == uids[: len(descs)]:
+                try:
+                    again = self.discover_retrying()
+                except OSError:
+                    again = []
+                if len(again) > len(descs):
+                    descs = again
         if verify and self.hwi is not None:
             same = [d.get("uid") for d in descs] == [d.get("uid") for d in self.descriptors]
             if same and descs:
@@ -318,6 +374,7 @@ class TopologyFollower:
         log.error("chain lost: %s", why)
         self.link_state = "waiting"
         self.link_error = why
+        self._backoff = min(self._backoff, REJOIN_RETRY_S)
         self._reconnect_at = time.monotonic() + self._backoff
         with self._lock:
             self.hwi = None
@@ -346,18 +403,21 @@ class TopologyFollower:
         try:
             if self.link is None:
                 self.link = self._link_factory(self.port, self.cfg.baudrate)
-            descs = self.discover()
+            descs = self.discover_retrying()
         except OSError as exc:
-            if self.link is not None:
+            cap = wd.reconnect_max_s
+            if self.port_ok():
+                cap = min(cap, REJOIN_RETRY_S)  # a lost reply: the port is fine, retry soon
+            elif self.link is not None:
                 self.close_link()  # reopen from scratch next time
             self.link_error = str(exc)
-            self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
+            self._backoff = min(self._backoff * 2, cap)
             self._reconnect_at = now + self._backoff
             return
         cmp = compare(self.full_robot, descs) if descs else None
         if not descs or cmp.matched == 0:
             self.link_error = "no matching segment answers" if descs else "no segment answers"
-            self._backoff = min(self._backoff * 2, wd.reconnect_max_s)
+            self._backoff = min(self._backoff * 2, wd.reconnect_max_s, REJOIN_RETRY_S)
             self._reconnect_at = now + self._backoff
             return
         try:

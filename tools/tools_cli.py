@@ -199,7 +199,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             print(f"host port: {chain.host_port}")
             for k in range(n):
                 print(
-                    f"segment {k}: REPL {chain.repl_port(k)}  uid {chain.uid(k)}  "
+                    f"segment {k + 1}: REPL {chain.repl_port(k)}  uid {chain.uid(k)}  "
                     f"dir {chain.segment_dir(k)}  board {chain.board_of(k)}"
                     + (f" x{chain.cpu_factor_of(k):.0f}" if args.timing_model else "")
                 )

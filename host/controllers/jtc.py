@@ -114,16 +114,34 @@ class JointTrajectoryController(Controller):
         self.active = True
 
     def adopt_measured(self, names: list[str], state: RobotState) -> None:
-        """Hold newly measured bendables where they are. A running goal was planned without
-        them (their entries were hold entries), so it is aborted, holding the desired motion."""
+        """Bendables measured again after a gap in their states (or for the first time): their
+        command restarts from where they are measured. A running goal keeps them only if its
+        path is within ``goal_tolerance`` of every such measurement now (taking them back is then
+        no jump: e.g. a segment the goal holds still); otherwise it is aborted (cause
+        ``link_loss``) and they hold where measured.
+        """
         idx = [self._index[n] for n in names if n in self._index]
         if not idx:
             return
         hold = self._desired_now(state.t)[0]
+        dev = {}
+        for i in idx:
+            si = self._state_index[i]
+            dev[self.joints[i]] = math.hypot(state.kx[si] - hold[i][0], state.ky[si] - hold[i][1])
         if self._goal is not None:
+            worst = max(dev, key=dev.get)
+            tol = self.goal_tolerance
+            if dev[worst] <= tol:
+                return  # the path passes near where they are: the goal takes them on
             self._goal.finish(
                 "aborted",
-                f"{', '.join(names)} answered for the first time while the goal ran; holding",
+                f"link loss: {worst} measured again after a gap in its states, "
+                f"{dev[worst]:.3f} 1/m from the goal's path (> tolerance {tol:.3f} 1/m); "
+                "held where measured",
+                cause="link_loss",
+                segment=worst,
+                error=dev[worst],
+                tolerance=tol,
             )
             self._goal = None
         for i in idx:
@@ -215,7 +233,7 @@ class JointTrajectoryController(Controller):
         goal.t_accepted = now
         goal.state = "executing"
         if self._goal is not None:
-            self._goal.finish("aborted", f"replaced by goal {goal.id}")
+            self._goal.finish("aborted", f"replaced by goal {goal.id}", cause="replaced")
         self._goal = goal
         self._set_motion(traj, lead_in=lead_in)
         self._remember(goal)
@@ -227,6 +245,8 @@ class JointTrajectoryController(Controller):
         now: float | None = None,
         reason: str = "canceled by caller",
         state: str = "canceled",
+        cause: str | None = None,
+        segment: str | None = None,
     ) -> bool:
         """Stop the goal (decelerating over ``stop_time``); False if it was not running."""
         g = self._goals.get(goal_id)
@@ -234,17 +254,24 @@ class JointTrajectoryController(Controller):
             raise ControllerError(f"unknown goal id {goal_id!r}")
         if g is not self._goal or g.state in TERMINAL_STATES:
             return False
-        g.finish(state, reason)
+        g.finish(state, reason, cause=cause, segment=segment)
         self._goal = None
         self._stop(time.monotonic() if now is None else now)
         return True
 
-    def abort_active(self, reason: str, now: float | None = None) -> str | None:
-        """Abort the running goal (e.g. arbitration or topology change); returns its id."""
+    def abort_active(
+        self,
+        reason: str,
+        now: float | None = None,
+        cause: str | None = None,
+        segment: str | None = None,
+    ) -> str | None:
+        """Abort the running goal (e.g. arbitration or topology change); returns its id.
+        ``cause``: one of ``ABORT_CAUSES`` (default: inferred from ``reason``)."""
         if self._goal is None:
             return None
         gid = self._goal.id
-        self.cancel(gid, now, reason, state="aborted")
+        self.cancel(gid, now, reason, state="aborted", cause=cause, segment=segment)
         return gid
 
     def status_of(self, goal_id: str) -> dict[str, Any]:
@@ -301,31 +328,63 @@ class JointTrajectoryController(Controller):
                 worst = max(errs, key=errs.get)
                 g.max_error = max(g.max_error, errs[worst])
                 if self.path_tolerance > 0 and errs[worst] > self.path_tolerance:
-                    g.finish(
-                        "aborted",
-                        f"path tolerance violated on {worst}: error "
-                        f"{errs[worst]:.3f} 1/m > {self.path_tolerance:.3f} 1/m at "
-                        f"t = {tau:.2f} s",
+                    self._abort_holding(
+                        g,
+                        state,
+                        desired,
+                        f"path tolerance violated on {worst}: error {errs[worst]:.3f} 1/m > "
+                        f"tolerance {self.path_tolerance:.3f} 1/m at t = {tau:.2f} s",
+                        cause="path_tolerance",
+                        segment=worst,
+                        error=errs[worst],
+                        tolerance=self.path_tolerance,
                     )
-                    self._goal = None
-                    self._hold = self._measured(state, fallback=desired)
-                    self._set_motion(None)
             return
         g.final_error = {k: round(v, 5) for k, v in errs.items()}
         if len(errs) == len(self.joints) and all(e <= self.goal_tolerance for e in errs.values()):
             g.finish("succeeded")
             self._goal = None
-        elif tau > tr.duration + self.goal_time_tolerance:
-            worst = max(errs, key=errs.get) if errs else "?"
-            g.finish(
-                "aborted",
-                f"goal tolerance not reached {self.goal_time_tolerance:.2f} s "
-                f"after the end: {worst} error {errs.get(worst, float('nan')):.3f} 1/m > "
-                f"{self.goal_tolerance:.3f} 1/m",
+            return
+        if tau <= tr.duration + self.goal_time_tolerance:
+            return
+        over = {k: e for k, e in errs.items() if e > self.goal_tolerance}
+        unseen = [j for j in self.joints if j not in errs]
+        if over:
+            worst = max(over, key=over.get)
+            self._abort_holding(
+                g,
+                state,
+                desired,
+                f"goal tolerance not reached {self.goal_time_tolerance:.2f} s after the end: "
+                f"{worst} error {over[worst]:.3f} 1/m > tolerance {self.goal_tolerance:.3f} 1/m",
+                cause="goal_tolerance",
+                segment=worst,
+                error=over[worst],
+                tolerance=self.goal_tolerance,
             )
-            self._goal = None
-            self._hold = self._measured(state, fallback=desired)
-            self._set_motion(None)
+        else:  # every measured segment is within tolerance: the others sent no valid state
+            self._abort_holding(
+                g,
+                state,
+                desired,
+                f"link loss: no valid state from {', '.join(unseen)} "
+                f"{self.goal_time_tolerance:.2f} s after the end, so the goal tolerance "
+                f"({self.goal_tolerance:.3f} 1/m) could not be checked",
+                cause="link_loss",
+                segment=unseen[0],
+                tolerance=self.goal_tolerance,
+            )
+
+    def _abort_holding(
+        self, g: Goal, state: RobotState, desired: Any, reason: str, **detail: Any
+    ) -> None:
+        """Abort ``g`` and hold the measured position (the desired one where unmeasured)."""
+        g.finish("aborted", reason, **detail)
+        self._goal = None
+        # held where measured now; a segment whose state is stale holds its desired position
+        # (never a target computed from a measurement the host no longer sees)
+        self._hold = self._measured(state, fallback=desired, fresh_only=True)
+        self._set_motion(None)
 
     def _set_motion(
         self, traj: CurvatureTrajectory | None, lead_in: CurvatureTrajectory | None = None
@@ -365,13 +424,17 @@ class JointTrajectoryController(Controller):
             CurvatureTrajectory(now, p, v, a, [(self.stop_time, end)], self._rate / 0.95)
         )
 
-    def _measured(self, state: RobotState, fallback: np.ndarray) -> np.ndarray:
+    def _measured(
+        self, state: RobotState, fallback: np.ndarray, fresh_only: bool = False
+    ) -> np.ndarray:
         out = np.array(fallback, dtype=float, copy=True)
         if out.shape != (len(self.joints), 2):
             out = np.zeros((len(self.joints), 2))
         for i in range(len(self.joints)):
             si = self._state_index[i]
-            if state.has_value(si):  # fresh or last known (never measured: keep ``fallback``)
+            # fresh or last known (never measured: keep ``fallback``); ``fresh_only``: fresh
+            ok = state.valid[si] if fresh_only else state.has_value(si)
+            if ok:
                 out[i] = (state.kx[si], state.ky[si])
         return out
 

@@ -7,6 +7,7 @@ trajectory request and its fate. How waypoints become a path is described in
 from __future__ import annotations
 
 import bisect
+import math
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,34 @@ from host.controllers.base import ControllerError
 
 _SAMPLES = 33  # samples per piece when checking the rate limit
 TERMINAL_STATES = ("succeeded", "aborted", "canceled", "rejected")
+
+# why a goal was aborted (``Goal.abort["cause"]``); docs/controllers.md lists them
+ABORT_CAUSES = (
+    "path_tolerance",  # a measured segment left the path by more than path_tolerance
+    "goal_tolerance",  # not within goal_tolerance goal_time_tolerance s after the end
+    "topology_change",  # the chain changed (hot-plug, rejoin)
+    "segment_fault",  # a segment holds on its own (watchdog, HOLD, fault)
+    "link_loss",  # a segment's states stopped (gap) or the port failed
+    "replaced",  # a newer goal or a manual takeover replaced it
+    "stopped",  # the controller was deactivated or the daemon stopped
+)
+
+
+def abort_cause(reason: str) -> str:
+    """The cause of an abort from the reason the daemon's parts give (first word decides)."""
+    r = reason.lower()
+    for key, cause in (
+        ("topology", "topology_change"),
+        ("link lost", "link_loss"),
+        ("link loss", "link_loss"),
+        ("holding", "segment_fault"),
+        ("fault", "segment_fault"),
+        ("preempted", "replaced"),
+        ("replaced", "replaced"),
+    ):
+        if key in r:
+            return cause
+    return "stopped"
 
 
 def quintic_coeffs(
@@ -196,10 +225,33 @@ class Goal:
         self.progress = 0.0
         self.max_error = 0.0
         self.final_error: dict[str, float] = {}
+        # for an aborted goal: {"cause", "segment", "error" (1/m or None), "tolerance" (1/m or
+        # None)} — the error, when given, is a measured finite value above the tolerance
+        self.abort: dict[str, Any] | None = None
 
-    def finish(self, state: str, reason: str = "") -> None:
+    def finish(
+        self,
+        state: str,
+        reason: str = "",
+        *,
+        cause: str | None = None,
+        segment: str | None = None,
+        error: float | None = None,
+        tolerance: float | None = None,
+    ) -> None:
         if self.state not in TERMINAL_STATES:
             self.state, self.reason = state, reason
+            if state == "aborted":
+                if error is not None and not (
+                    math.isfinite(error) and (tolerance is None or error > tolerance)
+                ):
+                    error = None  # never report a figure that contradicts the cause
+                self.abort = {
+                    "cause": cause or abort_cause(reason),
+                    "segment": segment,
+                    "error": None if error is None else round(error, 5),
+                    "tolerance": tolerance,
+                }
         self._summarise()
         self.trajectory = None
 
@@ -224,5 +276,6 @@ class Goal:
             "points": self.n_points,
             "max_path_error": self.max_error,
             "final_error": dict(self.final_error),
+            "abort": dict(self.abort) if self.abort else None,
             "done": self.state in TERMINAL_STATES,
         }

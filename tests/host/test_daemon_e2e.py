@@ -10,7 +10,12 @@ import time
 
 import numpy as np
 import pytest
-from daemon_helpers import emulated_configs, start_daemon, wait_for
+from daemon_helpers import (
+    emulated_configs,
+    retry_if_the_link_was_disturbed,
+    start_daemon,
+    wait_for,
+)
 
 from host.config import DaemonConfig
 from host.controllers.base import ControllerError
@@ -99,6 +104,12 @@ def test_discovers_three_segments_matching_the_description(daemon, chain):
 
 def test_jtc_trajectory_converges_to_goal_within_tolerance(ready):
     d = ready
+    retry_if_the_link_was_disturbed(d, lambda: _converges(d), before=lambda: straighten(d))
+    with pytest.raises(GoalNotFound):
+        d.trajectory_status("no-such-goal")
+
+
+def _converges(d):
     target = {"segment_1": (2.0, 0.5), "segment_2": (1.0, -2.0), "segment_3": (1.5, 2.5)}
     gid = d.send_trajectory(
         [
@@ -119,18 +130,21 @@ def test_jtc_trajectory_converges_to_goal_within_tolerance(ready):
             js[n]["kappa"] * math.sin(js[n]["phi"]) - k * math.sin(p),
         )
         assert err <= 0.05, (n, err)
-    with pytest.raises(GoalNotFound):
-        d.trajectory_status("no-such-goal")
 
 
 def test_limits_never_exceeded_even_when_asked(ready):
     d = ready
     kmax = d.hwi.limits["segment_2"].kappa_max
-    rate = d.hwi.limits["segment_2"].kappa_rate_max
     with pytest.raises(ControllerError, match="exceeds kappa_max"):
         d.send_trajectory(
             [{"time_from_start": 1.0, "segments": {"segment_2": {"kappa": 1.5 * kmax}}}]
         )
+    retry_if_the_link_was_disturbed(d, lambda: _full_range_fast(d), before=lambda: straighten(d))
+
+
+def _full_range_fast(d):
+    kmax = d.hwi.limits["segment_2"].kappa_max
+    rate = d.hwi.limits["segment_2"].kappa_rate_max
     q = d.subscribe(["joint_states"])
     try:
         # asked for the full range in 0.1 s: far beyond kappa_rate_max -> retimed
@@ -146,14 +160,22 @@ def test_limits_never_exceeded_even_when_asked(ready):
     t = np.array([m["t_ms"][i] for m in msgs]) / 1000.0  # the segment's clock
     kx = np.array([m["kx"][i] for m in msgs])
     ky = np.array([m["ky"][i] for m in msgs])
-    assert np.hypot(kx, ky).max() <= kmax + 1e-3
+    # the limits hold on every attempt (pytest.fail is never retried); only reaching the goal
+    # may be spoiled by a disturbed link
+    if not np.hypot(kx, ky).max() <= kmax + 1e-3:
+        pytest.fail(f"kappa {np.hypot(kx, ky).max()} beyond kappa_max {kmax}")
     speed = windowed_speed(t, kx, ky)
-    assert speed.max() <= rate * 1.1
+    if not speed.max() <= rate * 1.1:
+        pytest.fail(f"speed {speed.max()} beyond kappa_rate_max {rate} * 1.1")
     assert np.hypot(kx[-1], ky[-1]) == pytest.approx(kmax, abs=0.02)
 
 
 def test_replacing_a_trajectory_midway_has_no_jump(ready):
     d = ready
+    retry_if_the_link_was_disturbed(d, lambda: _replace_midway(d), before=lambda: straighten(d))
+
+
+def _replace_midway(d):
     i = NAMES.index("segment_1")
     rate = d.hwi.limits["segment_1"].kappa_rate_max
     q = d.subscribe(["joint_states"])
@@ -168,17 +190,19 @@ def test_replacing_a_trajectory_midway_has_no_jump(ready):
         msgs += record(q, 1.8)
     finally:
         d.unsubscribe(q)
-    assert d.trajectory_status(g1)["state"] == "aborted"
-    assert "replaced by goal" in d.trajectory_status(g1)["reason"]
-    assert wait_for(lambda: d.trajectory_status(g2)["done"], 3.0)
-    assert d.trajectory_status(g2)["state"] == "succeeded"
     t = np.array([m["t_ms"][i] for m in msgs]) / 1000.0  # the segment's clock
     kx = np.array([m["kx"][i] for m in msgs])
     ky = np.array([m["ky"][i] for m in msgs])
     speed = windowed_speed(t, kx, ky)
     # Both goals peak below ~2.6 1/m/s. A jump in the command would drive the segment at its
-    # slew limit (kappa_rate_max = 5 1/m/s) right after the replacement.
-    assert speed.max() < 0.7 * rate, speed.max()
+    # slew limit (kappa_rate_max = 5 1/m/s) right after the replacement. (pytest.fail: never
+    # retried, whatever the link did)
+    if not speed.max() < 0.7 * rate:
+        pytest.fail(f"speed {speed.max()} >= 0.7 * {rate}: a jump at the replacement")
+    assert d.trajectory_status(g1)["state"] == "aborted"
+    assert "replaced by goal" in d.trajectory_status(g1)["reason"]
+    assert wait_for(lambda: d.trajectory_status(g2)["done"], 3.0)
+    assert d.trajectory_status(g2)["state"] == "succeeded"
 
 
 def test_unplug_tip_mid_trajectory_aborts_holds_rebuilds_and_plug_back(ready, chain):
@@ -290,6 +314,10 @@ def test_host_link_lost_and_back_recovers(ready, chain):
 
 
 def test_loop_statistics_are_reported(daemon):
+    # a loaded machine may have slowed the loop (link health); its statistics restart at the
+    # nominal rate once it is back
+    assert wait_for(lambda: not daemon.status()["link_health"]["degraded"], 40.0)
+    assert wait_for(lambda: daemon.loop_stats()["window"] > 100, 10.0)
     s = daemon.loop_stats()
     assert s["cycles"] > 100 and s["rate_hz"] == 100.0
     for k in ("period_us", "jitter_us", "compute_us"):

@@ -49,7 +49,11 @@ def _hwi(n: int, status: set[str] | None = None, missing: int = 0) -> SimpleName
     names = [f"segment_{i + 1}" for i in range(n)]
     st = {"status": status or set()}
     return SimpleNamespace(
-        names=names, missing=[missing] * n, raw_states=[st] * n, resume_pending=False
+        names=names,
+        missing=[missing] * n,
+        raw_states=[st] * n,
+        resume_pending=False,
+        extra_states=[],
     )
 
 
@@ -58,7 +62,7 @@ def _supervisor(events: list, reheld: list) -> Supervisor:
         WatchdogConfig(missed_cycles=3, silence_s=0.0),
         0.01,
         lambda ev, message="", **kw: events.append((ev, message)),
-        lambda state, msg: reheld.append(msg),
+        lambda state, msg, segments=None: reheld.append(msg),
     )
 
 

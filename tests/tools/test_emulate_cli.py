@@ -56,7 +56,7 @@ def test_emulate_robot_with_control_socket_and_sigterm(tmp_path) -> None:
             assert line, proc.stderr.read()
             lines.append(line.strip())
         host = lines[0].removeprefix("host port: ")
-        assert [ln.split(":")[0] for ln in lines[1:4]] == ["segment 0", "segment 1", "segment 2"]
+        assert [ln.split(":")[0] for ln in lines[1:4]] == ["segment 1", "segment 2", "segment 3"]
         with ChainLink(host) as link:
             end = time.monotonic() + 15
             descs: list = []
@@ -66,14 +66,14 @@ def test_emulate_robot_with_control_socket_and_sigterm(tmp_path) -> None:
             with socket.socket(socket.AF_UNIX) as s:
                 s.connect(str(sock_path))
                 f = s.makefile("rw")
-                f.write("unplug 1\n")
+                f.write("unplug 2\n")  # 1-based: the cable into the second segment
                 f.flush()
-                assert f.readline().strip() == "link 1 unplugged"
+                assert f.readline().strip() == "link 2 unplugged"
                 f.readline()
                 f.write("status\n")
                 f.flush()
                 status = "".join(iter(lambda: f.readline(), "\n"))
-                assert "link 0: plugged, 921600 bd" in status and "link 1: UNPLUGGED" in status
+                assert "link 1: plugged, 921600 bd" in status and "link 2: UNPLUGGED" in status
             assert [d["position"] for d in link.discover(timeout=0.5)] == [0]
             pids = [int(p) for p in re.findall(r"pid (\d+)", status)]
         proc.send_signal(signal.SIGTERM)

@@ -145,16 +145,29 @@ def test_ctrl_c_on_the_repl_pty_interrupts_main_and_gives_the_raw_repl(echo_chai
 
 def test_control_commands(echo_chain) -> None:
     chain, _ = echo_chain
-    assert execute(chain, "baud 1 115200") == "link 1 throttled to 115200 bit/s"
+    assert execute(chain, "baud 2 115200") == "link 2 throttled to 115200 bit/s"
     assert chain.stats()["links"][1]["up"]["baud"] == 115200
-    assert execute(chain, "baud 1 off") == "link 1 unthrottled"
-    assert "UNPLUGGED" in (execute(chain, "unplug 1") and execute(chain, "status"))
-    execute(chain, "plug 1")
-    assert execute(chain, "corrupt 0 2").startswith("error:")
+    assert execute(chain, "baud 2 off") == "link 2 unthrottled"
+    assert "UNPLUGGED" in (execute(chain, "unplug 2") and execute(chain, "status"))
+    execute(chain, "plug 2")
+    assert execute(chain, "corrupt 1 2").startswith("error:")
     assert execute(chain, "unplug 7").startswith("error:")
     assert execute(chain, "frobnicate").startswith("error: unknown command")
-    assert execute(chain, "latency 0 0.001").startswith("link 0 latency")
+    assert execute(chain, "latency 1 0.001").startswith("link 1 latency")
     chain.set_link(0, latency=0.0)
+
+
+def test_control_positions_count_from_one_like_segment_names(echo_chain) -> None:
+    chain, _ = echo_chain
+    assert execute(chain, "unplug 0") == f"error: position must be 1..{chain.n}, got 0"
+    assert execute(chain, "unplug 1") == "link 1 unplugged"
+    assert chain.stats()["links"][0]["plugged"] is False
+    execute(chain, "plug 1")
+    assert chain.stats()["links"][0]["plugged"] is True
+    status = execute(chain, "status")
+    assert "link 1: plugged" in status and "segment 1: uid" in status
+    assert "link 0:" not in status and "segment 0:" not in status
+    assert execute(chain, f"unplug {chain.n + 1}").startswith("error: position must be 1..")
 
 
 def test_bad_arguments_are_refused(tmp_path) -> None:

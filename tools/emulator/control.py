@@ -1,4 +1,9 @@
-"""Line commands that control a running emulated chain (``ucr emulate`` stdin and unix socket)."""
+"""Line commands that control a running emulated chain (``ucr emulate`` stdin and unix socket).
+
+Positions here are what a user sees: 1-based, like segment names (``segment_1`` is the one next to
+the host) and the rest of the CLI. :class:`tools.emulator.EmulatedChain`'s Python API stays
+0-based (``chain.unplug(0)`` is link 1); this module converts at its edge, in both directions.
+"""
 
 from __future__ import annotations
 
@@ -9,28 +14,30 @@ from pathlib import Path
 
 from tools.emulator.chain import EmulatedChain, EmulatorError
 
-HELP = """commands (k = link/segment position, 0 = the one next to the host):
+HELP = """commands (k = link/segment position, 1 = the one next to the host):
   status                 links (plug, baud, latency, corruption, counters) and segments
   unplug k | plug k      pull / plug the cable between segment k and its upstream side
   baud k RATE|off        throttle link k to RATE bit/s (10 bits per byte), or remove the throttle
+                         (a byte-time model: the daemon slows its loop to what the link carries)
   latency k SECONDS      add a fixed delay to link k (both ways)
   corrupt k RATE         corrupt each byte on link k with probability RATE (0..1)
   restart k              reboot segment k (kill its process; it restarts)
   off k | on k           power segment k off / on
-  silence on|off         the host's bytes stop reaching segment 0 (watchdog test)
+  silence on|off         the host's bytes stop reaching segment 1 (watchdog test)
   inject k HEX           put raw bytes (hex) on link k, travelling down
   repl k                 last lines segment k printed on its REPL
   help                   this text"""
 
 
 def _k(chain: EmulatedChain, word: str) -> int:
+    """The 0-based index of the user's 1-based position ``word``."""
     try:
         k = int(word)
     except ValueError:
         raise EmulatorError(f"position must be an integer, got {word!r}") from None
-    if not 0 <= k < chain.n:
-        raise EmulatorError(f"position must be 0..{chain.n - 1}, got {k}")
-    return k
+    if not 1 <= k <= chain.n:
+        raise EmulatorError(f"position must be 1..{chain.n}, got {k}")
+    return k - 1
 
 
 def _float(word: str, what: str) -> float:
@@ -48,14 +55,14 @@ def status_text(chain: EmulatedChain) -> str:
         u = link["up"]
         baud = f"{d['baud']} bd" if d["baud"] else "unthrottled"
         lines.append(
-            f"link {link['index']}: {'plugged' if link['plugged'] else 'UNPLUGGED'}, {baud}, "
+            f"link {link['index'] + 1}: {'plugged' if link['plugged'] else 'UNPLUGGED'}, {baud}, "
             f"latency {d['latency_s'] * 1000:g} ms, corrupt {d['corrupt_rate']:g}; "
             f"down {d['bytes_out']} B (dropped {d['dropped']}, corrupted {d['corrupted']}), "
             f"up {u['bytes_out']} B (dropped {u['dropped']}, corrupted {u['corrupted']})"
         )
         state = "running" if seg["running"] else ("off" if not seg["powered"] else "restarting")
         lines.append(
-            f"  segment {seg['index']}: uid {seg['uid']}, {state}, pid {seg['pid']}, "
+            f"  segment {seg['index'] + 1}: uid {seg['uid']}, {state}, pid {seg['pid']}, "
             f"restarts {seg['restarts']}, REPL {seg['repl_port']}"
         )
     return "\n".join(lines)
@@ -98,44 +105,45 @@ def execute(chain: EmulatedChain, line: str) -> str:
                 chain.restore_host_link()
             return f"host silence {args[0]}"
         k = _k(chain, args[0])
+        u = k + 1  # as the user wrote it
         if cmd == "unplug":
             chain.unplug(k)
-            return f"link {k} unplugged"
+            return f"link {u} unplugged"
         if cmd == "plug":
             chain.plug(k)
-            return f"link {k} plugged"
+            return f"link {u} plugged"
         if cmd == "baud":
             if args[1].lower() in ("off", "none", "0"):
                 chain.set_link(k, baud=None)
-                return f"link {k} unthrottled"
+                return f"link {u} unthrottled"
             try:
                 rate = int(args[1])
             except ValueError:
                 return f"error: baud must be an integer or 'off', got {args[1]!r}"
             chain.set_link(k, baud=rate)
-            return f"link {k} throttled to {rate} bit/s"
+            return f"link {u} throttled to {rate} bit/s"
         if cmd == "latency":
             chain.set_link(k, latency=_float(args[1], "latency"))
-            return f"link {k} latency {args[1]} s"
+            return f"link {u} latency {args[1]} s"
         if cmd == "corrupt":
             chain.set_link(k, corrupt_rate=_float(args[1], "rate"))
-            return f"link {k} corrupts bytes with probability {args[1]}"
+            return f"link {u} corrupts bytes with probability {args[1]}"
         if cmd == "restart":
             chain.restart(k)
-            return f"segment {k} restarted"
+            return f"segment {u} restarted"
         if cmd == "off":
             chain.power_off(k)
-            return f"segment {k} off"
+            return f"segment {u} off"
         if cmd == "on":
             chain.power_on(k)
-            return f"segment {k} on"
+            return f"segment {u} on"
         if cmd == "inject":
             try:
                 data = bytes.fromhex(args[1])
             except ValueError:
                 return f"error: not hex: {args[1]!r}"
             chain.inject(k, data)
-            return f"{len(data)} bytes injected on link {k}"
+            return f"{len(data)} bytes injected on link {u}"
         if cmd == "repl":
             return chain.repl_output(k)[-2000:]
     except EmulatorError as exc:

@@ -1,0 +1,162 @@
+"""Link health: a slow or lossy chain lowers the usable loop rate instead of stalling it.
+
+Fed once per cycle with which positions answered the last exchange and how long it took, it keeps
+a short window and decides the *usable* period: when replies from some position keep missing
+(loss: a reply later than the reply time counts as missing), the loop slows down (period ×2,
+never slower than half the segments' watchdog); once every position has answered every exchange
+for ``recover_s`` at the lower rate, the loop tries the nominal rate again.
+A return that fails at once doubles the clean time asked for next (up to 12 s): a link that
+stays bad is not probed at full rate over and over.
+
+It decides and reports; the daemon applies the period (loop, reply timeout, supervision).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+DEGRADE_WINDOW = 30  # cycles looked at for loss (a burst of host load is shorter)
+DEGRADE_LOSS = 0.6  # a position missing in this share of the window, with at least
+DEGRADE_LATE = 3  # this many replies arriving late meanwhile, degrades the link
+RECOVER_S = 1.5  # clean time at the lower rate before trying the nominal rate again (s)
+
+
+class LinkHealth:
+    """Usable period for a chain whose nominal period is ``period`` (s). ``min_rate_hz``: the
+    slowest rate allowed (keeps the segments' watchdogs fed)."""
+
+    def __init__(self, period: float, reply_share: float = 0.8, min_rate_hz: float = 10.0) -> None:
+        self.nominal = period
+        self.period = period
+        self.reply_share = reply_share
+        self.min_period = max(period, 1.0 / min_rate_hz)
+        self.recover_s = RECOVER_S
+        self._answered: deque[tuple[bool, ...]] = deque(maxlen=DEGRADE_WINDOW)
+        self._latency: deque[float] = deque(maxlen=50)
+        self._clean_since: float | None = None
+        self._late_seen: int | None = None
+        self._t_restored: float | None = None
+        self.degradations = 0
+        self.last: dict[str, Any] | None = None  # what the last change measured
+
+    @property
+    def degraded(self) -> bool:
+        return self.period > self.nominal * 1.001
+
+    def reset(self) -> None:
+        """Forget the window (a rebuild changes the chain)."""
+        self._answered.clear()
+        self._latency.clear()
+        self._clean_since = None
+
+    def observe(
+        self,
+        answered: list[bool],
+        exchange_s: float,
+        now: float,
+        late_replies: Callable[[], int] = lambda: 1,
+    ) -> dict[str, Any] | None:
+        """One cycle: ``answered[i]`` whether position i answered; ``exchange_s`` how long
+        the exchange waited; ``late_replies()`` a running count of replies that came after
+        their exchange ended (asked only when replies miss). Missing replies that do arrive
+        late mean a slow link: slowing down helps. Missing replies that never come (a cut, a
+        corrupting link) are reported in the loss figures and left to supervision.
+        Returns a change ``{"period", "change", ...}`` or None."""
+        if not answered:
+            return None
+        if self._answered and len(self._answered[-1]) != len(answered):
+            self.reset()
+        self._answered.append(tuple(answered))
+        if all(answered):
+            self._latency.append(exchange_s)
+        loss = self.loss()
+        p90 = float(np.percentile(self._latency, 90)) if len(self._latency) >= 5 else 0.0
+        worst = max(range(len(loss)), key=loss.__getitem__)
+        lossy = len(self._answered) == DEGRADE_WINDOW and loss[worst] >= DEGRADE_LOSS
+        late = 0
+        if lossy:
+            count = late_replies()
+            if self._late_seen is None:
+                self._late_seen = count
+            late = count - self._late_seen
+        else:
+            self._late_seen = None
+        if lossy and late >= DEGRADE_LATE and self.period < self.min_period * 0.999:
+            # the first position whose replies miss: the slow link is the one into it (or, for
+            # a throughput limit, one before it whose own replies still fit)
+            first = next(i for i, x in enumerate(loss) if x >= loss[worst] / 2)
+            return self._degrade(first, loss[worst], now)
+        if not self.degraded:
+            return None
+        clean = len(self._answered) == DEGRADE_WINDOW and max(loss) == 0.0
+        if not clean:
+            self._clean_since = None
+            return None
+        if self._clean_since is None:
+            self._clean_since = now
+            return None
+        if now - self._clean_since < self.recover_s:
+            return None
+        self.period = self.nominal
+        self._t_restored = now
+        self.reset()
+        self.last = {
+            "position": None,
+            "loss": 0.0,
+            "latency_ms": round(p90 * 1e3, 2),
+            "usable_rate_hz": round(1.0 / self.period, 2),
+            "cause": "recovered",
+        }
+        return {"period": self.period, "change": "restored", **self.last}
+
+    def _degrade(self, position: int, loss: float, now: float) -> dict[str, Any]:
+        """Halve the rate (not below the floor); the change as reported."""
+        p90 = float(np.percentile(self._latency, 90)) if len(self._latency) >= 5 else 0.0
+        if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
+            self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
+        self._t_restored = None
+        self.period = min(self.period * 2, self.min_period)
+        self.degradations += 1
+        self.reset()
+        self._late_seen = None
+        self.last = {
+            "position": position,
+            "loss": round(loss, 3),
+            "latency_ms": round(p90 * 1e3, 2),
+            "usable_rate_hz": round(1.0 / self.period, 2),
+            "cause": "loss",
+        }
+        return {"period": self.period, "change": "degraded", **self.last}
+
+    def stall(self, position: int, late: int, now: float) -> dict[str, Any] | None:
+        """Supervision found a silent stretch and the very same chain behind it (a stall): with
+        replies arriving late meanwhile (``late`` > 0) the link is slow — degrade at once,
+        without waiting for a full window. Returns a change as :meth:`observe` does."""
+        if late <= 0 or self.period >= self.min_period * 0.999:
+            return None
+        loss = self.loss()
+        return self._degrade(position, loss[position] if position < len(loss) else 1.0, now)
+
+    def loss(self) -> list[float]:
+        """Share of the window in which each position did not answer."""
+        if not self._answered:
+            return []
+        a = np.array(self._answered, dtype=bool)
+        return [float(x) for x in 1.0 - a.mean(axis=0)]
+
+    def snapshot(self) -> dict[str, Any]:
+        """For status: nominal and usable rate, per-position loss, exchange latency p90."""
+        lat = float(np.percentile(self._latency, 90)) * 1e3 if self._latency else None
+        return {
+            "degraded": self.degraded,
+            "nominal_rate_hz": round(1.0 / self.nominal, 2),
+            "usable_rate_hz": round(1.0 / self.period, 2),
+            "loss": [round(x, 3) for x in self.loss()],
+            "latency_ms_p90": None if lat is None else round(lat, 2),
+            "degradations": self.degradations,
+            "last_change": dict(self.last) if self.last else None,
+        }
