@@ -18,6 +18,7 @@ from typing import Any
 
 import serial
 
+from host import floors
 from protocol import constants as C
 from protocol import messages as M
 from protocol.cbor import loads
@@ -46,26 +47,12 @@ class SegmentError(LinkError):
 
 
 def exchange_floor_s(n: int, baudrate: int) -> float:
-    """Shortest possible SYNC -> all-STATEs exchange (s) on a real UART chain of ``n`` segments.
+    """Shortest SYNC -> all-STATEs exchange (s) on today's store-and-forward chain of ``n``.
 
-    Segments store and forward whole frames, so the SYNC crosses the n links one after the other
-    and so does the last segment's STATE: n x (t_sync + t_state), with frame sizes taken from the
-    real encoders at their largest field values and 10 bits per byte. Processing time is excluded.
+    ``host.floors.store_and_forward_floor_s`` at the largest frames (docs/protocol.md
+    "Floors"); the daemon's rate warning uses it.
     """
-    if n <= 0:
-        return 0.0
-    sync = M.encode_sync(255, C.TIME_WRAP - 1, [(C.INT_LIMIT / C.KAPPA_SCALE / 2, -3.0)] * n)
-    state = M.encode_state(
-        255,
-        cycle=C.TIME_WRAP - 1,
-        t_ms=C.TIME_WRAP - 1,
-        kappa=3.0,
-        phi=-3.0,
-        tendon_lengths=[1.0] * 3,
-        servo_angles=[-3.0] * 3,
-        status=0x3F,
-    )
-    return n * (len(sync) + len(state)) * 10 / baudrate
+    return floors.store_and_forward_floor_s(n, baudrate)
 
 
 def _small_int(value: Any, lo: int, hi: int) -> bool:
