@@ -34,6 +34,18 @@ class LinkTimeoutError(LinkError, TimeoutError):
     """No (complete) answer within the timeout."""
 
 
+class ProtocolVersionError(LinkError):
+    """A segment speaks a protocol version this host does not: it must be reflashed."""
+
+    def __init__(self, position: int, versions: str) -> None:
+        self.position = position
+        super().__init__(
+            f"segment {position} speaks protocol version {versions}, this host speaks "
+            f"{C.VERSION_MIN}..{C.VERSION_MAX}: reflash it with `ucr flash` "
+            "(docs/protocol.md section 10)"
+        )
+
+
 class SegmentError(LinkError):
     """A segment answered a request with an ERROR frame (``code``, ``code_name``, ``text``)."""
 
@@ -327,9 +339,12 @@ class ChainLink:
                     p = self._payload(c.replies[pos])
                     if isinstance(p, dict) and p.get(C.KD_DOWNSTREAM_PRESENT) is False:
                         tip.append(pos)
+                if c.errors:  # a segment refused the DISCOVER: nothing passes it
+                    return True
                 return bool(tip) and all(i in c.replies for i in range(min(tip) + 1))
 
             self._wait(col, timeout, done)
+            self._refuse_other_versions(col)
             descs = []
             for pos in sorted(col.replies):
                 try:
@@ -349,6 +364,29 @@ class ChainLink:
                 self._counters["timeouts"] += 1
             self._expected = len(descs)
             return descs
+
+    def _refuse_other_versions(self, col: _Collector) -> None:
+        """Raise :class:`ProtocolVersionError` for the first segment that answered DISCOVER with
+        ERROR UNSUPPORTED_VERSION or a DESCRIPTOR announcing a version outside this host's range
+        (docs/protocol.md section 10: no common version, the host reports it and does not start).
+        """
+        found: list[tuple[int, str]] = []
+        for pos, frame in col.errors.items():
+            p = self._payload(frame)
+            if isinstance(p, dict) and p.get(C.KR_CODE) == C.ERR_UNSUPPORTED_VERSION:
+                rng = p.get(3)
+                ok = isinstance(rng, list) and len(rng) == 2
+                ok = ok and all(_small_int(v, 0, 255) for v in rng)
+                found.append((pos, f"{rng[0]}..{rng[1]}" if ok else f"ver {frame.ver}"))
+        for pos, frame in col.replies.items():
+            p = self._payload(frame)
+            v = p.get(C.KD_PROTOCOL_VERSION) if isinstance(p, dict) else None
+            if _small_int(v, 0, 0xFFFF) and not C.VERSION_MIN <= v <= C.VERSION_MAX:
+                found.append((pos, str(v)))
+            elif frame.ver != C.VERSION:
+                found.append((pos, str(frame.ver)))
+        if found:
+            raise ProtocolVersionError(*min(found))
 
     def _cyclic(
         self, mtype: int, payload: dict, expected: int, timeout: float
@@ -499,6 +537,7 @@ __all__ = [
     "ChainLink",
     "LinkError",
     "LinkTimeoutError",
+    "ProtocolVersionError",
     "SegmentError",
     "exchange_floor_s",
 ]
