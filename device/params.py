@@ -28,7 +28,6 @@ from protocol.constants import (
     T_CLEAR_FAULT,
     T_PARAM_SET,
     T_PARAM_VALUE,
-    VERSION,
 )
 
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
@@ -116,7 +115,7 @@ def descriptor(self):
     return {
         "uid": self.uid,
         "fw_version": config.FW_VERSION,
-        "protocol_version": VERSION,  # the descriptor announces what this build speaks
+        "protocol_version": 1,
         "model": si["model"],
         "length": float(si["length"]),
         "tendon_angles": [float(a) for a in si["tendon_angles"]],
