@@ -1,13 +1,21 @@
-"""Emulated chain figures: discovery time (1, 3, 8 segments) and SYNC -> STATE round trip on
-throttled links (115200 and 921600 baud) as a ratio to two floors.
+"""Emulated chain figures: discovery time, SYNC -> STATE round trip and sustained cycle rate for
+1, 3 and 8 segments at 115200, 921600 and 2000000 baud, each as a ratio to the line-rate floor;
+with and without the emulator's ESP32 timing model (docs/emulator.md "Timing model").
 
-Run: .venv/bin/python benchmarks/bench_chain.py [--repeat N]
-Line-rate floor: the time the bytes a round trip puts on link 0 (the SYNC plus every segment's
-STATE) need at the line rate, bytes x 10 / baud. Store-and-forward floor: segments receive a
-whole frame (and check its CRC) before passing it on, so the SYNC crosses n links one after the
-other and so does the last segment's STATE: n x (t_sync + t_state). The first ratio is what the
-protocol costs against a raw wire; the second is what the emulation and firmware add on top of
-the chain's inherent latency.
+Run: .venv/bin/python benchmarks/bench_chain.py [--repeat N] [--duration S] [--rate HZ]
+     [--timing off|on|both] [--segments 1,3,8] [--bauds 115200,921600,2000000]
+
+Floors (docs/protocol.md "Floors", computed by host/floors.py, the one place): the line-rate
+floor is the bytes the exchange puts on link 0 (SYNC + every STATE, sizes measured here) x 10 /
+baud; the store-and-forward floor is n x (SYNC + STATE) x 10 / baud, what forwarding whole frames
+costs. Nothing is dropped: a cycle in which any STATE is missing or late is a miss and is
+counted, in the round trip (excluded from the median, printed beside it) and in the sustained
+runs (a cycle whose STATEs are not all in before the next tick, or a tick the host could not
+start on time, is a miss).
+
+Sustained: the host starts a SYNC on every tick of ``--rate`` Hz for ``--duration`` s and waits
+at most until the next tick (the issue's goal: 8 segments @ 921600, 100 Hz for 60 s, 0 misses).
+Back to back: the next SYNC as soon as the last cycle ended; its rate is the chain's ceiling.
 """
 
 from __future__ import annotations
@@ -16,24 +24,115 @@ import argparse
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from host.link import ChainLink  # noqa: E402
+from host import floors  # noqa: E402
+from host.link import ChainLink, LinkError  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
 
+SETPOINT = (0.5, 0.3)  # kappa 1/m, phi rad
 
-def boot(link: ChainLink, n: int, timeout: float = 20.0) -> None:
+
+@dataclass
+class Cycles:
+    """Outcome of a run of cycles: durations of the complete ones, misses, wire bytes seen."""
+
+    times: list[float]
+    misses: int
+    cycles: int
+    elapsed_s: float
+    tx_bytes: int
+    rx_bytes: int
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.cycles - self.misses) / self.elapsed_s if self.elapsed_s else 0.0
+
+
+def boot(link: ChainLink, n: int, timeout: float = 120.0) -> None:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         try:
-            if len(link.discover(timeout=0.5)) == n:
+            if len(link.discover(timeout=1.0)) == n:
                 return
         except OSError:
             pass
         time.sleep(0.1)
-    raise SystemExit(f"chain of {n} did not boot")
+    raise SystemExit(f"chain of {n} did not boot within {timeout:.0f} s")
+
+
+def settle(link: ChainLink, n: int, timeout: float = 60.0) -> None:
+    """Wait until a cycle completes again (a chain that fell behind works off queued SYNCs)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if _cycle(link, n, 1.0)[1]:
+            return
+    raise SystemExit(f"chain of {n} answers no complete cycle within {timeout:.0f} s")
+
+
+def _cycle(link: ChainLink, n: int, timeout: float) -> tuple[float, bool]:
+    t0 = time.perf_counter()
+    try:
+        states = link.sync([SETPOINT] * n, timeout=timeout)
+        ok = all(s is not None for s in states)
+    except LinkError:
+        ok = False
+    return time.perf_counter() - t0, ok
+
+
+def run_cycles(
+    link: ChainLink, n: int, *, count: int = 0, duration_s: float = 0.0, rate_hz: float = 0.0
+) -> Cycles:
+    """``count`` cycles 10 ms apart (round trip), or cycles for ``duration_s`` at ``rate_hz``
+    (0 = back to back). A cycle is a miss if any STATE is missing or, paced, arrives after the
+    next tick; ticks the host starts late are misses too."""
+    s0 = link.stats
+    times: list[float] = []
+    misses = cycles = 0
+    period = 1.0 / rate_hz if rate_hz else 0.0
+    t_start = time.perf_counter()
+    next_tick = t_start
+    while True:
+        now = time.perf_counter()
+        if count and cycles >= count:
+            break
+        if duration_s and now - t_start >= duration_s:
+            break
+        if period:
+            if now - next_tick > period:  # the host fell behind: the ticks it skipped are misses
+                skipped = int((now - next_tick) / period)
+                misses += skipped
+                cycles += skipped
+                next_tick += skipped * period
+            timeout = max(1e-3, next_tick + period - now)
+        else:
+            timeout = 1.0
+        dt, ok = _cycle(link, n, timeout)
+        cycles += 1
+        if ok and (not period or time.perf_counter() <= next_tick + period):
+            times.append(dt)
+        else:
+            misses += 1
+        if period:
+            next_tick += period
+            delay = next_tick - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+        elif count:
+            time.sleep(0.01)
+    elapsed = time.perf_counter() - t_start
+    s1 = link.stats
+    return Cycles(
+        times,
+        misses,
+        cycles,
+        elapsed,
+        s1["tx_bytes"] - s0["tx_bytes"],
+        s1["rx_bytes"] - s0["rx_bytes"],
+    )
 
 
 def bench_discovery(n: int, repeat: int) -> list[float]:
@@ -49,51 +148,76 @@ def bench_discovery(n: int, repeat: int) -> list[float]:
         return times
 
 
-def bench_roundtrip(n: int, baud: int, repeat: int) -> tuple[list[float], float, float]:
-    with EmulatedChain(n) as chain, ChainLink(chain.host_port, baudrate=baud) as link:
-        chain.set_all_links(baud=baud)
+def _pct(values: list[float], q: float) -> float:
+    s = sorted(values)
+    return s[int(q * (len(s) - 1))] if s else float("nan")
+
+
+def bench_chain(n: int, timing: bool, bauds: list[int], args: argparse.Namespace) -> None:
+    with EmulatedChain(n, timing=timing) as chain, ChainLink(chain.host_port) as link:
+        factor = chain.cpu_factor_of(0)
         boot(link, n)
-        setpoints = [(0.5, 0.3)] * n
-        link.sync(setpoints, timeout=1.0)
-        times, floors, sf_floors = [], [], []
-        for _ in range(repeat):
-            s0 = link.stats
-            t0 = time.perf_counter()
-            states = link.sync(setpoints, timeout=1.0)
-            dt = time.perf_counter() - t0
-            s1 = link.stats
-            if any(s is None for s in states):
-                continue
-            tx = s1["tx_bytes"] - s0["tx_bytes"]
-            rx = s1["rx_bytes"] - s0["rx_bytes"]
-            times.append(dt)
-            floors.append((tx + rx) * 10 / baud)
-            sf_floors.append(n * (tx + rx / n) * 10 / baud)
-            time.sleep(0.01)
-        return times, statistics.median(floors), statistics.median(sf_floors)
+        for baud in bauds:
+            chain.set_all_links(baud=baud)
+            settle(link, n)  # warm up at this baud
+            rtt = run_cycles(link, n, count=args.repeat)
+            sync_b = rtt.tx_bytes / max(1, rtt.cycles)
+            state_b = rtt.rx_bytes / max(1, rtt.cycles) / n
+            lr = floors.line_rate_floor_s(n, baud, sync_b, state_b)
+            sf = floors.store_and_forward_floor_s(n, baud, sync_b, state_b)
+            med = statistics.median(rtt.times) if rtt.times else float("nan")
+            model = f" [ESP32 model x{factor:.0f}]" if timing else ""
+            label = f"  {n} seg @ {baud:>7} bd{model}"
+            print(
+                f"{label}: RTT median {med * 1e3:7.2f} ms p90 {_pct(rtt.times, 0.9) * 1e3:7.2f}"
+                f" ms, misses {rtt.misses}/{rtt.cycles} | line-rate floor {lr * 1e3:6.2f} ms"
+                f" -> {med / lr:4.2f}x (goal <= 1.3) | store-and-forward floor {sf * 1e3:6.2f}"
+                f" ms -> {med / sf:4.2f}x | {sync_b:.0f} B SYNC, {state_b:.0f} B/STATE",
+                flush=True,
+            )
+            b2b = run_cycles(link, n, duration_s=min(args.duration, 3.0))
+            settle(link, n)
+            paced = run_cycles(link, n, duration_s=args.duration, rate_hz=args.rate)
+            settle(link, n)  # a chain that fell behind first works off its backlog
+            ceiling = 1.0 / lr
+            print(
+                f"{'':>{len(label)}}  {args.rate:.0f} Hz for {paced.elapsed_s:.0f} s: "
+                f"{paced.rate_hz:6.1f} Hz complete, misses {paced.misses}/{paced.cycles}"
+                f" | back to back: {b2b.rate_hz:6.1f} Hz, misses {b2b.misses}/{b2b.cycles}"
+                f" = {b2b.rate_hz / ceiling:4.2f}x the line-rate ceiling {ceiling:6.0f} Hz",
+                flush=True,
+            )
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=30)
+    parser.add_argument("--repeat", type=int, default=30, help="round trips per figure")
+    parser.add_argument("--duration", type=float, default=5.0, help="s per sustained run")
+    parser.add_argument("--rate", type=float, default=100.0, help="sustained cycle rate, Hz")
+    parser.add_argument("--timing", choices=("off", "on", "both"), default="both")
+    parser.add_argument("--segments", default="1,3,8")
+    parser.add_argument("--bauds", default="115200,921600,2000000")
+    parser.add_argument("--no-discovery", action="store_true")
     args = parser.parse_args()
-    print("discovery (unthrottled links), median / p90 over", args.repeat, "runs")
-    for n in (1, 3, 8):
-        t = sorted(bench_discovery(n, args.repeat))
-        print(
-            f"  {n} segment(s): {statistics.median(t) * 1e3:7.2f} ms  p90 "
-            f"{t[int(0.9 * (len(t) - 1))] * 1e3:7.2f} ms"
-        )
-    print("SYNC -> all STATEs round trip on throttled links, median over", args.repeat, "runs")
-    for n in (1, 3, 8):
-        for baud in (115200, 921600):
-            t, floor, sf = bench_roundtrip(n, baud, args.repeat)
-            med = statistics.median(t)
+    ns = [int(x) for x in args.segments.split(",")]
+    bauds = [int(x) for x in args.bauds.split(",")]
+    if not args.no_discovery:
+        print("discovery (unthrottled links), median / p90 over", args.repeat, "runs")
+        for n in ns:
+            t = bench_discovery(n, args.repeat)
             print(
-                f"  {n} segment(s) @ {baud:>6} bd: {med * 1e3:7.2f} ms | line-rate floor "
-                f"{floor * 1e3:6.2f} ms, ratio {med / floor:4.2f} (goal <= 1.3) | "
-                f"store-and-forward floor {sf * 1e3:6.2f} ms, ratio {med / sf:4.2f}"
+                f"  {n} segment(s): {statistics.median(t) * 1e3:7.2f} ms"
+                f"  p90 {_pct(t, 0.9) * 1e3:7.2f} ms"
             )
+    models = {"off": [False], "on": [True], "both": [False, True]}[args.timing]
+    for timing in models:
+        print(
+            "SYNC -> all STATEs on throttled links, "
+            + ("ESP32 timing model ON" if timing else "timing model off (PC speed)"),
+            flush=True,
+        )
+        for n in ns:
+            bench_chain(n, timing, bauds, args)
     return 0
 
 

@@ -21,7 +21,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
+from host import floors  # noqa: E402
 from protocol import device as D  # noqa: E402
 from protocol import frame as F  # noqa: E402
 from protocol import messages as M  # noqa: E402
@@ -29,7 +31,7 @@ from protocol.constants import HEADER_LEN, MAX_ENCODED, MAX_FRAME  # noqa: E402
 
 BAUDS = (115200, 921600, 2000000)
 NS = (1, 3, 8)
-BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
+BITS_PER_BYTE = floors.BITS_PER_BYTE
 
 REFERENCES = """\
 Reference byte counts (computed here from the published frame formats, not measured):
@@ -103,35 +105,42 @@ def dxl_sync_read(n: int) -> int:
 # --------------------------------------------------------------------------------------------
 # cycle model
 # --------------------------------------------------------------------------------------------
-def chain_cycle_time(n: int, b_sync: int, b_state: int, baud: int, proc_s: float = 0.0) -> float:
-    """Time from the host starting a SYNC until it holds all N STATEs, store-and-forward chain.
-
-    Each segment re-sends a frame only after receiving it whole (the CRC must be checked before
-    forwarding). Links are full duplex: SYNC going down and STATEs going up overlap. Segment k
-    forwards the SYNC first, then answers after ``proc_s``. Upstream links are FIFO.
-    """
-    byte_t = BITS_PER_BYTE / baud
-    t_sync = b_sync * byte_t
-    t_state = b_state * byte_t
-    # ready[k]: list of times at which frames are ready to be sent on upstream link k
-    arrivals: list[float] = []  # frames fully arrived at segment k from below (for link k)
-    for k in range(n - 1, -1, -1):
-        own = (k + 1) * t_sync + proc_s
-        queue = sorted([own] + arrivals)
-        free = 0.0
-        done = []
-        for ready in queue:
-            start = max(ready, free)
-            free = start + t_state
-            done.append(free)
-        arrivals = done  # these arrive whole at segment k-1 (or the host when k == 0)
-    return max(arrivals)
+def chain_cycle_time(n: int, b_sync: int, b_state: int, baud: int) -> float:
+    """Time from the host starting a SYNC until it holds all N STATEs on a store-and-forward
+    chain with zero processing: the store-and-forward floor (host/floors.py, the one place)."""
+    return floors.store_and_forward_floor_s(n, baud, b_sync, b_state)
 
 
 def pipelined_rate(n: int, b_sync: int, b_state: int, baud: int) -> float:
     """Throughput bound when the host pipelines cycles: the busiest link direction decides."""
-    busiest = max(b_sync, n * b_state)
-    return baud / BITS_PER_BYTE / busiest
+    return floors.pipelined_rate_hz(n, baud, b_sync, b_state)
+
+
+def print_measured(seconds: float) -> None:
+    """Measured back-to-back cycle rates on the emulated chain beside the zero-processing model."""
+    from bench_chain import boot, run_cycles, settle  # noqa: PLC0415 - starts emulated chains
+
+    from host.link import ChainLink  # noqa: PLC0415
+    from tools.emulator import EmulatedChain  # noqa: PLC0415
+
+    print("== measured (emulated chain, real firmware, timing model off, back to back for")
+    print(f"   {seconds:.0f} s; incomplete cycles counted as misses) beside modelled 'seq' [Hz]")
+    print(f"{'N':>3}{'baud':>9}{'measured':>10}{'misses':>8}{'modelled':>10}{'ratio':>7}")
+    for n in NS:
+        with EmulatedChain(n) as chain, ChainLink(chain.host_port) as link:
+            boot(link, n)
+            for b in BAUDS:
+                chain.set_all_links(baud=b)
+                settle(link, n)
+                run = run_cycles(link, n, duration_s=seconds)
+                sy = run.tx_bytes / max(1, run.cycles)
+                st = run.rx_bytes / max(1, run.cycles) / n
+                model = 1 / chain_cycle_time(n, sy, st, b)
+                print(
+                    f"{n:>3}{b:>9}{run.rate_hz:>10.0f}{run.misses:>8}{model:>10.0f}"
+                    f"{run.rate_hz / model:>7.2f}"
+                )
+    print()
 
 
 def print_wire_tables() -> None:
@@ -358,8 +367,11 @@ def print_timings(loops: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer timing loops")
+    ap.add_argument("--no-measure", action="store_true", help="model only, no emulated chain")
     args = ap.parse_args()
     print_wire_tables()
+    if not args.no_measure:
+        print_measured(1.0 if args.quick else 3.0)
     print_timings(300 if args.quick else 3000)
 
 

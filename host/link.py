@@ -18,6 +18,7 @@ from typing import Any
 
 import serial
 
+from host import floors
 from host.serialport import describe_open_error
 from protocol import constants as C
 from protocol import messages as M
@@ -34,6 +35,18 @@ class LinkTimeoutError(LinkError, TimeoutError):
     """No (complete) answer within the timeout."""
 
 
+class ProtocolVersionError(LinkError):
+    """A segment speaks a protocol version this host does not: it must be reflashed."""
+
+    def __init__(self, position: int, versions: str) -> None:
+        self.position = position
+        super().__init__(
+            f"segment {position} speaks protocol version {versions}, this host speaks "
+            f"{C.VERSION_MIN}..{C.VERSION_MAX}: reflash it with `ucr flash` "
+            "(docs/protocol.md section 10)"
+        )
+
+
 class SegmentError(LinkError):
     """A segment answered a request with an ERROR frame (``code``, ``code_name``, ``text``)."""
 
@@ -47,26 +60,12 @@ class SegmentError(LinkError):
 
 
 def exchange_floor_s(n: int, baudrate: int) -> float:
-    """Shortest possible SYNC -> all-STATEs exchange (s) on a real UART chain of ``n`` segments.
+    """Shortest SYNC -> all-STATEs exchange (s) on today's store-and-forward chain of ``n``.
 
-    Segments store and forward whole frames, so the SYNC crosses the n links one after the other
-    and so does the last segment's STATE: n x (t_sync + t_state), with frame sizes taken from the
-    real encoders at their largest field values and 10 bits per byte. Processing time is excluded.
+    ``host.floors.store_and_forward_floor_s`` at the largest frames (docs/protocol.md
+    "Floors"); the daemon's rate warning uses it.
     """
-    if n <= 0:
-        return 0.0
-    sync = M.encode_sync(255, C.TIME_WRAP - 1, [(C.INT_LIMIT / C.KAPPA_SCALE / 2, -3.0)] * n)
-    state = M.encode_state(
-        255,
-        cycle=C.TIME_WRAP - 1,
-        t_ms=C.TIME_WRAP - 1,
-        kappa=3.0,
-        phi=-3.0,
-        tendon_lengths=[1.0] * 3,
-        servo_angles=[-3.0] * 3,
-        status=0x3F,
-    )
-    return n * (len(sync) + len(state)) * 10 / baudrate
+    return floors.store_and_forward_floor_s(n, baudrate)
 
 
 def _small_int(value: Any, lo: int, hi: int) -> bool:
@@ -341,9 +340,12 @@ class ChainLink:
                     p = self._payload(c.replies[pos])
                     if isinstance(p, dict) and p.get(C.KD_DOWNSTREAM_PRESENT) is False:
                         tip.append(pos)
+                if c.errors:  # a segment refused the DISCOVER: nothing passes it
+                    return True
                 return bool(tip) and all(i in c.replies for i in range(min(tip) + 1))
 
             self._wait(col, timeout, done)
+            self._refuse_other_versions(col)
             descs = []
             for pos in sorted(col.replies):
                 try:
@@ -363,6 +365,29 @@ class ChainLink:
                 self._counters["timeouts"] += 1
             self._expected = len(descs)
             return descs
+
+    def _refuse_other_versions(self, col: _Collector) -> None:
+        """Raise :class:`ProtocolVersionError` for the first segment that answered DISCOVER with
+        ERROR UNSUPPORTED_VERSION or a DESCRIPTOR announcing a version outside this host's range
+        (docs/protocol.md section 10: no common version, the host reports it and does not start).
+        """
+        found: list[tuple[int, str]] = []
+        for pos, frame in col.errors.items():
+            p = self._payload(frame)
+            if isinstance(p, dict) and p.get(C.KR_CODE) == C.ERR_UNSUPPORTED_VERSION:
+                rng = p.get(3)
+                ok = isinstance(rng, list) and len(rng) == 2
+                ok = ok and all(_small_int(v, 0, 255) for v in rng)
+                found.append((pos, f"{rng[0]}..{rng[1]}" if ok else f"ver {frame.ver}"))
+        for pos, frame in col.replies.items():
+            p = self._payload(frame)
+            v = p.get(C.KD_PROTOCOL_VERSION) if isinstance(p, dict) else None
+            if _small_int(v, 0, 0xFFFF) and not C.VERSION_MIN <= v <= C.VERSION_MAX:
+                found.append((pos, str(v)))
+            elif frame.ver != C.VERSION:
+                found.append((pos, str(frame.ver)))
+        if found:
+            raise ProtocolVersionError(*min(found))
 
     def _cyclic(
         self, mtype: int, payload: dict, expected: int, timeout: float
@@ -518,6 +543,7 @@ __all__ = [
     "ChainLink",
     "LinkError",
     "LinkTimeoutError",
+    "ProtocolVersionError",
     "SegmentError",
     "exchange_floor_s",
 ]

@@ -1,0 +1,55 @@
+"""A segment flashed with another protocol version is refused at discovery with a message that
+says to reflash it (docs/protocol.md section 10), and the descriptor announces the version."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+from pathlib import Path
+
+from host.link import LinkError, ProtocolVersionError
+from protocol import constants as C
+from tests.chain.chain_helpers import chain_and_link, wait_discover
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _protocol_speaking(tmp_path: Path, version: int) -> Path:
+    """A copy of protocol/ whose firmware build speaks only ``version``."""
+    out = tmp_path / "protocol"
+    shutil.copytree(REPO / "protocol", out, ignore=shutil.ignore_patterns("vectors", "__pycache__"))
+    src = (out / "constants.py").read_text()
+    for name in ("VERSION", "VERSION_MIN", "VERSION_MAX"):
+        src, count = re.subn(
+            rf"^{name} = const\(\d+\)", f"{name} = const({version})", src, flags=re.M
+        )
+        assert count == 1, name
+    (out / "constants.py").write_text(src)
+    return out
+
+
+def test_segment_speaking_another_protocol_version_is_refused_with_reflash_message(
+    tmp_path: Path,
+) -> None:
+    other = C.VERSION_MAX + 1
+    with chain_and_link(1, protocol_dir=_protocol_speaking(tmp_path, other)) as (_chain, link):
+        end = time.monotonic() + 30.0
+        refusal: ProtocolVersionError | None = None
+        while refusal is None and time.monotonic() < end:
+            try:
+                link.discover(timeout=1.0)
+            except ProtocolVersionError as exc:
+                refusal = exc
+            except LinkError:
+                time.sleep(0.1)  # still booting
+        assert refusal is not None, "the segment was never refused"
+        assert refusal.position == 0
+        assert "ucr flash" in str(refusal)
+        assert f"{other}..{other}" in str(refusal)
+
+
+def test_descriptor_announces_the_protocol_version() -> None:
+    with chain_and_link(1) as (_chain, link):
+        (desc,) = wait_discover(link, 1)
+        assert desc["protocol_version"] == C.VERSION
