@@ -1,0 +1,285 @@
+"""Executable documentation: every shell command and Python snippet in README.md and docs/*.md
+runs in the test suite (Sybil collects the Markdown files; this file says how a block runs).
+
+A fenced block runs by its language:
+- ``sh``: every command line (``\\`` continues a line; ``# …`` after two spaces is a comment);
+- ``console``: the lines that start with ``$ `` (the others are sample output);
+- ``python``: the block, in one namespace per document (later blocks see earlier names).
+Other languages (``text``, ``json``, ``yaml``, …) are not run, except as files (below).
+
+An HTML comment right before a block says how it runs (``<!-- doc-test: … -->``):
+- ``skip "reason"`` or ``hardware "reason"``: not run; the reason shows in the test report;
+- ``daemon``: an emulated 3-segment robot runs under ``ucr daemon`` with its API; ``UCR_URL``
+  points at it (one for the whole session);
+- ``until=S``: each command runs until stopped: alive (or exited 0) after S seconds, then SIGINT,
+  and it must exit cleanly;
+- ``file=NAME``: the block's text is written to NAME in the working directory (e.g. a trajectory
+  file a later command reads);
+- ``expect=TEXT``: the block's combined output must contain TEXT;
+- ``cwd=repo``: run in the repository itself (``./run.sh …``) instead of a scratch directory.
+Commands run in a fresh working directory per document holding links to ``robots/`` and
+``docs/``, with the project's environment first on PATH. The suite's own command
+(``./run.sh test …``) runs with ``--collect-only`` inside the suite, so it proves the command and
+the collection without running the suite twice.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent
+_DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*\Z", re.S)
+_TIMEOUT_S = 180.0  # one documented command, at most (the demo runs ~15 s)
+
+try:  # Sybil is a test dependency; without it the docs are simply not collected
+    from sybil import Region, Sybil
+    from sybil.parsers.markdown.lexers import FencedCodeBlockLexer
+except ImportError:  # pragma: no cover - dev extra always installs it
+    Sybil = None
+
+
+def _directive(text_before: str) -> dict[str, str]:
+    """The ``doc-test`` directive right before a block, as {key: value}."""
+    m = _DIRECTIVE.search(text_before)
+    if m is None:
+        return {}
+    out: dict[str, str] = {}
+    for token in shlex.split(m.group("body")):
+        key, _, value = token.partition("=")
+        out[key] = value
+    body = m.group("body")
+    for key in ("skip", "hardware"):
+        if body.startswith(key):
+            out[key] = body[len(key) :].strip().strip('"') or key
+    return out
+
+
+def _commands(source: str, console: bool) -> list[str]:
+    """Command lines of a shell block (comments stripped, continuations joined)."""
+    cmds: list[str] = []
+    pending = ""
+    for raw in source.splitlines():
+        line = raw.rstrip()
+        if console and not pending:
+            if not line.startswith("$ "):
+                continue
+            line = line[2:]
+        if pending:
+            line = pending + " " + line.strip()
+            pending = ""
+        if line.endswith("\\"):
+            pending = line[:-1].rstrip()
+            continue
+        line = re.split(r"\s{2,}#", line, maxsplit=1)[0].strip()
+        if line and not line.startswith("#"):
+            cmds.append(line)
+    return cmds
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class DocEnv:
+    """What the documented commands run in: a working directory per document, the project's
+    environment on PATH, and (on demand) an emulated robot under ``ucr daemon``."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self._chain = None
+        self._daemon: subprocess.Popen | None = None
+        self.url: str | None = None
+
+    def workdir(self, doc: Path) -> Path:
+        d = self.root / doc.stem
+        if not d.exists():
+            d.mkdir(parents=True)
+            for name in ("robots", "docs"):
+                (d / name).symlink_to(REPO / name)
+        return d
+
+    def env(self, daemon: bool) -> dict[str, str]:
+        env = dict(os.environ)
+        env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+        env["PYTHONUNBUFFERED"] = "1"
+        env.pop("UCR_URL", None)
+        env.pop("UCR_TOKEN", None)
+        if daemon:
+            env["UCR_URL"] = self.start_daemon()
+        return env
+
+    def start_daemon(self) -> str:
+        if self.url is not None:
+            return self.url
+        from tools.emulator import EmulatedChain  # noqa: PLC0415
+        from tools.segment_config import config_for  # noqa: PLC0415
+        from ucrdf.parser import load  # noqa: PLC0415
+
+        robot_file = REPO / "robots" / "softrobot3.ucrdf"
+        robot = load(robot_file)
+        names = [b.name for b in robot.bendables]
+        self._chain = EmulatedChain(3, config_for=lambda k: config_for(robot, names[k])).start()
+        port = _free_port()
+        cfg = self.root / "daemon.yaml"
+        cfg.write_text(f"api:\n  port: {port}\n")
+        self._daemon = subprocess.Popen(
+            [sys.executable, "-m", "tools.cli", "daemon", "--robot", str(robot_file),
+             "--port", self._chain.host_port, "--config", str(cfg)],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+        lines = []
+        end = time.monotonic() + 60
+        while time.monotonic() < end:
+            line = self._daemon.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "API listening" in line or "daemon running" in line:
+                break
+        if self._daemon.poll() is not None:
+            raise RuntimeError("ucr daemon did not start:\n" + "".join(lines))
+        self.url = f"ws://127.0.0.1:{port}"
+        # wait until the API answers
+        from host.api.client import connect  # noqa: PLC0415
+
+        end = time.monotonic() + 30
+        while True:
+            try:
+                with connect(self.url) as c:
+                    if len(c.status()["segments"]) == 3:
+                        break
+            except Exception:  # noqa: BLE001 - not up yet
+                if time.monotonic() > end:
+                    raise
+            time.sleep(0.2)
+        return self.url
+
+    def close(self) -> None:
+        if self._daemon is not None:
+            self._daemon.send_signal(signal.SIGTERM)
+            try:
+                self._daemon.communicate(timeout=15)
+            except subprocess.TimeoutExpired:
+                self._daemon.kill()
+                self._daemon.communicate()
+        if self._chain is not None:
+            self._chain.stop()
+
+
+@pytest.fixture(scope="session")
+def docenv():
+    with tempfile.TemporaryDirectory(prefix="ucr-docs-") as tmp:
+        env = DocEnv(Path(tmp))
+        try:
+            yield env
+        finally:
+            env.close()
+
+
+def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None) -> str:
+    """Runs one documented command; returns its output or raises AssertionError."""
+    if re.match(r"(\./)?run\.sh test\b", cmd):  # the suite itself: prove it collects
+        cmd = cmd + " --collect-only -q"
+    proc = subprocess.Popen(
+        ["bash", "-c", cmd], cwd=cwd, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        if until is None:
+            out, _ = proc.communicate(timeout=_TIMEOUT_S)
+        else:
+            try:
+                out, _ = proc.communicate(timeout=until)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGINT)
+                out, _ = proc.communicate(timeout=30)
+                if proc.returncode in (-signal.SIGINT, 130):
+                    proc.returncode = 0
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        raise AssertionError(f"`{cmd}` did not finish:\n{out[-3000:]}") from None
+    if proc.returncode != 0:
+        raise AssertionError(f"`{cmd}` exited {proc.returncode}:\n{out[-3000:]}")
+    if "Traceback (most recent call last)" in out:
+        raise AssertionError(f"`{cmd}` printed a traceback:\n{out[-3000:]}")
+    return out
+
+
+class _Block:
+    def __init__(self, lang: str, source: str, directive: dict[str, str]):
+        self.lang = lang
+        self.source = source
+        self.directive = directive
+
+    def __call__(self, example) -> None:
+        d = self.directive
+        if "skip" in d or "hardware" in d:
+            pytest.skip(d.get("hardware") or d["skip"])
+        docenv: DocEnv = example.namespace["docenv"]
+        cwd = REPO if d.get("cwd") == "repo" else docenv.workdir(Path(example.path))
+        if "file" in d:
+            (cwd / d["file"]).write_text(self.source)
+            return
+        env = docenv.env("daemon" in d)
+        until = float(d["until"]) if "until" in d else None
+        if self.lang == "python":
+            old = os.getcwd()
+            saved = {k: os.environ.get(k) for k in ("UCR_URL", "UCR_TOKEN")}
+            os.chdir(cwd)
+            os.environ.update({k: env[k] for k in ("UCR_URL",) if k in env})
+            try:
+                code = compile("\n" * example.line + self.source, example.path, "exec")
+                exec(code, example.namespace)
+            finally:
+                os.chdir(old)
+                for k, v in saved.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+            return
+        outs = [_run(c, cwd, env, until) for c in _commands(self.source, self.lang == "console")]
+        if "expect" in d and not any(d["expect"] in o for o in outs):
+            raise AssertionError(f"expected {d['expect']!r} in the output of the block")
+
+
+class _DocParser:
+    """Yields a region for every runnable block (and every ``file=`` block)."""
+
+    def __init__(self):
+        self.lexer = FencedCodeBlockLexer(
+            language=r"[\w+-]*", mapping={"language": "language", "source": "source"}
+        )
+
+    def __call__(self, document):
+        for region in self.lexer(document):
+            lang = region.lexemes["language"]
+            directive = _directive(document.text[: region.start])
+            if lang not in ("sh", "console", "python") and "file" not in directive:
+                continue
+            region.parsed = _Block(lang, str(region.lexemes["source"]), directive)
+            region.evaluator = region.parsed
+            yield region
+
+
+if Sybil is not None:
+    pytest_collect_file = Sybil(
+        parsers=[_DocParser()],
+        patterns=["README.md", "docs/*.md"],
+        fixtures=["docenv"],
+    ).pytest()
