@@ -43,7 +43,7 @@ _DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*\Z", re.S)
 _TIMEOUT_S = 180.0  # one documented command, at most (the demo runs ~15 s)
 
 try:  # Sybil is a test dependency; without it the docs are simply not collected
-    from sybil import Region, Sybil
+    from sybil import Sybil
     from sybil.parsers.markdown.lexers import FencedCodeBlockLexer
 except ImportError:  # pragma: no cover - dev extra always installs it
     Sybil = None
