@@ -18,6 +18,7 @@ _AREAS = (
     "ucrdf.cli",
     "tools.tools_cli",
     "host.cli",
+    "host.doctor",
     "tools.demo",
     "host.client_cli",
     "interop.cli",

@@ -1,0 +1,416 @@
+"""``ucr doctor``: find what is wrong with a segment chain, in order, each finding with its fix.
+
+Read-only by construction: it sends only DISCOVER, PARAM_GET and HEARTBEAT (never SYNC, PARAM_SET,
+CLEAR_FAULT or HOLD), so nothing moves and no setting changes. It lives in host/ because it runs on
+the Raspberry Pi next to the daemon (host/ is what a Pi install has; host/ never imports tools/).
+Checks, in order (docs/commissioning.md): port present and permitted, the chain answers at the
+baud rate, per segment firmware and protocol version, configuration, board/driver, servos found,
+faults and error counters, the watchdog, then loop timing over a few seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import grp
+import json
+import os
+import stat
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+# What this host expects of a segment. The firmware version's major.minor must match (a test
+# keeps this equal to device/config.py FW_VERSION); the protocol version must be equal.
+EXPECTED_FW_VERSION = "0.1.0"
+EXPECTED_PROTOCOL_VERSION = 1
+
+# parameter ids (docs/firmware.md)
+P_WATCHDOG_MS = 0
+P_CRC_ERRORS = 7
+P_FRAMING_ERRORS = 8
+P_DROPPED = 9
+P_SERVO_FAULTS = 12
+P_CYCLE_US = 13
+P_OVERRUNS = 14
+P_CONFIG_ERROR = 16
+P_FAULT = 20
+P_FAULT_COUNT = 21
+
+SERVO_FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
+
+
+@dataclass
+class Finding:
+    """One check's result. ``level``: ok | warning | error; ``fix`` says what to do about it."""
+
+    check: str
+    level: str
+    message: str
+    fix: str = ""
+    position: int | None = None
+
+
+def _groups_of_user() -> set[int]:
+    return set(os.getgroups()) | {os.getegid()}
+
+
+def check_port(path: str, *, uid: int | None = None, groups: set[int] | None = None) -> Finding:
+    """Is ``path`` present and readable/writable by this user (by its mode bits, not by being
+    root)? pyserial URLs (``socket://``, ``rfc2217://``, ``loop://``) are not checked here."""
+    if "://" in path:
+        return Finding("port", "ok", f"{path} is a pyserial URL (not a device file)")
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return Finding(
+            "port",
+            "error",
+            f"{path} does not exist",
+            "plug in the USB serial adapter of the chain; `ls /dev/ttyUSB* /dev/ttyACM*` lists "
+            "the candidates; give the right one with --port",
+        )
+    except OSError as exc:
+        return Finding("port", "error", f"{path}: {exc.strerror}", "check the path given to --port")
+    if not stat.S_ISCHR(st.st_mode):
+        return Finding(
+            "port",
+            "error",
+            f"{path} is not a character device (a serial port)",
+            "give the serial device of the chain with --port, e.g. /dev/ttyUSB0",
+        )
+    uid = os.geteuid() if uid is None else uid
+    groups = _groups_of_user() if groups is None else groups
+    need = stat.S_IRUSR | stat.S_IWUSR
+    if uid == 0:
+        ok = True
+    elif st.st_uid == uid:
+        ok = st.st_mode & need == need
+    elif st.st_gid in groups:
+        ok = st.st_mode & (stat.S_IRGRP | stat.S_IWGRP) == (stat.S_IRGRP | stat.S_IWGRP)
+    else:
+        ok = st.st_mode & (stat.S_IROTH | stat.S_IWOTH) == (stat.S_IROTH | stat.S_IWOTH)
+    if not ok:
+        try:
+            group = grp.getgrgid(st.st_gid).gr_name
+        except KeyError:
+            group = str(st.st_gid)
+        return Finding(
+            "port",
+            "error",
+            f"no permission to read and write {path} (group {group}, mode "
+            f"{stat.filemode(st.st_mode)})",
+            f"add yourself to the group: `sudo usermod -aG {group} $USER`, then log out and in",
+        )
+    return Finding("port", "ok", f"{path} present and permitted")
+
+
+def _version_tuple(text: Any) -> tuple[int, ...] | None:
+    try:
+        return tuple(int(x) for x in str(text).split(".")[:3])
+    except ValueError:
+        return None
+
+
+def check_versions(pos: int, desc: dict) -> list[Finding]:
+    """Firmware major.minor and protocol version against what this host expects."""
+    out = []
+    fw = desc.get("fw_version")
+    have, want = _version_tuple(fw), _version_tuple(EXPECTED_FW_VERSION)
+    if have is None or want is None or have[:2] != want[:2]:
+        out.append(
+            Finding(
+                "firmware",
+                "error",
+                f"firmware {fw}, this host expects {EXPECTED_FW_VERSION}",
+                "reflash the segment: `ucr flash --port <its USB port> --config <its config>`",
+                pos,
+            )
+        )
+    else:
+        out.append(Finding("firmware", "ok", f"firmware {fw}", position=pos))
+    pv = desc.get("protocol_version")
+    if pv != EXPECTED_PROTOCOL_VERSION:
+        out.append(
+            Finding(
+                "protocol",
+                "error",
+                f"protocol version {pv}, this host speaks {EXPECTED_PROTOCOL_VERSION}",
+                "reflash the segment with the firmware of this host's release, or update the host",
+                pos,
+            )
+        )
+    return out
+
+
+def _param(link: Any, pos: int, pid: int, uid: str | None) -> Any:
+    return link.param_get(pos, pid, uid, timeout=0.5)
+
+
+def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
+    """Per-segment checks over PARAM_GET (read-only)."""
+    from host.link import LinkError  # noqa: PLC0415
+
+    uid = desc.get("uid")
+    out = check_versions(pos, desc)
+    try:
+        cfg_err = _param(link, pos, P_CONFIG_ERROR, uid)
+        servo_faults = _param(link, pos, P_SERVO_FAULTS, uid)
+        fault = _param(link, pos, P_FAULT, uid)
+        fault_count = _param(link, pos, P_FAULT_COUNT, uid)
+        watchdog = _param(link, pos, P_WATCHDOG_MS, uid)
+        counters = {
+            "crc_errors": _param(link, pos, P_CRC_ERRORS, uid),
+            "framing_errors": _param(link, pos, P_FRAMING_ERRORS, uid),
+            "dropped": _param(link, pos, P_DROPPED, uid),
+            "overruns": _param(link, pos, P_OVERRUNS, uid),
+        }
+        cycle_us = _param(link, pos, P_CYCLE_US, uid)
+    except LinkError as exc:
+        out.append(
+            Finding(
+                "params",
+                "error",
+                f"parameters unreadable: {exc}",
+                "check the cable to this segment",
+                pos,
+            )
+        )
+        return out
+    if cfg_err:
+        out.append(
+            Finding(
+                "config",
+                "error",
+                f"configuration refused: {cfg_err}",
+                "fix the segment's config.json (`ucr segment-config`) and reflash it",
+                pos,
+            )
+        )
+    else:
+        out.append(
+            Finding(
+                "config",
+                "ok",
+                f"configured: {desc.get('model')} / driver {desc.get('servo_driver')}",
+                position=pos,
+            )
+        )
+    if isinstance(servo_faults, list):
+        bad = [
+            f"servo {i}: {SERVO_FAULT_NAMES[c] if 0 <= c < len(SERVO_FAULT_NAMES) else c}"
+            for i, c in enumerate(servo_faults)
+            if c
+        ]
+        missing = [i for i, c in enumerate(servo_faults) if c == 1]
+        if missing:
+            out.append(
+                Finding(
+                    "servos",
+                    "error",
+                    f"servo(s) {', '.join(map(str, missing))} do not answer",
+                    "check each servo's cable and power, and that its bus id matches the "
+                    "segment's config.json (servo_ids)",
+                    pos,
+                )
+            )
+        others = [
+            f"servo {i}: {SERVO_FAULT_NAMES[c] if 0 <= c < len(SERVO_FAULT_NAMES) else c}"
+            for i, c in enumerate(servo_faults)
+            if c and c != 1
+        ]
+        if others:
+            out.append(
+                Finding(
+                    "servos",
+                    "error",
+                    "; ".join(others),
+                    "free the tendon or servo horn (stall/overload), check supply voltage",
+                    pos,
+                )
+            )
+        if not bad:
+            out.append(
+                Finding("servos", "ok", f"{len(servo_faults)} servo(s) answer", position=pos)
+            )
+    if fault:
+        out.append(
+            Finding(
+                "fault",
+                "error",
+                f"in FAULT: {fault} ({fault_count} fault(s) since boot)",
+                "remove the cause, then `ucr clear-fault` (the segment leaves FAULT only then)",
+                pos,
+            )
+        )
+    elif fault_count:
+        out.append(
+            Finding(
+                "fault",
+                "warning",
+                f"{fault_count} fault(s) since boot (cleared)",
+                "see `ucr watch` events for their causes",
+                pos,
+            )
+        )
+    out.append(Finding("watchdog", "ok", f"watchdog {watchdog} ms", position=pos))
+    errs = {k: v for k, v in counters.items() if isinstance(v, int) and v > 0}
+    if errs:
+        out.append(
+            Finding(
+                "counters",
+                "warning",
+                ", ".join(f"{k} {v}" for k, v in errs.items()),
+                "crc/framing errors: check the cable, shorten it or lower the baud rate; "
+                "overruns: the control cycle is late (lower the rate or the load)",
+                pos,
+            )
+        )
+    out.append(Finding("cycle", "ok", f"longest control cycle {cycle_us} us", position=pos))
+    return out
+
+
+def check_timing(link: Any, n: int, seconds: float) -> Finding:
+    """HEARTBEAT round trips for ``seconds``: answers complete and the round-trip time."""
+    rtts: list[float] = []
+    missing = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        t0 = time.perf_counter()
+        states = link.heartbeat(timeout=0.2, expected=n)
+        dt = time.perf_counter() - t0
+        if any(s is None for s in states):
+            missing += 1
+        else:
+            rtts.append(dt)
+        time.sleep(0.02)
+    total = len(rtts) + missing
+    if not rtts:
+        return Finding(
+            "timing", "error", f"no complete HEARTBEAT round trip in {total}", "check the chain"
+        )
+    rtts.sort()
+    p50 = rtts[len(rtts) // 2] * 1000
+    p99 = rtts[min(len(rtts) - 1, int(len(rtts) * 0.99))] * 1000
+    msg = f"{total} round trips: median {p50:.1f} ms, p99 {p99:.1f} ms, {missing} incomplete"
+    if missing:
+        return Finding("timing", "warning", msg, "lost answers: check cables and counters above")
+    return Finding("timing", "ok", msg)
+
+
+def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
+    """The chain against the U(C)RDF: count, model, geometry, limits, pinned uids."""
+    from host.topology import compare  # noqa: PLC0415
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    try:
+        robot = load(robot_path)
+    except Exception as exc:  # noqa: BLE001 - shown as a finding, never a traceback
+        return [Finding("robot", "error", str(exc), "fix the U(C)RDF (`ucr check` it)")]
+    cmp = compare(robot, descs)
+    if cmp.ok:
+        return [Finding("robot", "ok", cmp.text())]
+    return [
+        Finding(
+            "robot",
+            "error" if d.blocking else "warning",
+            d.message,
+            "stale flash: reflash the segment with `ucr segment-config` output of this U(C)RDF, "
+            "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)",
+            d.position,
+        )
+        for d in cmp.differences
+    ]
+
+
+def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = None) -> list[Finding]:
+    """All checks in order; stops early where later checks cannot run (no port, no answer)."""
+    from host.link import ChainLink, LinkError  # noqa: PLC0415
+
+    findings = [check_port(port)]
+    if findings[-1].level == "error":
+        return findings
+    own = link is None
+    try:
+        if own:
+            link = ChainLink(port, baud)
+    except LinkError as exc:
+        findings.append(
+            Finding(
+                "open",
+                "error",
+                str(exc),
+                "is the daemon running on this port? stop it (`systemctl stop ucr-daemon`) "
+                "while running doctor",
+            )
+        )
+        return findings
+    try:
+        descs: list[dict] = []
+        for _ in range(3):
+            try:
+                descs = link.discover(timeout=1.0)
+            except LinkError:
+                descs = []
+            if descs:
+                break
+        if not descs:
+            findings.append(
+                Finding(
+                    "chain",
+                    "error",
+                    f"no segment answers DISCOVER at {baud} bit/s",
+                    "check power of the first segment, the TX/RX wiring (crossed), and that the "
+                    "baud rate (--baud) matches the segments' config.json",
+                )
+            )
+            return findings
+        findings.append(Finding("chain", "ok", f"{len(descs)} segment(s) answer at {baud} bit/s"))
+        for d in descs:
+            findings += check_segment(link, d["position"], d)
+        if robot:
+            findings += check_robot(robot, descs)
+        if seconds > 0:
+            findings.append(check_timing(link, len(descs), seconds))
+        return findings
+    finally:
+        if own:
+            link.close()
+
+
+def format_text(findings: list[Finding]) -> str:
+    mark = {"ok": "ok  ", "warning": "WARN", "error": "FAIL"}
+    lines = []
+    for f in findings:
+        where = f"seg {f.position} " if f.position is not None else ""
+        lines.append(f"[{mark[f.level]}] {where}{f.check}: {f.message}")
+        if f.fix and f.level != "ok":
+            lines.append(f"       fix: {f.fix}")
+    bad = sum(f.level == "error" for f in findings)
+    warn = sum(f.level == "warning" for f in findings)
+    lines.append(f"{bad} error(s), {warn} warning(s)")
+    return "\n".join(lines)
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "doctor",
+        help="find what is wrong with a segment chain (read-only: moves nothing)",
+        description="Check the port, the chain and every segment, in order, each finding with "
+        "its fix. Read-only: sends DISCOVER, PARAM_GET and HEARTBEAT only. Exit 1 if anything "
+        "is wrong.",
+    )
+    p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
+    p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
+    p.add_argument("--robot", help="U(C)RDF to compare the chain with")
+    p.add_argument("--seconds", type=float, default=3.0, help="loop timing check duration (s)")
+    p.add_argument("--json", action="store_true", help="findings as JSON")
+    p.set_defaults(func=cmd_doctor)
+
+
+def cmd_doctor(args: argparse.Namespace) -> int:
+    findings = run(args.port, args.baud, args.robot, args.seconds)
+    if args.json:
+        print(json.dumps([asdict(f) for f in findings], indent=1))
+    else:
+        print(format_text(findings))
+    return 1 if any(f.level == "error" for f in findings) else 0

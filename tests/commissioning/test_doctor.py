@@ -1,0 +1,175 @@
+"""``ucr doctor`` end to end on the emulated chain: each finding from an injected fault."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import stat
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from host import doctor
+from host.link import ChainLink, LinkError
+from tools.emulator import EmulatedChain
+from tools.mpvm import REPO
+from tools.segment_config import config_for
+from ucrdf.parser import load
+
+ROBOT = REPO / "robots" / "softrobot2.ucrdf"
+
+
+def wait_discover(link: ChainLink, n: int, timeout: float = 20.0) -> None:
+    """Discover until ``n`` segments answer (the processes need a moment to boot)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            if len(link.discover(timeout=0.5)) == n:
+                return
+        except LinkError:
+            pass
+        time.sleep(0.1)
+    raise AssertionError(f"discovery did not find {n} segments within {timeout} s")
+
+
+@contextmanager
+def chain_and_link(n: int, **kwargs) -> Iterator[tuple[EmulatedChain, ChainLink]]:
+    with EmulatedChain(n, **kwargs) as chain:
+        link = ChainLink(chain.host_port)
+        try:
+            yield chain, link
+        finally:
+            link.close()
+
+
+def _configs(robot_path: Path = ROBOT) -> list[dict]:
+    robot = load(robot_path)
+    from host.topology import chain_bendables
+
+    return [
+        {**config_for(robot, name), "servo_driver": "emulated"} for name in chain_bendables(robot)
+    ]
+
+
+def _run(port: str, robot: str | None = None, seconds: float = 0.5) -> list[doctor.Finding]:
+    return doctor.run(port, 921600, robot, seconds)
+
+
+def _errors(findings: list[doctor.Finding], check: str) -> list[doctor.Finding]:
+    return [f for f in findings if f.check == check and f.level == "error"]
+
+
+def test_host_expects_the_firmware_version_of_this_release() -> None:
+    text = (REPO / "device" / "config.py").read_text()
+    assert re.search(r'FW_VERSION = "([^"]+)"', text).group(1) == doctor.EXPECTED_FW_VERSION
+
+
+def test_doctor_healthy_chain_has_no_error_and_matches_the_robot() -> None:
+    cfgs = _configs()
+    with chain_and_link(len(cfgs), config_for=cfgs) as (chain, link):
+        wait_discover(link, len(cfgs))
+        link.close()
+        findings = _run(chain.host_port, str(ROBOT))
+    assert not [f for f in findings if f.level == "error"], doctor.format_text(findings)
+    checks = {f.check for f in findings}
+    assert {
+        "port",
+        "chain",
+        "firmware",
+        "config",
+        "servos",
+        "watchdog",
+        "robot",
+        "timing",
+    } <= checks
+    assert any(f.check == "robot" and f.level == "ok" for f in findings)
+
+
+def test_doctor_finds_a_missing_servo() -> None:
+    cfgs = _configs()[:1]
+    with chain_and_link(1, config_for=cfgs, faults_for=lambda k: "2:disconnected") as (
+        chain,
+        link,
+    ):
+        wait_discover(link, 1)
+        link.close()
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "servos")
+    assert errs and "servo(s) 2 do not answer" in errs[0].message
+    assert "servo_ids" in errs[0].fix
+    assert errs[0].position == 0
+
+
+def test_doctor_finds_a_stale_flash_against_the_robot() -> None:
+    cfgs = _configs()
+    cfgs[1] = {**cfgs[1], "length": cfgs[1]["length"] * 1.5}  # flashed from an older U(C)RDF
+    with chain_and_link(len(cfgs), config_for=cfgs) as (chain, link):
+        wait_discover(link, len(cfgs))
+        link.close()
+        findings = _run(chain.host_port, str(ROBOT))
+    errs = _errors(findings, "robot")
+    assert errs and errs[0].position == 1, doctor.format_text(findings)
+    assert "stale flash" in errs[0].fix
+
+
+def test_doctor_finds_old_firmware(tmp_path: Path) -> None:
+    fw = tmp_path / "fw"
+    shutil.copytree(REPO / "device", fw)
+    cfg_py = fw / "config.py"
+    cfg_py.write_text(re.sub(r'FW_VERSION = "[^"]+"', 'FW_VERSION = "0.0.9"', cfg_py.read_text()))
+    with EmulatedChain(1, firmware_dir=fw, config_for=_configs()[:1]) as chain:
+        with ChainLink(chain.host_port) as link:
+            wait_discover(link, 1)
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "firmware")
+    assert errs and "firmware 0.0.9" in errs[0].message and "reflash" in errs[0].fix
+
+
+def test_doctor_finds_a_missing_port_and_exits_nonzero(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tools.cli import main
+
+    rc = main(["doctor", "--port", str(tmp_path / "ttyUSB9"), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1
+    assert out[0]["check"] == "port" and out[0]["level"] == "error"
+    assert "does not exist" in out[0]["message"]
+
+
+def test_doctor_finds_no_permission_on_the_port() -> None:
+    # a real character device owned by root:<a group we are not in>, mode 0660, for a non-root uid
+    path = "/dev/null"
+    st = os.stat(path)
+    assert stat.S_ISCHR(st.st_mode)
+    f = doctor.check_port(path, uid=4242, groups={4242})
+    ok_modes = st.st_mode & 0o006 == 0o006
+    if ok_modes:  # /dev/null is world read-write: permitted for anyone
+        assert f.level == "ok"
+    with_pty = os.openpty()
+    try:
+        tty = os.ttyname(with_pty[1])
+        os.chmod(tty, 0o660)
+        f = doctor.check_port(tty, uid=4242, groups={4242})
+        assert f.level == "error" and "no permission" in f.message
+        assert "usermod -aG" in f.fix
+        gid = os.stat(tty).st_gid
+        assert doctor.check_port(tty, uid=4242, groups={gid}).level == "ok"
+    finally:
+        os.close(with_pty[0])
+        os.close(with_pty[1])
+
+
+def test_doctor_finds_a_silent_chain() -> None:
+    with chain_and_link(1, config_for=_configs()[:1]) as (chain, link):
+        wait_discover(link, 1)
+        link.close()
+        chain.unplug(0)
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "chain")
+    assert errs and "no segment answers" in errs[0].message and "baud" in errs[0].fix
