@@ -53,6 +53,7 @@ _P_EVENTS_LOST = const(18)
 _P_SERVO_TARGETS = const(19)
 _P_FAULT = const(20)
 _P_FAULT_COUNT = const(21)
+_P_SERVO_TELEMETRY = const(22)
 
 PARAM_NAMES = (
     "watchdog_ms",
@@ -77,6 +78,7 @@ PARAM_NAMES = (
     "servo_targets",
     "fault",
     "fault_count",
+    "servo_telemetry",
 )
 
 
@@ -257,6 +259,13 @@ def get_param(self, pid):
         )
     if pid == _P_FAULT_COUNT:
         return self.fault_count
+    if pid == _P_SERVO_TELEMETRY:
+        tel = getattr(self.bus, "telemetry", None)
+        out = []
+        for i in range(self.n):
+            t = tel(i) if tel else None
+            out.append(None if t is None else [float(t[0]), float(t[1]), float(t[2])])
+        return out
     raise ValueError("unknown parameter")
 
 

@@ -35,6 +35,14 @@ P_OVERRUNS = 14
 P_CONFIG_ERROR = 16
 P_FAULT = 20
 P_FAULT_COUNT = 21
+P_SERVO_TELEMETRY = 22
+
+# servo telemetry limits (Feetech STS defaults: 70 deg C cut-off, 6-14 V supply)
+TEMP_WARN_C = 55.0
+TEMP_ERROR_C = 65.0
+VOLT_MIN_V = 6.0
+VOLT_MAX_V = 14.0
+LOAD_WARN = 0.8  # fraction of max torque
 
 SERVO_FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
 
@@ -232,6 +240,7 @@ def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
             out.append(
                 Finding("servos", "ok", f"{len(servo_faults)} servo(s) answer", position=pos)
             )
+    out += check_telemetry(link, pos, uid)
     if fault:
         out.append(
             Finding(
@@ -266,6 +275,66 @@ def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
             )
         )
     out.append(Finding("cycle", "ok", f"longest control cycle {cycle_us} us", position=pos))
+    return out
+
+
+def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:
+    """Servo voltage, temperature and load where the servos report them (PARAM 22)."""
+    from host.link import LinkError  # noqa: PLC0415
+
+    try:
+        tel = _param(link, pos, P_SERVO_TELEMETRY, uid)
+    except LinkError as exc:
+        return [
+            Finding("telemetry", "warning", f"not available: {exc}", "update the firmware", pos)
+        ]
+    if not isinstance(tel, list) or not any(isinstance(t, list) for t in tel):
+        return [Finding("telemetry", "ok", "servos report no telemetry (e.g. PWM)", position=pos)]
+    out = []
+    shown = []
+    for i, t in enumerate(tel):
+        if not (
+            isinstance(t, list) and len(t) == 3 and all(isinstance(x, (int, float)) for x in t)
+        ):
+            continue
+        volt, temp, load = (float(x) for x in t)
+        shown.append(f"{i}: {volt:.1f} V {temp:.0f} C load {load:.2f}")
+        if temp >= TEMP_ERROR_C:
+            out.append(
+                Finding(
+                    "temperature",
+                    "error",
+                    f"servo {i} at {temp:.0f} C (limit {TEMP_ERROR_C:.0f} C)",
+                    "let it cool; slacken its tendon (it is holding too much load) or check for "
+                    "a jammed horn",
+                    pos,
+                )
+            )
+        elif temp >= TEMP_WARN_C:
+            out.append(
+                Finding("temperature", "warning", f"servo {i} at {temp:.0f} C", "watch it", pos)
+            )
+        if not VOLT_MIN_V <= volt <= VOLT_MAX_V:
+            out.append(
+                Finding(
+                    "voltage",
+                    "error",
+                    f"servo {i} supply {volt:.1f} V (expected {VOLT_MIN_V}-{VOLT_MAX_V} V)",
+                    "check the servo power supply and its wiring",
+                    pos,
+                )
+            )
+        if abs(load) >= LOAD_WARN:
+            out.append(
+                Finding(
+                    "load",
+                    "warning",
+                    f"servo {i} load {abs(load):.0%} of max torque at rest",
+                    "tendon over-tensioned: re-run `ucr calibrate` tensioning",
+                    pos,
+                )
+            )
+    out.insert(0, Finding("telemetry", "ok", "; ".join(shown), position=pos))
     return out
 
 

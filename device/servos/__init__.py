@@ -13,6 +13,7 @@ as the servo itself sees them (the MC applies zero offset and direction). Interf
 * ``saturated``: True when the last ``command`` could not be output exactly (a pulse or a step
   count clipped at its end): ``pos`` then holds what was achieved, and the segment reports CLAMPED.
 * ``release()``: stop driving the servos (FAULT with ``fault_action`` "release").
+* ``telemetry(i)``: (V, deg C, load fraction) of servo i, None if not reported (PARAM 22).
 * ``set_faults(spec)``: fault injection (emulated driver only; others raise ValueError).
 
 Drivers are imported lazily, so a board without ``machine`` never imports the PWM/bus drivers.
@@ -69,6 +70,11 @@ class ServoBus:
 
     def request(self, now_ms):
         """End of a cycle: ask the servos for fresh feedback (bus drivers); default nothing."""
+
+    def telemetry(self, i):
+        """(voltage V, temperature deg C, load fraction of max torque) of servo ``i``, or None
+        when the servo does not report them (PWM, offline). Slow path: allocates."""
+        return None
 
     def set_faults(self, spec):
         raise ValueError("fault injection is only available on the emulated driver")

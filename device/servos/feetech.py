@@ -161,6 +161,13 @@ class FeetechBus(ServoBus):
                 self.fault[k] = FAULT_NO_REPLY
             self.miss[k] = m
 
+    def telemetry(self, i):
+        """Last (voltage V, temperature deg C, load fraction) read from servo i; None before the
+        first reply."""
+        if not self.seen[i]:
+            return None
+        return (self.voltage[i] / 10.0, float(self.temperature[i]), self.load[i] / 1000.0)
+
     def parse(self, k):
         """Find servo k's status packet in the receive buffer; store its values. True if found."""
         buf = self.rx

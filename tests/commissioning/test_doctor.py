@@ -173,3 +173,30 @@ def test_doctor_finds_a_silent_chain() -> None:
         findings = _run(chain.host_port)
     errs = _errors(findings, "chain")
     assert errs and "no segment answers" in errs[0].message and "baud" in errs[0].fix
+
+
+def test_doctor_finds_a_hot_servo_from_its_telemetry() -> None:
+    cfg = {**_configs()[0]}
+    n = len(cfg["tendon_angles"])
+    cfg["emulated_temperature"] = [30.0] * (n - 1) + [72.0]
+    with chain_and_link(1, config_for=[cfg]) as (chain, link):
+        wait_discover(link, 1)
+        link.close()
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "temperature")
+    assert errs and f"servo {n - 1} at 72 C" in errs[0].message, doctor.format_text(findings)
+    tel = [f for f in findings if f.check == "telemetry"]
+    assert tel and "12.0 V" in tel[0].message
+
+
+def test_emulated_servo_load_rises_with_tendon_tension() -> None:
+    cfg = {**_configs()[0]}
+    n = len(cfg["tendon_angles"])
+    zeros = [s.get("zero_offset", 0.0) for s in cfg["servos"]]
+    cfg["emulated_start"] = [zeros[0] + 1.0] + zeros[1:]  # servo 0 wound 1 rad: tendon taut
+    with chain_and_link(1, config_for=[cfg]) as (_chain, link):
+        wait_discover(link, 1)
+        tel = link.param_get(0, doctor.P_SERVO_TELEMETRY)
+    assert len(tel) == n
+    assert tel[0][2] == pytest.approx(0.5, abs=0.01)
+    assert all(t[2] == pytest.approx(0.0, abs=0.01) for t in tel[1:])
