@@ -130,7 +130,8 @@ def check_versions(pos: int, desc: dict) -> list[Finding]:
                 "firmware",
                 "error",
                 f"firmware {fw}, this host expects {EXPECTED_FW_VERSION}",
-                "reflash the segment: `ucr flash --port <its USB port> --config <its config>`",
+                "reflash the segment: "
+                "`ucr flash --port <its USB port> --robot <robot> --segment <name>`",
                 pos,
             )
         )
@@ -190,7 +191,7 @@ def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
                 "config",
                 "error",
                 f"configuration refused: {cfg_err}",
-                "fix the segment's config.json (`ucr segment-config`) and reflash it",
+                "fix the U(C)RDF (`ucr check`) and reflash: `ucr flash ... --segment <name>`",
                 pos,
             )
         )
@@ -330,7 +331,8 @@ def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:
                     "load",
                     "warning",
                     f"servo {i} load {abs(load):.0%} of max torque at rest",
-                    "tendon over-tensioned: re-run `ucr calibrate` tensioning",
+                    "tendon over-tensioned at rest: slacken it (loosen the spool) "
+                    "and check the zero offset",
                     pos,
                 )
             )
@@ -383,7 +385,8 @@ def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
             "robot",
             "error" if d.blocking else "warning",
             d.message,
-            "stale flash: reflash the segment with `ucr segment-config` output of this U(C)RDF, "
+            "stale flash: reflash the segment from this U(C)RDF "
+            "(`ucr flash --robot ... --segment ...`), "
             "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)",
             d.position,
         )

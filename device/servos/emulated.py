@@ -13,11 +13,6 @@ Faults (injected by ``UCR_FAULTS`` or PARAM_SET ``faults``), spec ``"IDX:KIND[,I
 Config key ``emulated_start`` (list of raw angles in rad, one per servo; default the zero
 offsets) is where the servos are at power-on: far from zero, even outside their range, to test
 the first-motion rules. Travel limits stop a servo moving outwards, never pull it inwards.
-
-Telemetry (PARAM 22, as a Feetech servo reports it): ``emulated_voltage`` (V, default 12.0) and
-``emulated_temperature`` (deg C per servo, default 30.0 each) are fixed; the load (fraction of
-max torque) rises with tendon tension: ``emulated_load_per_rad`` (default 0.5) times how far the
-servo is from its zero offset (rad), capped at 1.0.
 """
 
 from array import array
@@ -88,18 +83,12 @@ class EmulatedBus(ServoBus):
         self.gain = 16384 if tau_ms < 1.0 else max(1, int(16384.0 / tau_ms + 0.5))
         self.kinds = bytearray(n)
         self.last_ms = None
-        self.zero = array("i", cfg.zero)
-        self.volt = float(si.get("emulated_voltage") or 12.0)
-        temp = si.get("emulated_temperature")
-        self.temp = [float(temp[i]) if temp else 30.0 for i in range(n)]
-        lpr = si.get("emulated_load_per_rad")
-        self.load_per_rad = 0.5 if lpr is None else float(lpr)
+        self.cfg = cfg
 
     def telemetry(self, i):
-        if self.kinds[i] == 2:  # disconnected: nothing reported
-            return None
-        load = abs(self.true_pos[i] - self.zero[i]) / 10000.0 * self.load_per_rad
-        return (self.volt, self.temp[i], min(1.0, load))
+        from servos.emu_telemetry import telemetry  # slow path; keeps this module small
+
+        return telemetry(self, i)
 
     def set_faults(self, spec):
         self.kinds = parse_faults(spec, self.n)
