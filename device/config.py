@@ -53,6 +53,7 @@ DEFAULTS = {
     "emulated_voltage": None,  # V (emulated driver telemetry)
     "emulated_temperature": None,  # deg C per servo (emulated driver telemetry)
     "emulated_load_per_rad": None,  # load fraction per rad from zero (emulated driver)
+    "emulated_ids": None,  # bus ids the emulated servos really have (missing/duplicate ids)
 }
 
 _SERVO_DEFAULT = {

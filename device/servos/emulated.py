@@ -84,6 +84,10 @@ class EmulatedBus(ServoBus):
         self.kinds = bytearray(n)
         self.last_ms = None
         self.cfg = cfg
+        if si.get("emulated_ids") is not None:
+            from servos.emu_telemetry import wire_ids
+
+            wire_ids(self, cfg, si["emulated_ids"])
 
     def telemetry(self, i):
         from servos.emu_telemetry import telemetry  # slow path; keeps this module small

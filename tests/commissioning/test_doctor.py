@@ -200,3 +200,24 @@ def test_emulated_servo_load_rises_with_tendon_tension() -> None:
     assert len(tel) == n
     assert tel[0][2] == pytest.approx(0.5, abs=0.01)
     assert all(t[2] == pytest.approx(0.0, abs=0.01) for t in tel[1:])
+
+
+@pytest.mark.parametrize("kind", ["wrong_id", "duplicate_id"])
+def test_doctor_finds_a_servo_with_a_wrong_or_duplicate_bus_id(kind: str) -> None:
+    cfg = {**_configs()[0]}
+    ids = [s["id"] for s in cfg["servos"]]
+    real = list(ids)
+    if kind == "wrong_id":
+        real[1] = 200  # servo 1 was set to another id than config.json says
+    else:
+        real[2] = real[1]  # two servos share servo 1's id; servo 2's id is absent
+    cfg["emulated_ids"] = real
+    with chain_and_link(1, config_for=[cfg]) as (chain, link):
+        wait_discover(link, 1)
+        link.close()
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "servos")
+    want = "1" if kind == "wrong_id" else "1, 2"
+    assert errs and f"servo(s) {want} do not answer" in errs[0].message, doctor.format_text(
+        findings
+    )
