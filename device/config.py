@@ -50,10 +50,6 @@ DEFAULTS = {
     "fault_action": "hold",
     "hw_watchdog_ms": 0,
     "emulated_start": None,
-    "emulated_voltage": None,  # V (emulated driver telemetry)
-    "emulated_temperature": None,  # deg C per servo (emulated driver telemetry)
-    "emulated_load_per_rad": None,  # load fraction per rad from zero (emulated driver)
-    "emulated_ids": None,  # bus ids the emulated servos really have (missing/duplicate ids)
 }
 
 _SERVO_DEFAULT = {
@@ -204,19 +200,6 @@ class Config:
                     or not abs(a) <= 2 * _MAX_ANGLE
                 ):
                     raise ValueError("emulated_start: bad angle %r" % (a,))
-        for key in ("emulated_voltage", "emulated_load_per_rad"):
-            v = cfg[key]
-            if v is not None and (
-                isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 100
-            ):
-                raise ValueError("%s must be a number 0..100" % key)
-        temp = cfg["emulated_temperature"]
-        if temp is not None:
-            if not isinstance(temp, list) or len(temp) != len(ang):
-                raise ValueError("emulated_temperature must list one value (deg C) per servo")
-            for v in temp:
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not -50 <= v <= 200:
-                    raise ValueError("emulated_temperature: bad value %r" % (v,))
         if cfg["uid_override"] is not None and not isinstance(cfg["uid_override"], str):
             raise ValueError("uid_override must be a string")
 

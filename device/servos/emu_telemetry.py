@@ -16,16 +16,32 @@ def telemetry(bus, i):
     if bus.kinds[i] == 2:
         return None
     si = bus.cfg.si
+    v = _num(si, "emulated_voltage", 12.0)
+    k = _num(si, "emulated_load_per_rad", 0.5)
     t = si.get("emulated_temperature")
-    k = si.get("emulated_load_per_rad")
-    load = abs(bus.true_pos[i] - bus.cfg.zero[i]) / 10000.0 * (0.5 if k is None else k)
-    return (si.get("emulated_voltage") or 12.0, t[i] if t else 30.0, min(1.0, load))
+    if t is None:
+        t = [30.0] * bus.n
+    if not isinstance(t, list) or len(t) != bus.n:
+        raise ValueError("emulated_temperature must list one value (deg C) per servo")
+    temp = _num({"t": t[i]}, "t", 30.0)
+    load = abs(bus.true_pos[i] - bus.cfg.zero[i]) / 10000.0 * k
+    return (v, temp, min(1.0, load))
+
+
+def _num(si, key, default):
+    """si[key] as a float (default if absent); ValueError unless a number -50..200."""
+    v = si.get(key)
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not -50 <= v <= 200:
+        raise ValueError("%s: bad value %r" % (key, v))
+    return float(v)
 
 
 def wire_ids(bus, cfg, ids):
     """Mark each configured servo that cannot answer on a bus with these ``ids`` disconnected."""
-    if not isinstance(ids, list):
-        raise ValueError("emulated_ids must be a list of bus ids")
+    if not isinstance(ids, list) or len(ids) != bus.n:
+        raise ValueError("emulated_ids must list one bus id per servo")
     for i in range(bus.n):
         if ids.count(cfg.servo_ids[i]) != 1:
             bus.kinds[i] = 2
