@@ -5,10 +5,12 @@ Used by tests and benchmarks that must execute firmware or protocol code under M
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from host.extras import MissingPart
@@ -44,11 +46,31 @@ def micropython_binary() -> str:
     return found
 
 
+def short_path(path: Path) -> str:
+    """A short alias of ``path`` (a symlink in the temp directory), as importable as the original.
+
+    On a board the firmware's files sit at the filesystem root, so the module paths the VM keeps
+    on its heap are a few bytes; a deep checkout would otherwise eat into the ESP32-sized heap and
+    make heap-bound tests depend on where the repository was cloned.
+    """
+    base = Path(tempfile.gettempdir()) / f"ucrvm{os.getuid()}"
+    base.mkdir(mode=0o700, exist_ok=True)
+    target = str(Path(path).resolve())
+    link = base / hashlib.sha1(target.encode()).hexdigest()[:6]
+    if not (link.is_symlink() and os.readlink(link) == target):
+        tmp = base / f".{link.name}.{os.getpid()}"
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(target)
+        os.replace(tmp, link)
+    return str(link)
+
+
 def vm_env(paths: list[Path] | None = None) -> dict[str, str]:
-    """Environment whose MICROPYPATH makes ``paths`` (default: repo root and device/) importable."""
+    """Environment whose MICROPYPATH makes ``paths`` (default: repo root and device/) importable,
+    through short aliases (:func:`short_path`)."""
     paths = paths if paths is not None else [REPO, REPO / "device"]
     env = dict(os.environ)
-    env["MICROPYPATH"] = ":".join([".frozen", *(str(p) for p in paths)])
+    env["MICROPYPATH"] = ":".join([".frozen", *(short_path(p) for p in paths)])
     return env
 
 
