@@ -1,0 +1,307 @@
+"""The API server's requests: parsing, scope check, dispatch to the daemon, uploads, goal progress.
+
+Mixed into :class:`host.api.server.ApiServer` (which owns the attributes used here: ``_link``,
+``counters``, ``opts``, ...). ``status`` is answered from the latest snapshot the daemon sent,
+without a round trip; ops that move the robot or switch controllers are written to ``ucr.audit``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+from typing import Any
+
+from host.api import schema as S
+from host.api.audit import audit_log
+from host.api.auth import (
+    CONTROL,
+    READ_OPS,
+)
+from host.api.bridge import BridgeClosed, RemoteError
+from host.api.session import _Session, _Subscription, _Upload
+
+log = logging.getLogger("ucr.api")
+
+_TERMINAL_STATES = frozenset(
+    {
+        "succeeded",
+        "success",
+        "aborted",
+        "canceled",
+        "cancelled",
+        "failed",
+        "rejected",
+        "done",
+        "preempted",
+        "replaced",
+    }
+)
+_CONTROL_OPS_AUDITED = (
+    "controllers.switch",
+    "controllers.hand_back",
+    "trajectory.send",
+    "trajectory.cancel",
+)
+
+
+def goal_done(status: Any) -> bool:
+    """Whether a ``trajectory_status`` result describes a finished goal."""
+    if not isinstance(status, dict):
+        return False
+    if status.get("done") is True or status.get("finished") is True:
+        return True
+    for key in ("state", "status", "result"):
+        value = status.get(key)
+        if isinstance(value, str) and value.lower() in _TERMINAL_STATES:
+            return True
+    return False
+
+
+class _DispatchMixin:
+    """Answering one request frame of a session (and pushing its goals' progress)."""
+
+    # ------------------------------------------------------------------ requests
+    async def _serve_frame(self, session: _Session, frame: str | bytes) -> dict | str:
+        self.counters["requests"] += 1
+        try:
+            rid, op, params = S.parse_request(frame, self.max_request_bytes)
+        except S.RequestError as exc:
+            self.counters["errors"] += 1
+            return S.error_reply(exc.request_id, exc.code, exc.message)
+        if op not in READ_OPS and session.scope != CONTROL:
+            self.counters["errors"] += 1
+            self.counters["forbidden"] += 1
+            return S.error_reply(
+                rid, S.FORBIDDEN, f"{op!r} needs a token with the control scope (this one: read)"
+            )
+        try:
+            result = await self._dispatch(session, op, params)
+        except S.RequestError as exc:
+            self.counters["errors"] += 1
+            return S.error_reply(rid, exc.code, exc.message)
+        except RemoteError as exc:
+            self.counters["errors"] += 1
+            return S.error_reply(rid, exc.code, str(exc))
+        except Exception as exc:  # noqa: BLE001 - becomes an error reply, never kills the server
+            self.counters["errors"] += 1
+            log.exception("API: op %s failed", op)
+            return S.error_reply(rid, S.INTERNAL, f"internal error ({type(exc).__name__}): {exc}")
+        if isinstance(result, _Raw):
+            return f'{{"id":{json.dumps(rid)},"ok":true,"result":{result.text}}}'
+        return S.ok_reply(rid, result)
+
+    def _audit(self, session: _Session, op: str, goal: Any, summary: str) -> None:
+        audit_log(session.peer, session.who, session.scope, op, goal, summary)
+
+    async def _dispatch(self, session: _Session, op: str, p: dict) -> Any:
+        call = self._link.call
+        if op == "ping":
+            return {"pong": True, "t": time.time()}
+        if op == "status":
+            return self._status()
+        if op == "topology":
+            return await call("topology")
+        if op == "loop_stats":
+            return await call("loop_stats")
+        if op == "controllers.list":
+            return await call("controllers")
+        if op == "controllers.switch":
+            self._audit(session, op, None, f"start {p['start']} stop {p['stop']}")
+            return await call("switch_controllers", p["start"], p["stop"])
+        if op == "controllers.hand_back":
+            self._audit(session, op, None, f"manual {p['manual']}")
+            return await call("hand_back", p["manual"])
+        if op == "faults.clear":
+            self._audit(session, op, None, f"clear fault on {p['segment'] or 'every segment'}")
+            return await call("clear_fault", p["segment"])
+        if op == "trajectory.upload":
+            return self._upload(session, p)
+        if op == "trajectory.send":
+            return await self._send_trajectory(session, p)
+        if op == "trajectory.status":
+            return await call("trajectory_status", p["goal"])
+        if op == "trajectory.cancel":
+            self._audit(session, op, p["goal"], "cancel")
+            return await call("cancel_trajectory", p["goal"])
+        if op == "ffc.input":
+            return await self._ffc_input(session, p["rates"])
+        if op == "subscribe":
+            return self._subscribe(session, p["kinds"], p["max_rate"])
+        if op == "unsubscribe":
+            sub = session.subs.pop(p["sub"], None)
+            if sub is None:
+                raise S.RequestError(S.NOT_FOUND, f"no subscription {p['sub']} on this connection")
+            for kind in sub.kinds:
+                self._by_kind[kind].pop(sub, None)
+            self._update_stream_wanted()
+            return {
+                "sub": sub.sid,
+                "sent": sub.sent,
+                "dropped": sub.dropped,
+                "thinned": sub.thinned,
+            }
+        raise S.RequestError(S.UNKNOWN_OP, f"unknown op {op!r}")  # pragma: no cover - schema guards
+
+    def _status(self) -> Any:
+        text = self._link.status_text
+        if text is None:
+            raise S.RequestError(S.UNAVAILABLE, "no status from the daemon yet")
+        if text.startswith('{"__error__"'):
+            err = json.loads(text)["__error__"]
+            raise S.RequestError(err["code"], err["message"])
+        return _Raw(text)
+
+    async def _ffc_input(self, session: _Session, rates: dict) -> Any:
+        # Remember before calling: if the call fails half-way the input may still be set,
+        # and a disconnect must then zero it.
+        before = set(session.ffc_active)
+        deflected = {n for n, (x, y) in rates.items() if x or y}
+        if deflected != session.ffc_audited:  # a 50 Hz stream is audited when its sticks change
+            session.ffc_audited = deflected
+            self._audit(session, "ffc.input", None, f"deflected {sorted(deflected)}")
+        session.ffc_active.update(deflected)
+        try:
+            result = await self._link.call("ffc_input", rates)
+        except RemoteError as exc:
+            if exc.code == S.REJECTED:
+                session.ffc_active = before  # refused: the daemon did not take this input
+            raise
+        session.ffc_active.difference_update(n for n, (x, y) in rates.items() if not (x or y))
+        if isinstance(result, dict) and result.get("takeover"):
+            self._audit(session, "ffc.takeover", None, str(result.get("takeover")))
+        return result
+
+    async def _send_trajectory(self, session: _Session, p: dict) -> dict:
+        points = p["points"] or []
+        if p.get("upload") is not None:
+            up = session.upload
+            if up is None or up.uid != p["upload"]:
+                raise S.RequestError(S.NOT_FOUND, f"no upload {p['upload']} on this connection")
+            if points and points[0]["time_from_start"] <= up.last_t:
+                raise S.RequestError(
+                    S.INVALID_PARAMS, "points[0].time_from_start: must continue after the upload"
+                )
+            points = up.points + points
+            self._end_upload(session)
+            if len(points) > S.MAX_POINTS:
+                raise S.RequestError(S.INVALID_PARAMS, f"at most {S.MAX_POINTS} waypoints")
+        if not points:
+            raise S.RequestError(S.INVALID_PARAMS, "points: needs at least one waypoint")
+        goal = await self._link.call("send_trajectory", points, p["controller"])
+        session.goals[goal] = None
+        t_end = points[-1]["time_from_start"]
+        self._audit(
+            session,
+            "trajectory.send",
+            goal,
+            f"{len(points)} waypoint(s) over {t_end:g} s, segments "
+            f"{sorted({n for pt in points for n in pt['segments']})}, controller {p['controller']}",
+        )
+        return {"goal": goal}
+
+    def _upload(self, session: _Session, p: dict) -> dict:
+        up = session.upload
+        if p.get("upload") is None:
+            if up is not None:
+                self._end_upload(session)  # a new upload replaces an unfinished one
+            up = session.upload = _Upload(self._next_upload)
+            self._next_upload += 1
+        elif up is None or up.uid != p["upload"]:
+            raise S.RequestError(S.NOT_FOUND, f"no upload {p['upload']} on this connection")
+        pts = p["points"]
+        if pts[0]["time_from_start"] <= up.last_t:
+            raise S.RequestError(
+                S.INVALID_PARAMS,
+                f"points[0].time_from_start: times must increase strictly across chunks "
+                f"({pts[0]['time_from_start']:g} s after {up.last_t:g} s)",
+            )
+        if len(up.points) + len(pts) > S.MAX_POINTS:
+            raise S.RequestError(
+                S.INVALID_PARAMS, f"an upload holds at most {S.MAX_POINTS} waypoints"
+            )
+        if self._upload_points + len(pts) > self.opts.upload_points_total:
+            raise S.RequestError(S.UNAVAILABLE, "too many uploads in progress; try again later")
+        up.points.extend(pts)
+        up.last_t = pts[-1]["time_from_start"]
+        up.t_touched = time.monotonic()
+        self._upload_points += len(pts)
+        return {"upload": up.uid, "points": len(up.points)}
+
+    def _end_upload(self, session: _Session) -> None:
+        up, session.upload = session.upload, None
+        if up is not None:
+            self._upload_points -= len(up.points)
+
+    def _subscribe(self, session: _Session, kinds: list[str], max_rate: float | None) -> dict:
+        if len(session.subs) >= self.opts.max_subscriptions:
+            raise S.RequestError(
+                S.REJECTED, f"at most {self.opts.max_subscriptions} subscriptions per connection"
+            )
+        sid = self._next_sub
+        self._next_sub += 1
+        sub = _Subscription(sid, kinds, max_rate)
+        session.subs[sid] = sub
+        for kind in kinds:
+            self._by_kind[kind][sub] = session
+        self._update_stream_wanted()
+        return {"sub": sid, "kinds": kinds, "max_rate": max_rate}
+
+    # ------------------------------------------------------------------ goal progress
+    async def _goal_pump(self) -> None:
+        """Push the status of every goal a client sent while it changes, until it ends."""
+        while True:
+            await asyncio.sleep(self.opts.goal_poll_s)
+            for session in list(self._sessions):
+                if session.goals and not session.closed:
+                    try:
+                        await self._poll_goals(session)
+                    except Exception:  # noqa: BLE001 - the pump must outlive any one goal
+                        log.exception("API: goal progress failed")
+
+    async def _poll_goals(self, session: _Session) -> None:
+        for goal, last in list(session.goals.items()):
+            try:
+                status = await self._link.call("trajectory_status", goal)
+            except (RemoteError, BridgeClosed) as exc:
+                session.goals.pop(goal, None)
+                status = {"state": "unknown", "error": str(exc)}
+                self._push_priority(
+                    session,
+                    S.encode({"push": "trajectory", "goal": goal, "status": status, "done": True}),
+                )
+                continue
+            done = goal_done(status)
+            if _progress_key(status) != _progress_key(last) or done:
+                self._push_priority(
+                    session,
+                    S.encode({"push": "trajectory", "goal": goal, "status": status, "done": done}),
+                )
+                session.goals[goal] = status
+            if done:
+                session.goals.pop(goal, None)
+
+
+class _Raw:
+    """A result that is already JSON text (the status snapshot): spliced, not re-encoded."""
+
+    __slots__ = ("text",)
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
+def _progress_key(status: Any) -> Any:
+    """What makes a status worth pushing again: everything but time stamps, progress rounded."""
+    if not isinstance(status, dict):
+        return status
+    key = []
+    for k, v in sorted(status.items()):
+        if k in ("t", "time", "elapsed", "stamp"):
+            continue
+        if isinstance(v, float) and math.isfinite(v):
+            v = round(v, 2)
+        key.append((k, repr(v)))
+    return tuple(key)

@@ -1,0 +1,100 @@
+"""Per-connection state of the API server: the client session, its subscriptions, a chunked upload.
+
+Plain data holders used by :mod:`host.api.connection` (outbox, fan-out) and
+:mod:`host.api.dispatch` (requests); no I/O here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import ipaddress
+import time
+from typing import Any
+
+from websockets.asyncio.server import ServerConnection
+
+from host.api import schema as S
+from host.api.auth import (
+    Token,
+)
+
+
+class _Subscription:
+    """One API subscription: kinds, per-kind rate limiting and counters."""
+
+    def __init__(self, sid: int, kinds: list[str], max_rate: float | None) -> None:
+        self.sid = sid
+        self.kinds = kinds
+        self.min_period = 1.0 / max_rate if max_rate else 0.0
+        self.last_sent: dict[str, float] = {}
+        self.dropped = 0  # lost because the client read too slowly
+        self.thinned = 0  # skipped on purpose because of max_rate
+        self.sent = 0
+
+    def admit(self, kind: str, now: float) -> bool:
+        if self.min_period <= 0.0 or kind not in S.RATE_LIMITED_KINDS:
+            return True
+        last = self.last_sent.get(kind)
+        # A little slack so a 100 Hz source thinned to 50 Hz does not alias down to 33 Hz.
+        if last is not None and now - last < self.min_period * 0.9:
+            self.thinned += 1
+            return False
+        self.last_sent[kind] = now
+        return True
+
+
+class _Upload:
+    """A trajectory being uploaded in chunks (``trajectory.upload``)."""
+
+    def __init__(self, uid: int) -> None:
+        self.uid = uid
+        self.points: list[dict] = []
+        self.last_t = 0.0
+        self.t_touched = time.monotonic()
+
+
+class _Session:
+    """State of one connected client."""
+
+    def __init__(self, ws: ServerConnection, token: Token | None, anonymous_scope: str) -> None:
+        self.ws = ws
+        self.peer = _peer(ws)
+        self.scope = token.scope if token is not None else anonymous_scope
+        self.who = token.label if token is not None else "anonymous"
+        self.subs: dict[int, _Subscription] = {}
+        self.goals: dict[Any, Any] = {}  # goal id -> last pushed status
+        self.ffc_active: set[str] = set()  # bendables this client last drove with non-zero input
+        self.ffc_audited: set[str] | None = None  # deflected set last written to the audit log
+        self.stream: collections.deque[tuple[_Subscription, str]] = collections.deque()
+        self.priority: collections.deque[str] = collections.deque()
+        self.queued_bytes = 0
+        self.wakeup = asyncio.Event()
+        self.closed = False
+        self.tokens = 0.0  # request budget (token bucket)
+        self.t_refill = time.monotonic()
+        self.throttled = 0
+        self.t_progress = time.monotonic()  # last time the sender got a message out
+        self.upload: _Upload | None = None
+
+
+def _peer(ws: Any) -> str:
+    try:
+        addr = ws.remote_address
+        return f"{addr[0]}:{addr[1]}"
+    except Exception:  # noqa: BLE001 - purely cosmetic
+        return "?"
+
+
+def _peer_ip(addr: Any) -> str:
+    try:
+        return str(addr[0])
+    except Exception:  # noqa: BLE001 - unknown transports share one bucket
+        return "?"
+
+
+def _is_loopback_ip(ip: str) -> bool:
+    try:
+        return ipaddress.ip_address(ip).is_loopback
+    except ValueError:
+        return False
