@@ -287,13 +287,13 @@ def cap_limits(robot: Robot, envelope: Envelope) -> list[str]:
     return out
 
 
-def write_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temp file in the same directory, then rename):
-    readers see the old file or the new one, never half; a symlink at ``path`` is replaced,
-    never followed, so no other file can be overwritten through it."""
+def write_atomic(path: str | Path, text: str, mode: int = 0o644) -> None:
+    """Write ``text`` to ``path`` atomically (temp file in the same directory, created with
+    ``mode``, then rename): readers see the old file or the new one, never half; a symlink at
+    ``path`` is replaced, never followed, so no other file can be overwritten through it."""
     p = Path(path)
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, mode)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)

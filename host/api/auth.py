@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from host.api.guard import is_loopback
+from host.topology import write_atomic
 
 READ = "read"
 CONTROL = "control"
@@ -90,18 +91,7 @@ def read_token_file(path: str | Path) -> str:
 
 def write_private(path: str | Path, text: str) -> None:
     """Write ``text`` to a new 0600 file atomically (temp file + rename; never via a symlink)."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_atomic(path, text, mode=0o600)
 
 
 def check_bind(
