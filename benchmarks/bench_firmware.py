@@ -127,11 +127,8 @@ def main() -> int:
         t_ms=100,
         kappa=0.5,
         phi=0.1,
-        tendon_lengths=[0.3, 0.31, 0.32],
         servo_angles=[0.1, -0.2, 0.3],
         status=16,
-        kx=0.49,
-        ky=0.05,
     )
     code = VM_CODE.format(sync=sync.hex(), state=state.hex(), cycles=args.cycles)
     paths = [mpvm.REPO, mpvm.REPO / "device", mpvm.REPO / "tests" / "device"]

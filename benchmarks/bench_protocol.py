@@ -79,7 +79,6 @@ def _state_bytes(worst: bool) -> int:
             t_ms=7_654_321,
             kappa=12.3456,
             phi=1.2345,
-            tendon_lengths=[0.1183, 0.1201, 0.1216],
             servo_angles=[-0.52, 0.31, 0.21],
             status=16,
         )
@@ -205,7 +204,6 @@ def _cpython_timings(loops: int) -> list[tuple[str, float]]:
         t_ms=7_654_321,
         kappa=12.3456,
         phi=1.2345,
-        tendon_lengths=[0.1183, 0.1201, 0.1216],
         servo_angles=[-0.52, 0.31, 0.21],
         status=16,
     )
@@ -288,8 +286,8 @@ if %s:  # pure-Python loops instead of the viper ones (protocol/_fast.py)
 sps3 = [(12.3456, 1.2345)] * 3
 sync3 = M.encode_sync(17, 123456, sps3)
 state = M.encode_state(17, cycle=123456, t_ms=7654321, kappa=12.3456, phi=1.2345,
-    tendon_lengths=[0.1183, 0.1201, 0.1216], servo_angles=[-0.52, 0.31, 0.21], status=16)
-desc = M.encode_descriptor({"uid": "24a1600c3b5e", "fw_version": "0.1.0", "protocol_version": 1,
+    servo_angles=[-0.52, 0.31, 0.21], status=16)
+desc = M.encode_descriptor({"uid": "24a1600c3b5e", "fw_version": "0.1.0", "protocol_version": 2,
     "model": "pcc", "length": 0.12, "tendon_angles": [0.0, 2.0944, 4.1888], "kappa_max": 20.0})
 reader = F.FrameReader()
 raw = bytearray(MAX_FRAME)

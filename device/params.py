@@ -28,6 +28,7 @@ from protocol.constants import (
     T_CLEAR_FAULT,
     T_PARAM_SET,
     T_PARAM_VALUE,
+    VERSION,
 )
 
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
@@ -117,7 +118,7 @@ def descriptor(self):
     return {
         "uid": self.uid,
         "fw_version": config.FW_VERSION,
-        "protocol_version": 1,
+        "protocol_version": VERSION,
         "model": si["model"],
         "length": float(si["length"]),
         "tendon_angles": [float(a) for a in si["tendon_angles"]],

@@ -242,14 +242,10 @@ class Segment:
             self.now,
             mc.kappa,
             mc.phi,
-            mc.tendon,
-            self.n,
             mc.joint,
             self.n,
             self.status(),
-            mc.mx,
-            mc.my,
-            self.position,  # key 9: whose SYNC entry we apply (the host checks it)
+            self.position,  # whose SYNC entry we apply (the host checks it)
         )
         self._up(end)
 

@@ -23,12 +23,13 @@ BITS_PER_BYTE = 10  # UART 8N1: start + 8 data + stop
 
 def max_sync_bytes(n: int) -> int:
     """Wire bytes of the largest SYNC for ``n`` segments (COBS, CRC and delimiter included)."""
-    sps = [(C.INT_LIMIT / C.KAPPA_SCALE / 2, -3.0)] * n
+    sps = [(C.SP_KAPPA_MAX / C.KAPPA_SCALE, -3.0)] * n
     return len(M.encode_sync(255, C.TIME_WRAP - 1, sps))
 
 
-def max_state_bytes() -> int:
-    """Wire bytes of the largest STATE one segment sends."""
+def max_state_bytes(servos: int = 3) -> int:
+    """Wire bytes of the largest STATE one segment with ``servos`` servos sends (COBS adds no
+    byte to a frame under 254 bytes, so every STATE of that segment has this size)."""
     return len(
         M.encode_state(
             255,
@@ -36,8 +37,7 @@ def max_state_bytes() -> int:
             t_ms=C.TIME_WRAP - 1,
             kappa=3.0,
             phi=-3.0,
-            tendon_lengths=[1.0] * 3,
-            servo_angles=[-3.0] * 3,
+            servo_angles=[-3.0] * servos,
             status=0x3F,
         )
     )

@@ -61,6 +61,9 @@ class ChainLink(_FramePlumbing):
         self._seq = 0
         self._cycle = 0
         self._expected: int | None = None
+        #: position -> (length m, spool radius m) from the last discovery: STATE (version 2)
+        #: carries servo angles, the host derives the tendon lengths from them
+        self._geometry: dict[int, tuple[float | None, float | None]] = {}
         self._error: BaseException | None = None
         self._closed = False
         self._counters = {
@@ -144,6 +147,9 @@ class ChainLink(_FramePlumbing):
             if not tip:
                 self._counters["timeouts"] += 1
             self._expected = len(descs)
+            self._geometry = {
+                d["position"]: (d.get("length"), d.get("spool_radius")) for d in descs
+            }
             return descs
 
     def _refuse_other_versions(self, col: _Collector) -> None:
@@ -181,7 +187,10 @@ class ChainLink(_FramePlumbing):
                 states.append(None)
                 continue
             try:
-                states.append(M.decode_state(frame.payload, pos))
+                st = M.decode_state(frame.payload, pos)
+                length, spool = self._geometry.get(pos, (None, None))
+                st["tendon_lengths"] = M.tendon_lengths(length, spool, st["servo_angles"])
+                states.append(st)
             except Exception:  # noqa: BLE001 - any malformed STATE is a bad payload
                 self._counters["bad_payloads"] += 1
                 states.append(None)

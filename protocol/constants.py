@@ -13,9 +13,9 @@ except ImportError:  # CPython
 
 
 # --- version -------------------------------------------------------------------------------
-VERSION = const(1)  # protocol version carried in header byte 0
-VERSION_MIN = const(1)  # oldest version this implementation speaks
-VERSION_MAX = const(1)  # newest version this implementation speaks
+VERSION = const(2)  # protocol version carried in header byte 0
+VERSION_MIN = const(2)  # oldest version this implementation speaks (v1: docs/protocol.md §14)
+VERSION_MAX = const(2)  # newest version this implementation speaks
 
 # --- frame layout --------------------------------------------------------------------------
 HEADER_LEN = const(5)  # ver, flags, hop, type, seq
@@ -41,7 +41,7 @@ FLAGS_KNOWN = const(0x07)  # bits defined in version 1; others must be 0
 
 # --- message types (header byte 3) ---------------------------------------------------------
 T_DISCOVER = const(0x01)  # host -> bcast, {} ; every segment answers DESCRIPTOR
-T_SYNC = const(0x02)  # host -> bcast, {0: cycle, 1: [k0, p0, k1, p1, ...], 2: resume?}
+T_SYNC = const(0x02)  # host -> bcast, {0: cycle, 1: packed setpoints (bytes), 2: resume?}
 T_HEARTBEAT = const(0x03)  # host -> bcast, {0: cycle}
 T_PARAM_GET = const(0x04)  # host -> addressed, {0: param_id, 15: uid?}
 T_PARAM_SET = const(0x05)  # host -> addressed, {0: param_id, 1: value, 15: uid?}
@@ -79,17 +79,20 @@ K_RESUME = const(2)
 K_PARAM_ID = const(0)
 K_VALUE = const(1)
 K_UID = const(15)
-# STATE
-KS_CYCLE = const(0)
-KS_T_MS = const(1)
-KS_KAPPA = const(2)
-KS_PHI = const(3)
-KS_TENDONS = const(4)
-KS_SERVOS = const(5)
-KS_STATUS = const(6)
-KS_KX = const(7)
-KS_KY = const(8)
-KS_POSITION = const(9)  # chain position whose SYNC entry the segment applies
+# STATE (version 2): {0: packed report (bytes)}; the byte layout below
+KS_REPORT = const(0)
+
+# --- packed layouts inside CBOR byte strings (version 2, all fields big-endian) --------------
+# SYNC key 1: one SP_LEN-byte entry per position: kappa int24 (1e-4 1/m), phi int16 (1e-4 rad);
+# the entry SP_HOLD_BYTES (kappa = -2**23, phi = 0) holds that segment's current setpoint.
+SP_LEN = const(5)
+SP_KAPPA_MIN = const(-0x7FFFFF)  # int24 range without the hold marker
+SP_KAPPA_MAX = const(0x7FFFFF)
+SP_HOLD = const(-0x800000)
+# STATE key 0: STATE_FIXED bytes (cycle u32, t_ms u32, kappa i24, phi i16, status u8, position
+# u8; offsets in protocol/device.py), then one int16 servo angle (1e-3 rad) per servo
+STATE_FIXED = const(15)
+SERVO_SCALE = const(1000)  # 1 STATE servo-angle unit = 1e-3 rad
 # EVENT
 KE_CODE = const(0)
 KE_DETAIL = const(1)

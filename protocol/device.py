@@ -7,12 +7,17 @@ with code ERR_MALFORMED). Slow-path messages (descriptor, params, error text) us
 ``protocol.messages``.
 """
 
+from struct import pack_into
+
 from protocol.cbor import Reader, put_head, put_int
 from protocol.constants import (
     FLAG_BCAST,
     FLAG_LOCAL,
     FLAG_UP,
     HEADER_LEN,
+    SP_HOLD,
+    SP_LEN,
+    STATE_FIXED,
     T_ALIVE,
     T_EVENT,
     T_STATE,
@@ -28,6 +33,11 @@ except ImportError:  # CPython
     def const(x):
         return x
 
+
+# STATE report offsets (docs/protocol.md 0x83); private consts cost no heap on the board
+_O_PHI = const(11)  # after cycle (0, u32), t_ms (4, u32), kappa (8, i24)
+_O_SERVOS = const(15)  # after phi (11, i16), status (13, u8), position (14, u8)
+_I16_MAX = const(0x7FFF)
 
 OK = const(1)  # decoded; SYNC: this segment's entry present
 HOLD = const(0)  # SYNC without an entry for this position: hold the current setpoint
@@ -47,23 +57,14 @@ def version_supported(ver):
     return VERSION_MIN <= ver <= VERSION_MAX
 
 
-def _int_or_null(r):
-    """Read an int (-> r.val, return 1) or null (return 0); -1 if anything else."""
-    m = r.head()
-    if m == 0 or m == 1:
-        return 1
-    if m == 7 and r.arg == 22:
-        return 0
-    return -1
-
-
 def decode_sync(buf, start, end, position, out):
-    """Decode SYNC ``{0: cycle, 1: [k0, p0, ...], 2: resume?}`` for segment ``position``.
+    """Decode SYNC ``{0: cycle, 1: packed setpoints, 2: resume?}`` for segment ``position``.
 
     Fills ``out`` (a list of >= 4 ints): [SYNC_CYCLE] cycle, [SYNC_KAPPA] kappa (1e-4 1/m),
-    [SYNC_PHI] phi (1e-4 rad), [SYNC_RESUME] 1 if key 2 is true/1 else 0. Returns OK when the
-    entry for ``position`` is present, HOLD when the list is too short or the entry is
-    [null, null], MALFORMED otherwise (out is then undefined). Unknown keys are skipped.
+    [SYNC_PHI] phi (1e-4 rad), [SYNC_RESUME] 1 if key 2 is true/1 else 0. Key 1 is a byte
+    string of SP_LEN bytes per position (kappa int24, phi int16, big-endian); returns OK when
+    the entry for ``position`` is present, HOLD when the string is too short or the entry is
+    the hold marker, MALFORMED otherwise (out is then undefined). Unknown keys are skipped.
     """
     r = _R
     r.reset(buf, start, end)
@@ -73,7 +74,6 @@ def decode_sync(buf, start, end, position, out):
     seen = 0
     found = HOLD
     out[SYNC_RESUME] = 0
-    ik = 2 * position
     for _ in range(pairs):
         if not r.top_key() or r.val < 0:
             return MALFORMED  # not a non-negative int, or a duplicate key
@@ -85,30 +85,30 @@ def decode_sync(buf, start, end, position, out):
                 return MALFORMED
             out[SYNC_CYCLE] = r.arg
         elif key == 1:
-            if r.head() != 4:
+            if r.head() != 2:
                 return MALFORMED
-            cnt = r.arg
-            if cnt & 1:
-                return MALFORMED  # kappa/phi come in pairs
-            j = 0
-            while j < cnt:
-                if j == ik:
-                    a = _int_or_null(r)
-                    if a < 0:
-                        return MALFORMED
-                    k = r.val
-                    b = _int_or_null(r)
-                    if b != a:
-                        return MALFORMED  # both ints or both null
-                    if a:
-                        out[SYNC_KAPPA] = k
-                        out[SYNC_PHI] = r.val
-                        found = OK
-                    j += 2
+            q = r.pos
+            ln = r.arg
+            r.pos = q + ln
+            if ln % SP_LEN:
+                return MALFORMED  # whole entries only
+            q += SP_LEN * position
+            if q + SP_LEN <= r.pos:
+                b0 = buf[q]
+                k = (b0 << 16) | (buf[q + 1] << 8) | buf[q + 2]
+                if b0 & 0x80:
+                    k -= 0x1000000
+                p = (buf[q + 3] << 8) | buf[q + 4]
+                if p & 0x8000:
+                    p -= 0x10000
+                if k == SP_HOLD:
+                    if p:
+                        return MALFORMED  # the hold marker is exactly 80 00 00 00 00
+                    found = HOLD
                 else:
-                    if _int_or_null(r) < 0:
-                        return MALFORMED
-                    j += 1
+                    out[SYNC_KAPPA] = k
+                    out[SYNC_PHI] = p
+                    found = OK
         elif key == 2:
             m = r.head()
             if m == 7 and (r.arg == 20 or r.arg == 21):
@@ -162,43 +162,37 @@ def decode_empty(buf, start, end):
     return OK if r.at_end() else MALFORMED
 
 
-def _put_int_list(buf, off, items, n):
-    off = put_head(buf, off, 4, n)
-    for i in range(n):
-        off = put_int(buf, off, items[i])
-    return off
+def encode_state(buf, off, cycle, t_ms, kappa, phi, servos, n_servos, status, pos=0):
+    """Write a STATE payload ``{0: packed report}`` into ``buf`` at ``off``; return its end.
 
-
-def encode_state(
-    buf, off, cycle, t_ms, kappa, phi, tendons, n_tendons, servos, n_servos, status, kx, ky, pos=0
-):
-    """Write a STATE payload (wire ints, see constants) into ``buf`` at ``off``; return end.
-
-    ``tendons``/``servos``: sequences of ints (µm, 1e-4 rad), first ``n_*`` used; ``pos``: the
-    chain position whose SYNC entry this segment applies (key 9). Allocates nothing. Typical:
-    ``end = encode_state(raw, HEADER_LEN, ...)`` then ``frame_into``.
+    Layout of the report (docs/protocol.md 0x83): cycle, t_ms (uint32), kappa (int24, 1e-4 1/m),
+    phi (int16, 1e-4 rad), status, pos (uint8: the chain position whose SYNC entry this segment
+    applies), then the first ``n_servos`` of ``servos`` (1e-4 rad ints) as int16 in 1e-3 rad,
+    clamped to the int16 range. struct.pack_into is C code on MicroPython and allocates nothing.
     """
-    buf[off] = 0xAA  # map of 10 pairs, keys 0..9
-    buf[off + 1] = 0
-    off = put_int(buf, off + 2, cycle)
-    buf[off] = 1
-    off = put_int(buf, off + 1, t_ms)
-    buf[off] = 2
-    off = put_int(buf, off + 1, kappa)
-    buf[off] = 3
-    off = put_int(buf, off + 1, phi)
-    buf[off] = 4
-    off = _put_int_list(buf, off + 1, tendons, n_tendons)
-    buf[off] = 5
-    off = _put_int_list(buf, off + 1, servos, n_servos)
-    buf[off] = 6
-    off = put_int(buf, off + 1, status)
-    buf[off] = 7
-    off = put_int(buf, off + 1, kx)
-    buf[off] = 8
-    off = put_int(buf, off + 1, ky)
-    buf[off] = 9
-    return put_int(buf, off + 1, pos)
+    ln = STATE_FIXED + 2 * n_servos
+    buf[off] = 0xA1  # map of 1 pair
+    buf[off + 1] = 0  # key 0
+    if ln < 24:
+        buf[off + 2] = 0x40 + ln
+        o = off + 3
+    else:
+        buf[off + 2] = 0x58
+        buf[off + 3] = ln
+        o = off + 4
+    pack_into(">i", buf, o + 7, kappa)  # int32 at 7..10; bytes 8..10 are the int24
+    pack_into(">II", buf, o, cycle, t_ms)  # overwrites byte 7 with the last byte of t_ms
+    pack_into(">hBB", buf, o + _O_PHI, phi, status, pos)
+    q = o + _O_SERVOS
+    for i in range(n_servos):
+        a = (servos[i] + 5) // 10
+        if a > _I16_MAX:
+            a = _I16_MAX
+        elif a < -_I16_MAX:
+            a = -_I16_MAX
+        pack_into(">h", buf, q, a)
+        q += 2
+    return q
 
 
 def encode_event(buf, off, code, detail, t_ms, text=None, tlen=0):
@@ -228,43 +222,12 @@ def encode_empty(buf, off):
     return off + 1
 
 
-def state_frame(
-    raw,
-    out,
-    seq,
-    cycle,
-    t_ms,
-    kappa,
-    phi,
-    tendons,
-    n_tendons,
-    servos,
-    n_servos,
-    status,
-    kx,
-    ky,
-    pos=0,
-):
+def state_frame(raw, out, seq, cycle, t_ms, kappa, phi, servos, n_servos, status, pos=0):
     """Build a complete STATE wire frame (UP, hop 0) into ``out``; return its length.
 
     ``raw`` is scratch space of MAX_FRAME bytes. Allocates nothing.
     """
-    end = encode_state(
-        raw,
-        HEADER_LEN,
-        cycle,
-        t_ms,
-        kappa,
-        phi,
-        tendons,
-        n_tendons,
-        servos,
-        n_servos,
-        status,
-        kx,
-        ky,
-        pos,
-    )
+    end = encode_state(raw, HEADER_LEN, cycle, t_ms, kappa, phi, servos, n_servos, status, pos)
     return frame_into(raw, end, FLAG_UP, 0, T_STATE, seq, out, 0)
 
 

@@ -8,6 +8,7 @@ control cycle, see ``protocol.device``).
 """
 
 import math
+import struct
 
 from protocol import cbor
 from protocol.constants import (
@@ -20,7 +21,12 @@ from protocol.constants import (
     FLAG_UP,
     INT_LIMIT,
     KAPPA_SCALE,
-    LENGTH_SCALE,
+    SERVO_SCALE,
+    SP_HOLD,
+    SP_KAPPA_MAX,
+    SP_KAPPA_MIN,
+    SP_LEN,
+    STATE_FIXED,
     STATUS_NAMES,
     T_ALIVE,
     T_CLEAR_FAULT,
@@ -229,19 +235,36 @@ def encode_discover(seq: int) -> bytes:
     return encode_frame(FLAG_BCAST, 0, T_DISCOVER, _seq(seq), {})
 
 
+_I16_MAX = 0x7FFF
+
+
+def _s24(b, i: int) -> int:
+    """The big-endian int24 at ``b[i:i + 3]``."""
+    v = (b[i] << 16) | (b[i + 1] << 8) | b[i + 2]
+    return v - 0x1000000 if v & 0x800000 else v
+
+
 def sync_payload(cycle: int, setpoints_si, resume: bool = False) -> dict:
-    """SYNC payload: ``setpoints_si`` is a list of (kappa 1/m, phi rad) or None (hold)."""
-    flat = []
+    """SYNC payload: ``setpoints_si`` is a list of (kappa 1/m, phi rad) or None (hold).
+
+    Key 1 packs SP_LEN bytes per position: kappa int24 (1e-4 1/m, |kappa| <= 838.8607 1/m),
+    phi int16 (1e-4 rad, wrapped to (-pi, pi]), big-endian; a hold is ``80 00 00 00 00``.
+    """
+    packed = bytearray()
     for i, sp in enumerate(setpoints_si):
         if sp is None:
-            flat.append(None)
-            flat.append(None)
+            packed += struct.pack(">i", SP_HOLD)[1:] + b"\x00\x00"
             continue
         if len(sp) != 2:
             raise BadValueError("setpoint %d must be (kappa, phi), got %r" % (i, sp))
-        flat.append(to_fixed(sp[0], KAPPA_SCALE, "kappa"))
-        flat.append(phi_to_wire(sp[1]))
-    d = {0: _uint(cycle, "cycle"), 1: flat}
+        k = to_fixed(sp[0], KAPPA_SCALE, "kappa")
+        if not SP_KAPPA_MIN <= k <= SP_KAPPA_MAX:
+            raise BadValueError(
+                "setpoint %d: kappa %r 1/m is outside the wire range +-%g 1/m"
+                % (i, sp[0], SP_KAPPA_MAX / KAPPA_SCALE)
+            )
+        packed += struct.pack(">i", k)[1:] + struct.pack(">h", phi_to_wire(sp[1]))
+    d = {0: _uint(cycle, "cycle"), 1: bytes(packed)}
     if resume:
         d[2] = True
     return d
@@ -256,20 +279,21 @@ def decode_sync(payload) -> dict:
     """SYNC payload -> ``{cycle, setpoints: [(kappa 1/m, phi rad) | None], resume}``."""
     d = decode_map(payload)
     cycle = _get(d, 0, "cycle", "uint")
-    flat = d.get(1)
-    if not isinstance(flat, list) or len(flat) % 2:
-        raise MalformedError("SYNC key 1 must be a list of kappa/phi pairs")
+    packed = d.get(1)
+    if not isinstance(packed, bytes) or len(packed) % SP_LEN:
+        raise MalformedError("SYNC key 1 must be a byte string of %d-byte entries" % SP_LEN)
     sps = []
-    for i in range(0, len(flat), 2):
-        k, p = flat[i], flat[i + 1]
-        if k is None and p is None:
+    for i in range(0, len(packed), SP_LEN):
+        k = _s24(packed, i)
+        p = struct.unpack_from(">h", packed, i + 3)[0]
+        if k == SP_HOLD:
+            if p:
+                raise MalformedError(
+                    "SYNC entry %d: a hold entry is 80 00 00 00 00" % (i // SP_LEN)
+                )
             sps.append(None)
-        elif _is_int(k) and _is_int(p):
-            _check_wire_int(k, "kappa")
-            _check_wire_int(p, "phi")
-            sps.append((k / KAPPA_SCALE, p / ANGLE_SCALE))
         else:
-            raise MalformedError("SYNC entry %d must be two ints or two nulls" % (i // 2))
+            sps.append((k / KAPPA_SCALE, p / ANGLE_SCALE))
     resume = d.get(2, False)
     if not (isinstance(resume, bool) or resume in (0, 1)):
         raise MalformedError("SYNC key 2 (resume) must be a bool")
@@ -475,38 +499,39 @@ def state_payload(
     t_ms: int,
     kappa: float,
     phi: float,
-    tendon_lengths=(),
     servo_angles=(),
     status=0,
-    kx=None,
-    ky=None,
-    applied_position=None,
+    applied_position=0,
 ) -> dict:
-    """STATE payload from SI values (kappa 1/m, phi rad, tendon lengths m, servo angles rad).
+    """STATE payload ``{0: packed report}`` from SI values (kappa 1/m, phi rad, servo angles rad).
 
-    kx/ky default to kappa*(cos phi, sin phi); ``applied_position`` (key 9, the chain position
-    whose SYNC entry the segment applies) is sent when given.
+    ``applied_position`` is the chain position whose SYNC entry the segment applies. Layout and
+    units: docs/protocol.md 0x83 (what the host can derive -- kx, ky, tendon lengths -- is not
+    sent).
     """
-    kappa = _finite(kappa, "kappa")
-    phi = wrap_angle(_finite(phi, "phi"))
-    if kx is None:
-        kx = kappa * math.cos(phi)
-    if ky is None:
-        ky = kappa * math.sin(phi)
-    d = {
-        0: _uint(cycle, "cycle"),
-        1: _uint(t_ms, "t_ms"),
-        2: to_fixed(kappa, KAPPA_SCALE, "kappa"),
-        3: to_fixed(phi, ANGLE_SCALE, "phi"),
-        4: [to_fixed(x, LENGTH_SCALE, "tendon length") for x in tendon_lengths],
-        5: [to_fixed(x, ANGLE_SCALE, "servo angle") for x in servo_angles],
-        6: status_bits(status),
-        7: to_fixed(kx, KAPPA_SCALE, "kx"),
-        8: to_fixed(ky, KAPPA_SCALE, "ky"),
-    }
-    if applied_position is not None:
-        d[9] = _uint(applied_position, "position", 256)
-    return d
+    kappa = to_fixed(_finite(kappa, "kappa"), KAPPA_SCALE, "kappa")
+    if not SP_KAPPA_MIN <= kappa <= SP_KAPPA_MAX:
+        raise BadValueError("kappa is outside the STATE range (int24, 1e-4 1/m)")
+    angles = [to_fixed(x, SERVO_SCALE, "servo angle") for x in servo_angles]
+    for a in angles:
+        if not -_I16_MAX <= a <= _I16_MAX:
+            raise BadValueError("servo angle is outside the STATE range (int16, 1e-3 rad)")
+    if STATE_FIXED + 2 * len(angles) > 255:
+        raise BadValueError("too many servo angles for one STATE")
+    rep = struct.pack(
+        ">II",
+        _uint(cycle, "cycle"),
+        _uint(t_ms, "t_ms"),
+    )
+    rep += struct.pack(">i", kappa)[1:]
+    rep += struct.pack(
+        ">hBB",
+        phi_to_wire(phi),
+        status_bits(status),
+        _uint(applied_position, "position", 256),
+    )
+    rep += b"".join(struct.pack(">h", a) for a in angles)
+    return {0: rep}
 
 
 def encode_state(seq: int, **fields) -> bytes:
@@ -516,29 +541,48 @@ def encode_state(seq: int, **fields) -> bytes:
 
 def decode_state(payload, position=None) -> dict:
     """STATE payload -> SI dict ``{position, applied_position, cycle, t_ms, kappa, phi, kx, ky,
-    tendon_lengths, servo_angles, status: set of names, raw_status}``.
+    servo_angles, status: set of names, raw_status}``.
 
-    ``applied_position`` (key 9, None if absent) is the chain position whose SYNC entry the
-    segment applies; it differs from ``position`` (the hop count of the reply) when a SYNC
-    reached the segment with a wrong hop byte: its setpoint was meant for another segment.
+    kx, ky are derived here (kappa cos phi, kappa sin phi). ``applied_position`` is the chain
+    position whose SYNC entry the segment applies; it differs from ``position`` (the hop count of
+    the reply) when a SYNC reached the segment with a wrong hop byte: its setpoint was meant for
+    another segment.
     """
     d = decode_map(payload)
-    raw_status = _get(d, 6, "status", "uint")
-    applied = _get(d, 9, "applied position", "uint", False)
+    rep = d.get(0)
+    if not isinstance(rep, bytes) or len(rep) < STATE_FIXED or (len(rep) - STATE_FIXED) % 2:
+        raise MalformedError(
+            "STATE key 0 must be a byte string of %d + 2 x servos bytes" % STATE_FIXED
+        )
+    cycle, t_ms = struct.unpack_from(">II", rep, 0)
+    if cycle >= INT_LIMIT or t_ms >= INT_LIMIT:
+        raise MalformedError("STATE cycle / t_ms outside 0..2**30-1")
+    kappa = _s24(rep, 8) / KAPPA_SCALE
+    phi_w, raw_status, applied = struct.unpack_from(">hBB", rep, 11)
+    phi = phi_w / ANGLE_SCALE
+    n = (len(rep) - STATE_FIXED) // 2
+    angles = struct.unpack_from(">%dh" % n, rep, STATE_FIXED)
     return {
         "position": position,
         "applied_position": applied,
-        "cycle": _get(d, 0, "cycle", "uint"),
-        "t_ms": _get(d, 1, "t_ms", "uint"),
-        "kappa": _get(d, 2, "kappa", "int") / KAPPA_SCALE,
-        "phi": _get(d, 3, "phi", "int") / ANGLE_SCALE,
-        "kx": _get(d, 7, "kx", "int") / KAPPA_SCALE,
-        "ky": _get(d, 8, "ky", "int") / KAPPA_SCALE,
-        "tendon_lengths": [v / LENGTH_SCALE for v in _get(d, 4, "tendons", "intlist")],
-        "servo_angles": [v / ANGLE_SCALE for v in _get(d, 5, "servos", "intlist")],
+        "cycle": cycle,
+        "t_ms": t_ms,
+        "kappa": kappa,
+        "phi": phi,
+        "kx": kappa * math.cos(phi),
+        "ky": kappa * math.sin(phi),
+        "servo_angles": [a / SERVO_SCALE for a in angles],
         "status": status_names(raw_status),
         "raw_status": raw_status,
     }
+
+
+def tendon_lengths(length, spool_radius, servo_angles) -> list:
+    """Tendon lengths (m) a STATE implies: ``length - spool_radius x angle`` per servo (what the
+    firmware's mechanism measures, device/mechanism.py); [] without the descriptor's geometry."""
+    if not (_is_num(length) and _is_num(spool_radius)):
+        return []
+    return [length - spool_radius * a for a in servo_angles]
 
 
 def encode_param_value(seq: int, param_id: int, value) -> bytes:

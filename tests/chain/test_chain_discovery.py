@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from chain_helpers import chain_and_link, wait_discover
 
+from protocol import constants as C
 from tools.segment_config import configs
 from ucrdf.parser import load
 
@@ -48,7 +49,7 @@ def test_discovery_finds_every_segment_in_chain_order_with_its_configuration(n: 
             assert d["length"] == pytest.approx(cfg["length"])
             assert d["kappa_max"] == pytest.approx(cfg["kappa_max"])
             assert d["watchdog_ms"] == cfg["watchdog_ms"]
-            assert d["protocol_version"] == 1
+            assert d["protocol_version"] == C.VERSION == 2
             assert d["downstream_present"] is (k < n - 1)
 
 

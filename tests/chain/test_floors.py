@@ -42,7 +42,6 @@ def test_largest_sizes_bound_real_frames() -> None:
         t_ms=2**29,
         kappa=-2.9,
         phi=3.1,
-        tendon_lengths=[0.9, 0.8, 0.7],
         servo_angles=[2.9, -2.9, 1.0],
         status=0x3F,
     )

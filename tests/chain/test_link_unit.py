@@ -14,13 +14,20 @@ from host.link import (
     SegmentError,
 )
 from protocol import constants as C
+from protocol import messages as M
 from protocol.cbor import loads
 from protocol.frame import FrameReader, encode_frame
 
 UP = C.FLAG_UP
 #: required DESCRIPTOR fields (uid, firmware, protocol version, model) and a complete STATE
-DESC = {0: "uid", 1: "0.1.0", 2: 1, 3: "pcc"}
-STATE = {0: 0, 1: 10, 2: 0, 3: 0, 4: [316000, 316000, 316000], 5: [0, 0, 0], 6: 0, 7: 0, 8: 0}
+DESC = {0: "uid", 1: "0.1.0", 2: C.VERSION, 3: "pcc"}
+
+
+def _state(cycle: int, kappa: float, phi: float, status: int) -> dict:
+    """A complete STATE payload (version 2: one packed report under key 0)."""
+    return M.state_payload(
+        cycle=cycle, t_ms=10, kappa=kappa, phi=phi, servo_angles=[0, 0, 0], status=status
+    )
 
 
 class FakeChain:
@@ -55,9 +62,9 @@ class FakeChain:
                 elif f.mtype == C.T_HEARTBEAT:
                     self.send(0, C.T_STATE, (f.seq + 1) & 0xFF, {0: 99})  # stale seq: ignored
                     self.send(0, C.T_ALIVE, 0, {}, flags=UP | C.FLAG_LOCAL)
-                    state = {**STATE, 0: body[0], 2: 12345, 3: -5000, 6: 0x11}
+                    state = _state(body[0], 1.2345, -0.5, 0x11)
                     if self.truncate_state:
-                        del state[7]  # kx missing: not a valid STATE
+                        state[0] = state[0][:14]  # cut inside the fixed part: not a valid STATE
                     self.send(0, C.T_STATE, f.seq, state)
                 elif f.mtype == C.T_PARAM_GET and f.hop == 1:
                     self.send(1, C.T_ERROR, f.seq, {0: C.ERR_UNKNOWN_PARAM, 1: f.mtype, 2: "no"})

@@ -11,10 +11,12 @@ from tests.device.conftest import decode, frames
 UID = "00aa11bb22cc"  # vmkit.LoopHal's uid
 
 
+#: kappa 1/m, phi rad per position (wire: 1000/0, 2000/0, 15000/-20000, 4000/0)
+_SPS = [(0.1, 0.0), (0.2, 0.0), (1.5, -2.0), (0.4, 0.0)]
+
+
 def test_broadcast_is_processed_with_its_position_and_forwarded_with_hop_plus_one(vm):
-    sync = encode_frame(
-        FLAG_BCAST, 2, 0x02, 77, {0: 9, 1: [1000, 0, 2000, 0, 15000, -20000, 4000, 0]}
-    )
+    sync = encode_frame(FLAG_BCAST, 2, 0x02, 77, M.sync_payload(9, _SPS))
     r = vm(
         f"""
 hal, seg = vmkit.make()
@@ -68,11 +70,8 @@ def test_upstream_frames_are_forwarded_with_hop_plus_one_and_local_ones_consumed
         t_ms=5,
         kappa=0.0,
         phi=0.0,
-        tendon_lengths=[0.3, 0.3, 0.3],
         servo_angles=[0.0, 0.0, 0.0],
         status=0,
-        kx=0.0,
-        ky=0.0,
     )
     event = encode_frame(FLAG_UP, 4, 0x85, 0, {0: 1, 1: 0, 2: 7})
     alive = M.encode_alive(0)
@@ -141,7 +140,7 @@ def test_parameters_identity_and_errors(vm):
         M.encode_param_set(9, 0, 5, "7:stuck"),  # servo index out of range
         M.encode_param_set(10, 0, 3, "bogus"),
         encode_frame(0, 0, 0x42, 11, {}),  # unknown type
-        encode_frame(0, 0, 0x04, 12, {0: 0}, ver=2),  # unsupported version
+        encode_frame(0, 0, 0x04, 12, {0: 0}, ver=1),  # unsupported version (the old one)
         encode_frame(FLAG_BCAST, 0, 0x02, 13, {0: "x"}),  # malformed SYNC
         encode_frame(0, 0, 0x04, 14, [1, 2]),  # malformed PARAM_GET
         M.encode_param_get(15, 0, 9),  # dropped counter
@@ -167,7 +166,7 @@ R['p'] = [seg.watchdog_ms, seg.mc.kappa_max, seg.sc.name]
     assert by_seq[8]["value"] == "p_slew"
     assert by_seq[9]["code"] == 2 and by_seq[10]["code"] == 2
     assert by_seq[11]["code"] == 1 and by_seq[11]["offending_type"] == 0x42
-    assert by_seq[12]["code"] == 3 and "1..1" in by_seq[12]["text"]
+    assert by_seq[12]["code"] == 3 and "2..2" in by_seq[12]["text"]
     assert by_seq[13]["code"] == 5 and by_seq[14]["code"] == 5
     assert by_seq[15]["value"] == 4  # unknown type, bad version, 2 malformed
     assert r["p"] == [50, 15000, "p_slew"]

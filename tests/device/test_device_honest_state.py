@@ -26,9 +26,9 @@ def test_pwm_saturation_is_flagged_and_state_reports_the_achieved_curvature(vm):
     r = vm(
         f"""
 import config, servos, vmfakes
-from segment import Segment
 hal = vmfakes.BusHal()
-cfg = config.Config({cfg!r})
+cfg = config.Config({cfg!r})  # before the segment's modules, in main.build's order
+from segment import Segment
 bus = servos.make('pwm', cfg, hal)
 seg = Segment(hal, cfg, bus, 5)
 for _ in range(40):

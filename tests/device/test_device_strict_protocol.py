@@ -14,11 +14,11 @@ from protocol.frame import decode_frame, encode_frame
 from tests.device.conftest import decode
 
 BCAST = 0x02
-_HEAD = b"\xa3\x00\x01\x01\x82\x19\x75\x30\x19\x0b\xb8"  # {0: 1, 1: [30000, 3000], ...}
+_HEAD = b"\xa3\x00\x01\x01\x45\x00\x75\x30\x0b\xb8"  # {0: 1, 1: h'007530 0bb8', ...}
 
 
 def _sync_with(extra_key_value: bytes) -> bytes:
-    """SYNC {0: 1, 1: [3 1/m, 0.3 rad], 9: <raw CBOR>} (9 is a key the firmware ignores)."""
+    """SYNC {0: 1, 1: (3 1/m, 0.3 rad), 9: <raw CBOR>} (9 is a key the firmware ignores)."""
     return encode_frame(BCAST, 0, 0x02, 7, _HEAD + b"\x09" + extra_key_value)
 
 
@@ -35,12 +35,10 @@ CORPUS = {
 def _frames():
     out = {name: _sync_with(v) for name, v in CORPUS.items()}
     # many duplicate unknown top-level keys
-    many = b"\xa8\x00\x01\x01\x82\x19\x75\x30\x19\x0b\xb8" + b"\x14\x00" * 6
+    many = b"\xa8\x00\x01\x01\x45\x00\x75\x30\x0b\xb8" + b"\x14\x00" * 6
     out["dup_top_keys"] = encode_frame(BCAST, 0, 0x02, 7, many)
-    # -2**30 as kappa: outside the wire range (|n| < 2**30)
-    out["int_minus_2_30"] = encode_frame(
-        BCAST, 0, 0x02, 7, b"\xa2\x00\x01\x01\x82\x3a\x3f\xff\xff\xff\x00"
-    )
+    # -2**30 (under the ignored key 9): outside the wire range (|n| < 2**30)
+    out["int_minus_2_30"] = _sync_with(b"\x3a\x3f\xff\xff\xff")
     out["discover_bad_utf8"] = encode_frame(BCAST, 0, 0x01, 7, b"\xa1\x09\x62\xc3\x28")
     out["hold_too_deep"] = encode_frame(BCAST, 0, 0x06, 7, b"\xa1\x09" + b"\x81" * 8 + b"\x80")
     out["heartbeat_dup_keys"] = encode_frame(BCAST, 0, 0x03, 7, b"\xa3\x00\x01\x14\x00\x14\x00")

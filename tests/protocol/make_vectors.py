@@ -21,7 +21,7 @@ OUT = REPO / "protocol" / "vectors" / "vectors.jsonl"
 DESC = {
     "uid": "24a1600c3b5e",
     "fw_version": "0.1.0",
-    "protocol_version": 1,
+    "protocol_version": 2,
     "model": "pcc",
     "length": 0.12,
     "tendon_angles": [0.0, 2.0943951023931953, 4.1887902047863905],
@@ -138,7 +138,7 @@ SPECS = [
     ("descriptor", "DESCRIPTOR of a 3-tendon PCC segment", "encode_descriptor", [DESC, 1], {}, {}),
     (
         "state_3t",
-        "STATE with 3 tendons and 3 servos",
+        "STATE of a segment with 3 servos",
         "encode_state",
         [10],
         {
@@ -146,9 +146,9 @@ SPECS = [
             "t_ms": 123456,
             "kappa": 2.5,
             "phi": 0.7854,
-            "tendon_lengths": [0.119, 0.1215, 0.1195],
             "servo_angles": [-0.35, 0.21, 0.14],
             "status": ["DOWNSTREAM"],
+            "applied_position": 0,
         },
         {},
     ),
@@ -162,13 +162,9 @@ SPECS = [
             123456,
             25000,
             7854,
-            [119000, 121500, 119500],
-            3,
             [-3500, 2100, 1400],
             3,
             16,
-            17677,
-            17678,
             2,
         ],
         {},
@@ -234,9 +230,9 @@ SPECS = [
     ),
     (
         "bad_range",
-        "SYNC with kappa beyond the 2**30 wire range is refused",
+        "SYNC with kappa beyond the int24 wire range (838.8607 1/m) is refused",
         "encode_sync",
-        [1, 1, [[2.0e6, 0.0]]],
+        [1, 1, [[839.0, 0.0]]],
         {},
         {},
     ),
@@ -250,11 +246,11 @@ SPECS = [
     ),
     (
         "dec_bad_version",
-        "frame of protocol version 2",
+        "frame of protocol version 1 (the version before the packed SYNC and STATE)",
         "decode",
         [None],
         {},
-        {"frame": (0x02, 0, 0x02, 1, b"\xa0"), "ver": 2},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa0"), "ver": 1},
     ),
     (
         "dec_malformed",
@@ -262,7 +258,7 @@ SPECS = [
         "decode",
         [None],
         {},
-        {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x01\x01\x82\x01")},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x01\x01\x45\x00\x00")},
     ),
     ("dec_bad_crc", "DISCOVER with a corrupted CRC byte", "decode", [None], {}, {"badcrc": True}),
     (
@@ -271,7 +267,15 @@ SPECS = [
         "decode",
         [None],
         {},
-        {"frame": (0x02, 0, 0x02, 1, b"\xa3\x00\x01\x01\x82\x01\x02\x09" + b"\x81" * 8 + b"\x80")},
+        {
+            "frame": (
+                0x02,
+                0,
+                0x02,
+                1,
+                b"\xa3\x00\x01\x01\x45\x00\x00\x01\x00\x02\x09" + b"\x81" * 8 + b"\x80",
+            )
+        },
     ),
     (
         "dec_unknown_key_bad_utf8",
@@ -279,7 +283,7 @@ SPECS = [
         "decode",
         [None],
         {},
-        {"frame": (0x02, 0, 0x02, 1, b"\xa3\x00\x01\x01\x82\x01\x02\x09\x62\xc3\x28")},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa3\x00\x01\x01\x45\x00\x00\x01\x00\x02\x09\x62\xc3\x28")},
     ),
     (
         "dec_duplicate_unknown_keys",
@@ -293,17 +297,17 @@ SPECS = [
                 0,
                 0x02,
                 1,
-                b"\xa4\x00\x01\x01\x82\x01\x02\x14\x00\x14\x01",
+                b"\xa4\x00\x01\x01\x45\x00\x00\x01\x00\x02\x14\x00\x14\x01",
             )
         },
     ),
     (
         "dec_int_below_range",
-        "SYNC whose kappa is -2**30 (outside the wire range): malformed",
+        "SYNC whose cycle is -2**30 (outside the wire range): malformed",
         "decode",
         [None],
         {},
-        {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x01\x01\x82\x3a\x3f\xff\xff\xff\x00")},
+        {"frame": (0x02, 0, 0x02, 1, b"\xa2\x00\x3a\x3f\xff\xff\xff\x01\x40")},
     ),
 ]
 

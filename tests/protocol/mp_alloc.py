@@ -23,7 +23,6 @@ raw_tx = bytearray(MAX_FRAME)
 wire_tx = bytearray(MAX_ENCODED)
 fwd_out = bytearray(MAX_ENCODED)
 sync_out = [0, 0, 0, 0]
-tendons = [119000, 121500, 119500, 120000]
 servos = [-3500, 2100, 1400, 0]
 counter = [0]
 
@@ -36,7 +35,6 @@ _state = M.encode_state(
     t_ms=5,
     kappa=2.5,
     phi=0.3,
-    tendon_lengths=[0.1, 0.1, 0.1],
     servo_angles=[0.1, 0.2, 0.3],
     status=16,
 )
@@ -85,16 +83,12 @@ def decode_sync8():
 
 def tx_state():
     """(c) encode a STATE report and frame it (COBS + CRC + delimiter)."""
-    D.state_frame(
-        raw_tx, wire_tx, 9, 1000, 123456, 25000, 7854, tendons, 4, servos, 4, 0x10, 17677, 17678
-    )
+    D.state_frame(raw_tx, wire_tx, 9, 1000, 123456, 25000, 7854, servos, 4, 0x10, 2)
 
 
 def tx_state_parts():
     """(c) the same via encode_state + frame_into (what a firmware may call separately)."""
-    end = D.encode_state(
-        raw_tx, HEADER_LEN, 1000, 123456, 25000, 7854, tendons, 3, servos, 3, 0x10, 17677, 17678
-    )
+    end = D.encode_state(raw_tx, HEADER_LEN, 1000, 123456, 25000, 7854, servos, 3, 0x10, 2)
     F.frame_into(raw_tx, end, FLAG_UP, 0, 0x83, 9, wire_tx, 0)
 
 

@@ -84,9 +84,9 @@ def random_vectors(rng: random.Random, n: int) -> list[dict]:
                     "t_ms": rng.randrange(2**30),
                     "kappa": rng.uniform(0, 40),
                     "phi": rng.uniform(-10, 10),
-                    "tendon_lengths": [rng.uniform(0, 1) for _ in range(nt)],
                     "servo_angles": [rng.uniform(-3, 3) for _ in range(nt)],
                     "status": rng.randrange(64),
+                    "applied_position": rng.randrange(256),
                 },
             }
         elif kind == "dstate":
@@ -95,10 +95,9 @@ def random_vectors(rng: random.Random, n: int) -> list[dict]:
             v = {
                 "call": "device.state_frame",
                 "args": [seq, rng.randrange(2**30), rng.randrange(2**30)]
-                + [rng.randint(-lim, lim) for _ in range(2)]
+                + [rng.randint(-0x7FFFFF, 0x7FFFFF), rng.randint(-31416, 31416)]
                 + [[rng.randint(-lim, lim) for _ in range(nt)], nt]
-                + [[rng.randint(-lim, lim) for _ in range(nt)], nt]
-                + [rng.randrange(64), rng.randint(-lim, lim), rng.randint(-lim, lim)],
+                + [rng.randrange(64), rng.randrange(256)],
             }
         elif kind == "param":
             value = rng.choice(
@@ -206,7 +205,6 @@ def sample_wires(rng: random.Random, n: int) -> list[bytes]:
                     t_ms=rng.randrange(2**30),
                     kappa=rng.uniform(0, 20),
                     phi=rng.uniform(-3, 3),
-                    tendon_lengths=[0.1, 0.11, 0.12],
                     servo_angles=[0.1, 0.2, 0.3],
                     status=rng.randrange(64),
                 )

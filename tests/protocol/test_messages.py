@@ -32,7 +32,7 @@ from protocol.errors import (
     UnknownTypeError,
     UnsupportedVersionError,
 )
-from protocol.frame import Frame, decode_frame, encode_frame
+from protocol.frame import Frame, decode_frame
 
 kappas = st.floats(-100, 100, allow_nan=False)
 phis = st.floats(-20, 20, allow_nan=False)
@@ -43,7 +43,7 @@ cycles = st.integers(0, 2**30 - 1)
 DESC = {
     "uid": "24a1600c3b5e",
     "fw_version": "0.1.0",
-    "protocol_version": 1,
+    "protocol_version": 2,
     "model": "pcc",
     "length": 0.12,
     "tendon_angles": [0.0, 2.0943951023931953, 4.1887902047863905],
@@ -78,7 +78,7 @@ def _every_message() -> list[bytes]:
         M.encode_clear_fault(6),
         M.encode_alive(7),
         M.encode_descriptor(DESC, 8),
-        M.encode_state(9, cycle=1, t_ms=2, kappa=3.0, phi=1.0, tendon_lengths=[0.1], status=3),
+        M.encode_state(9, cycle=1, t_ms=2, kappa=3.0, phi=1.0, servo_angles=[0.1], status=3),
         M.encode_param_value(10, 7, 1e-9),
         M.encode_event(11, 5, 2, 100),
         M.encode_error(12, 1, 0x42, "unknown"),
@@ -131,10 +131,10 @@ def test_device_decode_sync_agrees_with_host_decoder(cycle, sps, resume, positio
     raw = fr.raw()
     out = [0, 0, 0, 0]
     rc = D.decode_sync(raw, HEADER_LEN, len(raw) - 2, position, out)
-    flat = cbor.loads(fr.payload)[1]
+    host = M.decode_sync(fr.payload)["setpoints"]
     if position < len(sps) and sps[position] is not None:
         assert rc == D.OK
-        assert out[1:3] == flat[2 * position : 2 * position + 2]
+        assert out[1] / 1e4 == host[position][0] and out[2] / 1e4 == host[position][1]
     else:
         assert rc == D.HOLD
     assert out[0] == cycle and out[3] == int(resume)
@@ -144,37 +144,32 @@ def test_device_decode_sync_agrees_with_host_decoder(cycle, sps, resume, positio
 @given(
     st.integers(0, 2**30 - 1),
     st.integers(0, 2**30 - 1),
-    *(st.integers(-(2**30) + 1, 2**30 - 1) for _ in range(2)),
-    st.lists(st.integers(-(2**30) + 1, 2**30 - 1), max_size=8),
+    st.integers(-0x7FFFFF, 0x7FFFFF),
+    st.integers(-31415, 31415),  # a measured phi: inside (-pi, pi] once rounded
+    st.lists(st.integers(-327670, 327670), max_size=8),
     st.integers(0, 63),
-    *(st.integers(-(2**30) + 1, 2**30 - 1) for _ in range(2)),
+    st.integers(0, 255),
     seqs,
 )
 def test_device_state_encoder_matches_generic_encoder(
-    cycle, t_ms, kappa, phi, tendons, status, kx, ky, seq
+    cycle, t_ms, kappa, phi, servos, status, pos, seq
 ) -> None:
-    servos = [-x for x in tendons]
     raw = bytearray(MAX_FRAME)
     out = bytearray(MAX_ENCODED)
-    n = D.state_frame(
-        raw,
-        out,
+    n = D.state_frame(raw, out, seq, cycle, t_ms, kappa, phi, servos, len(servos), status, pos)
+    # the device sends servo angles in 1e-3 rad, rounded half up from its 1e-4 rad ints
+    angles = [((a + 5) // 10) / 1000 for a in servos]
+    sent = M.encode_state(
         seq,
-        cycle,
-        t_ms,
-        kappa,
-        phi,
-        tendons,
-        len(tendons),
-        servos,
-        len(servos),
-        status,
-        kx,
-        ky,
+        cycle=cycle,
+        t_ms=t_ms,
+        kappa=kappa / 1e4,
+        phi=phi / 1e4,
+        servo_angles=angles,
+        status=status,
+        applied_position=pos,
     )
-    payload = {0: cycle, 1: t_ms, 2: kappa, 3: phi, 4: tendons, 5: servos, 6: status, 7: kx}
-    payload.update({8: ky, 9: 0})  # 9: the chain position applied (default 0)
-    assert bytes(out[:n]) == encode_frame(FLAG_UP, 0, T_STATE, seq, payload)
+    assert bytes(out[:n]) == sent
 
 
 @settings(max_examples=300, deadline=None)
@@ -184,11 +179,11 @@ def test_device_state_encoder_matches_generic_encoder(
     cycles,
     st.floats(0, 100),
     phis,
-    st.lists(st.floats(0, 1), max_size=6),
     st.lists(st.floats(-6, 6), max_size=6),
     st.integers(0, 63),
+    st.integers(0, 255),
 )
-def test_state_round_trip_in_si(seq, cycle, t_ms, kappa, phi, lengths, angles, status) -> None:
+def test_state_round_trip_in_si(seq, cycle, t_ms, kappa, phi, angles, status, pos) -> None:
     m = _msg(
         M.encode_state(
             seq,
@@ -196,20 +191,17 @@ def test_state_round_trip_in_si(seq, cycle, t_ms, kappa, phi, lengths, angles, s
             t_ms=t_ms,
             kappa=kappa,
             phi=phi,
-            tendon_lengths=lengths,
             servo_angles=angles,
             status=status,
+            applied_position=pos,
         )
     )
     assert m["type"] == "STATE" and m["position"] == 0 and m["cycle"] == cycle
-    assert m["t_ms"] == t_ms and m["raw_status"] == status
+    assert m["t_ms"] == t_ms and m["raw_status"] == status and m["applied_position"] == pos
     assert abs(m["kappa"] - kappa) <= 0.5e-4 + 1e-9
-    assert all(
-        abs(a - b) <= 0.5e-6 + 1e-12 for a, b in zip(m["tendon_lengths"], lengths, strict=True)
-    )
-    assert all(abs(a - b) <= 0.5e-4 + 1e-9 for a, b in zip(m["servo_angles"], angles, strict=True))
-    assert abs(m["kx"] - kappa * math.cos(phi)) <= 1e-4
-    assert abs(m["ky"] - kappa * math.sin(phi)) <= 1e-4
+    assert all(abs(a - b) <= 0.5e-3 + 1e-9 for a, b in zip(m["servo_angles"], angles, strict=True))
+    assert abs(m["kx"] - kappa * math.cos(phi)) <= 1e-4 * (1 + kappa)
+    assert abs(m["ky"] - kappa * math.sin(phi)) <= 1e-4 * (1 + kappa)
     assert M.status_bits(m["status"]) == status
 
 
@@ -226,7 +218,6 @@ def test_state_names_match_the_contract() -> None:
         "phi",
         "kx",
         "ky",
-        "tendon_lengths",
         "servo_angles",
         "status",
         "raw_status",
@@ -299,7 +290,7 @@ def test_event_and_error_round_trip() -> None:
         None,
     )
     m = _msg(M.encode_version_error(3, T_SYNC))
-    assert m["code"] == ERR_UNSUPPORTED_VERSION and m["versions"] == (1, 1) and "1..1" in m["text"]
+    assert m["code"] == ERR_UNSUPPORTED_VERSION and m["versions"] == (2, 2) and "2..2" in m["text"]
     assert _msg(M.encode_event(1, 99, 0, 0))["name"] == "UNKNOWN_99"
 
 
@@ -318,6 +309,7 @@ def test_hold_alive_addressing() -> None:
         lambda: M.encode_sync(0, 0, [(math.inf, 0.0)]),
         lambda: M.encode_sync(0, 0, [(1.0, math.inf)]),
         lambda: M.encode_sync(0, 0, [(2e5, 0.0)]),
+        lambda: M.encode_sync(0, 0, [(838.861, 0.0)]),
         lambda: M.encode_sync(0, 0, [(1.0,)]),
         lambda: M.encode_sync(0, -1, []),
         lambda: M.encode_sync(0, 2**30, []),
@@ -328,7 +320,8 @@ def test_hold_alive_addressing() -> None:
         lambda: M.encode_param_set(0, 0, 1, 2**31),
         lambda: M.encode_param_get(0, 256, 1),
         lambda: M.encode_state(0, cycle=0, t_ms=0, kappa=1.0, phi=0.0, status={"NOPE"}),
-        lambda: M.encode_state(0, cycle=0, t_ms=0, kappa=1.0, phi=0.0, tendon_lengths=[2000.0]),
+        lambda: M.encode_state(0, cycle=0, t_ms=0, kappa=1.0, phi=0.0, servo_angles=[33.0]),
+        lambda: M.encode_state(0, cycle=0, t_ms=0, kappa=839.0, phi=0.0),
         lambda: M.encode_event(0, 1, 2**30, 0),
     ],
 )
@@ -352,23 +345,27 @@ def test_phi_wraps_to_minus_pi_exclusive() -> None:
 
 def test_decode_message_errors_carry_wire_codes() -> None:
     with pytest.raises(UnknownTypeError) as e:
-        M.decode_message(Frame(1, 0, 0, 0x42, 0, b"\xa0"))
+        M.decode_message(Frame(2, 0, 0, 0x42, 0, b"\xa0"))
     assert e.value.code == ERR_UNKNOWN_TYPE
     with pytest.raises(UnsupportedVersionError) as e:
-        M.decode_message(Frame(2, 0, 0, T_SYNC, 0, b"\xa0"))
+        M.decode_message(Frame(1, 0, 0, T_SYNC, 0, b"\xa0"))
     assert e.value.code == ERR_UNSUPPORTED_VERSION
     with pytest.raises(MalformedError) as e:
-        M.decode_message(Frame(1, 0, 0, T_SYNC, 0, b"\xa1\x00\x01"))  # setpoints missing
+        M.decode_message(Frame(2, 0, 0, T_SYNC, 0, b"\xa1\x00\x01"))  # setpoints missing
     assert e.value.code == ERR_MALFORMED
     with pytest.raises(MalformedError):
-        M.decode_message(Frame(1, 0, 0, T_SYNC, 0, b"\x80"))  # not a map
+        M.decode_message(Frame(2, 0, 0, T_SYNC, 0, b"\x80"))  # not a map
+    with pytest.raises(MalformedError):  # v1's setpoint list is not v2's byte string
+        M.decode_message(Frame(2, 0, 0, T_SYNC, 0, b"\xa2\x00\x01\x01\x82\x01\x02"))
+    with pytest.raises(MalformedError):  # a STATE report shorter than its fixed part
+        M.decode_message(Frame(2, FLAG_UP, 0, T_STATE, 0, b"\xa1\x00\x44\x00\x00\x00\x01"))
 
 
 @settings(max_examples=1500, deadline=None)
 @given(st.sampled_from(sorted(M.TYPE_NAMES) + [0, 0x42]), st.binary(max_size=60))
 def test_random_payloads_raise_only_protocol_errors(mtype: int, payload: bytes) -> None:
     try:
-        M.decode_message(Frame(1, FLAG_UP, 0, mtype, 0, payload))
+        M.decode_message(Frame(2, FLAG_UP, 0, mtype, 0, payload))
     except ProtocolError:
         pass
     for pos in (0, 3):
@@ -380,17 +377,18 @@ def test_random_payloads_raise_only_protocol_errors(mtype: int, payload: bytes) 
 @pytest.mark.parametrize(
     "payload, rc",
     [
-        (b"\xa2\x00\x01\x01\x82\x01\x02", D.OK),
-        (b"\xa2\x00\x01\x01\x82\xf6\xf6", D.HOLD),
-        (b"\xa2\x00\x01\x01\x80", D.HOLD),
-        (b"\xa2\x00\x01\x01\x82\x01\xf6", D.MALFORMED),  # half an entry
-        (b"\xa2\x00\x01\x01\x81\x01", D.MALFORMED),  # odd list
-        (b"\xa2\x00\x01\x01\x82\xf9\x3c\x00\x01", D.MALFORMED),  # float setpoint
+        (b"\xa2\x00\x01\x01\x45\x00\x00\x01\x00\x02", D.OK),
+        (b"\xa2\x00\x01\x01\x45\x80\x00\x00\x00\x00", D.HOLD),  # the hold marker
+        (b"\xa2\x00\x01\x01\x40", D.HOLD),  # no entry for position 0
+        (b"\xa2\x00\x01\x01\x45\x80\x00\x00\x00\x01", D.MALFORMED),  # marker with phi
+        (b"\xa2\x00\x01\x01\x44\x00\x00\x01\x00", D.MALFORMED),  # 4 bytes: no whole entry
+        (b"\xa2\x00\x01\x01\x82\x01\x02", D.MALFORMED),  # version 1's list
         (b"\xa1\x00\x01", D.MALFORMED),  # no setpoints
-        (b"\xa3\x00\x01\x01\x80\x00\x02", D.MALFORMED),  # duplicate key
-        (b"\xa2\x00\x01\x01\x82\x01\x02\x00", D.MALFORMED),  # trailing byte
-        (b"\xa3\x00\x01\x01\x82\x01\x02\x09\x82\x61\x61\xa0", D.OK),  # unknown key skipped
-        (b"\xa2\x00\x01\x01\x82\x1a\x40\x00\x00\x00\x01", D.MALFORMED),  # 2**30
+        (b"\xa3\x00\x01\x01\x40\x00\x02", D.MALFORMED),  # duplicate key
+        (b"\xa2\x00\x01\x01\x45\x00\x00\x01\x00\x02\x00", D.MALFORMED),  # trailing byte
+        (b"\xa2\x00\x01\x01\x46\x00\x00\x01\x00\x02", D.MALFORMED),  # length > rest
+        (b"\xa3\x00\x01\x01\x45\x00\x00\x01\x00\x02\x09\x82\x61\x61\xa0", D.OK),
+        (b"\xa2\x00\x1a\x40\x00\x00\x00\x01\x40", D.MALFORMED),  # cycle 2**30
     ],
 )
 def test_device_decode_sync_cases(payload: bytes, rc: int) -> None:
@@ -404,7 +402,8 @@ def test_routing_rules() -> None:
     assert D.route(0, 2) == D.FWD_DOWN and D.next_hop(0, 2) == 1
     assert D.route(FLAG_UP, 1) == D.FWD_UP and D.next_hop(FLAG_UP, 1) == 2
     assert D.route(FLAG_UP | FLAG_LOCAL, 0) == mine  # ALIVE: consumed, never forwarded
-    assert D.version_supported(1) and not D.version_supported(2)
+    assert D.version_supported(2) and not D.version_supported(1)
+    assert not D.version_supported(3)
 
 
 def test_device_small_decoders() -> None:
