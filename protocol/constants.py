@@ -20,9 +20,11 @@ VERSION_MAX = const(2)  # newest version this implementation speaks
 # --- frame layout --------------------------------------------------------------------------
 HEADER_LEN = const(5)  # ver, flags, hop, type, seq
 CRC_LEN = const(2)  # CRC-16/CCITT-FALSE, big-endian
-MIN_FRAME = const(7)  # header + crc, empty payload
-MAX_FRAME = const(250)  # max raw frame (header + payload + crc), bytes
-MAX_PAYLOAD = const(243)  # MAX_FRAME - HEADER_LEN - CRC_LEN
+TRAILER_LEN = const(3)  # version 2: a 0x00 pad, then the CRC (the pad bounds cut-through's tail)
+MIN_FRAME = const(8)  # header + pad + crc, empty payload
+MAX_FRAME = const(250)  # max raw frame (header + payload + pad + crc), bytes
+MAX_PAYLOAD = const(242)  # MAX_FRAME - HEADER_LEN - TRAILER_LEN
+LEGACY_VERSION = const(1)  # version-1 frames have no pad (read only to refuse them)
 MAX_ENCODED = const(252)  # COBS(MAX_FRAME) (+1 overhead byte below 254) + 0x00 delimiter
 DELIMITER = const(0)  # frame delimiter byte on the wire
 

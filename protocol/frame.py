@@ -1,4 +1,9 @@
-"""Frames: ``COBS(header + payload + crc16) 0x00`` -- building, incremental reading, forwarding.
+"""Frames: ``COBS(header + payload + 00 + crc16) 0x00`` -- building, incremental reading, forwarding.
+
+Version 2 puts a 0x00 pad between the payload and the CRC: the CRC's COBS encoding is then always
+the last three wire bytes, so a cut-through forwarder (``protocol.relay``) can pass a frame on as it
+arrives and replace only those (and the hop byte). Version-1 frames (no pad) are still read, so a
+segment or host can answer/refuse them.
 
 Device hot path (no allocation in steady state): ``seal`` writes header + CRC around a payload
 already placed at ``raw[5:]``, ``wire_into`` COBS-encodes it with the delimiter, ``forward_into``
@@ -12,8 +17,10 @@ from protocol.cbor import dumps
 from protocol.constants import (
     CRC_LEN,
     HEADER_LEN,
+    LEGACY_VERSION,
     MAX_FRAME,
     MIN_FRAME,
+    TRAILER_LEN,
     VERSION,
 )
 from protocol.crc import crc16
@@ -23,13 +30,19 @@ from protocol.errors import MalformedError
 # --------------------------------------------------------------------------------------------
 # building (no allocation)
 # --------------------------------------------------------------------------------------------
+def _trailer(ver):
+    """Bytes after the payload: pad + CRC (3), or the CRC alone in version 1 (2)."""
+    return CRC_LEN if ver == LEGACY_VERSION else TRAILER_LEN
+
+
 def seal(raw, payload_end, flags, hop, mtype, seq, ver=VERSION):
-    """Write the header into ``raw[0:5]`` and the CRC after ``raw[5:payload_end]``.
+    """Write the header into ``raw[0:5]`` and the pad + CRC after ``raw[5:payload_end]``.
 
     The payload must already be at ``raw[HEADER_LEN:payload_end]``. Returns the raw frame length
-    (``payload_end + 2``). Raises ValueError when it would exceed MAX_FRAME or ``raw``.
+    (``payload_end + 3``; version 1: + 2, no pad). Raises ValueError when it would exceed
+    MAX_FRAME or ``raw``.
     """
-    n = payload_end + CRC_LEN
+    n = payload_end + _trailer(ver)
     if payload_end < HEADER_LEN or n > MAX_FRAME or n > len(raw):
         raise ValueError("frame too long")
     raw[0] = ver
@@ -37,9 +50,12 @@ def seal(raw, payload_end, flags, hop, mtype, seq, ver=VERSION):
     raw[2] = hop & 0xFF
     raw[3] = mtype
     raw[4] = seq & 0xFF
-    c = crc16(raw, 0, payload_end)
-    raw[payload_end] = c >> 8
-    raw[payload_end + 1] = c & 0xFF
+    p = n - CRC_LEN
+    if p != payload_end:
+        raw[payload_end] = 0  # the pad
+    c = crc16(raw, 0, p)
+    raw[p] = c >> 8
+    raw[p + 1] = c & 0xFF
     return n
 
 
@@ -109,7 +125,7 @@ class Frame:
 
     def raw(self):
         """The raw frame bytes (header + payload + CRC)."""
-        buf = bytearray(HEADER_LEN + len(self.payload) + CRC_LEN)
+        buf = bytearray(HEADER_LEN + len(self.payload) + _trailer(self.ver))
         buf[HEADER_LEN : HEADER_LEN + len(self.payload)] = self.payload
         seal(
             buf,
@@ -139,15 +155,16 @@ def encode_frame(flags, hop, mtype, seq, payload_obj=None, ver=VERSION):
     else:
         payload = dumps(payload_obj)
     n = HEADER_LEN + len(payload)
-    if n + CRC_LEN > MAX_FRAME:
+    t = _trailer(ver)
+    if n + t > MAX_FRAME:
         raise ValueError(
             "payload of %d bytes exceeds the %d-byte frame" % (len(payload), MAX_FRAME)
         )
-    raw = bytearray(n + CRC_LEN)
+    raw = bytearray(n + t)
     raw[HEADER_LEN:n] = payload
     seal(raw, n, flags, hop, mtype, seq, ver)
-    out = bytearray(n + CRC_LEN + 2)
-    end = wire_into(raw, n + CRC_LEN, out, 0)
+    out = bytearray(n + t + 2)
+    end = wire_into(raw, n + t, out, 0)
     return bytes(out[:end])
 
 
@@ -167,11 +184,24 @@ def decode_frame(wire):
     m = cobs.decode_into(data, 0, len(data), buf, 0)
     if m < 0:
         raise MalformedError("invalid COBS")
-    if m < MIN_FRAME:
-        raise MalformedError("frame shorter than header + CRC")
+    pe = _payload_end(buf, m)
+    if pe < 0:
+        raise MalformedError("frame shorter than header + trailer, or no pad before the CRC")
     if crc16(buf, 0, m - CRC_LEN) != (buf[m - 2] << 8) | buf[m - 1]:
         raise MalformedError("CRC mismatch")
-    return Frame(buf[0], buf[1], buf[2], buf[3], buf[4], bytes(buf[HEADER_LEN : m - CRC_LEN]))
+    return Frame(buf[0], buf[1], buf[2], buf[3], buf[4], bytes(buf[HEADER_LEN:pe]))
+
+
+def _payload_end(buf, m):
+    """End of the payload of the decoded raw frame ``buf[0:m]``; -1 if too short or the pad is
+    missing (version 2+), -1 for a version-1 frame shorter than header + CRC."""
+    if m < HEADER_LEN + CRC_LEN:
+        return -1
+    if buf[0] == LEGACY_VERSION:
+        return m - CRC_LEN
+    if m < MIN_FRAME or buf[m - TRAILER_LEN] != 0:
+        return -1
+    return m - TRAILER_LEN
 
 
 # --------------------------------------------------------------------------------------------
@@ -263,7 +293,8 @@ class FrameReader:
                 continue
             m = cobs.decode_into(buf, 0, n, buf, 0)
             n = 0
-            if m < MIN_FRAME or m > self.max_frame:
+            pe = _payload_end(buf, m) if m <= self.max_frame else -1
+            if pe < 0:
                 self.framing_error += 1
                 continue
             p = m - CRC_LEN
@@ -276,7 +307,7 @@ class FrameReader:
             self.mtype = buf[3]
             self.seq = buf[4]
             self.raw_len = m
-            self.payload_end = p
+            self.payload_end = pe
             self.ok += 1
             self.ready = True
             self.n = 0

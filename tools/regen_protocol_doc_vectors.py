@@ -34,7 +34,9 @@ def main() -> int:
         name = line[8:].strip()
         wire = bytes.fromhex(vectors[name]["hex"])
         raw = cobs.decode(wire[:-1])
-        lines[i + 1] = f"raw:  {_sp(raw[:5])} | {_sp(raw[5:-2])} | {_sp(raw[-2:])}"
+        lines[i + 1] = (
+            f"raw:  {_sp(raw[:5])} | {_sp(raw[5:-3])} | {_sp(raw[-3:-2])} | {_sp(raw[-2:])}"
+        )
         lines[i + 2] = f"wire: {_sp(wire)}"
     DOC.write_text("\n".join(lines) + "\n")
     return 0

@@ -25,9 +25,12 @@ def test_pwm_saturation_is_flagged_and_state_reports_the_achieved_curvature(vm):
     }
     r = vm(
         f"""
-import config, servos, vmfakes
+import config, gc, vmfakes
 hal = vmfakes.BusHal()
 cfg = config.Config({cfg!r})  # before the segment's modules, in main.build's order
+gc.collect()
+import servos
+gc.collect()
 from segment import Segment
 bus = servos.make('pwm', cfg, hal)
 seg = Segment(hal, cfg, bus, 5)

@@ -8,8 +8,6 @@ import binascii
 import time
 
 import config
-import servos
-from segment import Segment
 
 _CAP = 2048
 
@@ -115,8 +113,17 @@ class LoopHal:
 
 def make(data=None, faults=None, tick_ms=5, unconfigured=False):
     """(hal, seg) for a config dict (None: defaults) with the emulated servo bus."""
+    import gc
+
     hal = LoopHal()
     cfg = config.Config(None if unconfigured else (data or {}), "emulated")
+    gc.collect()
+    # the servo drivers and the segment are compiled after the configuration, in main.build's
+    # order: the board rules (protocol/boards.py) come and go before them
+    import servos
+    from segment import Segment
+
+    gc.collect()
     bus = servos.make(cfg.driver, cfg, hal)
     if faults:
         bus.set_faults(faults)

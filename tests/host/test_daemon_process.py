@@ -212,16 +212,24 @@ def test_segment_not_in_the_description_is_reported_and_held(chain):
 
 
 def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(chain, caplog):
-    """3 segments at 115200 baud need >= 28 ms per exchange: a 100 Hz loop cannot get their states
-    in time, and the daemon says so (with the limit and what to change); at 921600 it is silent."""
+    """3 segments at 115200 baud need >= 17.7 ms per exchange (protocol v2 frames, store-and-forward):
+    a 100 Hz loop cannot get their states in time, and the daemon says so (with the limit and what
+    to change); at 921600 it is silent."""
     import logging
 
     from host.config import DaemonConfig
     from host.daemon import Daemon
 
-    def warnings_at(baudrate: int) -> list[str]:
+    from host.config import WatchdogConfig
+
+    def warnings_at(baudrate: int, reply_timeout_s: float = 0.02) -> list[str]:
         caplog.clear()
-        d = Daemon(ROBOT_FILE, DaemonConfig(port=chain.host_port, baudrate=baudrate), rate_hz=100)
+        cfg = DaemonConfig(
+            port=chain.host_port,
+            baudrate=baudrate,
+            watchdog=WatchdogConfig(reply_timeout_s=reply_timeout_s),
+        )
+        d = Daemon(ROBOT_FILE, cfg, rate_hz=100)
         with caplog.at_level(logging.WARNING, logger="ucr.daemon"):
             d.start()
             d.stop()
@@ -229,6 +237,10 @@ def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(
 
     slow = warnings_at(115200)
     assert len(slow) == 1, slow
-    assert "3 segment(s) at 115200 baud need at least 28." in slow[0]
-    assert "raise watchdog.reply_timeout_s" in slow[0] and "rate_hz <= 27" in slow[0]
+    assert "3 segment(s) at 115200 baud need at least 17.7" in slow[0]
+    assert "use rate_hz <= 45" in slow[0]
+    # a reply timeout below the floor: the advice says to raise it too
+    slow = warnings_at(115200, reply_timeout_s=0.015)
+    assert len(slow) == 1, slow
+    assert "raise watchdog.reply_timeout_s" in slow[0] and "rate_hz <= 45" in slow[0]
     assert warnings_at(921600) == []

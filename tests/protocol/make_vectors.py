@@ -333,7 +333,7 @@ def build() -> list[dict]:
             else:
                 flags, hop, mtype, seq, payload = extra["frame"]
                 args[0] = F.encode_frame(
-                    flags, hop, mtype, seq, bytes(payload), extra.get("ver", 1)
+                    flags, hop, mtype, seq, bytes(payload), extra.get("ver", 2)
                 ).hex()
         v = {"name": name, "description": desc, "call": call, "args": args, "kwargs": kwargs}
         if "positions" in extra:

@@ -30,7 +30,8 @@ def test_spec_examples_match_the_vectors() -> None:
         w = bytes.fromhex(wire)
         assert w.hex() == vectors[name]["hex"], name
         parts = [bytes.fromhex(p) for p in raw.split("|")]
-        assert len(parts[0]) == 5 and len(parts[2]) == 2, name
+        assert len(parts) == 4 and len(parts[0]) == 5, name  # header | payload | pad | CRC
+        assert parts[2] == b"\x00" and len(parts[3]) == 2, name
         assert b"".join(parts) == cobs.decode(w[:-1]), name
 
 

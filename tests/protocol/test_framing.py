@@ -84,13 +84,17 @@ def test_frame_round_trip_and_layout(h, payload: bytes) -> None:
     fr = decode_frame(wire)
     assert (fr.ver, fr.flags, fr.hop, fr.mtype, fr.seq, fr.payload) == (*h, payload)
     raw = cobs.decode(wire[:-1])
-    assert raw[:5] == bytes(h) and raw[5:-2] == payload
+    t = 2 if ver == 1 else 3  # version 2+: a 0x00 pad before the CRC; version 1 had none
+    assert raw[:5] == bytes(h) and raw[5:-t] == payload
+    assert t == 2 or raw[-3] == 0
     assert int.from_bytes(raw[-2:], "big") == crc16(raw[:-2])  # CRC big-endian at the end
     assert fr.raw() == raw
+    if ver != 1:  # the CRC's COBS form is always the last three wire bytes (cut-through)
+        assert wire[-4:-1] == cobs.encode(b"\x00" + raw[-2:])[1:]
 
 
 def test_frame_size_limits() -> None:
-    wire = encode_frame(0, 0, 1, 0, bytes(range(1, 244)))  # 243-byte payload: 250-byte frame
+    wire = encode_frame(0, 0, 1, 0, bytes(range(1, 243)))  # 242-byte payload: 250-byte frame
     assert len(wire) == MAX_ENCODED
     with pytest.raises(ValueError):
         encode_frame(0, 0, 1, 0, bytes(MAX_PAYLOAD + 1))

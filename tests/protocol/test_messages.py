@@ -130,7 +130,7 @@ def test_device_decode_sync_agrees_with_host_decoder(cycle, sps, resume, positio
     fr = decode_frame(M.encode_sync(0, cycle, sps, resume))
     raw = fr.raw()
     out = [0, 0, 0, 0]
-    rc = D.decode_sync(raw, HEADER_LEN, len(raw) - 2, position, out)
+    rc = D.decode_sync(raw, HEADER_LEN, len(raw) - 3, position, out)  # pad + CRC after it
     host = M.decode_sync(fr.payload)["setpoints"]
     if position < len(sps) and sps[position] is not None:
         assert rc == D.OK
