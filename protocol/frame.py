@@ -1,4 +1,4 @@
-"""Frames: ``COBS(header + payload + 00 + crc16) 0x00`` -- building, incremental reading, forwarding.
+"""Frames: ``COBS(header + payload + 00 + crc16) 0x00``: building, incremental reading, forwarding.
 
 Version 2 puts a 0x00 pad between the payload and the CRC: the CRC's COBS encoding is then always
 the last three wire bytes, so a cut-through forwarder (``protocol.relay``) can pass a frame on as it

@@ -212,15 +212,13 @@ def test_segment_not_in_the_description_is_reported_and_held(chain):
 
 
 def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(chain, caplog):
-    """3 segments at 115200 baud need >= 17.7 ms per exchange (protocol v2 frames, store-and-forward):
-    a 100 Hz loop cannot get their states in time, and the daemon says so (with the limit and what
+    """3 segments at 115200 baud need >= 17.7 ms per exchange (protocol v2, store-and-forward): a
+    100 Hz loop cannot get their states in time, and the daemon says so (with the limit and what
     to change); at 921600 it is silent."""
     import logging
 
-    from host.config import DaemonConfig
+    from host.config import DaemonConfig, WatchdogConfig
     from host.daemon import Daemon
-
-    from host.config import WatchdogConfig
 
     def warnings_at(baudrate: int, reply_timeout_s: float = 0.02) -> list[str]:
         caplog.clear()
