@@ -23,16 +23,23 @@ except ImportError:  # CPython
         return x
 
 
+import gc
 from array import array
 
-import params
-import sc as scmod
-from mechanism import CLAMP_SERVO, Mechanism
-from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL
+# Each module is compiled on its own after a collection: the compiler's peak, not the firmware's
+# size, bounds the boot on an ESP32-sized heap (main.build does the same between its imports).
+gc.collect()
+import params  # noqa: E402
 
-from protocol import cbor
-from protocol import device as pd
-from protocol.constants import (
+gc.collect()
+import sc as scmod  # noqa: E402
+from mechanism import CLAMP_SERVO, Mechanism  # noqa: E402
+from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL  # noqa: E402
+
+gc.collect()
+from protocol import cbor  # noqa: E402
+from protocol import device as pd  # noqa: E402
+from protocol.constants import (  # noqa: E402
     ALIVE_SILENCE_MS,
     DOWNSTREAM_TIMEOUT_MS,
     ERR_BAD_VALUE,
@@ -76,7 +83,19 @@ from protocol.constants import (
     VERSION_MAX,
     VERSION_MIN,
 )
-from protocol.frame import FrameReader, forward_into, frame_into
+from protocol.frame import FrameReader, forward_into, frame_into  # noqa: E402
+
+gc.collect()
+from protocol.relay import Relay  # noqa: E402
+
+try:
+    from protocol._fast import move as _move
+except Exception:  # no viper emitter: the same copy in bytecode
+
+    def _move(src, s0, dst, d0, n):
+        for k in range(n):
+            dst[d0 + k] = src[s0 + k]
+
 
 _TMASK = const(0x3FFFFFFF)
 _CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
@@ -87,6 +106,8 @@ _RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range
 _EVQ = const(16)  # event queue length
 _FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
+_PEND = const(252)  # an own upstream frame held while a relayed frame is half sent
+_RELAY_SILENCE_MS = const(2)  # a relayed frame silent this long is ended (invalid) at once
 
 
 def _diff(a, b):
@@ -123,6 +144,15 @@ class Segment:
         self.rxd = bytearray(_RXBUF)
         self.rd_up = FrameReader()
         self.rd_dn = FrameReader()
+        # cut-through (protocol/relay.py): broadcasts pass downstream and upstream frames pass
+        # upstream while they arrive; own frames wait in ``pend`` while one is half sent
+        self.rl_dn = Relay(False)
+        self.rl_up = Relay(True)
+        self.rout = bytearray(_RXBUF + 8)
+        self.pend = bytearray(_PEND)
+        self.pend_len = 0
+        self.t_rx_up = 0
+        self.t_rx_dn = 0
         # transmit side: scratch raw frame + one wire buffer, written with write(buf, n)
         # (stream write with a length: no slice object, which would be a heap allocation)
         self.raw = bytearray(MAX_FRAME)
@@ -185,8 +215,22 @@ class Segment:
 
     # ---- output helpers --------------------------------------------------------------------
     def _up(self, end):
+        if self.rl_up.busy:  # a relayed frame is half sent upstream: ours goes after it
+            p = self.pend_len
+            if p + end > _PEND:
+                self.events_lost += 1  # a second own frame within one relayed frame: dropped
+                return
+            _move(self.wire, 0, self.pend, p, end)
+            self.pend_len = p + end
+            return
         self.hal.up.write(self.wire, end)
         self.last_up_tx = self.now
+
+    def _flush_pending(self):
+        if self.pend_len and not self.rl_up.busy:
+            self.hal.up.write(self.pend, self.pend_len)
+            self.pend_len = 0
+            self.last_up_tx = self.now
 
     def event(self, code, detail):
         """Queue an EVENT (sent from ``tick``, at most one per EVENT_MIN_INTERVAL_MS); False if
@@ -252,23 +296,46 @@ class Segment:
     # ---- receiving -------------------------------------------------------------------------
     def poll(self):
         """Handle everything waiting on both ports; return the number of bytes read."""
-        self.now = self.hal.ticks_ms()
+        now = self.hal.ticks_ms()
+        self.now = now
         hal = self.hal
-        return self._drain(hal.up, self.rxu, self.rd_up, self._on_up) + self._drain(
-            hal.down, self.rxd, self.rd_dn, self._on_down
-        )
+        n = self._drain(hal.up, self.rxu, self.rd_up, self._on_up, self.rl_dn, hal.down)
+        if n:
+            self.t_rx_up = now
+        elif self.rl_dn.busy and _diff(now, self.t_rx_up) > _RELAY_SILENCE_MS:
+            m = self.rl_dn.abort(self.rout)  # the frame stopped mid-way: end it invalid
+            if m:
+                hal.down.write(self.rout, m)
+        k = self._drain(hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up)
+        if k:
+            self.t_rx_dn = now
+        elif self.rl_up.busy and _diff(now, self.t_rx_dn) > _RELAY_SILENCE_MS:
+            m = self.rl_up.abort(self.rout)
+            if m:
+                hal.up.write(self.rout, m)
+            self._flush_pending()
+        return n + k
 
-    def _drain(self, uart, rx, rd, handle):
-        """Read ``uart`` into ``rx`` until empty; hand every complete frame to ``handle``."""
+    def _drain(self, uart, rx, rd, handle, relay, dst):
+        """Read ``uart`` into ``rx`` until empty; relay what passes through to ``dst`` as it comes
+        and hand every complete frame to ``handle``."""
         total = 0
+        rout = self.rout
         n = uart.readinto(rx)
         while n:
             total += n
             pos = 0
             while pos < n:
-                pos = rd.scan(rx, pos, n)
-                if rd.ready:
+                nxt = rd.scan(rx, pos, n)
+                ok = rd.ready
+                m = relay.feed(rx, pos, nxt, ok, rd, rout)
+                if m:
+                    dst.write(rout, m)
+                if ok:
                     handle(rd)
+                if self.pend_len:
+                    self._flush_pending()
+                pos = nxt
             n = uart.readinto(rx) if n == _RXBUF else 0
         return total
 
@@ -296,8 +363,8 @@ class Segment:
             return
         hop = r.hop
         rt = pd.route(flags, hop)
-        if rt & 3 == pd.FWD_DOWN:
-            # forward first (low latency down the chain); payload bytes stay intact
+        if rt & 3 == pd.FWD_DOWN and not self.rl_dn.relayed:
+            # store-and-forward what was not relayed (addressed frames); payload bytes intact
             end = forward_into(r.raw, r.raw_len, pd.next_hop(flags, hop), self.wire)
             self.hal.down.write(self.wire, end)
             r.raw[2] = hop  # restore our view of the header (CRC no longer needed)
@@ -313,8 +380,9 @@ class Segment:
         if flags & FLAG_LOCAL:
             return  # ALIVE (or any link-local frame) from the neighbour: consumed
         if flags & FLAG_UP:
-            end = forward_into(r.raw, r.raw_len, r.hop + 1, self.wire)
-            self._up(end)
+            if not self.rl_up.relayed:  # (other versions: store-and-forward)
+                end = forward_into(r.raw, r.raw_len, r.hop + 1, self.wire)
+                self._up(end)
             return
         self.dropped += 1  # a host-bound frame must carry FLAG_UP
 

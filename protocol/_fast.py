@@ -99,3 +99,64 @@ def collect(data, start: int, end: int, buf, n_cap: int) -> int:
         else:
             n = cap + 1
     return (i << 10) | n
+
+
+@micropython.viper
+def relay(data, start: int, end: int, out, o: int, st) -> int:
+    """Cut-through core (``protocol.relay``): pass data[start:end] to out[o:] through a 3-byte
+    hold-back until a 0x00. ``st`` (array 'i'): [run, held, h0, h1, h2, count]; ``run`` counts the
+    data bytes left in the current COBS run of what was passed on. Returns i << 10 | hit << 9 | o.
+    """
+    s = ptr8(data)
+    d = ptr8(out)
+    t = ptr32(st)
+    run = t[0]
+    nh = t[1]
+    h0 = t[2]
+    h1 = t[3]
+    h2 = t[4]
+    cnt = t[5]
+    i = start
+    hit = 0
+    while i < end:
+        b = s[i]
+        i += 1
+        if b == 0:
+            hit = 1
+            break
+        cnt += 1
+        if nh == 3:
+            d[o] = h0
+            o += 1
+            if run == 0:
+                run = h0 - 1
+            else:
+                run -= 1
+            h0 = h1
+            h1 = h2
+            h2 = b
+        elif nh == 0:
+            h0 = b
+            nh = 1
+        elif nh == 1:
+            h1 = b
+            nh = 2
+        else:
+            h2 = b
+            nh = 3
+    t[0] = run
+    t[1] = nh
+    t[2] = h0
+    t[3] = h1
+    t[4] = h2
+    t[5] = cnt
+    return (i << 10) | (hit << 9) | o
+
+
+@micropython.viper
+def move(src, s0: int, dst, d0: int, n: int):
+    """dst[d0:d0 + n] = src[s0:s0 + n] without a slice object."""
+    s = ptr8(src)
+    d = ptr8(dst)
+    for k in range(n):
+        d[d0 + k] = s[s0 + k]
