@@ -19,10 +19,12 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from protocol.constants import VERSION as _PROTOCOL_VERSION
+
 # What this host expects of a segment. The firmware version's major.minor must match (a test
 # keeps this equal to device/config.py FW_VERSION); the protocol version must be equal.
 EXPECTED_FW_VERSION = "0.1.0"
-EXPECTED_PROTOCOL_VERSION = 1
+EXPECTED_PROTOCOL_VERSION = _PROTOCOL_VERSION  # the one this host's protocol/ speaks
 
 # parameter ids (docs/firmware.md)
 P_WATCHDOG_MS = 0
