@@ -32,6 +32,18 @@ from protocol import constants as C
 from protocol import messages as M
 from protocol.frame import FrameReader
 
+#: cycles :meth:`ChainLink.sync_send` may keep open at once
+MAX_IN_FLIGHT = 4
+
+
+class PendingCycle:
+    """A SYNC sent by :meth:`ChainLink.sync_send` whose STATEs are still to be collected."""
+
+    def __init__(self, col: _Collector, cycle: int, expected: int) -> None:
+        self.col = col
+        self.cycle = cycle  # the cycle number the STATEs echo
+        self.expected = expected
+
 
 class ChainLink(_FramePlumbing):
     """Client of one segment chain (see module docstring). Close it, or use it as a context manager.
@@ -57,6 +69,7 @@ class ChainLink(_FramePlumbing):
         self._call_lock = threading.RLock()
         self._write_lock = threading.Lock()
         self._collector: _Collector | None = None
+        self._pipelined: dict[int, _Collector] = {}  # seq -> cycle started with sync_send
         self._events: deque[dict] = deque(maxlen=1024)
         self._seq = 0
         self._cycle = 0
@@ -179,6 +192,10 @@ class ChainLink(_FramePlumbing):
         self, mtype: int, payload: dict, expected: int, timeout: float
     ) -> list[dict | None]:
         col = self._send(C.FLAG_BCAST, 0, mtype, payload, (C.T_STATE,))
+        return self._states(col, expected, timeout)
+
+    def _states(self, col: _Collector, expected: int, timeout: float) -> list[dict | None]:
+        """Wait for the STATEs of ``col``'s cycle; decode them, None where one is missing."""
         self._wait(col, timeout, lambda c: all(i in c.replies for i in range(expected)))
         states: list[dict | None] = []
         for pos in range(expected):
@@ -219,6 +236,34 @@ class ChainLink(_FramePlumbing):
             payload = M.sync_payload(self._next_cycle(), setpoints, resume=resume)
             n = len(setpoints) if expected is None else expected
             return self._cyclic(C.T_SYNC, payload, n, timeout)
+
+    def sync_send(
+        self,
+        setpoints: list[tuple[float, float] | None],
+        *,
+        expected: int | None = None,
+        resume: bool = False,
+    ) -> PendingCycle:
+        """Pipelining (docs/protocol.md 8.4): send one SYNC now and return at once; the STATEs
+        are collected later with :meth:`sync_collect`, so the next SYNC may leave before the last
+        STATE of this one arrived. Cycles are applied in the order sent: the links are FIFO and
+        every segment handles its frames one after the other (tests/chain/test_chain_pipelining.py).
+        At most :data:`MAX_IN_FLIGHT` cycles may be open at once.
+        """
+        with self._call_lock:
+            with self._cond:
+                if len(self._pipelined) >= MAX_IN_FLIGHT:
+                    raise LinkError(f"more than {MAX_IN_FLIGHT} pipelined cycles open")
+            cycle = self._next_cycle()
+            payload = M.sync_payload(cycle, setpoints, resume=resume)
+            n = len(setpoints) if expected is None else expected
+            col = self._send(C.FLAG_BCAST, 0, C.T_SYNC, payload, (C.T_STATE,), pipelined=True)
+            return PendingCycle(col, cycle, n)
+
+    def sync_collect(self, pending: PendingCycle, timeout: float = 0.1) -> list[dict | None]:
+        """The STATEs (SI, per position, None if missing) of a cycle begun with :meth:`sync_send`,
+        waiting at most ``timeout`` s; the cycle is closed afterwards."""
+        return self._states(pending.col, pending.expected, timeout)
 
     def heartbeat(self, timeout: float = 0.1, *, expected: int | None = None) -> list[dict | None]:
         """Broadcast HEARTBEAT (feeds watchdogs); STATE per position (default: last discovery)."""
@@ -329,6 +374,8 @@ class ChainLink(_FramePlumbing):
 
 
 __all__ = [
+    "MAX_IN_FLIGHT",
+    "PendingCycle",
     "ChainLink",
     "LinkError",
     "LinkTimeoutError",

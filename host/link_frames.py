@@ -148,8 +148,10 @@ class _FramePlumbing:
             return
         col = self._collector
         if col is None or frame.seq != col.seq:
-            self._counters["unmatched"] += 1
-            return
+            col = self._pipelined.get(frame.seq)  # a cycle started with sync_send
+            if col is None:
+                self._counters["unmatched"] += 1
+                return
         if frame.mtype == C.T_ERROR:
             self._counters["error_replies"] += 1
             col.errors[position] = frame
@@ -195,13 +197,24 @@ class _FramePlumbing:
             raise LinkError(f"chain port {self.url!r} failed: {self._error}") from self._error
 
     def _send(
-        self, flags: int, hop: int, mtype: int, payload: Any, types: tuple[int, ...]
+        self,
+        flags: int,
+        hop: int,
+        mtype: int,
+        payload: Any,
+        types: tuple[int, ...],
+        pipelined: bool = False,
     ) -> _Collector:
         self._check_open()
         with self._cond:
             self._seq = (self._seq + 1) & 0xFF
+            while self._seq in self._pipelined:  # never reuse the seq of a cycle still open
+                self._seq = (self._seq + 1) & 0xFF
             col = _Collector(self._seq, types)
-            self._collector = col
+            if pipelined:
+                self._pipelined[col.seq] = col
+            else:
+                self._collector = col
         wire = encode_frame(flags, hop, mtype, col.seq, payload)
         with self._write_lock:
             try:
@@ -223,6 +236,8 @@ class _FramePlumbing:
                 self._cond.wait(left)
             if self._collector is col:
                 self._collector = None
+            if self._pipelined.get(col.seq) is col:
+                del self._pipelined[col.seq]
         if self._error is not None:
             self._check_open()
 
