@@ -9,8 +9,11 @@ hold); its reply is parsed in the next cycle, so the loop never waits on the bus
 Faults: no valid reply for ``misses`` consecutive polls ->
 FAULT_NO_REPLY; error byte bit 5 (overload) or bit 3 (overcurrent) -> FAULT_OVERLOAD; any other
 error bit (voltage, sensor, temperature) -> FAULT_ERROR. STS is little-endian, 4096 steps per turn,
-centre 2048; SCS is big-endian, 1024 steps over 300 deg, centre 512 (override with config ``bus``:
-``uart``, ``tx``, ``rx``, ``baud``, ``steps_per_rev``, ``centre``, ``max_step``, ``misses``).
+centre 2048; SCS is big-endian, 1024 steps over 300 deg, centre 512. The bus UART and its pins
+(``uart``, ``tx``, ``rx``) come from config ``bus``, which config.py fills from the board's profile
+in protocol/boards.py (the one source: ``esp32s3-usbrepl`` UART0 TX 43 RX 44; a stock ESP32 has no
+UART left for a bus) and which may override them and ``baud`` (default 1000000),
+``steps_per_rev``, ``centre``, ``max_step``, ``misses`` (default 3).
 Echoed own bytes (single-wire adapters) are skipped: only a status packet of the polled id and
 the expected length is accepted.
 """
@@ -44,13 +47,15 @@ class FeetechBus(ServoBus):
 
     def __init__(self, cfg, hal, scs=False):
         ServoBus.__init__(self, cfg.n)
-        b = {"uart": 0, "tx": 17, "rx": 16, "baud": 1000000, "misses": 3}
+        b = {"baud": 1000000, "misses": 3}  # UART and pins: the board's (protocol/boards.py)
         if scs:
             b.update({"steps_per_rev": 1228.8, "centre": 512, "max_step": 1023})
         else:
             b.update({"steps_per_rev": 4096, "centre": 2048, "max_step": 4095})
         if cfg.si.get("bus"):
             b.update(cfg.si["bus"])
+        if "uart" not in b or "tx" not in b or "rx" not in b:
+            raise ValueError("no servo bus UART/pins in the configuration (board profile's bus)")
         self.big_endian = scs
         self.ids = bytearray(cfg.servo_ids)
         self.centre = int(b["centre"])
