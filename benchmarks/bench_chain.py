@@ -7,9 +7,10 @@ Run: .venv/bin/python benchmarks/bench_chain.py [--repeat N] [--duration S] [--r
 
 Floors (docs/protocol.md "Floors", computed by host/floors.py, the one place): the line-rate
 floor is the bytes the exchange puts on link 0 (SYNC + every STATE, sizes measured here) x 10 /
-baud; the store-and-forward floor is n x (SYNC + STATE) x 10 / baud, what forwarding whole frames
-costs. Nothing is dropped: a cycle in which any STATE is missing or late is a miss and is
-counted, in the round trip (excluded from the median, printed beside it) and in the sustained
+baud; the cut-through floor adds the relay's 4 bytes per hop and direction (what the firmware's
+cut-through allows with zero processing); the store-and-forward floor is n x (SYNC + STATE) x 10
+/ baud, what forwarding whole frames costs. Nothing is dropped: a cycle in which any STATE is
+missing or late is a miss and is counted, in the round trip (excluded from the median, printed beside it) and in the sustained
 runs (a cycle whose STATEs are not all in before the next tick, or a tick the host could not
 start on time, is a miss).
 
@@ -216,13 +217,15 @@ def bench_chain(n: int, timing: bool, bauds: list[int], args: argparse.Namespace
             state_b = rtt.rx_bytes / max(1, rtt.cycles) / n
             lr = floors.line_rate_floor_s(n, baud, sync_b, state_b)
             sf = floors.store_and_forward_floor_s(n, baud, sync_b, state_b)
+            ct = floors.cut_through_floor_s(n, baud, sync_b, state_b)
             med = statistics.median(rtt.times) if rtt.times else float("nan")
             model = f" [ESP32 model x{factor:.0f}]" if timing else ""
             label = f"  {n} seg @ {baud:>7} bd{model}"
             print(
                 f"{label}: RTT median {med * 1e3:7.2f} ms p90 {_pct(rtt.times, 0.9) * 1e3:7.2f}"
                 f" ms, misses {rtt.misses}/{rtt.cycles} | line-rate floor {lr * 1e3:6.2f} ms"
-                f" -> {med / lr:4.2f}x (goal <= 1.3) | store-and-forward floor {sf * 1e3:6.2f}"
+                f" -> {med / lr:4.2f}x (goal <= 1.3) | cut-through floor {ct * 1e3:6.2f} ms ->"
+                f" {med / ct:4.2f}x | store-and-forward floor {sf * 1e3:6.2f}"
                 f" ms -> {med / sf:4.2f}x | {sync_b:.0f} B SYNC, {state_b:.0f} B/STATE",
                 flush=True,
             )

@@ -57,7 +57,7 @@ Reference byte counts (computed here from the published frame formats, not measu
 # wire sizes
 # --------------------------------------------------------------------------------------------
 def _sync_bytes(n: int, worst: bool) -> int:
-    if worst:  # every int needs a 4-byte argument, cycle near 2**30
+    if worst:  # the cycle near 2**30 needs a 4-byte argument (setpoints are fixed-width)
         sps = [(99.0, -3.0)] * n
         return len(M.encode_sync(255, 2**30 - 1, sps))
     sps = [(12.3456, 1.2345)] * n  # kappa 123456 (5 bytes), phi 12345 (3 bytes)
@@ -69,9 +69,7 @@ def _state_bytes(worst: bool) -> int:
         big = 2**30 - 1
         raw = bytearray(MAX_FRAME)
         out = bytearray(MAX_ENCODED)
-        return D.state_frame(
-            raw, out, 255, big, big, big, -big, [big] * 3, 3, [-big] * 3, 3, 63, big, -big
-        )
+        return D.state_frame(raw, out, 255, big, big, 0x7FFFFF, -31415, [-big] * 3, 3, 63, 255)
     return len(
         M.encode_state(
             17,
@@ -105,9 +103,9 @@ def dxl_sync_read(n: int) -> int:
 # cycle model
 # --------------------------------------------------------------------------------------------
 def chain_cycle_time(n: int, b_sync: int, b_state: int, baud: int) -> float:
-    """Time from the host starting a SYNC until it holds all N STATEs on a store-and-forward
-    chain with zero processing: the store-and-forward floor (host/floors.py, the one place)."""
-    return floors.store_and_forward_floor_s(n, baud, b_sync, b_state)
+    """Time from the host starting a SYNC until it holds all N STATEs on a cut-through chain
+    (protocol v2) with zero processing: the cut-through floor (host/floors.py, the one place)."""
+    return floors.cut_through_floor_s(n, baud, b_sync, b_state)
 
 
 def pipelined_rate(n: int, b_sync: int, b_state: int, baud: int) -> float:
@@ -157,7 +155,7 @@ def print_wire_tables() -> None:
         )
     print()
     print("== implied max cycle rate [Hz], typical values; chain links are full duplex")
-    print("   'seq' = host waits for all N STATEs before the next SYNC (store-and-forward,")
+    print("   'seq' = host waits for all N STATEs before the next SYNC (cut-through,")
     print("   processing time 0); 'pipe' = host pipelines cycles, busiest link direction decides")
     hdr = f"{'protocol':<26}{'N':>3}{'down B':>8}{'up B':>7}"
     for b in BAUDS:
@@ -241,7 +239,7 @@ def _cpython_timings(loops: int) -> list[tuple[str, float]]:
         ("host feed + decode STATE", host_decode_state),
         ("host decode DESCRIPTOR", lambda: M.decode_message(F.decode_frame(desc))),
         (
-            "dev state_frame (3 tendons)",
+            "dev state_frame (3 servos)",
             lambda: D.state_frame(
                 raw,
                 out,
@@ -250,18 +248,15 @@ def _cpython_timings(loops: int) -> list[tuple[str, float]]:
                 7654321,
                 123456,
                 12345,
-                [118300, 120100, 121600],
-                3,
                 [-5200, 3100, 2100],
                 3,
                 16,
-                40613,
-                116581,
+                2,
             ),
         ),
         (
             "dev decode_sync N=3 pos 2",
-            lambda: D.decode_sync(sraw, HEADER_LEN, len(sraw) - 2, 2, slots),
+            lambda: D.decode_sync(sraw, HEADER_LEN, len(sraw) - 3, 2, slots),
         ),
         ("dev scan one STATE frame", lambda: reader.scan(state, 0, len(state))),
         ("dev forward_into STATE", lambda: F.forward_into(fwd, len(fwd), 1, out)),
@@ -295,9 +290,8 @@ out = bytearray(MAX_ENCODED)
 sraw = bytearray(F.decode_frame(sync3).raw())
 slots = [0, 0, 0, 0]
 fwd = bytearray(F.decode_frame(state).raw())
-tl = [118300, 120100, 121600]
 sv = [-5200, 3100, 2100]
-ns = len(sraw) - 2
+ns = len(sraw) - 3
 nst = len(state)
 nfwd = len(fwd)
 
@@ -309,7 +303,7 @@ def c1():
 def c2():
     M.decode_message(F.decode_frame(desc))
 def c3():
-    D.state_frame(raw, out, 1, 123456, 7654321, 123456, 12345, tl, 3, sv, 3, 16, 40613, 116581)
+    D.state_frame(raw, out, 1, 123456, 7654321, 123456, 12345, sv, 3, 16, 2)
 def c4():
     D.decode_sync(sraw, HEADER_LEN, ns, 2, slots)
 def c5():
@@ -318,7 +312,7 @@ def c6():
     F.forward_into(fwd, nfwd, 1, out)
 
 for name, fn in (("host encode_sync N=3 (own codec)", c0), ("host feed + decode STATE", c1),
-                 ("host decode DESCRIPTOR", c2), ("dev state_frame (3 tendons)", c3),
+                 ("host decode DESCRIPTOR", c2), ("dev state_frame (3 servos)", c3),
                  ("dev decode_sync N=3 pos 2", c4), ("dev scan one STATE frame", c5),
                  ("dev forward_into STATE", c6)):
     best = None

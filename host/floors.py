@@ -6,7 +6,11 @@ One SYNC down and one STATE per segment up. 10 bits per byte (8N1), processing t
   rate. No chain can beat it; a cut-through chain with negligible per-hop latency reaches it.
 * store-and-forward floor: every segment receives a whole frame (and checks its CRC) before it
   passes it on, so the SYNC crosses the n links one after the other and so does the farthest
-  segment's STATE: n x (t_sync + t_state). What today's firmware cannot beat.
+  segment's STATE: n x (t_sync + t_state). What a store-and-forward chain cannot beat.
+* cut-through floor: the protocol-v2 relay (protocol/relay.py) passes a frame on as it arrives and
+  ends it RELAY_HOP_BYTES after its last byte arrived; the farthest STATE is complete at the host
+  after SYNC + STATE + 2 (n - 1) hops of that, and never before the line-rate floor. What the
+  current firmware can approach with zero processing time.
 
 Benchmarks pass the frame sizes they measured; without sizes the largest frames the encoders
 produce are used (what the daemon's rate warning needs: a bound for every value). Host-only:
@@ -19,6 +23,8 @@ from protocol import constants as C
 from protocol import messages as M
 
 BITS_PER_BYTE = 10  # UART 8N1: start + 8 data + stop
+#: bytes a cut-through hop adds at a frame's end: the 3-byte hold-back and the delimiter
+RELAY_HOP_BYTES = 4
 
 
 def max_sync_bytes(n: int) -> int:
@@ -67,6 +73,17 @@ def store_and_forward_floor_s(
         return 0.0
     sync, state = _sizes(n, sync_bytes, state_bytes)
     return n * (sync + state) * BITS_PER_BYTE / baudrate
+
+
+def cut_through_floor_s(
+    n: int, baudrate: int, sync_bytes: float | None = None, state_bytes: float | None = None
+) -> float:
+    """max(line-rate floor, (SYNC + STATE + 2 (n - 1) x RELAY_HOP_BYTES) x 10 / baud) (s)."""
+    if n <= 0:
+        return 0.0
+    sync, state = _sizes(n, sync_bytes, state_bytes)
+    hops = (sync + state + 2 * (n - 1) * RELAY_HOP_BYTES) * BITS_PER_BYTE / baudrate
+    return max(line_rate_floor_s(n, baudrate, sync, state), hops)
 
 
 def pipelined_rate_hz(
