@@ -11,8 +11,8 @@ baud; the cut-through floor adds the relay's 4 bytes per hop and direction (what
 cut-through allows with zero processing); the store-and-forward floor is n x (SYNC + STATE) x 10
 / baud, what forwarding whole frames costs. Nothing is dropped: a cycle in which any STATE is
 missing or late is a miss and is counted, in the round trip (excluded from the median, printed
-beside it) and in the sustained runs (a cycle whose STATEs are not all in before the next tick, or a tick the host could not
-start on time, is a miss).
+beside it) and in the sustained runs (a cycle whose STATEs are not all in before the next tick,
+or a tick the host could not start on time, is a miss).
 
 Sustained: the host starts a SYNC on every tick of ``--rate`` Hz for ``--duration`` s and waits
 at most until the next tick (the issue's goal: 8 segments @ 921600, 100 Hz for 60 s, 0 misses).
