@@ -97,9 +97,19 @@ class Hal:
         self.tick_us = TICK_US
         if p.get("board"):
             self.tick_us = 1000000 // _profile(p["board"])["tick_hz"]
-        # rxbuf holds at least one whole encoded frame (253 bytes) plus slack
+        # rxbuf holds at least one whole encoded frame (253 bytes) plus slack. timeout_char=0:
+        # the port then sets the RX FIFO threshold and RX timeout to 1 (ports/esp32/machine_uart.c,
+        # "rx_timeout < 1"), so bytes are readable as they arrive, which cut-through forwarding
+        # needs; with the driver's default threshold (120 bytes) a short frame would be readable
+        # only after its end plus an idle time
         self.up = machine.UART(
-            p["up_uart"], baudrate=p["baud"], tx=p["up_tx"], rx=p["up_rx"], rxbuf=1024, timeout=0
+            p["up_uart"],
+            baudrate=p["baud"],
+            tx=p["up_tx"],
+            rx=p["up_rx"],
+            rxbuf=1024,
+            timeout=0,
+            timeout_char=0,
         )
         self.down = machine.UART(
             p["down_uart"],
@@ -108,6 +118,7 @@ class Hal:
             rx=p["down_rx"],
             rxbuf=1024,
             timeout=0,
+            timeout_char=0,
         )
         self.poller = select.poll()
         self.poller.register(self.up, select.POLLIN)

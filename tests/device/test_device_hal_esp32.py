@@ -58,3 +58,32 @@ def test_a_configuration_for_another_board_is_refused_on_this_chip(hal):
     with pytest.raises(ValueError, match="names board 'esp32s3' .* this chip is an ESP32"):
         hal.chain_pins("ESP32", pins)
     assert hal.chain_pins("ESP32S3", pins)["down_tx"] == 15
+
+
+def test_chain_uarts_deliver_bytes_as_they_arrive_for_cut_through(hal, monkeypatch):
+    """Cut-through needs each byte readable when it arrives: timeout_char=0 makes the ESP32 port
+    set the RX FIFO threshold to 1 (ports/esp32/machine_uart.c); the driver's default threshold
+    would hold a short frame until its end plus an idle time."""
+    opened = []
+
+    class UART:
+        IRQ_RX = 1
+
+        def __init__(self, uid, **kw):
+            opened.append((uid, kw))
+
+        def irq(self, handler=None, trigger=0):
+            pass
+
+    class Poll:
+        def register(self, obj, mask):
+            pass
+
+    monkeypatch.setattr(hal.machine, "UART", UART, raising=False)
+    monkeypatch.setattr(hal.select, "poll", Poll)
+    monkeypatch.setattr(hal, "chip", lambda: "ESP32")
+    monkeypatch.setattr(hal.time, "ticks_ms", lambda: 0, raising=False)
+    hal.Hal(None)
+    assert [uid for uid, _ in opened] == [1, 2]
+    for _, kw in opened:
+        assert kw["timeout_char"] == 0 and kw["timeout"] == 0 and kw["rxbuf"] >= 253
