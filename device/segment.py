@@ -107,7 +107,10 @@ _EVQ = const(16)  # event queue length
 _FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
 _PEND = const(252)  # an own upstream frame held while a relayed frame is half sent
-_RELAY_SILENCE_MS = const(2)  # a relayed frame silent this long is ended (invalid) at once
+# a relayed frame silent this long is ended (invalid): a sender that died mid-frame must not hold
+# the port; generous, because a frame's bytes come back to back on a wire but an emulated link
+# under load may pause for milliseconds (the reader itself never gives up on a frame)
+_RELAY_SILENCE_MS = const(50)
 
 
 def _diff(a, b):
@@ -610,6 +613,8 @@ class Segment:
         ):
             self.clamp_pending = 0
             self.clamp_queued = True
+        if self.rl_up.busy or self.pend_len:
+            return  # a relayed frame is half sent upstream: events wait in their queue
         if self.ev_len and _diff(now, self.last_event) >= EVENT_MIN_INTERVAL_MS:
             j = self.ev_head * 2
             code = self.evq[j]
