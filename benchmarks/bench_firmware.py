@@ -173,6 +173,10 @@ def main() -> int:
     print(f"  full cycle (SYNC + forward + tick)       {r['cycle_us']:8.1f} us")
     print(f"  full cycle / 5 ms tick budget            {r['cycle_us'] / tick_budget:8.3%}")
     print(f"  of the cycle, viper machine code         {r['viper_us']:8.1f} us (the rest bytecode)")
+    print(
+        f"  bytes per cycle on its upstream link     {len(sync) + 2 * len(state):8d} "
+        f"(SYNC {len(sync)} down; own and the neighbour's STATE, {len(state)} each, up)"
+    )
     print(f"  heap bytes allocated per cycle           {r['heap_bytes_per_cycle']:8.1f} (goal 0)")
     print(f"  full cycle under heap_lock               {'ok' if r['heap_lock_ok'] else 'FAILED'}")
     print(f"  heap used after boot + run               {r['heap_used']:8d} bytes")
