@@ -40,6 +40,7 @@ from host.link import ChainLink
 from host.link_health import LinkHealth
 from host.loop import FixedRateLoop
 from host.motion import Motion
+from host.positions import label
 from host.publisher import KINDS, Fanout, PublisherThread
 from host.supervision import Supervisor
 from host.topology import Comparison, adopted_path
@@ -285,7 +286,7 @@ class Daemon:
         rate, nominal = change["usable_rate_hz"], round(self.rate_hz, 2)
         if change["change"] == "degraded":
             pos = change["position"]
-            into = hwi.names[pos] if pos < len(hwi.names) else f"position {pos + 1}"
+            into = hwi.names[pos] if pos < len(hwi.names) else label(pos)
             msg = (
                 f"link {pos + 1} (into {into}) is slow: its replies come late, "
                 f"{change['loss']:.0%} missed at {round(1.0 / (change['period'] / 2), 2)} Hz; "

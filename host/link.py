@@ -27,6 +27,7 @@ from host.link_frames import (
     _small_int,
     exchange_floor_s,
 )
+from host.positions import label, labels
 from host.serialport import describe_open_error
 from protocol import constants as C
 from protocol import messages as M
@@ -156,7 +157,7 @@ class ChainLink(_FramePlumbing):
             positions = [d["position"] for d in descs]
             if positions != list(range(len(positions))):
                 self._counters["timeouts"] += 1
-                raise LinkError(f"incomplete discovery: answers from positions {positions}")
+                raise LinkError(f"incomplete discovery: answers from {labels(positions)}")
             if not tip:
                 self._counters["timeouts"] += 1
             self._expected = len(descs)
@@ -309,11 +310,12 @@ class ChainLink(_FramePlumbing):
             if frame is None:
                 self._counters["timeouts"] += 1
                 raise LinkTimeoutError(
-                    f"no answer from segment {position} within {timeout * 1000:.0f} ms"
+                    f"no answer from the segment at {label(position)} "
+                    f"within {timeout * 1000:.0f} ms"
                 )
             payload_in = self._payload(frame)
             if not isinstance(payload_in, dict) or C.K_VALUE not in payload_in:
-                raise LinkError(f"segment {position} sent a malformed PARAM_VALUE")
+                raise LinkError(f"the segment at {label(position)} sent a malformed PARAM_VALUE")
             return payload_in[C.K_VALUE]
 
     def param_get(

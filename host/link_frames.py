@@ -14,6 +14,7 @@ from typing import Any
 import serial
 
 from host import floors
+from host.positions import label
 from protocol import constants as C
 from protocol.cbor import loads
 from protocol.errors import ProtocolError
@@ -34,7 +35,8 @@ class ProtocolVersionError(LinkError):
     def __init__(self, position: int, versions: str) -> None:
         self.position = position
         super().__init__(
-            f"segment {position} speaks protocol version {versions}, this host speaks "
+            f"the segment at {label(position)} speaks protocol version {versions}, "
+            "this host speaks "
             f"{C.VERSION_MIN}..{C.VERSION_MAX}: reflash it with `ucr flash` "
             "(docs/protocol.md section 10)"
         )
@@ -49,7 +51,7 @@ class SegmentError(LinkError):
         self.code_name = C.ERROR_NAMES.get(code, f"error {code}")
         self.offending_type = offending_type
         self.text = text
-        super().__init__(f"segment {position} answered {self.code_name}: {text}")
+        super().__init__(f"the segment at {label(position)} answered {self.code_name}: {text}")
 
 
 def exchange_floor_s(n: int, baudrate: int) -> float:

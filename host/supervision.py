@@ -17,6 +17,7 @@ from typing import Any
 from host.config import WatchdogConfig
 from host.controllers.base import RobotState
 from host.hwi import HardwareInterface
+from host.positions import label
 from protocol.constants import FAULT_NAMES
 
 TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
@@ -25,9 +26,9 @@ TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
 def describe_event(ev: dict, descriptors: list[dict]) -> str:
     """One readable line for a segment EVENT (which segment, what happened)."""
     pos, name, detail = ev.get("position"), ev.get("name", ""), ev.get("detail")
-    who = f"position {pos}"
+    who = label(pos)
     if isinstance(pos, int) and pos < len(descriptors):
-        who = f"{descriptors[pos].get('name') or '?'} (position {pos})"
+        who = f"{descriptors[pos].get('name') or '?'} ({label(pos)})"
     if name == "LIMIT_CLAMPED" and isinstance(detail, int):
         bits = [b for i, b in enumerate(("kappa", "rate", "servo range")) if detail >> i & 1]
         what = f"setpoint clamped by the segment ({', '.join(bits) or detail})"
@@ -113,7 +114,7 @@ class Supervisor:
             if name == "FAULT":
                 self._note_fault(hwi, ev)
             if reason is None and is_news(name, ev.get("position"), descriptors):
-                reason = f"{name} from position {ev.get('position')}"
+                reason = f"{name} from {label(ev.get('position'))}"
         self._track_faults(hwi)
         if reason is None:
             reason = self._misaddressed(hwi)
@@ -122,7 +123,7 @@ class Supervisor:
             limit = max(wd.missed_cycles, math.ceil(wd.silence_s / self.period))
             silent = [i for i, m in enumerate(hwi.missing) if m >= limit]
             if silent:
-                names = ", ".join(f"{hwi.names[i]} (position {i})" for i in silent)
+                names = ", ".join(f"{hwi.names[i]} ({label(i)})" for i in silent)
                 reason = f"no STATE from {names} for {limit} cycles"
                 self.silent = True
         if reason is None and getattr(hwi, "extra_states", None):
@@ -189,9 +190,9 @@ class Supervisor:
         for i, st in enumerate(hwi.raw_states):
             applied = None if st is None else st.get("applied_position")
             if applied is not None and applied != i:
-                name = hwi.names[i] if i < len(hwi.names) else f"position {i}"
+                name = hwi.names[i] if i < len(hwi.names) else label(i)
                 msg = (
-                    f"{name} (position {i}) applied the setpoint of position {applied}: "
+                    f"{name} ({label(i)}) applied the setpoint of {label(applied)}: "
                     "misaddressed SYNC"
                 )
                 self._emit("misaddressed", message=msg + "; holding", position=i, applied=applied)

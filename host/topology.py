@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from host.positions import label as position_label
 from ucrdf.model import Robot
 
 REL_TOL = 2e-3  # descriptors carry float32: compare geometry with a relative tolerance
@@ -109,7 +110,7 @@ def _diff_one(
 ) -> list[Difference]:
     b = robot.bendables[name]
     out: list[Difference] = []
-    label = f"position {pos} ({name})"
+    label = f"{position_label(pos)} ({name})"
 
     def add(kind: str, msg: str, blocking: bool = True) -> None:
         out.append(Difference(kind, pos, name, f"{label}: {msg}", blocking))
@@ -199,7 +200,7 @@ def compare(robot: Robot, descriptors: list[dict[str, Any]]) -> Comparison:
             )
         else:
             extra = ", ".join(
-                f"{i} ({descriptors[i].get('name') or descriptors[i].get('uid')})"
+                f"{i + 1} ({descriptors[i].get('name') or descriptors[i].get('uid')})"
                 for i in range(len(names), len(descriptors))
             )
             msg = (

@@ -27,6 +27,7 @@ from host.hwi import HardwareInterface, robot_state_from
 from host.limits import bendable_limits
 from host.link import exchange_floor_s
 from host.motion import Motion
+from host.positions import label
 from host.publisher import Fanout
 from host.topology import (
     Comparison,
@@ -352,8 +353,8 @@ class TopologyFollower:
         msg = f"now {len(self.hwi.names)} segment(s): {', '.join(self.hwi.names)}"
         if self.cut:
             msg += (
-                f"; chain cut after {self.cut['after']} (position "
-                f"{self.cut['after_position']}): {', '.join(self.cut['lost'])} unreachable"
+                f"; chain cut after {self.cut['after']} ({label(self.cut['after_position'])}): "
+                f"{', '.join(self.cut['lost'])} unreachable"
             )
         extra = [d.message for d in cmp.differences if d.blocking and d.kind != "count"]
         if extra:

@@ -106,7 +106,7 @@ def test_aborts_from_the_daemon_parts_name_their_cause(ctx):
     jtc = JointTrajectoryController("jtc", {}, ctx)
     jtc.on_activate(RobotState.zeros(ctx.names, 0.0))
     for reason, cause in (
-        ("topology changed: DOWNSTREAM_DOWN from position 1", "topology_change"),
+        ("topology changed: DOWNSTREAM_DOWN from position 2", "topology_change"),
         ("link lost: port vanished", "link_loss"),
         ("segment(s) segment_2 holding (watchdog or HOLD)", "segment_fault"),
         ("preempted by manual control (ffc)", "replaced"),

@@ -136,10 +136,10 @@ def test_compare_says_exactly_what_differs(robot3):
     assert not cmp.ok and cmp.matched == 1
     msgs = [d.message for d in cmp.differences]
     assert (
-        "position 1 (segment_2): length 0.25 m on the segment, 0.316 m in the description" in msgs
+        "position 2 (segment_2): length 0.25 m on the segment, 0.316 m in the description" in msgs
     )
     assert any("kappa_max 9.0 1/m on the segment" in m for m in msgs)
-    assert "position 2 (segment_3): model 'ppc' on the segment, 'pcc' in the description" in msgs
+    assert "position 3 (segment_3): model 'ppc' on the segment, 'pcc' in the description" in msgs
     short = compare(robot3, descriptors_of(robot3)[:2])
     assert short.matched == 2 and short.differences[0].kind == "count"
     assert "declares 3: missing segment_3" in short.differences[0].message

@@ -71,14 +71,14 @@ def test_supervisor_reports_a_silent_segment_as_a_topology_change_to_verify():
     sup = _supervisor(events, [])
     descs = [{"name": "a"}, {"name": "b"}]
     reason = sup.check(_hwi(2, missing=3), RobotState.zeros([]), [], descs)
-    assert reason.startswith("no STATE from segment_1 (position 0), segment_2") and sup.silent
+    assert reason.startswith("no STATE from segment_1 (position 1), segment_2") and sup.silent
 
 
 def test_supervisor_tells_news_from_duplicate_events_and_re_holds_holding_segments():
     descs = [{"name": "a"}, {"name": "b", "downstream_present": False}]
     assert not is_news("DOWNSTREAM_DOWN", 1, descs)  # the tip lost nobody we knew of
     assert is_news("DOWNSTREAM_DOWN", 0, descs) and is_news("BOOT", 1, descs)
-    assert describe_event({"name": "BOOT", "position": 1}, descs) == "b (position 1): booted"
+    assert describe_event({"name": "BOOT", "position": 1}, descs) == "b (position 2): booted"
     events: list = []
     reheld: list = []
     sup = _supervisor(events, reheld)

@@ -159,7 +159,7 @@ def test_mismatch_is_explained_and_adopt_writes_the_chain_as_found(chain, tmp_pa
     with pytest.raises(TopologyError) as ei:
         d.start()
     msg = str(ei.value)
-    assert "chain has 3 segment(s), softrobot2.ucrdf declares 2: extra at position(s) 2" in msg
+    assert "chain has 3 segment(s), softrobot2.ucrdf declares 2: extra at position(s) 3" in msg
     assert "--adopt" in msg
     out = tmp_path / "adopted.ucrdf"
     d = Daemon(two, DaemonConfig(port=chain.host_port), adopt=True, adopt_path=out)
@@ -194,7 +194,7 @@ def test_segment_not_in_the_description_is_reported_and_held(chain):
         topo = d.topology()
         assert topo["controlled"] == ["segment_1", "segment_2"]
         assert [s["controlled"] for s in topo["segments"]] == [True, True, False]
-        assert any("extra at position(s) 2" in x["message"] for x in topo["differences"])
+        assert any("extra at position(s) 3" in x["message"] for x in topo["differences"])
         time.sleep(0.3)
         msgs = []
         while not q.empty():

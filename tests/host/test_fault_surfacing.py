@@ -44,7 +44,7 @@ def test_supervisor_holds_and_reports_a_misaddressed_setpoint():
     ok = {"status": set(), "applied_position": 0}
     hwi = _hwi([ok, {"status": set(), "applied_position": 2}])
     reason = sup.check(hwi, RobotState.zeros([]), [], [{"name": "a"}, {"name": "b"}])
-    assert reason and "segment_2 (position 1) applied the setpoint of position 2" in reason
+    assert reason and "segment_2 (position 2) applied the setpoint of position 3" in reason
     assert [e[0] for e in events] == ["misaddressed"]
     # the daemon turns a reason into hold + rediscovery (topology follower); a correct chain
     # (or an old firmware without key 9) is not news
