@@ -1,15 +1,21 @@
 """ROS 2 over Zenoh benchmark: segment STATE -> Zenoh subscriber latency on loopback, and what the
 bridge plus a subscriber do to the control loop's jitter. Runs the real daemon on an emulated
-3-segment chain, `ucr zenoh-router` and `ucr zenoh` as their own processes (as deployed), and a
-Zenoh subscriber on /<robot>/joint_states and /<robot>/tf in this process.
+3-segment chain with its API server in a process of its own (``host.api.process.ApiProcess``, as
+``ucr daemon`` runs it), `ucr zenoh-router` and `ucr zenoh` as their own processes (as deployed),
+and a Zenoh subscriber on /<robot>/joint_states and /<robot>/tf in another process.
 
-    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5]
+    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5] [--rounds 3] [--api process|thread]
 
 Latency: receive time (wall clock) minus the JointState header stamp, which is the daemon's
 time of the cycle that produced the state (daemon monotonic clock mapped to wall clock; same
 machine). It covers daemon -> API -> bridge (decode, CDR encode) -> Zenoh -> subscriber.
-Jitter: the daemon's |period - target| p99 and mean, bridge off vs on; goal ratio <= 1.05.
-Prints figures and ratios; asserts nothing (the machine may be shared and noisy).
+
+Jitter: the daemon's |period - target| p99 and mean. Phases alternate ``--rounds`` times so that
+the machine's background load falls on both alike: off (daemon and API process only) and on
+(router, bridge and subscriber running; the bridge holds one API subscription). Goal: ratio
+on/off <= 1.05. ``--api thread`` runs the API server in the daemon's process instead (what this
+benchmark did before; it shows the cost of sharing the interpreter lock with the loop).
+Prints figures, ratios and the load average; asserts nothing (the machine may be shared).
 """
 
 # ruff: noqa: PLC0415 - heavy imports (daemon, emulator, zenoh) only when the benchmark runs
@@ -46,10 +52,24 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _ucr(*args: str, nice: int = 0) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tools.cli", *args], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=(lambda: os.nice(nice)) if nice else None)  # fmt: skip
+def _spawn(args: list[str], nice: int = 0) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=(lambda: os.nice(nice)) if nice else None,
+    )
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) a process has used so far (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -61,31 +81,97 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def main(argv: list[str] | None = None) -> int:
+def subscriber(endpoint: str, ns: str, seconds: float, warmup: float) -> int:
+    """Child process: subscribe to joint_states and tf, print latencies (ms) as JSON."""
     import zenoh
 
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
     from interop import ros2
     from interop.ros2.type_hash import type_hash
+    from interop.zenoh import rmw
+
+    js_type, tf_type = "sensor_msgs/msg/JointState", "tf2_msgs/msg/TFMessage"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    codec = ros2.codec(js_type)
+    lat: list[float] = []
+    tf_count = [0]
+
+    def on_js(sample) -> None:
+        now = time.time_ns()
+        m = codec.decode(sample.payload.to_bytes())
+        stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        lat.append((now - stamp) / 1e6)
+
+    def on_tf(sample) -> None:
+        tf_count[0] += 1
+
+    with zenoh.open(conf) as session:
+        key_js = rmw.topic_key(0, f"{ns}/joint_states", js_type, type_hash(js_type))
+        key_tf = rmw.topic_key(0, f"{ns}/tf", tf_type, type_hash(tf_type))
+        subs = [
+            session.declare_subscriber(key_js, on_js),
+            session.declare_subscriber(key_tf, on_tf),
+        ]
+        print("ready", flush=True)
+        time.sleep(warmup)
+        lat.clear()
+        tf_count[0] = 0
+        time.sleep(seconds)
+        out = {"lat_ms": list(lat), "tf": tf_count[0]}
+        for s in subs:
+            s.undeclare()
+    print(json.dumps(out), flush=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
+    ap.add_argument("--rounds", type=int, default=3, help="off/on phase pairs (3)")
+    ap.add_argument(
+        "--nice",
+        type=int,
+        default=10,
+        help="niceness of the router, bridge and subscriber processes (10, as docs/ros2.md "
+        "recommends for the service; 0: same priority as the daemon)",
+    )
+    ap.add_argument(
+        "--api",
+        choices=("process", "thread"),
+        default="process",
+        help="API server in its own process (as `ucr daemon`) or in the daemon's (thread)",
+    )
+    ap.add_argument(
+        "--daemon-nice",
+        type=int,
+        default=-5,
+        help="niceness of the daemon (this process): -5 as host/ucr-daemon.service runs it "
+        "(needs root or CAP_SYS_NICE; 0 otherwise)",
+    )
+    ap.add_argument("--subscriber", nargs=2, metavar=("ENDPOINT", "NS"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.subscriber:
+        return subscriber(*args.subscriber, seconds=args.seconds, warmup=2.0)
+
+    from host.api.process import ApiProcess
+    from host.api.server import ApiServer
+    from host.daemon import Daemon, DaemonError
     from interop.zenoh import rmw
     from tools.emulator import EmulatedChain
     from tools.segment_config import configs
     from ucrdf.parser import load
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
-    ap.add_argument(
-        "--nice",
-        type=int,
-        default=10,
-        help="niceness of the router and bridge processes (10, as docs/ros2.md "
-        "recommends for the service; 0: same priority as the daemon)",
-    )
-    args = ap.parse_args(argv)
-
+    daemon_nice = 0
+    if args.daemon_nice:
+        try:
+            os.nice(args.daemon_nice)
+            daemon_nice = args.daemon_nice
+        except PermissionError:
+            print(f"cannot set nice {args.daemon_nice} (not root): daemon at nice 0")
     robot = load(ROOT / "robots" / "softrobot3.ucrdf")
-    js_type, tf_type = "sensor_msgs/msg/JointState", "tf2_msgs/msg/TFMessage"
     ns = rmw.namespace_for(robot.name)
     with EmulatedChain(3, config_for=configs(robot)) as chain:
         deadline = time.monotonic() + 15
@@ -97,70 +183,108 @@ def main(argv: list[str] | None = None) -> int:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
+        srv = (ApiProcess if args.api == "process" else ApiServer)(daemon, "127.0.0.1", 0).start()
         port = _free_port()
-        router = bridge = None
+        endpoint = f"tcp/127.0.0.1:{port}"
+        offs: list[dict] = []
+        ons: list[dict] = []
+        lat: list[float] = []
+        tf = 0
+        cpu: dict[str, float] = {}
+        load0 = os.getloadavg()
         try:
             time.sleep(0.5)
-            off = _jitter(daemon, args.seconds)
-
-            router = _ucr("zenoh-router", "--listen", f"tcp/127.0.0.1:{port}", nice=args.nice)
-            time.sleep(1.5)
-            bridge = _ucr("zenoh", "--url", srv.url, "--connect", f"tcp/127.0.0.1:{port}",
-                          "--listen", "tcp/127.0.0.1:0", nice=args.nice)  # fmt: skip
-            line = bridge.stderr.readline()
-            if "ROS 2 node" not in line:
-                print(f"bridge did not start: {line}{bridge.stderr.read()}", file=sys.stderr)
-                return 1
-            conf = zenoh.Config()
-            conf.insert_json5("mode", '"peer"')
-            conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-            conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-            conf.insert_json5("scouting/multicast/enabled", "false")
-            codec = ros2.codec(js_type)
-            lat: list[float] = []
-            tf_count = [0]
-
-            def on_js(sample) -> None:
-                now = time.time_ns()
-                m = codec.decode(sample.payload.to_bytes())
-                stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-                lat.append((now - stamp) / 1e6)
-
-            def on_tf(sample) -> None:
-                tf_count[0] += 1
-
-            with zenoh.open(conf) as session:
-                key_js = rmw.topic_key(0, f"{ns}/joint_states", js_type, type_hash(js_type))
-                key_tf = rmw.topic_key(0, f"{ns}/tf", tf_type, type_hash(tf_type))
-                subs = [session.declare_subscriber(key_js, on_js),
-                        session.declare_subscriber(key_tf, on_tf)]  # fmt: skip
-                time.sleep(2.0)  # discovery, first messages
-                lat.clear()
-                tf_count[0] = 0
-                on = _jitter(daemon, args.seconds)
-                for s in subs:
-                    s.undeclare()
+            for _ in range(args.rounds):
+                offs.append(_jitter(daemon, args.seconds))
+                router = _spawn(
+                    ["-m", "tools.cli", "zenoh-router", "--listen", endpoint], nice=args.nice
+                )
+                bridge = sub = None
+                try:
+                    time.sleep(1.5)
+                    bridge = _spawn(
+                        [
+                            "-m",
+                            "tools.cli",
+                            "zenoh",
+                            "--url",
+                            srv.url,
+                            "--connect",
+                            endpoint,
+                            "--listen",
+                            "tcp/127.0.0.1:0",
+                        ],
+                        nice=args.nice,
+                    )
+                    line = bridge.stderr.readline()
+                    if "ROS 2 node" not in line:
+                        print(
+                            f"bridge did not start: {line}{bridge.stderr.read()}", file=sys.stderr
+                        )
+                        return 1
+                    sub = _spawn(
+                        [__file__, "--seconds", str(args.seconds), "--subscriber", endpoint, ns],
+                        nice=args.nice,
+                    )
+                    if sub.stdout.readline().strip() != "ready":
+                        print(f"subscriber did not start: {sub.stderr.read()}", file=sys.stderr)
+                        return 1
+                    time.sleep(2.0)  # the subscriber's warm-up: discovery, first messages
+                    procs = {"router": router, "bridge": bridge, "subscriber": sub}
+                    api_pid = getattr(getattr(srv, "_child", None), "pid", None)
+                    pids = {k: p.pid for k, p in procs.items()}
+                    if api_pid:
+                        pids["api"] = api_pid
+                    pids["daemon"] = os.getpid()
+                    before = {k: _cpu_s(pid) for k, pid in pids.items()}
+                    ons.append(_jitter(daemon, args.seconds))
+                    for k, pid in pids.items():
+                        cpu[k] = cpu.get(k, 0.0) + _cpu_s(pid) - before[k]
+                    out = json.loads(sub.stdout.readline() or "{}")
+                    lat += out.get("lat_ms", [])
+                    tf += out.get("tf", 0)
+                finally:
+                    for p in (sub, bridge, router):
+                        if p is not None:
+                            _stop(p)
+            load1 = os.getloadavg()
             n = len(lat)
+            total = args.seconds * args.rounds
             if n:
-                print(f"STATE -> Zenoh subscriber (/joint_states)  n={n} "
-                      f"({n / args.seconds:.0f}/s)  p50 {statistics.median(lat):.2f} ms  "
-                      f"p99 {_pct(lat, 0.99):.2f} ms  max {max(lat):.2f} ms")  # fmt: skip
+                print(
+                    f"STATE -> Zenoh subscriber (/joint_states)  n={n} ({n / total:.0f}/s)  "
+                    f"p50 {statistics.median(lat):.2f} ms  p99 {_pct(lat, 0.99):.2f} ms  "
+                    f"max {max(lat):.2f} ms"
+                )
             else:
                 print("STATE -> Zenoh subscriber: no message received")
-            print(f"/tf messages received: {tf_count[0]} ({tf_count[0] / args.seconds:.0f}/s)")
-            print(f"loop rate {daemon.rate_hz:.0f} Hz; router and bridge at nice {args.nice}")
-            for label, st in (("bridge off", off), ("bridge + subscriber on", on)):
-                j = st["jitter_us"]
-                print(f"{label:<24} jitter p99 {j['p99']:7.0f} µs  mean {j['mean']:6.0f} µs  "
-                      f"overruns {st['overruns']}")  # fmt: skip
-            r99 = on["jitter_us"]["p99"] / max(off["jitter_us"]["p99"], 1e-9)
-            rmean = on["jitter_us"]["mean"] / max(off["jitter_us"]["mean"], 1e-9)
-            print(f"jitter ratio on/off: p99 {r99:.3f}  mean {rmean:.3f}  (goal <= 1.05)")
+            print(f"/tf messages received: {tf} ({tf / total:.0f}/s)")
+            print(
+                f"loop rate {daemon.rate_hz:.0f} Hz; API server: {args.api}; router, bridge and "
+                f"subscriber at nice {args.nice}; {args.rounds} rounds of {args.seconds:.0f} s"
+            )
+            print(
+                "CPU during the on phases (% of one core): "
+                + ", ".join(f"{k} {100 * v / total:.0f}" for k, v in cpu.items())
+            )
+            print(f"daemon at nice {daemon_nice}")
+            print(f"load average (1 min) at start {load0[0]:.2f}, at end {load1[0]:.2f}")
+            for label, sts in (("bridge off", offs), ("bridge + subscriber on", ons)):
+                for st in sts:
+                    j = st["jitter_us"]
+                    print(
+                        f"{label:<24} jitter p99 {j['p99']:7.0f} µs  mean {j['mean']:6.1f} µs  "
+                        f"overruns {st['overruns']}"
+                    )
+            p99_off = statistics.median(s["jitter_us"]["p99"] for s in offs)
+            p99_on = statistics.median(s["jitter_us"]["p99"] for s in ons)
+            m_off = statistics.median(s["jitter_us"]["mean"] for s in offs)
+            m_on = statistics.median(s["jitter_us"]["mean"] for s in ons)
+            print(
+                f"jitter ratio on/off (medians over rounds): p99 {p99_on / max(p99_off, 1e-9):.3f}"
+                f"  mean {m_on / max(m_off, 1e-9):.3f}  (goal <= 1.05)"
+            )
         finally:
-            for p in (bridge, router):
-                if p is not None:
-                    _stop(p)
             srv.stop()
             daemon.stop()
     return 0

@@ -82,6 +82,7 @@ class BridgeInfo:
     node: str
     topics: dict[str, str]  # fully qualified name -> type
     command_topic: str | None
+    services: dict[str, str]  # fully qualified name -> type
 
 
 def log_message(level: int, text: str, name: str) -> Message:
@@ -109,6 +110,12 @@ def run(args: Any) -> int:
     from interop.topics import RobotTopics  # noqa: PLC0415
     from interop.zenoh import config  # noqa: PLC0415
     from interop.zenoh.commands import TRAJECTORY_TYPE, TrajectoryCommands  # noqa: PLC0415
+    from interop.zenoh.robot_services import (  # noqa: PLC0415
+        STATUS,
+        STOP,
+        TRIGGER,
+        RobotServices,
+    )
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -151,12 +158,16 @@ def run(args: Any) -> int:
         sink = ZenohSink(node)
         fanout = NamedFanout([sink], namespace)
         command_topic = None
-        if args.enable_commands:
-            log_name = "ucr.commands"  # NamedFanout adds the namespace
+        log_name = "ucr.commands"  # NamedFanout adds the namespace
 
-            def report(level: int, text: str) -> None:
-                print(f"ucr zenoh: {text}", file=sys.stderr, flush=True)
-                fanout.publish(log_message(level, text, log_name))
+        def report(level: int, text: str) -> None:
+            print(f"ucr zenoh: {text}", file=sys.stderr, flush=True)
+            fanout.publish(log_message(level, text, log_name))
+
+        handlers = RobotServices(client, report)
+        srvs = [node.service(STATUS, TRIGGER, handlers.status)]
+        if args.enable_commands:
+            srvs.append(node.service(STOP, TRIGGER, handlers.stop))
 
             commands = TrajectoryCommands(
                 client, list(robot.bendables), controller=args.controller, report=report
@@ -171,11 +182,12 @@ def run(args: Any) -> int:
             args.node_name,
             {p.fqn: p.typename for p in sink.pubs.values()},
             command_topic,
+            {s.fqn: s.srvtype for s in srvs},
         )
         print(
             f"ucr: ROS 2 node {namespace.rstrip('/')}/{args.node_name} on Zenoh "
             f"({config.describe(conf)}; domain {args.domain_id}; {args.distro}): "
-            f"{len(info.topics)} topics; commands "
+            f"{len(info.topics)} topics, {len(info.services)} services; commands "
             + (f"on {command_topic}" if command_topic else "off (--enable-commands)"),
             file=sys.stderr,
             flush=True,

@@ -10,15 +10,20 @@ advanced subscriber querying history) still receives /robot_description.
 
 from __future__ import annotations
 
+import queue
+import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-from interop.ros2.type_hash import type_hash
+from interop.ros2 import services
+from interop.ros2.type_hash import service_type_hash, type_hash
 from interop.zenoh import rmw
 
 Callback = Callable[[bytes, "rmw.Attachment | None"], None]
+Handler = Callable[[Any], dict]
+MAX_REQUEST_BYTES = 64 * 1024  # a service request's CDR; larger ones are refused unread
 
 
 class RmwPublisher:
@@ -111,6 +116,117 @@ class RmwSubscription:
                 pass
 
 
+def _finish(query: Any) -> None:
+    """End a query (Zenoh sends the final reply when the query is dropped)."""
+    try:
+        query.drop()
+    except Exception:  # noqa: BLE001, S110 - already finished
+        pass
+
+
+class RmwService:
+    """One ROS 2 service server, as rmw_zenoh makes one: a Zenoh queryable (complete) on the
+    service's key expression and an ``SS`` liveliness token.
+
+    A request must carry rmw_zenoh's attachment (sequence number, client GID); the reply carries
+    the same sequence number and GID with its own time stamp, so the client matches it.
+    ``handler(request)`` runs on one worker thread (it may call the daemon; Zenoh's threads never
+    wait) and returns the response as a dict; at most ``qos.depth`` requests wait, more are
+    answered with an error at once. A request that is too large, has no valid attachment or is
+    not decodable CDR is answered with an error and never reaches the handler."""
+
+    def __init__(
+        self, node: RmwNode, name: str, srvtype: str, handler: Handler, qos: rmw.Qos
+    ) -> None:
+        self.fqn = rmw.fully_qualified(node.id.namespace, name)
+        self.srvtype = services.full_name(srvtype)
+        self.hash = service_type_hash(self.srvtype)
+        self.key = rmw.topic_key(node.id.domain_id, self.fqn, self.srvtype, self.hash)
+        self.entity_id = node.next_entity_id()
+        self.handler = handler
+        self._req, self._resp = services.codecs(self.srvtype)
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=max(1, qos.depth))
+        self._stop = threading.Event()
+        self.answered = 0
+        self.refused = 0
+        self._thread = threading.Thread(
+            target=self._run, name=f"ucr-zenoh-srv-{self.entity_id}", daemon=True
+        )
+        self._thread.start()
+        self._queryable = node.session.declare_queryable(self.key, self._on_query, complete=True)
+        self.token_key = rmw.endpoint_token(
+            node.id, self.entity_id, rmw.SERVICE, self.fqn, self.srvtype, self.hash, qos
+        )
+        self._token = node.liveliness.declare_token(self.token_key)
+
+    def _on_query(self, query: Any) -> None:
+        """Zenoh thread: check the envelope, queue the request (never block here)."""
+        try:
+            if query.attachment is None:
+                raise ValueError("no rmw_zenoh attachment (sequence number, client GID)")
+            att = rmw.Attachment.decode(query.attachment.to_bytes())
+            data = query.payload.to_bytes() if query.payload is not None else b""
+            if len(data) > MAX_REQUEST_BYTES:
+                raise ValueError(f"request of {len(data)} bytes (at most {MAX_REQUEST_BYTES})")
+            self._queue.put_nowait((query, att, data))
+        except queue.Full:
+            self._error(query, "busy: too many requests waiting")
+            _finish(query)
+        except Exception as exc:  # noqa: BLE001 - any byte from the network is untrusted
+            self._error(query, f"bad request: {exc}")
+            _finish(query)
+
+    def _error(self, query: Any, text: str) -> None:
+        import zenoh  # noqa: PLC0415
+
+        self.refused += 1
+        try:
+            query.reply_err(zenoh.ZBytes(f"{self.fqn}: {text}".encode()))
+        except Exception:  # noqa: BLE001, S110 - the client may be gone
+            pass
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                query, att, data = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self.handle(query, att, data)
+            finally:
+                _finish(query)  # the client's get() ends only when the query is dropped
+                del query
+
+    def handle(self, query: Any, att: rmw.Attachment, data: bytes) -> None:
+        """Decode, answer, reply (worker thread)."""
+        try:
+            request = self._req.decode(data)
+        except Exception as exc:  # noqa: BLE001 - untrusted bytes
+            self._error(query, f"request is not decodable CDR ({type(exc).__name__})")
+            return
+        try:
+            payload = self._resp.encode(self.handler(request))
+        except Exception as exc:  # noqa: BLE001 - a handler bug must not kill the server
+            print(f"ucr zenoh: service {self.fqn} failed: {exc!r}", file=sys.stderr, flush=True)
+            self._error(query, f"failed: {type(exc).__name__}")
+            return
+        reply_att = rmw.Attachment(att.sequence, time.time_ns(), att.gid)
+        try:
+            query.reply(self.key, payload, attachment=reply_att.encode())
+            self.answered += 1
+        except Exception:  # noqa: BLE001, S110 - the client may be gone
+            pass
+
+    def close(self) -> None:
+        for ent in (self._token, self._queryable):
+            try:
+                ent.undeclare()
+            except Exception:  # noqa: BLE001, S110
+                pass
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
 class RmwNode:
     """A node in ``namespace`` on an open Zenoh ``session`` (the caller owns the session)."""
 
@@ -127,7 +243,7 @@ class RmwNode:
             name=rmw.check_node_name(name),
         )
         self._entity = 0
-        self.entities: list[RmwPublisher | RmwSubscription] = []
+        self.entities: list[RmwPublisher | RmwSubscription | RmwService] = []
         self._token = self.liveliness.declare_token(rmw.node_token(self.id))
 
     def next_entity_id(self) -> int:
@@ -145,6 +261,13 @@ class RmwNode:
         sub = RmwSubscription(self, topic, typename, callback, qos)
         self.entities.append(sub)
         return sub
+
+    def service(
+        self, name: str, srvtype: str, handler: Handler, qos: rmw.Qos = rmw.SERVICE_QOS
+    ) -> RmwService:
+        srv = RmwService(self, name, srvtype, handler, qos)
+        self.entities.append(srv)
+        return srv
 
     def close(self) -> None:
         """Withdraw every entity and the node from the graph."""

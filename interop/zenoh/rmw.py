@@ -40,8 +40,13 @@ class RosNameError(ValueError):
 
 
 def dds_type_name(typename: str) -> str:
-    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
-    pkg, kind, name = ros2.full_name(typename).split("/")
+    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_`` (also
+    ``pkg/srv/Service`` -> ``pkg::srv::dds_::Service_``; ``pkg/Type`` is a message)."""
+    parts = typename.split("/")
+    if len(parts) == 3 and parts[1] in ("srv", "action"):
+        pkg, kind, name = parts
+    else:
+        pkg, kind, name = ros2.full_name(typename).split("/")
     return f"{pkg}::{kind}::dds_::{name}_"
 
 
@@ -128,6 +133,7 @@ class Qos:
 
 
 DEFAULT_QOS = Qos()
+SERVICE_QOS = Qos()  # rmw_qos_profile_services_default: reliable, volatile, keep last 10
 LATCHED_QOS = Qos(durability=TRANSIENT_LOCAL, depth=1)  # robot_state_publisher's description
 
 

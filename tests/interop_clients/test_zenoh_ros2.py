@@ -74,6 +74,12 @@ def msgdir(tmp_path_factory):
         d = root / p.parent.name / "msg"
         d.mkdir(parents=True, exist_ok=True)
         (d / p.name).write_text(p.read_text())
+    from interop.ros2 import services
+
+    for p in services.SRV_DIR.glob("*/*.srv"):
+        d = root / p.parent.name / "srv"
+        d.mkdir(parents=True, exist_ok=True)
+        (d / p.name).write_text(p.read_text())
     return str(root)
 
 
@@ -99,8 +105,9 @@ def sdk(router: str, msgdir: str, *args: str, timeout: float = 90) -> subprocess
     )
 
 
-def topic_list(router: str) -> dict[str, str]:
-    """`zenoh-ros2 topic list -t` (the SDK's own CLI) as {topic: type}."""
+def topic_list(router: str, what: str = "topic") -> dict[str, str]:
+    """`zenoh-ros2 topic list -t` (the SDK's own CLI) as {topic: type}; ``what="service"``:
+    `zenoh-ros2 service list -t` as {service: type}."""
     out = subprocess.run(
         [
             sys.executable,
@@ -111,7 +118,7 @@ def topic_list(router: str) -> dict[str, str]:
             "--no-daemon",
             "--timeout",
             "1.0",
-            "topic",
+            what,
             "list",
             "-t",
         ],
@@ -199,6 +206,70 @@ def test_sdk_topic_list_shows_our_topics_with_their_types(bridge, router):
 
     want = {**EXPECTED, "/softrobot3/jtc/joint_trajectory": "trajectory_msgs/msg/JointTrajectory"}
     assert wait_for(listed, 60, step=0.5), got
+
+
+def service_list(router: str) -> dict[str, str]:
+    return topic_list(router, "service")
+
+
+def call(router: str, msgdir: str, service: str) -> dict:
+    """The SDK's service client calls a std_srvs/srv/Trigger; its response as a dict."""
+    out = sdk(router, msgdir, "call", service, "std_srvs/srv/Trigger")
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    lines = [json.loads(ln) for ln in out.stdout.splitlines() if ln.startswith("{")]
+    return lines[-1]
+
+
+def test_sdk_service_list_shows_our_services_with_their_types(bridge, router):
+    want = {
+        "/softrobot3/ucr/status": "std_srvs/srv/Trigger",
+        "/softrobot3/ucr/stop": "std_srvs/srv/Trigger",
+    }
+    got: dict[str, str] = {}
+
+    def listed():
+        got.clear()
+        got.update(service_list(router))
+        return all(got.get(s) == ty for s, ty in want.items())
+
+    assert wait_for(listed, 60, step=0.5), got
+    _, line = bridge
+    assert "2 services" in line
+
+
+def test_sdk_service_client_gets_the_robot_status(bridge, router, msgdir, client):
+    """The SDK computes the service's type hash from the .srv itself: a reply proves our key
+    expression (RIHS01 of std_srvs/srv/Trigger) and reply attachment are what it expects."""
+    measured(client, "segment_1")
+    resp = call(router, msgdir, f"{NS}/ucr/status")
+    summary = json.loads(resp["message"])
+    st = client.status()
+    assert summary["robot"] == "softrobot3" and summary["segments"] == st["segments"]
+    assert summary["state"] == "connected"
+    assert resp["success"] is (summary["all_valid"] and not summary["faults"])
+
+
+def test_sdk_stop_service_cancels_the_running_goal(bridge, router, msgdir, client):
+    """`ucr/stop` (commands enabled) cancels the running trajectory through the API: the goal
+    ends `canceled` long before its 40 s, the robot holds short of the target."""
+    straighten(client)
+    pts = [{"time_from_start": 40.0, "segments": {"segment_1": {"kappa": 3.0, "phi": 0.0}}}]
+    goal = None
+
+    def moving() -> bool:
+        return client.trajectory_status(goal)["progress"] > 0.02
+
+    for _ in range(3):  # a topology change on a loaded machine may abort it: send again
+        goal = client.send_trajectory(pts, wait=False)
+        if wait_for(moving, 20):
+            break
+    resp = call(router, msgdir, f"{NS}/ucr/stop")
+    assert resp["success"] is True, resp
+    assert goal in resp["message"], resp
+    assert wait_for(lambda: client.trajectory_status(goal)["state"] == "canceled", 20)
+    assert measured(client, "segment_1")[0] < 2.5
+    assert client.status()["running_goals"] == []
+    straighten(client)
 
 
 def test_sdk_subscriber_decodes_joint_states_of_the_emulated_robot(bridge, router, msgdir, client):
@@ -320,6 +391,8 @@ def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
     try:
         assert wait_for(lambda: "/watch_only/joint_states" in topic_list(router), 60, step=0.5)
         assert "/watch_only/jtc/joint_trajectory" not in topic_list(router)
+        assert wait_for(lambda: "/watch_only/ucr/status" in service_list(router), 30, step=0.5)
+        assert "/watch_only/ucr/stop" not in service_list(router)  # a command: not served
         before = measured(client, "segment_2")
         spec = {"joint_names": ["segment_2/kappa", "segment_2/phi"], "points": [[1.0, [2.5, 1.0]]]}
         out = sdk(

@@ -9,6 +9,9 @@ singleton Zenoh session never mixes with ours. It reads message definitions from
     python zenoh_sdk_peer.py ROUTER MSGDIR trajectory TOPIC JSON [REPEAT]
         publishes a JointTrajectory {"joint_names": [...], "points": [[t, [positions]], ...]}
         REPEAT times, 0.3 s apart (a fresh publisher is matched only after discovery)
+    python zenoh_sdk_peer.py ROUTER MSGDIR call SERVICE TYPE
+        calls a service with an empty request (its own type hash from MSGDIR/<pkg>/srv/) and
+        prints the response as one JSON line; exit 3 without a response
 """
 
 from __future__ import annotations
@@ -106,6 +109,35 @@ def main() -> int:
             )
             time.sleep(0.3)
         pub.close()
+        return 0
+    if cmd == "call":
+        from pathlib import Path
+
+        from zenoh_ros2_sdk import ROS2ServiceClient
+
+        service, srvtype = rest[0], rest[1]
+        pkg, _, name = srvtype.split("/")
+        text = (Path(msgdir) / pkg / "srv" / f"{name}.srv").read_text()
+        # the SDK's registry refuses an empty request (Trigger's): give it rosidl's placeholder
+        # member, which its hash computation also substitutes for an empty part
+        req, resp = (part.strip() for part in text.split("---", 1))
+        empty = "uint8 structure_needs_at_least_one_member"
+        cli = ROS2ServiceClient(
+            service_name=service,
+            srv_type=srvtype,
+            request_definition=req or empty,
+            response_definition=resp or empty,
+            router_ip=ip,
+            router_port=int(port),
+            timeout=20.0,
+        )
+        print(json.dumps({"key": cli.keyexpr}), flush=True)
+        time.sleep(1.0)  # let discovery connect us to the server
+        resp = cli.call()
+        cli.close()
+        if resp is None:
+            return 3
+        print(json.dumps(plain(resp)), flush=True)
         return 0
     print(f"unknown command {cmd}", file=sys.stderr)
     return 2
