@@ -35,6 +35,23 @@ def full_name(srvtype: str) -> str:
     return f"{pkg}/srv/{name}"
 
 
+def qualify(text: str, pkg: str) -> str:
+    """Field types without a package get ``pkg/`` (they name messages of the same package; left
+    bare inside a ``pkg/srv/…`` or ``pkg/action/…`` type they would be looked up there)."""
+    out = []
+    for line in text.splitlines():
+        code = line.split("#", 1)[0].strip()
+        if code and "=" not in code.split(None, 1)[-1]:
+            ftype = code.split()[0]
+            base = ftype.split("[")[0].split("<=")[0]
+            if "/" not in base and base not in ros2.PRIMITIVES and base != "Header":
+                line = line.replace(ftype, f"{pkg}/{ftype}", 1)
+            elif base == "Header":
+                line = line.replace(ftype, "std_msgs/" + ftype, 1)
+        out.append(line)
+    return "\n".join(out) + ("\n" if text.endswith("\n") else "")
+
+
 @cache
 def service_text(srvtype: str) -> tuple[str, str]:
     """The request and response definitions of a shipped service (either may be empty)."""
@@ -48,7 +65,7 @@ def service_text(srvtype: str) -> tuple[str, str]:
         raise UnknownServiceType(f"{path}: a .srv needs exactly one '---' line")
     req = "\n".join(lines[: seps[0]]).strip()
     resp = "\n".join(lines[seps[0] + 1 :]).strip()
-    return (req + "\n" if req else ""), (resp + "\n" if resp else "")
+    return (qualify(req, pkg) + "\n" if req else ""), (qualify(resp, pkg) + "\n" if resp else "")
 
 
 def shipped_services() -> list[str]:

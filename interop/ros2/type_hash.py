@@ -19,17 +19,21 @@ from functools import cache
 from typing import Any
 
 from interop import ros2
-from interop.ros2 import services
+from interop.ros2 import actions, services
 
 RIHS01_PREFIX = "RIHS01_"
 EVENT_INFO = "service_msgs/ServiceEventInfo"
 
 
-def _service_types(srvtype: str) -> dict[str, str]:
-    """The messages rosidl generates for one service: ``{name: .msg text}``."""
-    pkg, name = services.split_name(srvtype)
-    req, resp = services.service_text(srvtype)
-    base = f"{pkg}/srv/{name}"
+def _service_types(srvtype: str, parts: tuple[str, str] | None = None) -> dict[str, str]:
+    """The messages rosidl generates for one service: ``{name: .msg text}`` (``srvtype`` may be
+    an action's ``pkg/action/A_SendGoal`` with its ``parts`` given)."""
+    if parts is None:
+        pkg, name = services.split_name(srvtype)
+        base = f"{pkg}/srv/{name}"
+        req, resp = services.service_text(srvtype)
+    else:
+        base, (req, resp) = srvtype, parts
     return {
         f"{base}_Request": req,
         f"{base}_Response": resp,
@@ -38,6 +42,18 @@ def _service_types(srvtype: str) -> dict[str, str]:
         base: f"{base}_Request request_message\n{base}_Response response_message\n"
         f"{base}_Event event_message\n",
     }
+
+
+def _action_types(action: str) -> dict[str, str]:
+    """Every type rosidl generates for one action, with its services and the action type."""
+    base = actions.full_name(action)
+    gen = actions.generated(base)
+    out = dict(gen)
+    for svc in ("SendGoal", "GetResult"):
+        parts = (gen[f"{base}_{svc}_Request"], gen[f"{base}_{svc}_Response"])
+        out.update(_service_types(f"{base}_{svc}", parts))
+    out[base] = actions.action_type_text(base)
+    return out
 
 
 def _rename(x: Any, fix: dict[str, str]) -> Any:
@@ -59,12 +75,16 @@ def _store() -> Any:
     for name in ros2.shipped_types():
         types.update(get_types_from_msg(ros2.message_text(name), name))
     fix: dict[str, str] = {}
+    generated: dict[str, str] = {}
     for srv in services.shipped_services():
-        for name, text in _service_types(srv).items():
-            parsed = get_types_from_msg(text, name)
-            for key in parsed:
-                fix[key] = name
-            types.update(parsed)
+        generated.update(_service_types(srv))
+    for action in actions.shipped_actions():
+        generated.update(_action_types(action))
+    for name, text in generated.items():
+        parsed = get_types_from_msg(text, name)
+        for key in parsed:
+            fix[key] = name
+        types.update(parsed)
     store.register({_rename(k, fix): _rename(v, fix) for k, v in types.items()})
     return store
 
@@ -74,6 +94,18 @@ def type_hash(typename: str) -> str:
     """``RIHS01_<64 hex digits>`` of ``pkg/msg/Type`` (or ``pkg/Type``)."""
     name = ros2.full_name(typename)
     ros2.message_text(name)  # UnknownMessageType for a type ucr does not ship
+    return str(_store().hash_rihs01(name))
+
+
+@cache
+def action_type_hash(action: str, part: str = "") -> str:
+    """``RIHS01_…`` of the action ``pkg/action/A`` or of one of its generated types (``part``:
+    ``SendGoal``, ``GetResult``, ``FeedbackMessage``, ``Goal``, ``SendGoal_Request``, …)."""
+    base = actions.full_name(action)
+    actions.action_text(base)  # UnknownActionType for an action ucr does not ship
+    name = f"{base}_{part}" if part else base
+    if name not in _action_types(base):
+        raise ValueError(f"{base} has no generated type {part!r}")
     return str(_store().hash_rihs01(name))
 
 

@@ -109,6 +109,7 @@ def run(args: Any) -> int:
     from interop.live import FeedError, LiveFeed, robot_for  # noqa: PLC0415
     from interop.topics import RobotTopics  # noqa: PLC0415
     from interop.zenoh import config  # noqa: PLC0415
+    from interop.zenoh.action import FollowJointTrajectoryServer  # noqa: PLC0415
     from interop.zenoh.commands import TRAJECTORY_TYPE, TrajectoryCommands  # noqa: PLC0415
     from interop.zenoh.robot_services import (  # noqa: PLC0415
         STATUS,
@@ -141,7 +142,7 @@ def run(args: Any) -> int:
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
-    session = node = commands = None
+    session = node = commands = fjt = None
     try:
         robot, text = robot_for(client, args.robot)
         namespace = rmw.check_namespace(args.namespace or rmw.namespace_for(robot.name))
@@ -168,6 +169,10 @@ def run(args: Any) -> int:
         srvs = [node.service(STATUS, TRIGGER, handlers.status)]
         if args.enable_commands:
             srvs.append(node.service(STOP, TRIGGER, handlers.stop))
+            fjt = FollowJointTrajectoryServer(
+                node, client, list(robot.bendables), controller=args.controller, report=report
+            )
+            srvs += [fjt.send_goal, fjt.get_result, fjt.cancel_goal]
 
             commands = TrajectoryCommands(
                 client, list(robot.bendables), controller=args.controller, report=report
@@ -204,6 +209,8 @@ def run(args: Any) -> int:
     finally:
         if commands is not None:
             commands.close()
+        if fjt is not None:
+            fjt.close()
         if node is not None:
             node.close()
         if session is not None:

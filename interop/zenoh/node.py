@@ -24,19 +24,22 @@ from interop.zenoh import rmw
 Callback = Callable[[bytes, "rmw.Attachment | None"], None]
 Handler = Callable[[Any], dict]
 MAX_REQUEST_BYTES = 64 * 1024  # a service request's CDR; larger ones are refused unread
+MAX_DEFERRED = 64  # requests of a deferred service waiting for their answer (get_result)
 
 
 class RmwPublisher:
     """One ROS 2 publisher. ``publish`` is thread-safe."""
 
-    def __init__(self, node: RmwNode, topic: str, typename: str, qos: rmw.Qos) -> None:
+    def __init__(
+        self, node: RmwNode, topic: str, typename: str, qos: rmw.Qos, type_hash_: str = ""
+    ) -> None:
         import zenoh  # noqa: PLC0415
         import zenoh.ext  # noqa: PLC0415
 
         self.fqn = rmw.fully_qualified(node.id.namespace, topic)
         self.typename = typename
         self.qos = qos
-        self.hash = type_hash(typename)
+        self.hash = type_hash_ or type_hash(typename)
         self.key = rmw.topic_key(node.id.domain_id, self.fqn, typename, self.hash)
         self.entity_id = node.next_entity_id()
         self.gid = rmw.gid(node.id.zid, node.id.node_id, self.entity_id)
@@ -136,15 +139,26 @@ class RmwService:
     not decodable CDR is answered with an error and never reaches the handler."""
 
     def __init__(
-        self, node: RmwNode, name: str, srvtype: str, handler: Handler, qos: rmw.Qos
+        self,
+        node: RmwNode,
+        name: str,
+        srvtype: str,
+        handler: Handler,
+        qos: rmw.Qos,
+        *,
+        deferred: bool = False,
+        type_hash_: str = "",
+        codecs: tuple[Any, Any] | None = None,
     ) -> None:
         self.fqn = rmw.fully_qualified(node.id.namespace, name)
-        self.srvtype = services.full_name(srvtype)
-        self.hash = service_type_hash(self.srvtype)
+        self.srvtype = srvtype if codecs else services.full_name(srvtype)
+        self.hash = type_hash_ or service_type_hash(self.srvtype)
         self.key = rmw.topic_key(node.id.domain_id, self.fqn, self.srvtype, self.hash)
         self.entity_id = node.next_entity_id()
         self.handler = handler
-        self._req, self._resp = services.codecs(self.srvtype)
+        self.deferred = deferred
+        self._pending = threading.BoundedSemaphore(MAX_DEFERRED)
+        self._req, self._resp = codecs or services.codecs(self.srvtype)
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=max(1, qos.depth))
         self._stop = threading.Event()
         self.answered = 0
@@ -191,6 +205,10 @@ class RmwService:
                 query, att, data = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
+            if self.deferred:
+                self.handle_deferred(query, att, data)
+                del query
+                continue
             try:
                 self.handle(query, att, data)
             finally:
@@ -210,12 +228,52 @@ class RmwService:
             print(f"ucr zenoh: service {self.fqn} failed: {exc!r}", file=sys.stderr, flush=True)
             self._error(query, f"failed: {type(exc).__name__}")
             return
+        self._reply(query, att, payload)
+
+    def _reply(self, query: Any, att: rmw.Attachment, payload: bytes) -> None:
         reply_att = rmw.Attachment(att.sequence, time.time_ns(), att.gid)
         try:
             query.reply(self.key, payload, attachment=reply_att.encode())
             self.answered += 1
         except Exception:  # noqa: BLE001, S110 - the client may be gone
             pass
+
+    def handle_deferred(self, query: Any, att: rmw.Attachment, data: bytes) -> None:
+        """``handler(request, respond)``: ``respond(dict)`` may come later, from any thread
+        (once; later calls are ignored). At most :data:`MAX_DEFERRED` wait."""
+        try:
+            request = self._req.decode(data)
+        except Exception as exc:  # noqa: BLE001 - untrusted bytes
+            self._error(query, f"request is not decodable CDR ({type(exc).__name__})")
+            _finish(query)
+            return
+        if not self._pending.acquire(blocking=False):
+            self._error(query, "busy: too many requests waiting for their answer")
+            _finish(query)
+            return
+        held = [query]
+
+        def respond(response: dict) -> None:
+            if not held:
+                return
+            q = held.pop()
+            try:
+                self._reply(q, att, self._resp.encode(response))
+            except Exception as exc:  # noqa: BLE001
+                self._error(q, f"failed: {type(exc).__name__}")
+            finally:
+                _finish(q)
+                self._pending.release()
+
+        try:
+            self.handler(request, respond)
+        except Exception as exc:  # noqa: BLE001 - a handler bug must not kill the server
+            print(f"ucr zenoh: service {self.fqn} failed: {exc!r}", file=sys.stderr, flush=True)
+            if held:
+                self._error(held[0], f"failed: {type(exc).__name__}")
+                respond_err = held.pop()
+                _finish(respond_err)
+                self._pending.release()
 
     def close(self) -> None:
         for ent in (self._token, self._queryable):
@@ -250,8 +308,10 @@ class RmwNode:
         self._entity += 1
         return self._entity
 
-    def publisher(self, topic: str, typename: str, qos: rmw.Qos = rmw.DEFAULT_QOS) -> RmwPublisher:
-        pub = RmwPublisher(self, topic, typename, qos)
+    def publisher(
+        self, topic: str, typename: str, qos: rmw.Qos = rmw.DEFAULT_QOS, type_hash_: str = ""
+    ) -> RmwPublisher:
+        pub = RmwPublisher(self, topic, typename, qos, type_hash_)
         self.entities.append(pub)
         return pub
 
@@ -263,9 +323,14 @@ class RmwNode:
         return sub
 
     def service(
-        self, name: str, srvtype: str, handler: Handler, qos: rmw.Qos = rmw.SERVICE_QOS
+        self,
+        name: str,
+        srvtype: str,
+        handler: Any,
+        qos: rmw.Qos = rmw.SERVICE_QOS,
+        **kw: Any,
     ) -> RmwService:
-        srv = RmwService(self, name, srvtype, handler, qos)
+        srv = RmwService(self, name, srvtype, handler, qos, **kw)
         self.entities.append(srv)
         return srv
 

@@ -15,11 +15,19 @@ def store():
     return rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)
 
 
+def _published(store, typename):
+    """Skip (with the reason) a type rosbags does not carry: control_msgs, checked instead by
+    the FollowJointTrajectory hashes equal to rosidl's (test_zenoh_services.py)."""
+    if typename not in store.fielddefs:
+        pytest.skip(f"rosbags carries no {typename}: see test_zenoh_services.py")
+
+
 @pytest.mark.parametrize("typename", ros2.shipped_types())
 def test_shipped_definition_matches_the_published_one(store, typename):
     """Fields (names, types, array kinds) and constants equal the published definition."""
     from rosbags.typesys import get_types_from_msg
 
+    _published(store, typename)
     ours = get_types_from_msg(ros2.message_text(typename), typename)[typename]
     published = store.fielddefs[typename]
     assert ours[0] == published[0], "constants differ"
@@ -33,6 +41,7 @@ def test_concatenated_definition_generates_the_same_md5_as_published(store, type
     from rosbags.typesys import get_types_from_msg
     from rosbags.typesys.store import Typestore
 
+    _published(store, typename)
     mine = Typestore()
     text = ros2.definition(typename)
     sections = text.split("=" * 80 + "\n")

@@ -105,7 +105,7 @@ def sdk(router: str, msgdir: str, *args: str, timeout: float = 90) -> subprocess
     )
 
 
-def topic_list(router: str, what: str = "topic") -> dict[str, str]:
+def topic_list(router: str, what: str = "topic", *extra: str) -> dict[str, str]:
     """`zenoh-ros2 topic list -t` (the SDK's own CLI) as {topic: type}; ``what="service"``:
     `zenoh-ros2 service list -t` as {service: type}."""
     out = subprocess.run(
@@ -121,6 +121,7 @@ def topic_list(router: str, what: str = "topic") -> dict[str, str]:
             what,
             "list",
             "-t",
+            *extra,
         ],
         capture_output=True,
         text=True,
@@ -208,8 +209,8 @@ def test_sdk_topic_list_shows_our_topics_with_their_types(bridge, router):
     assert wait_for(listed, 60, step=0.5), got
 
 
-def service_list(router: str) -> dict[str, str]:
-    return topic_list(router, "service")
+def service_list(router: str, hidden: bool = False) -> dict[str, str]:
+    return topic_list(router, "service", *(["--include-hidden-services"] if hidden else []))
 
 
 def call(router: str, msgdir: str, service: str) -> dict:
@@ -269,6 +270,207 @@ def test_sdk_stop_service_cancels_the_running_goal(bridge, router, msgdir, clien
     assert wait_for(lambda: client.trajectory_status(goal)["state"] == "canceled", 20)
     assert measured(client, "segment_1")[0] < 2.5
     assert client.status()["running_goals"] == []
+    straighten(client)
+
+
+# ---------------------------------------------------------------- FollowJointTrajectory action
+# zenoh-ros2-sdk 0.1.8 has no action client: these tests talk to the action with a client
+# written here from rmw_zenoh's published format (plain eclipse-zenoh + our CDR codecs, type
+# hashes checked against rosidl's in test_zenoh_services.py). It is ours, not independent; the
+# SDK does check independently that the action's services are announced with their types.
+ACTION = f"{NS}/jtc/follow_joint_trajectory"
+FJT = "control_msgs/action/FollowJointTrajectory"
+
+
+class ActionClient:
+    """A minimal rmw_zenoh action client (send_goal, get_result, cancel_goal, status)."""
+
+    def __init__(self, router: str) -> None:
+        import zenoh
+
+        from interop import ros2
+        from interop.ros2 import actions, services
+        from interop.ros2.type_hash import action_type_hash, service_type_hash, type_hash
+
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("connect/endpoints", json.dumps([f"tcp/{router}"]))
+        conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(conf)
+        self.gid = os.urandom(16)
+        self.seq = 0
+        from interop.zenoh import rmw
+
+        def key(suffix: str, typename: str, h: str) -> str:
+            return rmw.topic_key(0, f"{ACTION}/_action/{suffix}", typename, h)
+
+        self.keys = {
+            "send_goal": key("send_goal", f"{FJT}_SendGoal", action_type_hash(FJT, "SendGoal")),
+            "get_result": key(
+                "get_result", f"{FJT}_GetResult", action_type_hash(FJT, "GetResult")
+            ),
+            "cancel_goal": key(
+                "cancel_goal", "action_msgs/srv/CancelGoal",
+                service_type_hash("action_msgs/srv/CancelGoal"),
+            ),
+        }  # fmt: skip
+        self.codecs = {
+            "send_goal": (
+                actions.codec(FJT, "SendGoal_Request"),
+                actions.codec(FJT, "SendGoal_Response"),
+            ),
+            "get_result": (
+                actions.codec(FJT, "GetResult_Request"),
+                actions.codec(FJT, "GetResult_Response"),
+            ),
+            "cancel_goal": services.codecs("action_msgs/srv/CancelGoal"),
+        }
+        self.statuses: list = []
+        self.feedback: list = []
+        status_codec = ros2.codec("action_msgs/msg/GoalStatusArray")
+        fb_codec = actions.codec(FJT, "FeedbackMessage")
+        self.subs = [
+            self.session.declare_subscriber(
+                key("status", "action_msgs/msg/GoalStatusArray",
+                    type_hash("action_msgs/msg/GoalStatusArray")),
+                lambda s: self.statuses.append(status_codec.decode(s.payload.to_bytes())),
+            ),
+            self.session.declare_subscriber(
+                key("feedback", f"{FJT}_FeedbackMessage",
+                    action_type_hash(FJT, "FeedbackMessage")),
+                lambda s: self.feedback.append(fb_codec.decode(s.payload.to_bytes())),
+            ),
+        ]  # fmt: skip
+
+    def call(self, name: str, request: dict, timeout: float = 60.0):
+        from interop.zenoh import rmw
+
+        req_codec, resp_codec = self.codecs[name]
+        self.seq += 1
+        att = rmw.Attachment(self.seq, time.time_ns(), self.gid).encode()
+        deadline = time.monotonic() + 30
+        while True:  # until discovery has found the server
+            replies = list(
+                self.session.get(
+                    self.keys[name],
+                    payload=req_codec.encode(request),
+                    attachment=att,
+                    timeout=timeout,
+                )
+            )
+            oks = [r.ok for r in replies if r.ok is not None]
+            if oks or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert len(oks) == 1, [r.err.payload.to_bytes() for r in replies if r.err is not None]
+        back = rmw.Attachment.decode(oks[0].attachment.to_bytes())
+        assert back.sequence == self.seq and back.gid == self.gid  # the reply is ours
+        return resp_codec.decode(oks[0].payload.to_bytes())
+
+    def send_goal(self, uuid: bytes, joints: list[str], points: list) -> bool:
+        traj = {
+            "joint_names": joints,
+            "points": [
+                {"positions": pos, "time_from_start": {"sec": int(t), "nanosec": 0}}
+                for t, pos in points
+            ],
+        }
+        resp = self.call(
+            "send_goal", {"goal_id": {"uuid": list(uuid)}, "goal": {"trajectory": traj}}
+        )
+        return bool(resp.accepted)
+
+    def status_of(self, uuid: bytes) -> list[int]:
+        return [
+            st.status
+            for arr in list(self.statuses)
+            for st in arr.status_list
+            if bytes(st.goal_info.goal_id.uuid) == uuid
+        ]
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        self.session.close()
+
+
+@pytest.fixture
+def action_client(bridge, router):
+    c = ActionClient(router)
+    yield c
+    c.close()
+
+
+def test_sdk_lists_the_action_services_with_their_types(bridge, router):
+    want = {
+        f"{ACTION}/_action/send_goal": f"{FJT}_SendGoal",
+        f"{ACTION}/_action/get_result": f"{FJT}_GetResult",
+        f"{ACTION}/_action/cancel_goal": "action_msgs/srv/CancelGoal",
+    }
+    got: dict[str, str] = {}
+
+    def listed():
+        got.clear()
+        got.update(service_list(router, hidden=True))
+        return all(got.get(s) == ty for s, ty in want.items())
+
+    assert wait_for(listed, 60, step=0.5), got
+
+
+def test_follow_joint_trajectory_goal_runs_to_success(action_client, client):
+    straighten(client)
+    uuid = os.urandom(16)
+    assert action_client.send_goal(uuid, ["segment_2/kappa", "segment_2/phi"], [(2, [1.2, 0.3])])
+    res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
+    if res.status == 6 and "topology" in res.result.error_string:  # loaded machine: once more
+        uuid = os.urandom(16)
+        assert action_client.send_goal(
+            uuid, ["segment_2/kappa", "segment_2/phi"], [(2, [1.2, 0.3])]
+        )
+        res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
+    assert res.status == 4 and res.result.error_code == 0, res  # SUCCEEDED, SUCCESSFUL
+    assert measured(client, "segment_2")[0] == pytest.approx(1.2, abs=0.05)
+    assert wait_for(lambda: 4 in action_client.status_of(uuid), 10)
+    assert 2 in action_client.status_of(uuid)  # EXECUTING was published before
+    fb = [f for f in action_client.feedback if bytes(f.goal_id.uuid) == uuid]
+    assert fb and list(fb[-1].feedback.joint_names) == ["segment_2/kappa", "segment_2/phi"]
+    assert len(fb[-1].feedback.actual.positions) == 2
+    straighten(client)
+
+
+def test_follow_joint_trajectory_beyond_limits_is_not_accepted(action_client, client):
+    before = measured(client, "segment_3")
+    uuid = os.urandom(16)
+    assert not action_client.send_goal(
+        uuid, ["segment_3/kappa", "segment_3/phi"], [(1, [50.0, 0.0])]
+    )
+    assert not action_client.send_goal(
+        os.urandom(16), ["nope/kappa", "nope/phi"], [(1, [1.0, 0.0])]
+    )
+    res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
+    assert res.status == 0  # UNKNOWN: never accepted
+    time.sleep(1.0)
+    assert measured(client, "segment_3")[0] == pytest.approx(before[0], abs=0.02)
+    assert client.status()["running_goals"] == []
+
+
+def test_follow_joint_trajectory_cancel_goal(action_client, client):
+    straighten(client)
+    uuid = os.urandom(16)
+    assert action_client.send_goal(uuid, ["segment_1/kappa", "segment_1/phi"], [(40, [3.0, 0.0])])
+    assert wait_for(lambda: client.status()["running_goals"], 20)
+    resp = action_client.call("cancel_goal", {"goal_info": {"goal_id": {"uuid": list(uuid)}}})
+    assert resp.return_code == 0 and [bytes(g.goal_id.uuid) for g in resp.goals_canceling] == [uuid]
+    res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
+    assert res.status == 5, res  # CANCELED
+    assert measured(client, "segment_1")[0] < 2.5
+    again = action_client.call("cancel_goal", {"goal_info": {"goal_id": {"uuid": list(uuid)}}})
+    assert again.return_code == 3  # ERROR_GOAL_TERMINATED
+    unknown = action_client.call(
+        "cancel_goal", {"goal_info": {"goal_id": {"uuid": list(os.urandom(16))}}}
+    )
+    assert unknown.return_code == 2  # ERROR_UNKNOWN_GOAL_ID
     straighten(client)
 
 
@@ -393,6 +595,7 @@ def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
         assert "/watch_only/jtc/joint_trajectory" not in topic_list(router)
         assert wait_for(lambda: "/watch_only/ucr/status" in service_list(router), 30, step=0.5)
         assert "/watch_only/ucr/stop" not in service_list(router)  # a command: not served
+        assert not any("follow_joint_trajectory" in s for s in service_list(router, hidden=True))
         before = measured(client, "segment_2")
         spec = {"joint_names": ["segment_2/kappa", "segment_2/phi"], "points": [[1.0, [2.5, 1.0]]]}
         out = sdk(

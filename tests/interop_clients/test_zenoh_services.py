@@ -176,3 +176,83 @@ def test_service_server_answers_busy_when_its_queue_is_full(session):
         for t in threads:
             t.join(15)
         node.close()
+
+
+# control_msgs 5.x (Jazzy) FollowJointTrajectory and action_msgs, as rosidl_generator_c writes
+# their type hashes into generated code
+FJT = "control_msgs/action/FollowJointTrajectory"
+FJT_HASHES = {
+    "": "RIHS01_738ebcb7a2d7cfa42f9f1001cc99ce3a4383d1cfe508015d9be8485e4b1c66f6",
+    "Goal": "RIHS01_8a9060704b269608f5a340934cc26e66869dd14bdac29e2e7fd9ec8b9882d205",
+    "Result": "RIHS01_8002e99ed2c14c6faa522f2a93c26d744c5982f254f9e98ff9c6f19789bdb220",
+    "Feedback": "RIHS01_3fd0aaecf71725121ae1ff7f01098a5e0da581e672be18a6b2c286cb43d96b49",
+    "SendGoal": "RIHS01_b13789dddc325a7a962825c45e28c77d37237ec129dd0c34dc5994562938c57f",
+    "SendGoal_Request": "RIHS01_179c93691f1f6d1d115881ff88c3917b7cc6eac2ba4bf56766cc7c4389e19ef1",
+    "GetResult": "RIHS01_e3ceb38e3e1867c8dc0f46014df26e90eb93422f27e9e97f936e07f94be4bc8b",
+    "FeedbackMessage": "RIHS01_80398fcb9674a79081a9906e2ccf0c804dd7cb15e22e362e606ee87186beab71",
+}
+CANCEL_GOAL = "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a"
+GOAL_STATUS_ARRAY = "RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e"
+
+
+@pytest.mark.parametrize("part", sorted(FJT_HASHES))
+def test_follow_joint_trajectory_hashes_equal_the_ones_rosidl_generates(part):
+    assert th.action_type_hash(FJT, part) == FJT_HASHES[part]
+
+
+def test_action_msgs_hashes_equal_the_ones_rosidl_generates():
+    assert th.service_type_hash("action_msgs/srv/CancelGoal") == CANCEL_GOAL
+    assert th.type_hash("action_msgs/msg/GoalStatusArray") == GOAL_STATUS_ARRAY
+
+
+def test_action_cdr_decodes_with_rosbags_independent_codec():
+    """Our SendGoal request (mcap-ros2-support) is what rosbags' CDR reads, and rosbags'
+    GetResult response is what ours reads."""
+    from interop.ros2 import actions
+
+    store = th._store()
+    ours = actions.codec(FJT, "SendGoal_Request").encode(
+        {
+            "goal_id": {"uuid": list(range(16))},
+            "goal": {
+                "trajectory": {
+                    "joint_names": ["s/kappa", "s/phi"],
+                    "points": [{"positions": [1.5, 0.2], "time_from_start": {"sec": 2}}],
+                },
+                "goal_time_tolerance": {"sec": 3, "nanosec": 4},
+            },
+        }
+    )
+    m = store.deserialize_cdr(ours, f"{FJT}_SendGoal_Request")
+    assert bytes(m.goal_id.uuid) == bytes(range(16))
+    assert list(m.goal.trajectory.points[0].positions) == [1.5, 0.2]
+    assert (m.goal.goal_time_tolerance.sec, m.goal.goal_time_tolerance.nanosec) == (3, 4)
+    t = store.types
+    theirs = store.serialize_cdr(
+        t[f"{FJT}_GetResult_Response"](
+            status=6, result=t[f"{FJT}_Result"](error_code=-4, error_string="path")
+        ),
+        f"{FJT}_GetResult_Response",
+    )
+    back = actions.codec(FJT, "GetResult_Response").decode(bytes(theirs))
+    assert back.status == 6 and back.result.error_code == -4 and back.result.error_string == "path"
+
+
+@pytest.mark.parametrize(
+    ("state", "reason", "cause", "want"),
+    [
+        ("succeeded", "", "", (4, 0)),
+        ("canceled", "", "", (5, 0)),
+        ("aborted", "path tolerance violated on segment_1", "path_tolerance", (6, -4)),
+        ("aborted", "goal tolerance not reached", "goal_tolerance", (6, -5)),
+        ("aborted", "link loss: … from the goal's path (> tolerance)", "link_loss", (6, -1)),
+        ("aborted", "replaced by goal jtc-3", "replaced", (6, -1)),
+        ("aborted", "preempted by manual control ('ffc')", "", (6, -1)),
+    ],
+)
+def test_daemon_end_states_map_to_the_actions_status_and_error_code(state, reason, cause, want):
+    from interop.zenoh.action import result_of
+
+    status, code, text = result_of(state, reason, cause)
+    assert (status, code) == want
+    assert reason in text

@@ -1,0 +1,334 @@
+"""``control_msgs/action/FollowJointTrajectory`` served the way rmw_zenoh maps a ROS 2 action
+(``<controller>/follow_joint_trajectory``, as ros2_control's joint trajectory controller names
+it): three services and two topics under ``<action>/_action/``:
+
+- ``send_goal`` (``…_SendGoal``): the goal's trajectory becomes one daemon goal through the API
+  (``trajectory.send``; same limits, same retiming). Accepted when the daemon accepts it;
+  refused (``accepted: false``, reason on ``/rosout``) when the message is malformed, has
+  multi-DOF points, or the daemon refuses (beyond ``kappa_max``, manual control, …).
+- ``get_result`` (``…_GetResult``): answered when the goal ends: SUCCEEDED (``error_code``
+  SUCCESSFUL), CANCELED, or ABORTED with the daemon's reason in ``error_string`` and
+  ``error_code`` PATH_TOLERANCE_VIOLATED / GOAL_TOLERANCE_VIOLATED for a tolerance abort (the
+  daemon's ``abort.cause``),
+  INVALID_GOAL otherwise (replaced, manual takeover, topology change: what the JTC reports for a
+  preempted goal). An unknown goal id: status UNKNOWN at once.
+- ``cancel_goal`` (``action_msgs/srv/CancelGoal``): by goal id, all goals (zero id and stamp),
+  or all accepted at or before a stamp (zero id); through ``trajectory.cancel``.
+- ``status`` (``action_msgs/msg/GoalStatusArray``, transient local, depth 1) on every change;
+  ``feedback`` (``…_FeedbackMessage``) at ≤ 10 Hz while a goal runs: ``actual`` positions of the
+  goal's joints and the time since it started (``desired`` and ``error`` left empty: the daemon
+  does not publish its setpoint).
+
+Tolerances and ``goal_time_tolerance`` of the goal are not used: the daemon's own limits and
+tolerances apply (docs/ros2.md). Served only with ``--enable-commands``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from interop import ros2
+from interop.ros2 import actions, services
+from interop.ros2.type_hash import action_type_hash, service_type_hash, type_hash
+from interop.zenoh import rmw
+from interop.zenoh.commands import CommandError, to_waypoints
+
+ACTION = "control_msgs/action/FollowJointTrajectory"
+CANCEL = "action_msgs/srv/CancelGoal"
+STATUS_ARRAY = "action_msgs/msg/GoalStatusArray"
+STATUS_QOS = rmw.Qos(durability=rmw.TRANSIENT_LOCAL, depth=1)  # rcl_action's status default
+# action_msgs/msg/GoalStatus
+UNKNOWN, ACCEPTED, EXECUTING, CANCELING, SUCCEEDED, CANCELED, ABORTED = range(7)
+# control_msgs FollowJointTrajectory result error codes
+SUCCESSFUL, INVALID_GOAL, PATH_TOLERANCE_VIOLATED, GOAL_TOLERANCE_VIOLATED = 0, -1, -4, -5
+# action_msgs/srv/CancelGoal return codes
+ERROR_NONE, ERROR_REJECTED, ERROR_UNKNOWN_GOAL_ID, ERROR_GOAL_TERMINATED = 0, 1, 2, 3
+KEEP_FINISHED = 32  # finished goals whose result can still be asked for
+TERMINAL = (SUCCEEDED, CANCELED, ABORTED)
+
+
+@dataclass
+class Goal:
+    uuid: bytes
+    daemon_id: str
+    joints: list[str]
+    accepted_ns: int
+    status: int = EXECUTING
+    error_code: int = SUCCESSFUL
+    error_string: str = ""
+    waiters: list[Callable[[dict], None]] = field(default_factory=list)
+
+
+def result_of(state: str, reason: str, cause: str = "") -> tuple[int, int, str]:
+    """(goal status, error code, error string) for a finished daemon goal; ``cause`` is the
+    daemon's ``abort.cause`` (``path_tolerance``, ``goal_tolerance``, ``link_loss``, …)."""
+    if state == "succeeded":
+        return SUCCEEDED, SUCCESSFUL, ""
+    if state == "canceled":
+        return CANCELED, SUCCESSFUL, reason or "canceled"
+    text = reason or state
+    if cause == "path_tolerance":
+        return ABORTED, PATH_TOLERANCE_VIOLATED, text
+    if cause == "goal_tolerance":
+        return ABORTED, GOAL_TOLERANCE_VIOLATED, text
+    return ABORTED, INVALID_GOAL, text
+
+
+def _stamp(t_ns: int) -> dict:
+    return ros2.stamp(t_ns)
+
+
+class FollowJointTrajectoryServer:
+    """The action server of one daemon trajectory controller on an :class:`RmwNode`."""
+
+    def __init__(
+        self,
+        node: Any,
+        client: Any,
+        bendables: list[str],
+        *,
+        controller: str,
+        report: Callable[[int, str], None],
+        period_s: float = 0.1,
+    ) -> None:
+        self.client = client
+        self.bendables = list(bendables)
+        self.controller = controller
+        self.report = report
+        self.period_s = period_s
+        self.name = f"{controller}/follow_joint_trajectory"
+        self.goals: dict[bytes, Goal] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        base = actions.full_name(ACTION)
+        prefix = f"{self.name}/_action"
+
+        def srv(part: str, suffix: str, handler: Any, **kw: Any) -> Any:
+            codecs = (
+                actions.codec(ACTION, f"{part}_Request"),
+                actions.codec(ACTION, f"{part}_Response"),
+            )
+            return node.service(
+                f"{prefix}/{suffix}",
+                f"{base}_{part}",
+                handler,
+                type_hash_=action_type_hash(ACTION, part),
+                codecs=codecs,
+                **kw,
+            )
+
+        self.send_goal = srv("SendGoal", "send_goal", self._send_goal)
+        self.get_result = srv("GetResult", "get_result", self._get_result, deferred=True)
+        self.cancel_goal = node.service(
+            f"{prefix}/cancel_goal",
+            CANCEL,
+            self._cancel_goal,
+            type_hash_=service_type_hash(CANCEL),
+        )
+        self._cancel_codecs = services.codecs(CANCEL)
+        self.feedback = node.publisher(
+            f"{prefix}/feedback",
+            f"{base}_FeedbackMessage",
+            rmw.DEFAULT_QOS,
+            action_type_hash(ACTION, "FeedbackMessage"),
+        )
+        self.status = node.publisher(f"{prefix}/status", STATUS_ARRAY, STATUS_QOS)
+        self._fb_codec = actions.codec(ACTION, "FeedbackMessage")
+        self._status_codec = ros2.codec(STATUS_ARRAY)
+        self.action_fqn = self.send_goal.fqn.rsplit("/_action/", 1)[0]
+        self._publish_status()
+        self._thread = threading.Thread(target=self._track, name="ucr-zenoh-fjt", daemon=True)
+        self._thread.start()
+
+    # ---------------------------------------------------------------- services
+    def _send_goal(self, req: Any) -> dict:
+        from host.api.client import ApiError  # noqa: PLC0415
+
+        uuid = bytes(req.goal_id.uuid)
+        now = time.time_ns()
+        refuse = {"accepted": False, "stamp": _stamp(now)}
+        goal = req.goal
+        try:
+            if len(uuid) != 16:
+                raise CommandError("goal_id must be 16 bytes")
+            with self._lock:
+                if uuid in self.goals:
+                    raise CommandError("goal_id already used")
+            if goal.multi_dof_trajectory.points or goal.multi_dof_trajectory.joint_names:
+                raise CommandError("multi_dof_trajectory is not supported (no such joints)")
+            if not goal.trajectory.points:
+                raise CommandError("empty trajectory")
+            points = to_waypoints(goal.trajectory, self.bendables)
+            daemon_id = self.client.send_trajectory(points, wait=False, controller=self.controller)
+        except CommandError as exc:
+            self.report(40, f"FollowJointTrajectory goal refused: {exc}")
+            return refuse
+        except ApiError as exc:
+            self.report(
+                40, f"FollowJointTrajectory goal refused by the daemon ({exc.code}): {exc.message}"
+            )
+            return refuse
+        g = Goal(uuid, str(daemon_id), list(goal.trajectory.joint_names), now)
+        with self._lock:
+            self.goals[uuid] = g
+            self._forget_old()
+        self.report(20, f"FollowJointTrajectory goal accepted: daemon goal {daemon_id}")
+        self._publish_status()
+        return {"accepted": True, "stamp": _stamp(now)}
+
+    def _get_result(self, req: Any, respond: Callable[[dict], None]) -> None:
+        uuid = bytes(req.goal_id.uuid)
+        with self._lock:
+            g = self.goals.get(uuid)
+            if g is not None and g.status not in TERMINAL:
+                g.waiters.append(respond)
+                return
+        if g is None:
+            respond({"status": UNKNOWN, "result": {"error_code": 0, "error_string": ""}})
+        else:
+            respond(self._result(g))
+
+    @staticmethod
+    def _result(g: Goal) -> dict:
+        return {
+            "status": g.status,
+            "result": {"error_code": g.error_code, "error_string": g.error_string},
+        }
+
+    def _cancel_goal(self, req: Any) -> dict:
+        from host.api.client import ApiError  # noqa: PLC0415
+
+        info = req.goal_info
+        uuid = bytes(info.goal_id.uuid)
+        stamp_ns = info.stamp.sec * 1_000_000_000 + info.stamp.nanosec
+        with self._lock:
+            if any(uuid):
+                g = self.goals.get(uuid)
+                if g is None:
+                    return {"return_code": ERROR_UNKNOWN_GOAL_ID, "goals_canceling": []}
+                if g.status in TERMINAL:
+                    return {"return_code": ERROR_GOAL_TERMINATED, "goals_canceling": []}
+                chosen = [g]
+            else:
+                chosen = [
+                    g
+                    for g in self.goals.values()
+                    if g.status not in TERMINAL and (not stamp_ns or g.accepted_ns <= stamp_ns)
+                ]
+        canceling = []
+        for g in chosen:
+            try:
+                self.client.cancel(g.daemon_id)
+            except ApiError as exc:
+                if exc.code != "not_found":
+                    self.report(40, f"cancel of {g.daemon_id} refused ({exc.code}): {exc.message}")
+                    continue
+            with self._lock:
+                if g.status not in TERMINAL:
+                    g.status = CANCELING
+            canceling.append({"goal_id": {"uuid": list(g.uuid)}, "stamp": _stamp(g.accepted_ns)})
+        self._publish_status()
+        code = ERROR_NONE if canceling or not chosen else ERROR_REJECTED
+        return {"return_code": code, "goals_canceling": canceling}
+
+    # ---------------------------------------------------------------- tracking
+    def _forget_old(self) -> None:
+        done = [u for u, g in self.goals.items() if g.status in TERMINAL]
+        for u in done[: max(0, len(done) - KEEP_FINISHED)]:
+            del self.goals[u]
+
+    def _track(self) -> None:
+        from host.api.client import ApiError  # noqa: PLC0415
+
+        while not self._stop.wait(self.period_s):
+            with self._lock:
+                live = [g for g in self.goals.values() if g.status not in TERMINAL]
+            if not live:
+                continue
+            changed = False
+            try:
+                joints = self.client.status().get("joint_states") or {}
+            except ApiError:
+                joints = {}
+            for g in live:
+                try:
+                    st = self.client.trajectory_status(g.daemon_id)
+                except ApiError as exc:
+                    st = {"state": "aborted", "reason": f"daemon: {exc.code}", "done": True}
+                state = str(st.get("state", ""))
+                if st.get("done") or state in ("succeeded", "aborted", "canceled"):
+                    cause = str((st.get("abort") or {}).get("cause") or "")
+                    status, code, text = result_of(state, str(st.get("reason") or ""), cause)
+                    with self._lock:
+                        g.status, g.error_code, g.error_string = status, code, text
+                        waiters, g.waiters = g.waiters, []
+                    for w in waiters:
+                        w(self._result(g))
+                    changed = True
+                    continue
+                self._publish_feedback(g, joints)
+            if changed:
+                self._publish_status()
+
+    def _publish_feedback(self, g: Goal, joints: dict) -> None:
+        positions = []
+        for name in g.joints:
+            bendable, _, axis = name.rpartition("/")
+            positions.append(float((joints.get(bendable) or {}).get(axis, 0.0)))
+        now = time.time_ns()
+        elapsed = now - g.accepted_ns
+        msg = {
+            "goal_id": {"uuid": list(g.uuid)},
+            "feedback": {
+                "header": {"stamp": _stamp(now), "frame_id": ""},
+                "joint_names": g.joints,
+                "actual": {
+                    "positions": positions,
+                    "time_from_start": {
+                        "sec": elapsed // 1_000_000_000,
+                        "nanosec": elapsed % 1_000_000_000,
+                    },
+                },
+            },
+        }
+        self.feedback.publish(self._fb_codec.encode(msg))
+
+    def _publish_status(self) -> None:
+        with self._lock:
+            lst = [
+                {
+                    "goal_info": {
+                        "goal_id": {"uuid": list(g.uuid)},
+                        "stamp": _stamp(g.accepted_ns),
+                    },
+                    "status": g.status,
+                }
+                for g in self.goals.values()
+            ]
+        self.status.publish(self._status_codec.encode({"status_list": lst}))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        with self._lock:
+            waiting = [(g, w) for g in self.goals.values() for w in g.waiters]
+            for g in self.goals.values():
+                g.waiters = []
+        for _g, w in waiting:  # the bridge stops: the goal keeps running in the daemon
+            w({"status": UNKNOWN, "result": {"error_code": INVALID_GOAL,
+                                             "error_string": "ucr zenoh stopped"}})  # fmt: skip
+
+
+def hashes() -> dict[str, str]:
+    """The type hashes this server's key expressions carry (for logs and tests)."""
+    return {
+        "send_goal": action_type_hash(ACTION, "SendGoal"),
+        "get_result": action_type_hash(ACTION, "GetResult"),
+        "cancel_goal": service_type_hash(CANCEL),
+        "feedback": action_type_hash(ACTION, "FeedbackMessage"),
+        "status": type_hash(STATUS_ARRAY),
+    }
