@@ -159,6 +159,7 @@ def run(args: Any) -> int:
         sink = ZenohSink(node)
         fanout = NamedFanout([sink], namespace)
         command_topic = None
+        notes: list[str] = []
         log_name = "ucr.commands"  # NamedFanout adds the namespace
 
         def report(level: int, text: str) -> None:
@@ -173,6 +174,12 @@ def run(args: Any) -> int:
                 node, client, list(robot.bendables), controller=args.controller, report=report
             )
             srvs += [fjt.send_goal, fjt.get_result, fjt.cancel_goal]
+            if args.distro != "jazzy":
+                notes.append(
+                    "ucr zenoh: FollowJointTrajectory is control_msgs 5.x (Jazzy); control_msgs "
+                    "6.3+ (newer distributions) added feedback fields, so its feedback topic "
+                    "does not match there (goals, results, cancel and status do)"
+                )
 
             commands = TrajectoryCommands(
                 client, list(robot.bendables), controller=args.controller, report=report
@@ -197,6 +204,8 @@ def run(args: Any) -> int:
             file=sys.stderr,
             flush=True,
         )
+        for note in notes:
+            print(note, file=sys.stderr, flush=True)
         feed = LiveFeed(client, topics, fanout, viz_rate=args.viz_rate)
         feed.run(stop, duration=args.duration)
         return 0
