@@ -4,17 +4,22 @@ bridge plus a subscriber do to the control loop's jitter. Runs the real daemon o
 ``ucr daemon`` runs it), `ucr zenoh-router` and `ucr zenoh` as their own processes (as deployed),
 and a Zenoh subscriber on /<robot>/joint_states and /<robot>/tf in another process.
 
-    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5] [--rounds 3] [--api process|thread]
+    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5] [--rounds 5] [--loop-fifo 10]
 
 Latency: receive time (wall clock) minus the JointState header stamp, which is the daemon's
 time of the cycle that produced the state (daemon monotonic clock mapped to wall clock; same
 machine). It covers daemon -> API -> bridge (decode, CDR encode) -> Zenoh -> subscriber.
 
-Jitter: the daemon's |period - target| p99 and mean. Phases alternate ``--rounds`` times so that
-the machine's background load falls on both alike: off (daemon and API process only) and on
-(router, bridge and subscriber running; the bridge holds one API subscription). Goal: ratio
-on/off <= 1.05. ``--api thread`` runs the API server in the daemon's process instead (what this
-benchmark did before; it shows the cost of sharing the interpreter lock with the loop).
+Jitter: the daemon's |period - target| p99 and mean, in phases that alternate ``--rounds`` times
+so that the machine's background load falls on all alike:
+- off: daemon and API process only;
+- control: a plain process burning ``--hog-percent`` of one core at the bridge's nice (CPU load
+  alone: no Zenoh, no API subscription);
+- API subscription only: a client holding the subscription ``ucr zenoh`` holds (no Zenoh);
+- on: router, bridge and subscriber running.
+Goal: ratio on/off <= 1.05. CPU per process and phase shows where the work is (the daemon's
+own share grows only by what the API subscription costs it). ``--loop-fifo`` runs the loop
+thread SCHED_FIFO; ``--api thread`` runs the API server in the daemon's process (not deployed).
 Prints figures, ratios and the load average; asserts nothing (the machine may be shared).
 """
 
@@ -127,10 +132,31 @@ def subscriber(endpoint: str, ns: str, seconds: float, warmup: float) -> int:
     return 0
 
 
+def hog(percent: float) -> int:
+    """Child process: burn ``percent`` of one core in 20 ms periods until killed (a control:
+    CPU load like the bridge's, with no Zenoh and no API subscription)."""
+    busy = 0.02 * percent / 100
+    while True:
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < busy:
+            pass
+        time.sleep(max(0.0, 0.02 - (time.perf_counter() - t0)))
+
+
+def api_subscriber(url: str) -> int:
+    """Child process: hold the API subscription ``ucr zenoh`` holds (joint_states at 50 Hz,
+    events, topology) and drain it, with no Zenoh: what the API subscription alone costs."""
+    from host.api.client import connect
+
+    with connect(url) as c, c.subscribe(["joint_states", "events", "topology"], max_rate=50.0) as s:
+        while True:
+            s.get(timeout=1.0)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
-    ap.add_argument("--rounds", type=int, default=3, help="off/on phase pairs (3)")
+    ap.add_argument("--rounds", type=int, default=5, help="rounds of the phases (5)")
     ap.add_argument(
         "--nice",
         type=int,
@@ -151,8 +177,29 @@ def main(argv: list[str] | None = None) -> int:
         help="niceness of the daemon (this process): -5 as host/ucr-daemon.service runs it "
         "(needs root or CAP_SYS_NICE; 0 otherwise)",
     )
+    ap.add_argument(
+        "--hog-percent",
+        type=float,
+        default=12.0,
+        help="CPU (%% of one core) of the control phase's busy process, at the bridge's nice "
+        "(12: about what bridge, subscriber and the API's extra work use; 0: no control phase)",
+    )
+    ap.add_argument(
+        "--loop-fifo",
+        type=int,
+        default=0,
+        metavar="PRIO",
+        help="run the control-loop thread SCHED_FIFO at this priority (1-99; needs root or "
+        "CAP_SYS_NICE; 0: normal scheduling, as now deployed)",
+    )
+    ap.add_argument("--hog", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--api-subscriber", help=argparse.SUPPRESS)
     ap.add_argument("--subscriber", nargs=2, metavar=("ENDPOINT", "NS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.hog is not None:
+        return hog(args.hog)
+    if args.api_subscriber:
+        return api_subscriber(args.api_subscriber)
     if args.subscriber:
         return subscriber(*args.subscriber, seconds=args.seconds, warmup=2.0)
 
@@ -184,10 +231,32 @@ def main(argv: list[str] | None = None) -> int:
                     raise
                 time.sleep(0.2)
         srv = (ApiProcess if args.api == "process" else ApiServer)(daemon, "127.0.0.1", 0).start()
+        policy = "normal"
+        if args.loop_fifo:
+            tid = daemon.loop._thread.native_id  # the loop thread only; the daemon's others stay
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(args.loop_fifo))
+                policy = f"SCHED_FIFO {args.loop_fifo}"
+            except PermissionError:
+                print("cannot set SCHED_FIFO (not root): normal scheduling")
         port = _free_port()
         endpoint = f"tcp/127.0.0.1:{port}"
         offs: list[dict] = []
         ons: list[dict] = []
+        hogs: list[dict] = []
+        apis: list[dict] = []
+        cpu_api: dict[str, float] = {}
+        api_pid = getattr(getattr(srv, "_child", None), "pid", None)
+        base_pids = {"daemon": os.getpid(), **({"api": api_pid} if api_pid else {})}
+        cpu_off: dict[str, float] = {}
+        cpu_hog: dict[str, float] = {}
+
+        def measured(store: list, pids: dict[str, int], acc: dict[str, float]) -> None:
+            before = {k: _cpu_s(pid) for k, pid in pids.items()}
+            store.append(_jitter(daemon, args.seconds))
+            for k, pid in pids.items():
+                acc[k] = acc.get(k, 0.0) + _cpu_s(pid) - before[k]
+
         lat: list[float] = []
         tf = 0
         cpu: dict[str, float] = {}
@@ -195,7 +264,22 @@ def main(argv: list[str] | None = None) -> int:
         try:
             time.sleep(0.5)
             for _ in range(args.rounds):
-                offs.append(_jitter(daemon, args.seconds))
+                measured(offs, base_pids, cpu_off)
+                if args.hog_percent > 0:
+                    h = _spawn([__file__, "--hog", str(args.hog_percent)], nice=args.nice)
+                    try:
+                        time.sleep(0.5)
+                        measured(hogs, {**base_pids, "hog": h.pid}, cpu_hog)
+                    finally:
+                        h.kill()
+                        h.wait()
+                a = _spawn([__file__, "--api-subscriber", srv.url], nice=args.nice)
+                try:
+                    time.sleep(1.5)
+                    measured(apis, {**base_pids, "api client": a.pid}, cpu_api)
+                finally:
+                    a.kill()
+                    a.wait()
                 router = _spawn(
                     ["-m", "tools.cli", "zenoh-router", "--listen", endpoint], nice=args.nice
                 )
@@ -231,15 +315,8 @@ def main(argv: list[str] | None = None) -> int:
                         return 1
                     time.sleep(2.0)  # the subscriber's warm-up: discovery, first messages
                     procs = {"router": router, "bridge": bridge, "subscriber": sub}
-                    api_pid = getattr(getattr(srv, "_child", None), "pid", None)
-                    pids = {k: p.pid for k, p in procs.items()}
-                    if api_pid:
-                        pids["api"] = api_pid
-                    pids["daemon"] = os.getpid()
-                    before = {k: _cpu_s(pid) for k, pid in pids.items()}
-                    ons.append(_jitter(daemon, args.seconds))
-                    for k, pid in pids.items():
-                        cpu[k] = cpu.get(k, 0.0) + _cpu_s(pid) - before[k]
+                    pids = {**base_pids, **{k: p.pid for k, p in procs.items()}}
+                    measured(ons, pids, cpu)
                     out = json.loads(sub.stdout.readline() or "{}")
                     lat += out.get("lat_ms", [])
                     tf += out.get("tf", 0)
@@ -263,13 +340,25 @@ def main(argv: list[str] | None = None) -> int:
                 f"loop rate {daemon.rate_hz:.0f} Hz; API server: {args.api}; router, bridge and "
                 f"subscriber at nice {args.nice}; {args.rounds} rounds of {args.seconds:.0f} s"
             )
-            print(
-                "CPU during the on phases (% of one core): "
-                + ", ".join(f"{k} {100 * v / total:.0f}" for k, v in cpu.items())
-            )
-            print(f"daemon at nice {daemon_nice}")
+            for label, acc in (
+                ("off", cpu_off),
+                ("control", cpu_hog),
+                ("API subscription", cpu_api),
+                ("on", cpu),
+            ):
+                if acc:
+                    print(
+                        f"CPU in the {label} phases (% of one core): "
+                        + ", ".join(f"{k} {100 * v / total:.1f}" for k, v in acc.items())
+                    )
+            print(f"daemon at nice {daemon_nice}; loop thread scheduling: {policy}")
             print(f"load average (1 min) at start {load0[0]:.2f}, at end {load1[0]:.2f}")
-            for label, sts in (("bridge off", offs), ("bridge + subscriber on", ons)):
+            for label, sts in (
+                ("bridge off", offs),
+                (f"control: busy {args.hog_percent:.0f}%", hogs),
+                ("API subscription only", apis),
+                ("bridge + subscriber on", ons),
+            ):
                 for st in sts:
                     j = st["jitter_us"]
                     print(
@@ -284,6 +373,20 @@ def main(argv: list[str] | None = None) -> int:
                 f"jitter ratio on/off (medians over rounds): p99 {p99_on / max(p99_off, 1e-9):.3f}"
                 f"  mean {m_on / max(m_off, 1e-9):.3f}  (goal <= 1.05)"
             )
+            p99_a = statistics.median(s["jitter_us"]["p99"] for s in apis)
+            m_a = statistics.median(s["jitter_us"]["mean"] for s in apis)
+            print(
+                f"jitter ratio API-subscription/off: p99 {p99_a / max(p99_off, 1e-9):.3f}  "
+                f"mean {m_a / max(m_off, 1e-9):.3f}  (the bridge's API subscription, no Zenoh)"
+            )
+            if hogs:
+                p99_h = statistics.median(s["jitter_us"]["p99"] for s in hogs)
+                m_h = statistics.median(s["jitter_us"]["mean"] for s in hogs)
+                print(
+                    f"jitter ratio control/off: p99 {p99_h / max(p99_off, 1e-9):.3f}  "
+                    f"mean {m_h / max(m_off, 1e-9):.3f}  (CPU load alone, no Zenoh, no API "
+                    "subscription)"
+                )
         finally:
             srv.stop()
             daemon.stop()
