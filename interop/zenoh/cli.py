@@ -121,7 +121,8 @@ def register(subparsers: Any) -> None:
         "--enable-commands",
         action="store_true",
         help="accept trajectory_msgs/JointTrajectory on <namespace>/<controller>/"
-        "joint_trajectory (off: the robot ignores ROS 2)",
+        "joint_trajectory, serve the FollowJointTrajectory action <controller>/"
+        "follow_joint_trajectory and the ucr/stop service (off: the robot ignores ROS 2)",
     )
     p.add_argument(
         "--controller",
