@@ -235,7 +235,7 @@ def test_sdk_service_list_shows_our_services_with_their_types(bridge, router):
 
     assert wait_for(listed, 60, step=0.5), got
     _, line = bridge
-    assert "2 services" in line
+    assert "5 services" in line  # ucr/status, ucr/stop and the action's three
 
 
 def test_sdk_service_client_gets_the_robot_status(bridge, router, msgdir, client):
@@ -595,7 +595,7 @@ def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
         assert "/watch_only/jtc/joint_trajectory" not in topic_list(router)
         assert wait_for(lambda: "/watch_only/ucr/status" in service_list(router), 30, step=0.5)
         assert "/watch_only/ucr/stop" not in service_list(router)  # a command: not served
-        assert not any("follow_joint_trajectory" in s for s in service_list(router, hidden=True))
+        assert not any(s.startswith("/watch_only/jtc/") for s in service_list(router, hidden=True))
         before = measured(client, "segment_2")
         spec = {"joint_names": ["segment_2/kappa", "segment_2/phi"], "points": [[1.0, [2.5, 1.0]]]}
         out = sdk(
