@@ -1,6 +1,7 @@
 """Zenoh's own access control (ACL) in the router's configuration, as docs/ros2.md documents it:
-a `ucr zenoh-router --zenoh-config` denying ``put`` on the robot's command key expressions to the
-sessions not allowed to command. Every session is in client mode (all traffic passes the router,
+a `ucr zenoh-router --zenoh-config` denying ``put`` and ``query`` on the robot's command key
+expressions (the trajectory topic, the ``ucr/stop`` service) to the sessions not allowed to
+command. Every session is in client mode (all traffic passes the router,
 which is what makes the router's ACL apply). A denied publisher's JointTrajectory never reaches
 the subscriber; an allowed one's does; the robot's other topics still flow from the denied
 session."""
@@ -36,8 +37,8 @@ def _acl(port: int) -> dict:
                     "id": "no_commands",
                     "permission": "deny",
                     "flows": ["ingress"],
-                    "messages": ["put"],
-                    "key_exprs": ["*/**/jtc/joint_trajectory/**"],
+                    "messages": ["put", "query"],
+                    "key_exprs": ["*/**/jtc/joint_trajectory/**", "*/**/ucr/stop/**"],
                 }
             ],
             "subjects": [{"id": "not_allowed", "zids": [DENIED]}],
@@ -97,6 +98,21 @@ def test_router_acl_drops_commands_from_sessions_not_allowed(tmp_path):
             assert wait_for(lambda: sent_by(ok_s, b"allowed") or got["cmd"], 15, step=0.2)
             time.sleep(0.5)
             assert set(got["cmd"]) == {b"allowed"}, got["cmd"]
+
+            # services (queries) too: ucr/stop answers the allowed session only
+            stop_key = "0/softrobot3/ucr/stop/std_srvs::srv::dds_::Trigger_/RIHS01_x"
+            queryable = sub_s.declare_queryable(
+                stop_key, lambda q: q.reply(stop_key, b"stopped"), complete=True
+            )
+            time.sleep(1.0)
+
+            def answers(session) -> bool:
+                replies = list(session.get(stop_key, timeout=3.0))
+                return any(r.ok is not None for r in replies)
+
+            assert wait_for(lambda: answers(ok_s), 15, step=0.2)
+            assert not answers(bad_s)
+            queryable.undeclare()
             for s in subs:
                 s.undeclare()
     finally:
