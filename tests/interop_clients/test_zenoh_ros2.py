@@ -256,15 +256,18 @@ def test_sdk_stop_service_cancels_the_running_goal(bridge, router, msgdir, clien
     straighten(client)
     pts = [{"time_from_start": 40.0, "segments": {"segment_1": {"kappa": 3.0, "phi": 0.0}}}]
     goal = None
+    resp: dict = {}
 
     def moving() -> bool:
         return client.trajectory_status(goal)["progress"] > 0.02
 
-    for _ in range(3):  # a topology change on a loaded machine may abort it: send again
+    for _ in range(4):  # a link loss on a loaded machine may abort the goal first: again
         goal = client.send_trajectory(pts, wait=False)
-        if wait_for(moving, 20):
+        if not wait_for(moving, 20):
+            continue
+        resp = call(router, msgdir, f"{NS}/ucr/stop")
+        if client.trajectory_status(goal)["state"] != "aborted":
             break
-    resp = call(router, msgdir, f"{NS}/ucr/stop")
     assert resp["success"] is True, resp
     assert goal in resp["message"], resp
     assert wait_for(lambda: client.trajectory_status(goal)["state"] == "canceled", 20)
@@ -420,15 +423,14 @@ def test_sdk_lists_the_action_services_with_their_types(bridge, router):
 
 def test_follow_joint_trajectory_goal_runs_to_success(action_client, client):
     straighten(client)
-    uuid = os.urandom(16)
-    assert action_client.send_goal(uuid, ["segment_2/kappa", "segment_2/phi"], [(2, [1.2, 0.3])])
-    res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
-    if res.status == 6 and "topology" in res.result.error_string:  # loaded machine: once more
+    for _ in range(4):  # aborted by a link loss on a loaded machine (INVALID_GOAL): again
         uuid = os.urandom(16)
         assert action_client.send_goal(
             uuid, ["segment_2/kappa", "segment_2/phi"], [(2, [1.2, 0.3])]
         )
         res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
+        if not (res.status == 6 and res.result.error_code == -1):
+            break
     assert res.status == 4 and res.result.error_code == 0, res  # SUCCEEDED, SUCCESSFUL
     assert measured(client, "segment_2")[0] == pytest.approx(1.2, abs=0.05)
     assert wait_for(lambda: 4 in action_client.status_of(uuid), 10)
@@ -457,10 +459,15 @@ def test_follow_joint_trajectory_beyond_limits_is_not_accepted(action_client, cl
 
 def test_follow_joint_trajectory_cancel_goal(action_client, client):
     straighten(client)
-    uuid = os.urandom(16)
-    assert action_client.send_goal(uuid, ["segment_1/kappa", "segment_1/phi"], [(40, [3.0, 0.0])])
-    assert wait_for(lambda: client.status()["running_goals"], 20)
-    resp = action_client.call("cancel_goal", {"goal_info": {"goal_id": {"uuid": list(uuid)}}})
+    for _ in range(4):  # aborted by a link loss before the cancel (loaded machine): again
+        uuid = os.urandom(16)
+        assert action_client.send_goal(
+            uuid, ["segment_1/kappa", "segment_1/phi"], [(40, [3.0, 0.0])]
+        )
+        assert wait_for(lambda: client.status()["running_goals"], 20)
+        resp = action_client.call("cancel_goal", {"goal_info": {"goal_id": {"uuid": list(uuid)}}})
+        if resp.return_code != 3:  # 3: already terminated (aborted)
+            break
     assert resp.return_code == 0 and [bytes(g.goal_id.uuid) for g in resp.goals_canceling] == [uuid]
     res = action_client.call("get_result", {"goal_id": {"uuid": list(uuid)}})
     assert res.status == 5, res  # CANCELED
