@@ -29,6 +29,24 @@ from host.hwi import HardwareInterface
 log = logging.getLogger("ucr.daemon")
 
 _MAX_GOALS = 500  # goals remembered for trajectory_status (oldest forgotten first)
+#: Waypoints carried by a ``goal_accepted`` event at most (a longer goal: count only).
+EVENT_MAX_WAYPOINTS = 2000
+
+
+def commanded(goal_id: str, controller: str, joints: list[str], traj: Any) -> dict[str, Any]:
+    """The ``goal_accepted`` event's fields: the goal's waypoints as requested (before any
+    retiming), every bendable of the controller filled in: ``waypoints`` = [[time_from_start s,
+    [[kx, ky] 1/m per joint]], ...] (or ``waypoints_omitted``: their count, beyond
+    EVENT_MAX_WAYPOINTS)."""
+    times = traj.requested_durations.cumsum().tolist()
+    out: dict[str, Any] = {"goal": goal_id, "controller": controller, "joints": list(joints),
+                           "retimed": bool(traj.retimed)}  # fmt: skip
+    if len(times) > EVENT_MAX_WAYPOINTS:
+        out["waypoints_omitted"] = len(times)
+    else:
+        pos = traj.positions[1:].round(6).tolist()
+        out["waypoints"] = [[round(t, 6), p] for t, p in zip(times, pos, strict=True)]
+    return out
 
 
 class Motion:
@@ -146,6 +164,7 @@ class Motion:
     def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
         """Start a trajectory on a cJTC; see :meth:`host.daemon.Daemon.send_trajectory`."""
         lead = 0.05 + 2e-4 * (len(points) if isinstance(points, list | tuple) else 0)
+        accepted = ""
         for attempt in range(2):
             with self.lock:
                 self._ready()
@@ -176,7 +195,14 @@ class Motion:
                         self._goals[goal.id] = (goal, ctrl.name)
                         while len(self._goals) > _MAX_GOALS:
                             self._goals.popitem(last=False)
-                        return goal.id
+                        accepted = goal.id
+            if accepted:  # outside the lock: recorders keep what was commanded
+                self._emit(
+                    "goal_accepted",
+                    message=f"goal {accepted}: {goal.n_points} waypoints",
+                    **commanded(accepted, ctrl.name, ctrl.joints, traj),
+                )
+                return accepted
             log.info("trajectory goal built again (attempt %d): %s", attempt + 1, why)
             lead = 2.0 * built_s + 0.05
         raise ControllerError(f"trajectory not started: {why}; send it again")

@@ -133,6 +133,10 @@ def register(subparsers: Any) -> None:
         "--host", default="127.0.0.1", help="server address (loopback; else --serve-token-file)"
     )
     p.add_argument("--port", type=int, default=8766, help="Foxglove server port (8766)")
+    p.add_argument("--no-foxglove", action="store_true", help="no Foxglove server (with --view)")
+    p.add_argument("--view", action="store_true", help="play into the 3D view (`ucr view`) as well")
+    p.add_argument("--view-host", default="127.0.0.1", help="view address (loopback)")
+    p.add_argument("--view-port", type=int, default=8080, help="view port (8080; 0: any free)")
     p.add_argument(
         "--wait-client",
         type=float,
@@ -145,6 +149,11 @@ def register(subparsers: Any) -> None:
         help="re-run the recorded motion on the robot: prints the plan (dry run)",
     )
     p.add_argument("--go", action="store_true", help="with --execute: really move the robot")
+    p.add_argument(
+        "--measured",
+        action="store_true",
+        help="with --execute: re-run the measured motion (/joint_states), not the commanded goals",
+    )
     p.add_argument(
         "--sample-period", type=float, default=0.1, help="with --execute: waypoint spacing, s (0.1)"
     )

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from interop.sinks import Fanout
-from interop.topics import RobotTopics
+from interop.topics import RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -134,6 +134,10 @@ class LiveFeed:
                     elif kind in ("event", "topology"):
                         for m in self.topics.event(msg, t_ns):
                             self.out.publish(m)
+                        if msg.get("event") == "goal_accepted":
+                            cmd = commanded(msg, self.topics.root, t_ns)
+                            if cmd is not None:
+                                self.out.publish(cmd)
                         if kind == "topology":
                             topology = None  # re-read with the next status poll
                 if now >= next_goal:

@@ -24,9 +24,28 @@ from host.client_common import CliError, connect_daemon
 from interop import ros2
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
-from interop.topics import RobotTopics
+from interop.topics import LATCHED, RobotTopics
 
 PROFILE = "ros2"  # the MCAP profile rosbag2 writes
+
+# The QoS a ucr publisher offers, in the YAML rosbag2 (Jazzy) writes into each channel's
+# ``offered_qos_profiles`` metadata; ``ros2 bag play`` re-offers it. Durations "infinite" as
+# RMW_DURATION_INFINITE. Latched topics: transient_local, depth 1 (as robot_state_publisher).
+_INFINITE = "{sec: 9223372036, nsec: 854775807}"
+_QOS = (
+    "- history: keep_last\n  depth: {depth}\n  reliability: reliable\n"
+    "  durability: {durability}\n  deadline: {inf}\n  lifespan: {inf}\n"
+    "  liveliness: automatic\n  liveliness_lease_duration: {inf}\n"
+    "  avoid_ros_namespace_conventions: false"
+)
+
+
+def offered_qos_profiles(topic: str) -> str:
+    """The ``offered_qos_profiles`` YAML of a topic, as rosbag2 writes it into MCAP channels."""
+    if topic in LATCHED:
+        return _QOS.format(depth=1, durability="transient_local", inf=_INFINITE)
+    return _QOS.format(depth=100 if topic.startswith("/tf") else 10, durability="volatile",
+                       inf=_INFINITE)  # fmt: skip
 
 
 class McapSink:
@@ -69,8 +88,9 @@ class McapSink:
                 )
                 self._schemas[typename] = sid
             cid = self._writer.register_channel(
-                topic=topic, message_encoding=ros2.MESSAGE_ENCODING, schema_id=sid
-            )
+                topic=topic, message_encoding=ros2.MESSAGE_ENCODING, schema_id=sid,
+                metadata={"offered_qos_profiles": offered_qos_profiles(topic)},
+            )  # fmt: skip
             self._channels[topic] = cid
         seq = self._seq.get(cid, 0)
         self._seq[cid] = seq + 1

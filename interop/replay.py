@@ -125,6 +125,8 @@ class Plan:
     end: dict[str, tuple[float, float]] = field(default_factory=dict)
     fastest: dict[str, float] = field(default_factory=dict)  # 1/m/s
     notes: list[str] = field(default_factory=list)
+    source: str = "measured"  # "commanded": the recorded goals; "measured": /joint_states
+    goals: list[tuple[float, list[dict]]] = field(default_factory=list)  # (start s, points)
 
 
 def recorded_joint_states(path: str | Path) -> list[tuple[float, dict[str, tuple[float, float]]]]:
@@ -146,6 +148,110 @@ def recorded_joint_states(path: str | Path) -> list[tuple[float, dict[str, tuple
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         out.append((t, states))
     return out
+
+
+def recorded_goals(path: str | Path) -> list[tuple[float, list[dict]]]:
+    """(t s, waypoints for ``trajectory.send``) of every /ucr/trajectory/commanded message: the
+    goals the daemon accepted while recording, as they were sent (before retiming)."""
+    dec = None
+    out = []
+    for m in read_recording(path):
+        if m.topic != "/ucr/trajectory/commanded":
+            continue
+        if dec is None:
+            dec = generate_dynamic(m.typename, m.schema)[m.typename]
+        msg = dec(m.data)
+        slots: dict[str, dict[str, int]] = {}
+        for i, name in enumerate(msg.joint_names):
+            seg, _, var = name.rpartition("/")
+            if seg and var in ("kappa", "phi"):
+                slots.setdefault(seg, {})[var] = i
+        points = []
+        for pt in msg.points:
+            pos = list(pt.positions)
+            d = pt.time_from_start
+            segs = {b: {"kappa": pos[a["kappa"]], "phi": pos[a["phi"]]}
+                    for b, a in slots.items() if len(a) == 2}  # fmt: skip
+            points.append({"time_from_start": d.sec + d.nanosec * 1e-9, "segments": segs})
+        if points:
+            out.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, points))
+    return out
+
+
+def _check_point(robot: Any, name: str, kappa: float, phi: float, when: str) -> float:
+    """κ clipped into [0, kappa_max] after a tolerance check; RecordingError if outside."""
+    if robot is None or name not in robot.bendables:
+        who = getattr(robot, "name", "?")
+        raise RecordingError(
+            f"the recording moves {name}, which robot {who!r} does not have: refused, nothing moves"
+        )
+    lim = robot.bendables[name].model.limits
+    if not (math.isfinite(kappa) and math.isfinite(phi)):
+        raise RecordingError(f"{name}: non-finite waypoint {when}: refused, nothing moves")
+    if kappa < -1e-9 or kappa > lim.kappa_max * (1 + 1e-6) + 1e-9:
+        raise RecordingError(
+            f"{name}: recorded kappa {kappa:.4g} 1/m {when} is outside "
+            f"[0, {lim.kappa_max:.4g}] of the robot file: refused, nothing moves"
+        )
+    full = lim.phi_max - lim.phi_min >= 2 * math.pi - 1e-9
+    if not full and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
+        raise RecordingError(
+            f"{name}: recorded phi {math.degrees(phi):.1f} deg {when} is "
+            f"outside [{math.degrees(lim.phi_min):.1f}, {math.degrees(lim.phi_max):.1f}] "
+            "deg of the robot file: refused, nothing moves"
+        )
+    return min(max(kappa, 0.0), lim.kappa_max)
+
+
+def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
+    """The recorded goals, each waypoint checked against ``robot``; None if none recorded."""
+    goals = recorded_goals(path)
+    if not goals:
+        return None
+    t0 = goals[0][0]
+    plan = Plan(source="commanded")
+    prev: dict[str, tuple[float, float, float]] = {}
+    for t_goal, points in goals:
+        checked = []
+        for pt in points:
+            t = pt["time_from_start"]
+            when = f"in the goal at {t_goal - t0:.2f} s, waypoint {t:.2f} s"
+            segs = {}
+            for name, v in pt["segments"].items():
+                kappa = _check_point(robot, name, v["kappa"], v["phi"], when)
+                phi = v["phi"]
+                segs[name] = {"kappa": kappa, "phi": phi}
+                if name not in plan.segments:
+                    plan.segments.append(name)
+                kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
+                lo, hi = plan.kappa_range.get(name, (kappa, kappa))
+                plan.kappa_range[name] = (min(lo, kappa), max(hi, kappa))
+                plan.start.setdefault(name, (kappa, phi))
+                plan.end[name] = (kappa, phi)
+                at = t_goal - t0 + t
+                if name in prev and at > prev[name][0]:
+                    pt_, px, py = prev[name]
+                    speed = math.hypot(kx - px, ky - py) / (at - pt_)
+                    plan.fastest[name] = max(plan.fastest.get(name, 0.0), speed)
+                prev[name] = (at, kx, ky)
+            checked.append({"time_from_start": t, "segments": segs})
+        plan.goals.append((t_goal - t0, checked))
+        plan.points += checked
+    last_start, last = plan.goals[-1]
+    plan.duration = last_start + last[-1]["time_from_start"]
+    plan.segments.sort()
+    _rate_notes(plan, robot)
+    return plan
+
+
+def _rate_notes(plan: Plan, robot: Any) -> None:
+    for name in plan.segments:
+        rate = robot.bendables[name].model.limits.kappa_rate_max
+        if rate is not None and plan.fastest.get(name, 0.0) > rate * (1 + 1e-3):
+            plan.notes.append(
+                f"{name}: recorded rate {plan.fastest[name]:.3g} 1/m/s exceeds kappa_rate_max "
+                f"{rate:.3g}: the daemon will slow the goal down (retimed)"
+            )
 
 
 def make_plan(
@@ -173,20 +279,7 @@ def make_plan(
         last_t = t
         seg_pts = {}
         for name, (kappa, phi) in s.items():
-            lim = robot.bendables[name].model.limits
-            if kappa < -1e-9 or kappa > lim.kappa_max * (1 + 1e-6) + 1e-9:
-                raise RecordingError(
-                    f"{name}: recorded kappa {kappa:.4g} 1/m at t = {t - t0:.2f} s is outside "
-                    f"[0, {lim.kappa_max:.4g}] of the robot file: refused, nothing moves"
-                )
-            full = lim.phi_max - lim.phi_min >= 2 * math.pi - 1e-9
-            if not full and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
-                raise RecordingError(
-                    f"{name}: recorded phi {math.degrees(phi):.1f} deg at t = {t - t0:.2f} s is "
-                    f"outside [{math.degrees(lim.phi_min):.1f}, {math.degrees(lim.phi_max):.1f}] "
-                    "deg of the robot file: refused, nothing moves"
-                )
-            kappa = min(max(kappa, 0.0), lim.kappa_max)
+            kappa = _check_point(robot, name, kappa, phi, f"at t = {t - t0:.2f} s")
             kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
             seg_pts[name] = {"kx": kx, "ky": ky}
             lo, hi = plan.kappa_range.get(name, (kappa, kappa))
@@ -201,21 +294,23 @@ def make_plan(
             prev[name] = (t, kx, ky)
         plan.points.append({"time_from_start": lead_in + (t - t0), "segments": seg_pts})
     plan.duration = plan.points[-1]["time_from_start"]
-    for name in names:
-        rate = robot.bendables[name].model.limits.kappa_rate_max
-        if rate is not None and plan.fastest.get(name, 0.0) > rate * (1 + 1e-3):
-            plan.notes.append(
-                f"{name}: recorded rate {plan.fastest[name]:.3g} 1/m/s exceeds kappa_rate_max "
-                f"{rate:.3g}: the daemon will slow the goal down (retimed)"
-            )
+    plan.goals = [(0.0, plan.points)]
+    _rate_notes(plan, robot)
     return plan
 
 
 def describe(plan: Plan) -> str:
-    head = (
-        f"{len(plan.points)} waypoints over {plan.duration:.2f} s "
-        f"(first after a {plan.lead_in:.1f} s lead-in from where the robot is):"
-    )
+    if plan.source == "commanded":
+        head = (
+            f"the recorded commanded trajectory: {len(plan.goals)} goal(s), {len(plan.points)} "
+            f"waypoints over {plan.duration:.2f} s (the first from where the robot is):"
+        )
+    else:
+        head = (
+            f"the recorded measured motion: {len(plan.points)} waypoints over "
+            f"{plan.duration:.2f} s (first after a {plan.lead_in:.1f} s lead-in from where "
+            "the robot is):"
+        )
     lines = [head]
     for name in plan.segments:
         (k0, p0), (k1, p1) = plan.start[name], plan.end[name]
@@ -229,6 +324,33 @@ def describe(plan: Plan) -> str:
     return "\n".join(lines)
 
 
+def run_goals(client: Any, plan: Plan) -> dict:
+    """Send the plan's goals at their recorded start offsets (a later goal replaces a running
+    one, as it did when recorded); returns the last goal's final status. Each goal's progress
+    is shown on stderr."""
+    t0 = time.monotonic()
+    result: dict = {}
+    for i, (start, points) in enumerate(plan.goals):
+        time.sleep(max(0.0, t0 + start - time.monotonic()))
+        gid = client.send_trajectory(points, wait=False)
+        print(f"  goal {i + 1}/{len(plan.goals)} sent: {gid} ({len(points)} waypoints)",
+              file=sys.stderr, flush=True)  # fmt: skip
+        end = (plan.goals[i + 1][0] + t0) if i + 1 < len(plan.goals) else math.inf
+        deadline = time.monotonic() + points[-1]["time_from_start"] * 3 + 30
+        while True:
+            result = client.trajectory_status(gid)
+            pct = 100 * (result.get("progress") or 0)
+            print(f"\r  {result.get('state', '?'):10s} {pct:5.1f} %", end="", file=sys.stderr,
+                  flush=True)  # fmt: skip
+            if result.get("done") or time.monotonic() >= min(end, deadline):
+                break
+            time.sleep(0.1)
+        print(file=sys.stderr)
+        if result.get("done") and result.get("state") != "succeeded" and end < math.inf:
+            break  # an aborted goal (limits, tolerance, takeover): stop here, as the daemon did
+    return result
+
+
 def execute(args: Any) -> int:
     """``ucr replay FILE --execute [--go]``."""
     client = None
@@ -238,7 +360,12 @@ def execute(args: Any) -> int:
         else:
             client = connect_daemon(args)
             robot, _ = robot_for(client, None)
-        plan = make_plan(args.file, robot, args.sample_period, args.lead_in)
+        plan = None if getattr(args, "measured", False) else commanded_plan(args.file, robot)
+        if plan is None:
+            if not getattr(args, "measured", False):
+                print("no commanded trajectory in the recording (/ucr/trajectory/commanded): "
+                      "re-running the measured motion (/joint_states)")  # fmt: skip
+            plan = make_plan(args.file, robot, args.sample_period, args.lead_in)
         print(describe(plan))
         if not args.go:
             print("dry run: nothing moved (add --go to run it on the robot)")
@@ -251,15 +378,7 @@ def execute(args: Any) -> int:
             print(f"ucr: the daemon does not control {', '.join(missing)}: refused, nothing moves",
                   file=sys.stderr)  # fmt: skip
             return 1
-
-        def progress(st: dict) -> None:
-            print(f"\r  {st.get('state', '?'):10s} {100 * (st.get('progress') or 0):5.1f} %",
-                  end="", file=sys.stderr, flush=True)  # fmt: skip
-
-        result = client.send_trajectory(
-            plan.points, progress=progress, timeout=plan.duration * 3 + 30
-        )
-        print(file=sys.stderr)
+        result = run_goals(client, plan)
         why = f": {result['reason']}" if result.get("reason") else ""
         print(f"goal {result.get('id')}: {result.get('state')}{why} in "
               f"{result.get('duration') or 0:.2f} s"
@@ -284,25 +403,42 @@ def run(args: Any) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     sinks: list[Any] = []
+    app = None
     try:
         next(iter(read_recording(args.file)), None)  # readable at all, before serving anything
-        from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
-            FoxgloveBindError,
-            sink_from_args,
-        )
+        if not getattr(args, "no_foxglove", False):
+            from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
+                FoxgloveBindError,
+                sink_from_args,
+            )
 
-        try:
-            sink = sink_from_args(args.host, args.port, args)
-        except (FoxgloveBindError, OSError, RuntimeError) as exc:
-            print(f"ucr: {exc}", file=sys.stderr)
-            return 1
-        sinks.append(sink)
-        print(f"ucr: replaying {args.file} at {args.rate:g}x on {sink.url}", file=sys.stderr,
-              flush=True)  # fmt: skip
+            try:
+                sink = sink_from_args(args.host, args.port, args)
+            except (FoxgloveBindError, OSError, RuntimeError) as exc:
+                print(f"ucr: {exc}", file=sys.stderr)
+                return 1
+            sinks.append(sink)
+            print(f"ucr: Foxglove server on {sink.url}", file=sys.stderr, flush=True)
+        if getattr(args, "view", False):
+            try:
+                app = _start_view(args)
+            except (ImportError, OSError, RuntimeError, UcrdfError) as exc:
+                print(f"ucr: cannot serve the view: {exc}", file=sys.stderr)
+                return 1
+            sinks.append(app.source)
+            print(f"ucr view: {app.url}  (replay)", file=sys.stderr, flush=True)
+        if not sinks:
+            print("ucr: nothing to play into (--no-foxglove without --view)", file=sys.stderr)
+            return 2
+        print(f"ucr: replaying {args.file} at {args.rate:g}x", file=sys.stderr, flush=True)
         if args.wait_client > 0:
             time.sleep(args.wait_client)
         n = play(args.file, sinks, rate=args.rate, stop=stop)
-        print(f"ucr: {n} messages replayed", file=sys.stderr)
+        print(f"ucr: {n} messages replayed", file=sys.stderr, flush=True)
+        if app is not None and not stop.is_set():
+            print("ucr: end of the recording; the view stays up (Ctrl-C to stop)",
+                  file=sys.stderr, flush=True)  # fmt: skip
+            stop.wait()
         return 0
     except RecordingError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
@@ -310,3 +446,14 @@ def run(args: Any) -> int:
     finally:
         for s in sinks:
             s.close()
+        if app is not None:
+            app.stop()
+
+
+def _start_view(args: Any) -> Any:
+    """The 3D view (``ucr view``) of the recording, view only (no controls)."""
+    from view.app import ViewApp  # noqa: PLC0415 - the view extra, only when asked
+    from view.replay import ReplaySource  # noqa: PLC0415
+
+    source = ReplaySource(args.file, getattr(args, "robot", None))
+    return ViewApp(source, args.view_host, args.view_port, control=False).start()

@@ -36,8 +36,14 @@ TOPICS: dict[str, str] = {
     "/ucr/events": "std_msgs/msg/String",
     "/ucr/trajectory/goals": "std_msgs/msg/String",
     "/ucr/trajectory/results": "std_msgs/msg/String",
+    "/ucr/trajectory/commanded": "trajectory_msgs/msg/JointTrajectory",
 }
 LATCHED = ("/robot_description", "/ucr/robot_description_ucrdf", "/tf_static")
+
+#: A velocity is derived from two consecutive samples at most this far apart (s); else unknown.
+VELOCITY_MAX_GAP_S = 0.25
+#: Below this κ (1/m) the bending plane φ is undefined: φ̇ is reported unknown (NaN).
+PHI_RATE_MIN_KAPPA = 0.02
 
 LINE_STRIP = 4
 _LOG_INFO, _LOG_WARN, _LOG_ERROR = 20, 30, 40
@@ -134,6 +140,7 @@ class RobotTopics:
         self.movable = [j for j in self.joints if j.type != "fixed"]
         self.fixed = [j for j in self.joints if j.type == "fixed"]
         self.bendables = list(robot.bendables)
+        self._prev: dict[str, tuple[float, float, float] | None] = {}  # for velocities
 
     # -- latched -------------------------------------------------------------------------------
     def static_messages(self, t_ns: int) -> list[Message]:
@@ -173,21 +180,49 @@ class RobotTopics:
 
     def joint_states(self, js: dict, t_ns: int) -> Message:
         """sensor_msgs/JointState: ``<b>/kappa`` (1/m) and ``<b>/phi`` (rad) per reported
-        bendable, then the movable rigid joints. Velocity and effort stay empty (the daemon
-        reports no rates yet)."""
+        bendable, then the movable rigid joints. ``velocity`` (1/m/s, rad/s) is derived from the
+        state stream (:meth:`_rates`); NaN where unknown. Effort stays empty (not measured)."""
         names: list[str] = []
         pos: list[float] = []
+        vel: list[float] = []
+        t = js.get("t")
         for i, name in enumerate(js.get("names", [])):
             k, p = js["kappa"][i], js["phi"][i]
             names += [f"{name}/kappa", f"{name}/phi"]
-            pos += [float("nan") if k is None else float(k), float("nan") if p is None else p]
+            kf = float("nan") if k is None else float(k)
+            pf = float("nan") if p is None else float(p)
+            pos += [kf, pf]
+            flags = js.get("valid") or []
+            valid = bool(flags[i]) if i < len(flags) else True
+            vel += self._rates(name, t, kf, pf, valid)
         for name, v in (js.get("rigid") or {}).items():
             if isinstance(v, dict) and v.get("position") is not None:
                 names.append(name)
                 pos.append(float(v["position"]))
+                rate = v.get("velocity")
+                vel.append(float(rate) if isinstance(rate, int | float) else float("nan"))
         msg = {"header": _header(t_ns, self.root), "name": names, "position": pos,
-               "velocity": [], "effort": []}  # fmt: skip
+               "velocity": vel, "effort": []}  # fmt: skip
         return Message("/joint_states", TOPICS["/joint_states"], msg, t_ns)
+
+    def _rates(self, name: str, t: Any, kappa: float, phi: float, valid: bool) -> list[float]:
+        """(κ̇ 1/m/s, φ̇ rad/s) of one bendable: backward difference between this and the
+        previous measured sample of the daemon's state stream, on the daemon's clock ``t`` (s).
+        Unknown (NaN) for the first sample, after a gap over VELOCITY_MAX_GAP_S, for an invalid
+        sample, and φ̇ while either κ is below PHI_RATE_MIN_KAPPA (φ undefined when straight)."""
+        nan = float("nan")
+        ok = valid and isinstance(t, int | float) and math.isfinite(kappa) and math.isfinite(phi)
+        prev = self._prev.get(name)
+        self._prev[name] = (float(t), kappa, phi) if ok else None  # type: ignore[arg-type]
+        if not ok or prev is None:
+            return [nan, nan]
+        dt = float(t) - prev[0]
+        if not 0.0 < dt <= VELOCITY_MAX_GAP_S:
+            return [nan, nan]
+        k_rate = (kappa - prev[1]) / dt
+        if min(kappa, prev[1]) < PHI_RATE_MIN_KAPPA:
+            return [k_rate, nan]
+        return [k_rate, math.remainder(phi - prev[2], 2.0 * math.pi) / dt]
 
     def joint_positions(self, js: dict) -> dict[str, float]:
         """Every movable joint of the exported URDF for an API joint_states message (rad / m)."""
@@ -303,6 +338,28 @@ class RobotTopics:
         /ucr/trajectory/results when it ended (succeeded, aborted, canceled)."""
         topic = "/ucr/trajectory/results" if done else "/ucr/trajectory/goals"
         return _string(topic, json.dumps(status, sort_keys=True, default=str), t_ns)
+
+
+def commanded(ev: dict, root: str, t_ns: int) -> Message | None:
+    """trajectory_msgs/JointTrajectory of a ``goal_accepted`` event (the waypoints a goal was
+    sent with, before retiming): joints ``<b>/kappa`` (1/m), ``<b>/phi`` (rad) for every bendable
+    of the controller, as ``ucr zenoh`` takes commands. None when the event carries no waypoints
+    (a goal longer than the daemon's EVENT_MAX_WAYPOINTS; its count is on /ucr/events)."""
+    joints, wps = ev.get("joints"), ev.get("waypoints")
+    if not isinstance(joints, list) or not isinstance(wps, list):
+        return None
+    names = [f"{j}/{v}" for j in joints for v in ("kappa", "phi")]
+    points = []
+    for t, pos in wps:
+        flat: list[float] = []
+        for kx, ky in pos:
+            flat += [math.hypot(kx, ky), math.atan2(ky, kx)]
+        ns = round(float(t) * 1e9)
+        points.append({"positions": flat, "time_from_start": {
+            "sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}})  # fmt: skip
+    msg = {"header": _header(t_ns, root), "joint_names": names, "points": points}
+    topic = "/ucr/trajectory/commanded"
+    return Message(topic, TOPICS[topic], msg, t_ns)
 
 
 def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:

@@ -23,7 +23,7 @@ import viser.transforms as vtf
 
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
-from view.guard import guarded_viser, page_guard
+from view.guard import GuardError, guarded_viser, page_guard, probe_refuses_foreign_host
 from view.scene import SceneModel
 from view.source import LiveSource, OfflineSource
 
@@ -68,6 +68,10 @@ class ViewApp:
             self.server.stop()
             raise OSError(f"port {port} is in use (pass --port)")
         guard.append(page_guard(host, actual, allow_hosts))
+        why = probe_refuses_foreign_host(host, actual)
+        if why is not None:  # the guard is not in the request path: never serve unguarded
+            self.server.stop()
+            raise GuardError(f"the page server is not guarded ({why}): not served")
         self.host, self.port = host, actual
         self.server.scene.set_up_direction("+z")  # U(C)RDF frames: z along the base segment
         self.server.scene.add_grid("/grid", width=1.0, height=1.0, cell_size=0.1)
@@ -131,7 +135,8 @@ class ViewApp:
     # -- GUI -------------------------------------------------------------------------------------
     def _gui_static(self) -> None:
         gui = self.server.gui
-        mode = "live: daemon" if self.live else f"offline: {self.source.snap.robot_file}"
+        kind = getattr(self.source, "mode", "offline")
+        mode = "live: daemon" if self.live else f"{kind}: {self.source.snap.robot_file}"
         self.g_title = gui.add_markdown(f"**ucr view** — {mode}")
         self.g_facts = gui.add_markdown("scene: loading")
         self.g_control = gui.add_markdown("")
@@ -170,8 +175,8 @@ class ViewApp:
             k.remove()
             p.remove()
         self.sliders = {}
-        if self.live and not self.control_enabled:
-            return  # view only (not on loopback): no controls on the page
+        if (self.live and not self.control_enabled) or getattr(self.source, "mode", "") == "replay":
+            return  # view only (not on loopback, or a recording playing): no controls
         with self.slider_folder:
             for name in model.bendables:
                 kmax, _ = model.limits(name)

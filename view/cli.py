@@ -68,7 +68,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         return 1
     logging.basicConfig(level=logging.WARNING, format="ucr view: %(message)s")
     from view.app import ViewApp
-    from view.guard import is_loopback
+    from view.guard import GuardError, is_loopback
     from view.source import LiveSource, OfflineSource
 
     control = True
@@ -99,7 +99,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         app = ViewApp(
             source, args.host, args.port, tuple(args.allow_host), control, args.rate
         ).start()
-    except OSError as exc:
+    except (OSError, GuardError) as exc:
         source.stop()
         print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 1

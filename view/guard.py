@@ -12,6 +12,7 @@ anything refused gets HTTP 403 before the WebSocket opens. viser offers no hook 
 from __future__ import annotations
 
 import http
+import socket
 import threading
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -22,7 +23,21 @@ from websockets.http11 import Response
 
 from host.api.guard import WebGuard, is_loopback
 
-__all__ = ["guarded_viser", "is_loopback", "page_guard", "refuse_reason"]
+__all__ = [
+    "GuardError",
+    "guarded_viser",
+    "is_loopback",
+    "page_guard",
+    "probe_refuses_foreign_host",
+    "refuse_reason",
+]
+
+#: The Host a probe sends: never an allowed name (not an IP literal, never --allow-host-able).
+PROBE_HOST = "ucr-guard-probe.invalid"
+
+
+class GuardError(RuntimeError):
+    """The page server could not be guarded (viser's internals changed): it is not served."""
 
 
 def page_guard(bind: str, port: int, extra: Iterable[str] = ()) -> WebGuard:
@@ -60,14 +75,17 @@ def guarded_viser(
     up at call time and the constructor returns once it listens); other servers are unaffected.
     """
     original = wss.serve
+    calls: list[int] = []
 
     def serve(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
         inner = kwargs.get("process_request")
 
         def process_request(connection: Any, request: Any) -> Any:
             why = refuse_reason(request.headers, guard[0] if guard else None)
             if why is not None:
-                log(f"refused a request: {why}")
+                if not str(request.headers.get("Host", "")).startswith(PROBE_HOST):
+                    log(f"refused a request: {why}")  # (our own start-up probe: not news)
                 body = f"403 Forbidden: {why}\n".encode()
                 return Response(http.HTTPStatus.FORBIDDEN, "Forbidden", Headers(), body)
             return inner(connection, request) if inner is not None else None
@@ -78,6 +96,34 @@ def guarded_viser(
     with _patch_lock:
         wss.serve = serve
         try:
-            return factory()
+            server = factory()
         finally:
             wss.serve = original
+    if len(calls) != 1:  # viser no longer starts one websockets server through serve(): fail closed
+        _stop_quietly(server)
+        raise GuardError(
+            f"viser started {len(calls)} guarded web servers instead of 1 (its internals changed; "
+            "view/guard.py supports the pinned viser): the page is not served"
+        )
+    return server
+
+
+def probe_refuses_foreign_host(host: str, port: int, timeout: float = 10.0) -> str | None:
+    """Ask the running page server for ``/`` with a foreign ``Host``; None if it answers 403 as
+    the guard does, else why not (the guard is not in the path: fail closed)."""
+    addr = "127.0.0.1" if host in ("0.0.0.0", "") else "::1" if host == "::" else host
+    try:
+        with socket.create_connection((addr, port), timeout=timeout) as s:
+            s.sendall(f"GET / HTTP/1.1\r\nHost: {PROBE_HOST}:{port}\r\n\r\n".encode())
+            head = s.recv(64)
+    except OSError as exc:
+        return f"probe failed: {exc}"
+    status = head.split(b"\r\n", 1)[0].decode("latin-1", "replace")
+    return None if status.split()[1:2] == ["403"] else f"a foreign Host got {status!r}, not 403"
+
+
+def _stop_quietly(server: Any) -> None:
+    try:
+        server.stop()
+    except Exception:  # noqa: BLE001, S110 - refusing to serve anyway
+        pass

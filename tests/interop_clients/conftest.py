@@ -151,6 +151,7 @@ EXPECTED_TOPICS = {
     "/ucr/loop_stats": "diagnostic_msgs/msg/DiagnosticArray",
     "/ucr/trajectory/goals": "std_msgs/msg/String",
     "/ucr/trajectory/results": "std_msgs/msg/String",
+    "/ucr/trajectory/commanded": "trajectory_msgs/msg/JointTrajectory",
 }
 
 

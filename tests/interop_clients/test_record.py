@@ -174,3 +174,81 @@ def test_segment_status_and_loop_statistics_are_diagnostics(recording):
     loop = [m.decoded_message for m in msgs if m.channel.topic == "/ucr/loop_stats"][-1]
     keys = {kv.key: kv.value for kv in loop.status[0].values}
     assert float(keys["cycles"]) > 0 and "jitter_us.p99" in keys
+
+
+def test_commanded_goal_is_recorded_as_joint_trajectory(recording):
+    """The goal the test sent (segment_1 and segment_3 at 1.5 s) is in the file as the daemon
+    accepted it, every bendable of the cJTC filled in (segment_2 kept straight)."""
+    path, result, _ = recording
+    _, msgs = _read_all(path)
+    cmds = [m.decoded_message for m in msgs if m.channel.topic == "/ucr/trajectory/commanded"]
+    assert len(cmds) == 1, len(cmds)
+    cmd = cmds[0]
+    names = [f"segment_{i}/{v}" for i in (1, 2, 3) for v in ("kappa", "phi")]
+    assert list(cmd.joint_names) == names
+    assert len(cmd.points) == 1
+    pt = cmd.points[0]
+    assert pt.time_from_start.sec + pt.time_from_start.nanosec * 1e-9 == pytest.approx(1.5)
+    pos = dict(zip(names, pt.positions, strict=True))
+    for seg, (kappa, phi) in GOAL.items():
+        assert pos[f"{seg}/kappa"] == pytest.approx(kappa, abs=1e-5)
+        assert pos[f"{seg}/phi"] == pytest.approx(phi, abs=1e-5)
+    assert pos["segment_2/kappa"] == pytest.approx(0.0, abs=0.02)  # where straighten() left it
+    # and the lossless JSON of the daemon's goal_accepted event names the goal that ran
+    events = [json.loads(m.decoded_message.data) for m in msgs if m.channel.topic == "/ucr/events"]
+    accepted = [e for e in events if e.get("event") == "goal_accepted"]
+    assert [e["goal"] for e in accepted] == [result["id"]]
+
+
+def test_channels_carry_rosbag2_offered_qos_profiles(recording):
+    """rosbag2's MCAP channel metadata (offered_qos_profiles YAML) as rosbags reads it:
+    latched topics transient_local depth 1, the others volatile; all reliable."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.typesys import Stores, get_typestore
+
+    path, _, _ = recording
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    assert set(EXPECTED_TOPICS) <= set(qos)
+    for topic, profiles in qos.items():
+        assert len(profiles) == 1, (topic, profiles)
+        q = profiles[0]
+        assert q.reliability == QosReliability.RELIABLE, topic
+        latched = topic in ("/robot_description", "/ucr/robot_description_ucrdf", "/tf_static")
+        want = QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE
+        assert q.durability == want, (topic, q)
+        assert q.depth == (1 if latched else 100 if topic.startswith("/tf") else 10), (topic, q)
+
+
+def test_joint_state_velocities_are_the_rate_of_the_recorded_positions(recording):
+    """/joint_states velocity: one per name, κ̇ (1/m/s) and φ̇ (rad/s) equal to the backward
+    difference of consecutive positions (header stamps), read with rosbags; known while moving."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path, _, _ = recording
+    js = []
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        conns = [c for c in reader.connections if c.topic == "/joint_states"]
+        for conn, _t, raw in reader.messages(connections=conns):
+            js.append(reader.deserialize(raw, conn.msgtype))
+    assert all(len(m.velocity) == len(m.name) == len(m.position) for m in js)
+    i = list(js[0].name).index("segment_1/kappa")
+    checked = moving = 0
+    for a, b in zip(js, js[1:], strict=False):
+        ta = a.header.stamp.sec + a.header.stamp.nanosec * 1e-9
+        tb = b.header.stamp.sec + b.header.stamp.nanosec * 1e-9
+        v = b.velocity[i]
+        if not math.isfinite(v) or tb - ta > 0.2:
+            continue
+        # stamps are the daemon's sample times mapped to wall clock: same differences
+        assert v == pytest.approx((b.position[i] - a.position[i]) / (tb - ta), rel=1e-3, abs=1e-3)
+        checked += 1
+        moving += abs(v) > 0.2
+    assert checked > 0.8 * len(js), (checked, len(js))
+    assert moving >= 5, moving  # the recorded goal bends segment_1 to 2 1/m in 1.5 s
+    # φ̇ is unknown (NaN) while straight, known while bent
+    p = list(js[0].name).index("segment_1/phi")
+    assert math.isnan(js[1].velocity[p]) or js[1].position[i] >= 0.02
+    assert math.isfinite(js[-1].velocity[p]) and abs(js[-1].velocity[p]) < 0.5

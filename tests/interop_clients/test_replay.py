@@ -35,6 +35,7 @@ def test_dry_run_prints_the_plan_and_moves_nothing(rig, recording):
         out, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
         assert "dry run: nothing moved" in out
+        assert "the recorded commanded trajectory: 1 goal(s)" in out
         for seg, (kappa, _) in GOAL.items():
             m = re.search(rf"{seg}: kappa [-\d.]+ -> ([-\d.]+) 1/m", out)
             assert m and float(m.group(1)) == pytest.approx(kappa, abs=0.05), out
@@ -89,6 +90,7 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
             break
     assert proc.returncode == 0, (out, err)
     assert "succeeded" in out
+    assert "goal 1/1 sent" in err  # the recorded goal itself, not the measured motion
 
     t0, k0 = _kappa_series(path)
     t1, k1 = _kappa_series(again)
@@ -99,7 +101,10 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
     # track through cJTC at 50 Hz, waypoints every 0.1 s: a few 0.01 1/m apart, more where κ
     # changes fastest)
     best = None
-    for shift in np.arange(t1[0] - t0[0], t1[-1] - t0[0], 0.02):
+    # (the commanded goal starts as soon as `ucr replay` connects: its run may begin sooner after
+    # the recorder's start than the recorded one did, so shifts below t1[0] - t0[0] count too;
+    # np.interp holds the end values outside the run, which are rest poses)
+    for shift in np.arange(t1[0] - t0[0] - 5.0, t1[-1] - t0[0], 0.02):
         diff = np.concatenate([np.interp(t0 + shift, t1, k1[n]) - k0[n] for n in k0])
         err = (float(np.sqrt(np.mean(diff**2))), float(np.max(np.abs(diff))))
         if best is None or err < best[0]:
@@ -108,3 +113,64 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
     (rms, worst), _ = best
     print(f"replayed vs recorded kappa: rms {rms:.4f} 1/m, worst {worst:.4f} 1/m")
     assert rms < 0.05 and worst < 0.25, best
+
+
+def test_replay_into_the_view_shows_the_recorded_kappa_in_the_scene(recording):
+    """`ucr replay --view`'s seam: the recording played (4x) into the view's source; the view's
+    scene then draws the recorded end pose: tubes equal the model's tubes for the recorded κ, φ
+    and the tip is where independent FK of the recorded goal puts it."""
+    pytest.importorskip("viser", reason="the view extra (viser) is not installed")
+    from interop.replay import play, recorded_joint_states
+    from ucrdf.fk import RobotKinematics
+    from ucrdf.parser import load
+    from view.app import ViewApp
+    from view.replay import ReplaySource
+
+    path, _, _ = recording
+    src = ReplaySource(path)
+    app = ViewApp(src, port=0, control=False).start()
+    try:
+        assert play(path, [src], rate=4.0) > 100
+        assert wait_for(lambda: app.last_seq == src.snap.seq and app.model is not None, 20)
+        time.sleep(0.5)
+        _, last = recorded_joint_states(path)[-1]
+        for seg, (kappa, _phi) in GOAL.items():
+            assert src.snap.state[seg]["kappa"] == pytest.approx(kappa, abs=0.05)
+            assert src.snap.state[seg]["kappa"] == pytest.approx(last[seg][0], abs=1e-9)
+        cfg = {n: {"kappa": k, "phi": p} for n, (k, p) in last.items()}
+        frame = app.model.frame(cfg)
+        assert sorted(app.facts["tubes"]) == ["segment_1", "segment_2", "segment_3"]
+        for seg in cfg:
+            np.testing.assert_allclose(
+                app.nodes[f"tube:{seg}"].vertices, frame.tubes[seg][0], atol=1e-5
+            )
+        kin = RobotKinematics(load(ROBOT_FILE))
+        tip = kin.fk(cfg, strict=False)[app.model.tip_link][:3, 3]
+        assert np.allclose(app.facts["tip"], tip, atol=1e-3), (app.facts["tip"], tip)
+        straight = kin.fk({n: {"kappa": 0.0, "phi": 0.0} for n in cfg}, strict=False)
+        assert np.linalg.norm(tip - straight[app.model.tip_link][:3, 3]) > 0.05  # really bent
+    finally:
+        app.stop()
+
+
+def test_ucr_replay_view_serves_the_page_and_plays_to_the_end(recording):
+    """The command: `ucr replay FILE --view --no-foxglove` prints the view's URL, serves the page,
+    plays every message and keeps the view up until Ctrl-C (exit 0)."""
+    pytest.importorskip("viser", reason="the view extra (viser) is not installed")
+    import urllib.request
+
+    path, _, _ = recording
+    proc = ucr("replay", str(path), "--view", "--view-port", "0", "--no-foxglove", "--rate", "0")
+    lines: list[str] = []
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if "the view stays up" in line:
+                break
+        url = next(ln.split()[2] for ln in lines if ln.startswith("ucr view: http"))
+        with urllib.request.urlopen(url, timeout=30) as resp:
+            assert resp.status == 200 and b"<html" in resp.read().lower()
+        assert any(re.search(r"\d+ messages replayed", ln) for ln in lines), lines
+    finally:
+        code, _, err = stop(proc)
+    assert code == 0, "".join(lines) + err
