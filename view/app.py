@@ -97,7 +97,7 @@ class ViewApp:
         if self.control_enabled:
             assert isinstance(source, LiveSource)
             self.driver = SliderDriver(
-                source.client,
+                _CurrentClient(source),  # the source's client of the day (it reconnects)
                 self._measured,
                 self._rate_max,
                 lambda: bool(self.server.get_clients()),
@@ -399,9 +399,8 @@ class ViewApp:
             f"{'daemon' if self.live else 'slider'}→page {p50:.1f} ms (p50, until sent) · "
             f"pushes {self.pushes}<br/>status: {status or '-'}"
         )
-        self.g_errors.content = (
-            "**check errors:**<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
-        )
+        head = "**daemon:**" if self.live else "**check errors:**"
+        self.g_errors.content = f"{head}<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
         if self.live:
             self.g_control.content = _who(snap.control, self.driver) + (
                 f"<br/>**refused:** {self.refusal}" if self.refusal else ""
@@ -414,6 +413,10 @@ class ViewApp:
             with self.source.lock:
                 snap = _copy(self.source.snap)
             robot = self.source.robot
+            if self.live and not snap.connected and self.driver is not None:
+                if self.driver.targets:
+                    self.driver.halt("daemon disconnected")
+                self.driver.owns_control = False  # a restarted daemon has no takeover of ours
             try:
                 with self.lock:
                     if robot is not None:
@@ -438,6 +441,16 @@ class ViewApp:
                         self._text(snap)
             except Exception:  # noqa: BLE001 - keep serving; the page shows the last good scene
                 log.exception("view update failed")
+
+
+class _CurrentClient:
+    """The live source's API client of the moment (a reconnect replaces it)."""
+
+    def __init__(self, source: LiveSource) -> None:
+        self._source = source
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._source.client, name)
 
 
 def _copy(s: Any) -> Any:

@@ -108,14 +108,24 @@ class OfflineSource:
                 self._reload()
 
 
+#: Reconnect back-off (s): first wait, factor, cap.
+RECONNECT_FIRST_S, RECONNECT_FACTOR, RECONNECT_MAX_S = 0.5, 2.0, 5.0
+
+
 class LiveSource:
-    """The daemon: topology, joint states, events and who has control, over its API."""
+    """The daemon: topology, joint states, events and who has control, over its API.
+
+    When the connection drops (daemon restarted, network gone) the page shows "daemon
+    disconnected", every segment turns grey and the source reconnects by itself with back-off
+    (RECONNECT_FIRST_S doubling up to RECONNECT_MAX_S); once back, the robot file is read again
+    and the scene rebuilt (``snap.robot_version`` bumps)."""
 
     mode = "live"
 
     def __init__(
         self, url: str | None, token: str | None, robot_file: str | None = None, rate_hz=60.0
     ):
+        self._token = token
         self.client = connect(url, token=token)
         self.url = self.client_url = url
         self.rate_hz = rate_hz
@@ -126,15 +136,14 @@ class LiveSource:
         self._stop = threading.Event()
         self._events: dict[str, tuple[str, float]] = {}  # bendable -> (status, until)
         self._topo_dirty = False
+        self.reconnects = 0
         self._topology_locked_refresh()
-        self._threads = [
-            threading.Thread(target=self._stream, name="ucr-view-stream", daemon=True),
-            threading.Thread(target=self._poll_status, name="ucr-view-status", daemon=True),
-        ]
+        self._supervisor = threading.Thread(
+            target=self._supervise, name="ucr-view-session", daemon=True
+        )
 
     def start(self) -> LiveSource:
-        for t in self._threads:
-            t.start()
+        self._supervisor.start()
         return self
 
     def stop(self) -> None:
@@ -143,6 +152,72 @@ class LiveSource:
             self.client.close()
         except Exception:  # noqa: BLE001 - closing a broken connection
             pass
+
+    # -- sessions ------------------------------------------------------------------------------
+    def _supervise(self) -> None:
+        """One session per connection: the stream and status threads until the connection
+        drops, then reconnect with back-off, until stopped."""
+        while not self._stop.is_set():
+            lost = threading.Event()
+            client = self.client
+            threads = [
+                threading.Thread(target=self._stream, args=(client, lost), daemon=True,
+                                 name="ucr-view-stream"),
+                threading.Thread(target=self._poll_status, args=(client, lost), daemon=True,
+                                 name="ucr-view-status"),
+            ]  # fmt: skip
+            for t in threads:
+                t.start()
+            while not (lost.is_set() or self._stop.is_set()):
+                lost.wait(0.5)
+            if self._stop.is_set():
+                return
+            try:
+                client.close()
+            except Exception:  # noqa: BLE001, S110 - already broken
+                pass
+            for t in threads:
+                t.join(timeout=2.0)
+            if not self._reconnect():
+                return
+
+    def _reconnect(self) -> bool:
+        """Connect again (back-off); True once connected and the robot re-read."""
+        delay, attempt = RECONNECT_FIRST_S, 0
+        while not self._stop.wait(delay):
+            attempt += 1
+            try:
+                client = connect(self.url, token=self._token)
+            except Exception as exc:  # noqa: BLE001 - any failure: shown, retried
+                self._note_lost(f"{exc}", attempt, min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S))
+                delay = min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S)
+                continue
+            self.client = client
+            try:
+                self.robot = None  # the daemon may run another file now: read it again
+                self._topology_locked_refresh()
+            except Exception as exc:  # noqa: BLE001 - not ready (rebuilding): retried
+                try:
+                    client.close()
+                except Exception:  # noqa: BLE001, S110
+                    pass
+                self._note_lost(f"{exc}", attempt, delay)
+                continue
+            with self.lock:
+                self.snap.connected = True
+                self.snap.errors = []
+                self.snap.seq += 1
+                self.reconnects += 1
+            log.warning("reconnected to the daemon (attempt %d)", attempt)
+            return True
+        return False
+
+    def _note_lost(self, why: str, attempt: int, next_s: float) -> None:
+        with self.lock:
+            self.snap.connected = False
+            why = f"{why} — reconnecting (attempt {attempt}, next in {next_s:.1f} s)"
+            self.snap.errors = [f"daemon disconnected: {why}"]
+            self.snap.seq += 1
 
     # -- topology ------------------------------------------------------------------------------
     def _topology_locked_refresh(self) -> None:
@@ -173,12 +248,12 @@ class LiveSource:
             s.topology_seq += 1
 
     # -- streams -------------------------------------------------------------------------------
-    def _stream(self) -> None:
+    def _stream(self, client: Any, lost: threading.Event) -> None:
         try:
-            with self.client.subscribe(
+            with client.subscribe(
                 ["joint_states", "events", "topology"], max_rate=self.rate_hz
             ) as sub:
-                while not self._stop.is_set():
+                while not (self._stop.is_set() or lost.is_set()):
                     msg = sub.get(timeout=0.5)
                     if msg is None:
                         continue
@@ -190,15 +265,22 @@ class LiveSource:
                     elif kind == "topology":
                         self._topo_dirty = True  # refreshed by the status thread (may retry)
         except StopIteration:
-            self._lost(ConnectionError("subscription closed"))
+            self._lost(ConnectionError("subscription closed"), lost)
         except (ConnectionError, ApiError, OSError) as exc:
-            self._lost(exc)
+            self._lost(exc, lost)
 
-    def _lost(self, exc: BaseException) -> None:
+    def _lost(self, exc: BaseException, lost: threading.Event | None = None) -> None:
+        if self._stop.is_set():
+            return
         with self.lock:
-            self.snap.connected = False
-            self.snap.errors = [f"daemon connection lost: {exc}"]
-            self.snap.seq += 1
+            s = self.snap
+            s.connected = False
+            s.errors = [f"daemon disconnected: {exc} — reconnecting"]
+            s.valid = {n: False for n in s.valid}  # nothing is measured now: sliders stop
+            s.status = {n: "missing" for n in s.expected}
+            s.seq += 1
+        if lost is not None:
+            lost.set()
 
     def _on_joints(self, msg: dict) -> None:
         now = time.monotonic()
@@ -239,14 +321,14 @@ class LiveSource:
                 st = ev[0]
             s.status[n] = st
 
-    def _poll_status(self) -> None:
+    def _poll_status(self, client: Any, lost: threading.Event) -> None:
         """Who has control (controllers, takeovers, goals), 5 times a second."""
-        while not self._stop.wait(0.2):
+        while not (self._stop.wait(0.2) or lost.is_set()):
             try:
-                st = self.client.status()
+                st = client.status()
             except Exception as exc:  # noqa: BLE001 - shown on the page, retried
-                if isinstance(exc, ConnectionError):
-                    self._lost(exc)
+                if isinstance(exc, ConnectionError | OSError):
+                    self._lost(exc, lost)
                     return
                 continue
             with self.lock:
