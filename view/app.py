@@ -90,6 +90,7 @@ class ViewApp:
         self.latency_ms: collections.deque = collections.deque(maxlen=200)
         self.refusal = ""
         self.facts: dict[str, Any] = {}
+        self.visual_problems: list[str] = []  # visuals that could not be drawn (shown)
         self._stop = threading.Event()
         self._gui_static()
         self.driver: SliderDriver | None = None
@@ -294,6 +295,7 @@ class ViewApp:
         scene = self.server.scene
         if self.model is None or self.model.robot is not robot:
             self.model = SceneModel(robot)
+            self.visual_problems = []
             self.planner = MovePlanner(_solver(self.model)) if self.control_enabled else None
             self._build_sliders(self.model, snap.state)
             self.trail.clear()
@@ -350,7 +352,7 @@ class ViewApp:
         t = vis.origin
         kw = {"position": t[:3, 3], "wxyz": _wxyz(t)}
         if vis.problem:
-            log.warning("link %s: %s (not drawn)", vis.link, vis.problem)
+            self._visual_problem(vis, vis.problem)
             return
         if vis.kind == "box":
             node = scene.add_box(name, vis.color, vis.size, **kw)
@@ -359,10 +361,28 @@ class ViewApp:
         elif vis.kind == "sphere":
             node = scene.add_icosphere(name, vis.size[0], vis.color, **kw)
         else:
-            mesh = trimesh.load(vis.mesh, force="mesh")
+            try:  # STL, OBJ, PLY, glTF... through trimesh; a file is untrusted input
+                mesh = trimesh.load(vis.mesh, force="mesh")
+                if not len(mesh.faces):
+                    raise ValueError("no triangles")
+            except Exception as exc:  # noqa: BLE001 - any loader failure: shown, not drawn
+                self._visual_problem(vis, f"mesh {vis.mesh}: {type(exc).__name__}: {exc}")
+                return
             mesh.apply_scale(vis.scale)
-            node = scene.add_mesh_trimesh(name, mesh, **kw)
+            if vis.color_given:  # the U(C)RDF's material colour, as URDF viewers apply it
+                node = scene.add_mesh_simple(
+                    name, np.asarray(mesh.vertices, np.float32),
+                    np.asarray(mesh.faces, np.uint32), color=vis.color, **kw,
+                )  # fmt: skip
+            else:  # the file's own colours (or viser's default)
+                node = scene.add_mesh_trimesh(name, mesh, **kw)
         self.nodes[f"visual:{name}"] = node
+
+    def _visual_problem(self, vis: Any, why: str) -> None:
+        text = f"link {vis.link}: {why} (not drawn)"
+        log.warning("%s", text)
+        if text not in self.visual_problems:
+            self.visual_problems.append(text)
 
     def _update(self, snap: Any) -> None:
         model = self.model
@@ -400,7 +420,10 @@ class ViewApp:
             f"pushes {self.pushes}<br/>status: {status or '-'}"
         )
         head = "**daemon:**" if self.live else "**check errors:**"
-        self.g_errors.content = f"{head}<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
+        errors = f"{head}<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
+        if self.visual_problems:
+            errors += "<br/>**visuals:** " + "<br/>".join(self.visual_problems)
+        self.g_errors.content = errors
         if self.live:
             self.g_control.content = _who(snap.control, self.driver) + (
                 f"<br/>**refused:** {self.refusal}" if self.refusal else ""

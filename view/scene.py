@@ -36,6 +36,7 @@ class Visual:
     mesh: str = ""  # resolved file path for meshes
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     color: tuple[int, int, int] = (170, 170, 180)
+    color_given: bool = False  # a <material><color> overrides a mesh file's own colours
     problem: str = ""  # why it cannot be drawn (e.g. package:// mesh without a path)
 
 
@@ -104,7 +105,8 @@ def parse_visuals(robot: Robot, base_dir: Path | None = None) -> list[Visual]:
             rgba = el.find("material/color")
             if rgba is not None and rgba.get("rgba"):
                 r, gg, b, _a = _floats(rgba.get("rgba"), 4, 1.0)
-                vis.color = (int(r * 255), int(gg * 255), int(b * 255))
+                vis.color = (round(r * 255), round(gg * 255), round(b * 255))
+                vis.color_given = True
             if shape.tag == "box":
                 vis.size = _floats(shape.get("size"), 3, 0.01)
             elif shape.tag == "cylinder":

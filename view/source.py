@@ -136,6 +136,7 @@ class LiveSource:
         self._stop = threading.Event()
         self._events: dict[str, tuple[str, float]] = {}  # bendable -> (status, until)
         self._topo_dirty = False
+        self._faults: set[str] = set()  # segments the daemon reports in FAULT (status)
         self.reconnects = 0
         self._topology_locked_refresh()
         self._supervisor = threading.Thread(
@@ -299,9 +300,8 @@ class LiveSource:
     def _on_event(self, msg: dict) -> None:
         ev = msg.get("event", "")
         pos = msg.get("position")
-        status = {"limit_clamped": "clamped", "servo_fault": "fault"}.get(ev)
-        if ev == "watchdog_tripped":
-            status = "fault"
+        status = {"limit_clamped": "clamped", "servo_fault": "fault", "fault": "fault",
+                  "watchdog_tripped": "fault"}.get(ev)  # fmt: skip
         with self.lock:
             names = self.snap.expected
             if status and isinstance(pos, int) and 0 <= pos < len(names):
@@ -314,8 +314,8 @@ class LiveSource:
             st = "ok"
             if n not in s.present:
                 st = "missing"
-            elif not s.valid.get(n, False):
-                st = "fault"
+            elif not s.valid.get(n, False) or n in self._faults:
+                st = "fault"  # no valid state, or in FAULT until explicitly cleared
             ev = self._events.get(n)
             if ev is not None and ev[1] > now and st == "ok":
                 st = ev[0]
@@ -343,6 +343,7 @@ class LiveSource:
                 except ApiError:  # rebuilding right now: try again on the next poll
                     self._topo_dirty = True
             with self.lock:
+                self._faults = set(st.get("faults") or {})
                 c = self.snap.control
                 c["active"] = st.get("active_controllers", [])
                 c["manual"] = st.get("manual_control", [])

@@ -216,3 +216,82 @@ def test_unplugging_the_tip_removes_its_tube_and_plugging_back_restores_it(rig, 
         chain.plug(2)
     page.get_by_text("tubes: 3").wait_for(timeout=30000)
     assert live_view.facts["tubes"] == ["segment_1", "segment_2", "segment_3"]
+
+
+def _red_pixels(png: bytes) -> int:
+    """Pixels of the fault red (230, 40, 40), shaded: strongly red, little green and blue."""
+    import io
+
+    from PIL import Image
+
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return int(((r > 120) & (r > 2 * g + 40) & (r > 2 * b + 40)).sum())
+
+
+def _tube_colour(view, name: str) -> tuple[int, ...]:
+    return tuple(int(c) for c in view.nodes[f"tube:{name}"].color)
+
+
+def test_a_faulted_segment_turns_red_until_the_fault_is_cleared(rig, live_view, page):
+    """An exception in segment_2's control tick (fault injection on the emulated servos): the
+    page says `segment_2: fault` and its tube turns red, and stays red (FAULT is left only by an
+    explicit clear), then blue again once cleared."""
+    pytest.importorskip("PIL", reason="Pillow (a dependency of viser) is missing")
+    from view.app import COLOURS
+
+    _, daemon, _ = rig
+    page.get_by_text("tubes: 3").wait_for(timeout=60000)
+    page.get_by_text("segment_2: ok").wait_for(timeout=30000)
+    time.sleep(1.0)
+    canvas = page.locator("canvas").first
+    red_before = _red_pixels(canvas.screenshot())  # the gizmo's x arrow is red too
+    daemon.link.param_set(1, 5, "0:raise")
+    try:
+        page.get_by_text("segment_2: fault").wait_for(timeout=30000)
+        assert wait_for(lambda: _tube_colour(live_view, "segment_2") == COLOURS["fault"], 10)
+        assert wait_for(lambda: _red_pixels(canvas.screenshot()) > red_before + 300, 20), (
+            red_before,
+            _red_pixels(canvas.screenshot()),
+        )
+        daemon.link.param_set(1, 5, "none")  # the cause is gone, the FAULT is not
+        time.sleep(3.0)  # well past the 1.5 s an event colour is held
+        assert _tube_colour(live_view, "segment_2") == COLOURS["fault"]
+        assert live_view.source.snap.status["segment_2"] == "fault"
+    finally:
+        daemon.link.param_set(1, 5, "none")
+        daemon.clear_fault("segment_2")
+    page.get_by_text("segment_2: ok").wait_for(timeout=30000)
+    assert wait_for(lambda: _tube_colour(live_view, "segment_2") == COLOURS["ok"], 10)
+    settle(daemon, live_view)
+
+
+def test_a_segment_clamping_its_setpoints_turns_orange(rig, live_view, page):
+    """segment_1's firmware limit lowered below the robot file's (PARAM kappa_max = 1 1/m):
+    a move to 2 1/m is clamped by the segment, which reports LIMIT_CLAMPED; the page shows
+    `segment_1: clamped` and the tube orange."""
+    from view.app import COLOURS
+
+    _, daemon, _ = rig
+    page.get_by_text("tubes: 3").wait_for(timeout=60000)
+    page.get_by_text("segment_1: ok").wait_for(timeout=30000)
+    kappa_max = 1  # PARAM id of kappa_max (device/params.py PARAM_NAMES)
+    flashed = daemon.link.param_get(0, kappa_max)
+    seen: list[tuple] = []
+    daemon.link.param_set(0, kappa_max, 1.0)
+    try:
+        daemon.send_trajectory(
+            [{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 2.0, "phi": 0.0}}}]
+        )
+
+        def orange() -> bool:
+            seen.append((live_view.source.snap.status.get("segment_1"),
+                         _tube_colour(live_view, "segment_1")))  # fmt: skip
+            return seen[-1] == ("clamped", COLOURS["clamped"])
+
+        assert wait_for(orange, 30, 0.02), seen[-5:]
+        page.get_by_text("segment_1: clamped").wait_for(timeout=20000)
+    finally:
+        daemon.link.param_set(0, kappa_max, flashed)
+    settle(daemon, live_view)
+    page.get_by_text("segment_1: ok").wait_for(timeout=30000)
