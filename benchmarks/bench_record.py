@@ -112,7 +112,19 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def jitter_phases(phase_s: float, rounds: int) -> None:
+def _cpu_s(pid: int | None) -> float:
+    """CPU time (s, user + system) a process used so far; 0 if unknown."""
+    if pid is None:
+        return 0.0
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None:
+    from host.api.process import start_api_process
     from host.api.server import ApiServer
     from host.daemon import Daemon, DaemonError
     from tools.emulator import EmulatedChain
@@ -134,7 +146,12 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
+        # as `ucr daemon` runs it: the API in its own process (--api-in-process: a daemon thread)
+        if in_process:
+            srv = ApiServer(daemon, "127.0.0.1", 0).start()
+        else:
+            srv = start_api_process(daemon, "127.0.0.1", 0)
+        print(f"   API in {'a thread of the daemon' if in_process else 'its own process'}")
         # keep the robot moving: a slow wave on every segment, resent when it ends
         pts = [{"time_from_start": 2.0 * (k + 1), "segments": {
             n: {"kappa": 1.0 + 0.8 * math.sin(k + i), "phi": 0.5 * k} for i, n in
@@ -150,6 +167,7 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
         keep_moving()
         time.sleep(3.0)
         results: dict[str, list[dict]] = {"off": [], "on": []}
+        loads: dict[str, list[float]] = {"off": [], "on": []}
         tmp = tempfile.mkdtemp()
         for r in range(rounds):
             for mode in ("off", "on"):
@@ -168,9 +186,19 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
                     procs.append(subprocess.Popen(
                         [sys.executable, "-c", FOXGLOVE_CLIENT, f"ws://127.0.0.1:{port}"],
                         cwd=REPO, env=env, stderr=subprocess.DEVNULL))  # fmt: skip
+                cpu0 = [_cpu_s(p.pid) for p in procs]
+                daemon.loop.stats.reset()
                 time.sleep(phase_s)
                 st = daemon.loop_stats()
                 results[mode].append(st)
+                loads[mode].append(os.getloadavg()[0])
+                if procs:
+                    cpu = [
+                        (_cpu_s(p.pid) - c) * 1e3 / phase_s
+                        for p, c in zip(procs, cpu0, strict=True)
+                    ]
+                    print(f"   round {r + 1}: recorder + Foxglove server {cpu[0]:.0f} CPU ms/s, "
+                          f"Foxglove client {cpu[1]:.0f} CPU ms/s")  # fmt: skip
                 for p in procs:
                     p.send_signal(signal.SIGINT)
                 for p in procs:
@@ -185,7 +213,7 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
                 procs = []
                 time.sleep(1.0)
         print(f"{'':6s}{'jitter p99 µs per round':>28s}{'period p99 µs per round':>28s}"
-              f"{'overruns':>10s}")  # fmt: skip
+              f"{'overruns':>10s}  load average per round")  # fmt: skip
         p99 = {}
         for mode in ("off", "on"):
             vals = [s["jitter_us"]["p99"] for s in results[mode]]
@@ -193,7 +221,8 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
             p99[mode] = sorted(vals)[len(vals) // 2]
             print(f"{mode:6s}{' / '.join(f'{v:.0f}' for v in vals):>28s}"
                   f"{' / '.join(f'{v:.0f}' for v in per):>28s}"
-                  f"{results[mode][-1]['overruns']:>10d}")  # fmt: skip
+                  f"{results[mode][-1]['overruns']:>10d}  "
+                  f"{' / '.join(f'{v:.1f}' for v in loads[mode])}")  # fmt: skip
         ratio = p99["on"] / p99["off"] if p99["off"] else float("inf")
         verdict = "ok" if ratio <= 1.05 else "ABOVE GOAL"
         print(f"jitter p99 median on/off: {p99['on']:.0f} / {p99['off']:.0f} µs = "
@@ -212,24 +241,29 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter phases")
     ap.add_argument("--skip-jitter", action="store_true", help="only the file-size figures")
+    ap.add_argument("--skip-size", action="store_true", help="only the jitter figures")
+    ap.add_argument("--rounds", type=int, default=None, help="off/on rounds (3; --quick 2)")
+    ap.add_argument("--phase", type=float, default=None, help="s per phase (20; --quick 12)")
+    ap.add_argument("--api-in-process", action="store_true", help="API as a daemon thread")
     args = ap.parse_args()
     seconds = 10.0 if args.quick else 30.0
-    print(f"1. MCAP size, zstd, chunk per second ({seconds:.0f} s of synthetic robot time)")
-    print(f"{'segments':>9s}{'viz Hz':>8s}{'KiB/s':>9s}{'MiB/hour':>10s}{'CPU ms/s':>10s}"
-          f"{'msgs/s':>8s}")  # fmt: skip
-    for n in (3, 8):
-        for viz in (20.0, 100.0):
-            rate, cpu, msgs = mcap_rate(n, seconds, viz)
-            print(f"{n:9d}{viz:8.0f}{rate / 1024:9.1f}{rate * 3600 / 2**20:10.1f}{cpu:10.1f}"
-                  f"{msgs / seconds:8.0f}")  # fmt: skip
+    if not args.skip_size:
+        print(f"1. MCAP size, zstd, chunk per second ({seconds:.0f} s of synthetic robot time)")
+        print(f"{'segments':>9s}{'viz Hz':>8s}{'KiB/s':>9s}{'MiB/hour':>10s}{'CPU ms/s':>10s}"
+              f"{'msgs/s':>8s}")  # fmt: skip
+        for n in (3, 8):
+            for viz in (20.0, 100.0):
+                rate, cpu, msgs = mcap_rate(n, seconds, viz)
+                print(f"{n:9d}{viz:8.0f}{rate / 1024:9.1f}{rate * 3600 / 2**20:10.1f}"
+                      f"{cpu:10.1f}{msgs / seconds:8.0f}")  # fmt: skip
     if not args.skip_jitter:
-        phase = 12.0 if args.quick else 20.0
-        rounds = 2 if args.quick else 3
+        phase = args.phase or (12.0 if args.quick else 20.0)
+        rounds = args.rounds or (2 if args.quick else 3)
         print(
             f"\n2. daemon loop jitter at 100 Hz, 3 emulated segments, {rounds} x ({phase:.0f} s "
             f"off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
         )
-        jitter_phases(phase, rounds)
+        jitter_phases(phase, rounds, args.api_in_process)
 
 
 if __name__ == "__main__":

@@ -52,10 +52,15 @@ class ViewApp:
         port: int = 8080,
         allow_hosts: tuple[str, ...] = (),
         control: bool = True,
-        rate_hz: float = 60.0,
+        rate_hz: float = 40.0,
+        always_update: bool = False,
     ):
         self.source = source
         self.period = 1.0 / rate_hz
+        # with no page connected the scene is not computed (nobody looks): the view then costs
+        # only its API subscription; ``always_update`` keeps it current anyway (embedding, tests)
+        self.always_update = always_update
+        self.idle_skips = 0
         self.live = isinstance(source, LiveSource)
         self.control_enabled = control and self.live
         # set once the port is known (port 0: any free port); until then everything is refused
@@ -91,6 +96,8 @@ class ViewApp:
         self.refusal = ""
         self.facts: dict[str, Any] = {}
         self.visual_problems: list[str] = []  # visuals that could not be drawn (shown)
+        self._colours: dict[str, tuple[int, int, int]] = {}  # tube colours on the page
+        self._visual_links: set[str] = set()  # links whose frame carries visuals
         self._stop = threading.Event()
         self._gui_static()
         self.driver: SliderDriver | None = None
@@ -162,6 +169,7 @@ class ViewApp:
         self.slider_folder = gui.add_folder("Segments (κ 1/m, φ deg)")
 
     def _visibility(self) -> None:
+        self.last_seq = -1  # the next update sets the poses of frames shown now
         with self.lock:
             for key, node in self.nodes.items():
                 if key.startswith("frame:"):
@@ -301,6 +309,8 @@ class ViewApp:
             self.trail.clear()
         model = self.model
         self._clear()
+        self._colours = {}
+        self._visual_links = {v.link for v in model.visuals}
         frame = model.frame(snap.state)
         present = set(snap.present)
         for link, t in frame.links.items():
@@ -390,16 +400,21 @@ class ViewApp:
         frame = model.frame(snap.state)
         self.trail.append(frame.tip.astype(np.float32))
         with self.server.atomic():
+            # a link frame moves when shown or carrying visuals; hidden bare frames cost nothing
+            shown = bool(self.g_frames.value)
             for link, t in frame.links.items():
                 node = self.nodes.get(f"frame:{link}")
-                if node is not None:
+                if node is not None and (shown or link in self._visual_links):
                     node.position, node.wxyz = t[:3, 3], _wxyz(t)
             for name, (verts, _f) in frame.tubes.items():
                 node = self.nodes.get(f"tube:{name}")
                 if node is None:
                     continue
                 node.vertices = verts
-                node.color = COLOURS.get(snap.status.get(name, "ok"), COLOURS["ok"])
+                colour = COLOURS.get(snap.status.get(name, "ok"), COLOURS["ok"])
+                if self._colours.get(name) != colour:  # sent only when it changes
+                    node.color = colour
+                    self._colours[name] = colour
                 tn = self.nodes.get(f"tendons:{name}")
                 if tn is not None:
                     tn.points = _segments(frame.tendons[name])
@@ -432,7 +447,17 @@ class ViewApp:
     def _run(self) -> None:
         t_rate, n_rate = time.monotonic(), 0
         t_text = 0.0
-        while not self._stop.wait(self.period):
+        due = time.monotonic()
+        while True:
+            due += self.period  # a fixed rate (the work's own time not added to the period)
+            now = time.monotonic()
+            if due < now:
+                due = now  # late: no burst of catch-up updates
+            if self._stop.wait(due - now):
+                return
+            if not (self.always_update or self.server.get_clients()):
+                self.idle_skips += 1
+                continue  # no page: nothing drawn; the first page gets the current scene
             with self.source.lock:
                 snap = _copy(self.source.snap)
             robot = self.source.robot

@@ -128,7 +128,7 @@ def test_replay_into_the_view_shows_the_recorded_kappa_in_the_scene(recording):
 
     path, _, _ = recording
     src = ReplaySource(path)
-    app = ViewApp(src, port=0, control=False).start()
+    app = ViewApp(src, port=0, control=False, always_update=True).start()  # no page here
     try:
         assert play(path, [src], rate=4.0) > 100
         assert wait_for(lambda: app.last_seq == src.snap.seq and app.model is not None, 20)
