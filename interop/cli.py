@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from typing import Any
 
@@ -37,9 +38,23 @@ def _guard(command: str, fn: Any) -> Any:
             print(f"ucr: `ucr {command}` needs the optional recording dependencies (module "
                   f"{mod!r} is missing): pip install 'ucr[record]'", file=sys.stderr)  # fmt: skip
             return 1
+        _lower_priority(getattr(args, "nice", 0))
         return int(fn(args) or 0)
 
     return run
+
+
+#: Default nice increment of these clients (as the API process and ``ucr view``): on the daemon's
+#: machine the control loop keeps the CPU first.
+CLIENT_NICE = 5
+
+
+def _lower_priority(nice: int) -> None:
+    if nice > 0 and hasattr(os, "nice"):
+        try:
+            os.nice(nice)
+        except OSError as exc:  # not fatal: recording works at any priority
+            print(f"ucr: priority unchanged ({exc.strerror})", file=sys.stderr)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -48,6 +63,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     add_connection_args(p)  # --url, --token-file, --ca, --timeout: as every API client
     p.add_argument(
         "--robot", default=None, help="U(C)RDF file (default: the file the daemon reports)"
+    )
+    p.add_argument(
+        "--nice",
+        type=int,
+        default=CLIENT_NICE,
+        help=f"lower this process's scheduling priority by this much (default {CLIENT_NICE}: "
+        "a daemon on the same machine keeps the CPU first; 0: unchanged)",
     )
 
 
