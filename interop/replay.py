@@ -1,15 +1,18 @@
 """``ucr replay``: plays a recording (MCAP, ROS 2 CDR) back into sinks at 1x or another rate, and
-with ``--execute`` runs the recorded motion on the robot again (a dry run unless ``--go``).
+with ``--execute`` runs the recorded commanded trajectory on the robot again (a dry run unless
+``--go``).
 
 Output seam: :func:`play` writes every message, still encoded, to any :class:`~interop.sinks.Sink`
-(the Foxglove server today; ``ucr view`` plugs in the same way, decoding with
-:func:`interop.ros2.codec`). The motion that ``--execute`` re-runs is the recorded /joint_states
-(measured κ, φ per bendable), resampled as timed waypoints in the curvature vector (κx, κy) and
-sent as one cJTC goal; every waypoint is checked against the robot file first.
+(the Foxglove server, the 3D view's :class:`view.replay.ReplaySource`). ``--execute`` re-sends
+the goals recorded on /ucr/trajectory/commanded (the daemon's ``goal_accepted`` waypoints) at
+their recorded offsets; without them (or with ``--measured``) the recorded /joint_states,
+resampled as timed waypoints in the curvature vector (κx, κy), as one cJTC goal. Every waypoint
+is checked against the robot file first.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import signal
 import sys
@@ -156,6 +159,14 @@ def recorded_goals(path: str | Path) -> list[tuple[float, list[dict]]]:
     dec = None
     out = []
     for m in read_recording(path):
+        if m.topic == "/ucr/events" and b"waypoints_omitted" in m.data:
+            ev = json.loads(ros2.codec(m.typename).decode(m.data).data)
+            if ev.get("event") == "goal_accepted" and ev.get("waypoints_omitted"):
+                raise RecordingError(
+                    f"goal {ev.get('goal')} had {ev['waypoints_omitted']} waypoints, more than "
+                    "the daemon's event carries: its commanded trajectory is not in the "
+                    "recording (use --measured to re-run the measured motion)"
+                )
         if m.topic != "/ucr/trajectory/commanded":
             continue
         if dec is None:

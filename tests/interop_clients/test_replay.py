@@ -174,3 +174,59 @@ def test_ucr_replay_view_serves_the_page_and_plays_to_the_end(recording):
     finally:
         code, _, err = stop(proc)
     assert code == 0, "".join(lines) + err
+
+
+def _synthetic(path, goals: list[dict]) -> None:
+    """A recording holding only daemon goal_accepted events (as `ucr record` writes them)."""
+    from interop.record import McapSink
+    from interop.sinks import Fanout
+    from interop.topics import RobotTopics, commanded
+    from ucrdf.parser import load
+
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    sink = McapSink(path)
+    out = Fanout([sink])
+    t_ns = 1_700_000_000_000_000_000
+    for i, ev in enumerate(goals):
+        ev = {"kind": "event", "event": "goal_accepted", "goal": f"jtc-{i}", **ev}
+        for m in topics.event(ev, t_ns + i * 10**9):
+            out.publish(m)
+        cmd = commanded(ev, topics.root, t_ns + i * 10**9)
+        if cmd is not None:
+            out.publish(cmd)
+    sink.close()
+
+
+JOINTS = ["segment_1", "segment_2", "segment_3"]
+
+
+def test_commanded_goals_are_rechecked_and_sent_at_their_recorded_offsets(tmp_path):
+    from interop.replay import RecordingError, commanded_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    ok = tmp_path / "ok.mcap"
+    _synthetic(ok, [
+        {"joints": JOINTS, "waypoints": [[1.0, [[1.0, 0.0], [0.0, 0.0], [0.0, -1.5]]]]},
+        {"joints": JOINTS, "waypoints": [[0.5, [[0.0, 2.0], [0.0, 0.0], [0.0, 0.0]]],
+                                         [2.0, [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]]]},
+    ])  # fmt: skip
+    plan = commanded_plan(ok, robot)
+    assert plan is not None and plan.source == "commanded"
+    assert [round(t, 6) for t, _ in plan.goals] == [0.0, 1.0]
+    first = plan.goals[0][1][0]["segments"]
+    assert first["segment_1"]["kappa"] == pytest.approx(1.0)
+    assert first["segment_3"]["kappa"] == pytest.approx(1.5)
+    assert first["segment_3"]["phi"] == pytest.approx(-np.pi / 2)
+    assert plan.duration == pytest.approx(3.0)
+    assert plan.kappa_range["segment_1"] == pytest.approx((0.0, 2.0))
+
+    too_far = tmp_path / "far.mcap"
+    _synthetic(too_far, [{"joints": JOINTS, "waypoints": [[1.0, [[9.0, 0], [0, 0], [0, 0]]]]}])
+    with pytest.raises(RecordingError, match=r"kappa 9 1/m .* outside \[0, 3\.31"):
+        commanded_plan(too_far, robot)
+
+    long = tmp_path / "long.mcap"
+    _synthetic(long, [{"joints": JOINTS, "waypoints_omitted": 5000}])
+    with pytest.raises(RecordingError, match="5000 waypoints.*--measured"):
+        commanded_plan(long, robot)
