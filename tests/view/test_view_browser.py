@@ -279,9 +279,9 @@ def test_a_segment_clamping_its_setpoints_turns_orange(rig, live_view, page):
         if daemon.status()["manual_control"]:
             daemon.hand_back("ffc")
         gid = daemon.send_trajectory(
-            [{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 2.0, "phi": 0.0}}}]
+            [{"time_from_start": 3.0, "segments": {"segment_1": {"kappa": 2.0, "phi": 0.0}}}]
         )
-        assert wait_for(lambda g=gid: daemon.trajectory_status(g)["done"], 30)
+        assert wait_for(lambda g=gid: daemon.trajectory_status(g)["done"], 40)
         if abs(measured(daemon, "segment_1")[0] - 2.0) < 0.1:
             break
     assert abs(measured(daemon, "segment_1")[0] - 2.0) < 0.1, daemon.trajectory_status(gid)
@@ -301,7 +301,7 @@ def test_a_segment_clamping_its_setpoints_turns_orange(rig, live_view, page):
             [e["event"] for e in daemon.fanout.recent_events][-10:],
             daemon.status()["joint_states"]["segment_1"],
         )
-        page.get_by_text("segment_1: clamped").wait_for(timeout=20000)
+        page.get_by_text("segment_1: clamped").wait_for(timeout=30000)
     finally:
         daemon.link.param_set(0, kappa_max, flashed)
     settle(daemon, live_view)
