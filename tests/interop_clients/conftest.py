@@ -125,6 +125,12 @@ def whole_chain(client, timeout: float = 30.0) -> None:
     assert wait_for(ok, timeout, 0.1), client.status()
 
 
+def _starved(result: dict) -> bool:
+    """An abort that a starved emulator causes on a loaded machine (the daemon being safe)."""
+    why = result.get("reason", "")
+    return any(w in why for w in ("topology changed", "link loss", "path tolerance", "holding"))
+
+
 def straighten(client, timeout: float = 30.0) -> None:
     """Bring every segment back to straight (a trajectory from wherever it is)."""
     for _ in range(3):  # a loaded machine may drop a segment for a moment: the goal aborts
@@ -134,7 +140,7 @@ def straighten(client, timeout: float = 30.0) -> None:
         pts = [{"time_from_start": 1.5, "segments": {n: {"kx": 0.0, "ky": 0.0}
                 for n in ("segment_1", "segment_2", "segment_3")}}]  # fmt: skip
         res = client.send_trajectory(pts, timeout=timeout)
-        if res["state"] == "succeeded" or "topology changed" not in res.get("reason", ""):
+        if res["state"] == "succeeded" or not _starved(res):
             break
     assert res["state"] == "succeeded", res
 
@@ -173,7 +179,7 @@ def recording(rig, tmp_path_factory):
             for _ in range(3):  # see straighten(): a segment dropped under load aborts a goal
                 whole_chain(c)
                 result = c.send_trajectory(pts, timeout=30)
-                if "topology changed" not in result.get("reason", ""):
+                if not _starved(result):
                     break
             assert result["state"] == "succeeded", result
             time.sleep(1.5)  # the goal poll (2 Hz) and a status poll (1 Hz) see the result

@@ -30,6 +30,14 @@ def test_dry_run_prints_the_plan_and_moves_nothing(rig, recording):
     path, _, _ = recording
     with connect(url) as c:
         straighten(c)
+
+        def still() -> bool:  # settled after straighten(): a loaded machine lags behind
+            a = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
+            time.sleep(0.5)
+            b = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
+            return a == b
+
+        wait_for(still, 10)
         before = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
         proc = ucr("replay", str(path), "--execute", "--url", url)
         out, err = proc.communicate(timeout=120)
@@ -70,7 +78,7 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
     path, _, _ = recording
     # a heavily loaded machine can make an emulated segment miss its watchdog (HOLD) or drop
     # off the chain, which aborts any goal: that is the daemon being safe, so try once more
-    environment = ("topology changed", "holding", "link lost", "does not control")
+    environment = ("topology changed", "holding", "link lost", "does not control", "path tolerance")
     for attempt in range(3):
         again = tmp_path / f"again{attempt}.mcap"
         url = rig.ensure_whole()
