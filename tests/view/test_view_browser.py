@@ -218,15 +218,27 @@ def test_unplugging_the_tip_removes_its_tube_and_plugging_back_restores_it(rig, 
     assert live_view.facts["tubes"] == ["segment_1", "segment_2", "segment_3"]
 
 
-def _red_pixels(png: bytes) -> int:
-    """Pixels of the fault red (230, 40, 40), shaded: strongly red, little green and blue."""
+def _red_pixels(png: bytes, box=None, at=None, half: int = 6) -> int:
+    """Pixels of the fault red (230, 40, 40), shaded: strongly red, little green and blue; only
+    in the (2 half)^2 square around page pixel ``at`` if given (``box``: the canvas box)."""
     import io
 
     from PIL import Image
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    if at is not None:
+        x, y = int(at[0] - box["x"]), int(at[1] - box["y"])
+        img = img[max(0, y - half) : y + half, max(0, x - half) : x + half]
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
     return int(((r > 120) & (r > 2 * g + 40) & (r > 2 * b + 40)).sum())
+
+
+def _middle_of(view, name: str) -> np.ndarray:
+    """World point halfway along a segment's drawn backbone."""
+    with view.source.lock:
+        state = {n: dict(v) for n, v in view.source.snap.state.items()}
+    frames = view.model.frame(state).backbones[name]
+    return frames[len(frames) // 2][:3, 3]
 
 
 def _tube_colour(view, name: str) -> tuple[int, ...]:
@@ -245,14 +257,17 @@ def test_a_faulted_segment_turns_red_until_the_fault_is_cleared(rig, live_view, 
     page.get_by_text("segment_2: ok").wait_for(timeout=30000)
     time.sleep(1.0)
     canvas = page.locator("canvas").first
-    red_before = _red_pixels(canvas.screenshot())  # the gizmo's x arrow is red too
+    box = canvas.bounding_box()
+    # the screen pixels around segment_2's middle (the page's initial camera; nothing moves)
+    at = project(_middle_of(live_view, "segment_2"), box)
+    assert wait_for(lambda: _red_pixels(canvas.screenshot(), box, at) < 20, 20)  # blue now
     daemon.link.param_set(1, 5, "0:raise")
     try:
         page.get_by_text("segment_2: fault").wait_for(timeout=30000)
         assert wait_for(lambda: _tube_colour(live_view, "segment_2") == COLOURS["fault"], 10)
-        assert wait_for(lambda: _red_pixels(canvas.screenshot()) > red_before + 300, 20), (
-            red_before,
-            _red_pixels(canvas.screenshot()),
+        assert wait_for(lambda: _red_pixels(canvas.screenshot(), box, at) > 60, 20), (
+            at,
+            _red_pixels(canvas.screenshot(), box, at),
         )
         daemon.link.param_set(1, 5, "none")  # the cause is gone, the FAULT is not
         time.sleep(3.0)  # well past the 1.5 s an event colour is held
