@@ -134,7 +134,19 @@ def descriptor(self):
         "downstream_present": self.down_present,
         # why config.json was refused, shortened to fit the frame (full text: PARAM 16)
         "config_error": (self.cfg.error or "")[:40],
+        "config_hash": _config_hash(self),
     }
+
+
+def _config_hash(self):
+    """protocol/calibration.py config_hash of what runs (cached; device/calib.py resets it)."""
+    h = getattr(self, "cfg_hash", None)
+    if h is None:
+        from protocol.calibration import config_hash
+
+        h = config_hash(self.cfg.si)
+        self.cfg_hash = h
+    return h
 
 
 def descriptor_payload(self):
@@ -158,6 +170,7 @@ def descriptor_payload(self):
         14: d["watchdog_ms"],
         15: d["downstream_present"],
         16: d["config_error"],
+        17: d["config_hash"],
     }
 
 

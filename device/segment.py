@@ -111,6 +111,7 @@ _PEND = const(252)  # an own upstream frame held while a relayed frame is half s
 # the port; generous, because a frame's bytes come back to back on a wire but an emulated link
 # under load may pause for milliseconds (the reader itself never gives up on a frame)
 _RELAY_SILENCE_MS = const(50)
+_T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
 
 
 def _diff(a, b):
@@ -436,6 +437,13 @@ class Segment:
             params.clear_fault_request(self, raw, pe, seq)
         elif t == T_ALIVE:
             return  # link-local keep-alive from the host side: nothing to do
+        elif t == _T_CALIBRATE:
+            import gc
+
+            gc.collect()  # the compiler's peak needs a tidy heap
+            import calib  # slow path, loaded on demand (device/calib.py)
+
+            calib.request(self, flags, raw, pe, seq)
         else:
             self.dropped += 1
             self._error(seq, ERR_UNKNOWN_TYPE, t, "unknown or non-request message type 0x%02x" % t)

@@ -318,6 +318,24 @@ class ChainLink(_FramePlumbing):
                 raise LinkError(f"the segment at {label(position)} sent a malformed PARAM_VALUE")
             return payload_in[C.K_VALUE]
 
+    def request(
+        self, position: int, mtype: int, payload: dict, reply_type: int, timeout: float = 0.5
+    ) -> Any:
+        """Send request ``mtype`` to ``position``; the decoded payload of its ``reply_type``
+        answer (an ERROR answer raises, as for PARAM_GET). For slow-path messages (CALIBRATE)."""
+        with self._call_lock:
+            col = self._send(0, self._position(position), mtype, payload, (reply_type,))
+            self._wait(col, timeout, lambda c: position in c.replies or position in c.errors)
+            if position in col.errors:
+                self._raise_error(position, col.errors[position])
+            frame = col.replies.get(position)
+            if frame is None:
+                self._counters["timeouts"] += 1
+                raise LinkTimeoutError(
+                    f"no answer from segment {position} within {timeout * 1000:.0f} ms"
+                )
+            return self._payload(frame)
+
     def param_get(
         self, position: int, param_id: int, uid: str | None = None, *, timeout: float = 0.2
     ) -> Any:

@@ -50,9 +50,11 @@ T_PARAM_SET = const(0x05)  # host -> addressed, {0: param_id, 1: value, 15: uid?
 T_HOLD = const(0x06)  # host -> bcast or addressed, {}
 T_ALIVE = const(0x07)  # segment -> upstream neighbour, LOCAL, {}
 T_CLEAR_FAULT = const(0x08)  # host -> bcast or addressed, {15: uid?}; ends FAULT (-> HOLD)
+T_CALIBRATE = const(0x09)  # host -> addressed, protocol/calibration.py: read/apply/persist zeros
 T_DESCRIPTOR = const(0x81)  # up
 T_STATE = const(0x83)  # up
 T_PARAM_VALUE = const(0x84)  # up
+T_CALIBRATION = const(0x89)  # up, answers CALIBRATE (protocol/calibration.py)
 T_EVENT = const(0x85)  # up, unsolicited
 T_ERROR = const(0xFF)  # up
 
@@ -65,10 +67,12 @@ TYPE_NAMES = {
     0x06: "HOLD",
     0x07: "ALIVE",
     0x08: "CLEAR_FAULT",
+    0x09: "CALIBRATE",
     0x81: "DESCRIPTOR",
     0x83: "STATE",
     0x84: "PARAM_VALUE",
     0x85: "EVENT",
+    0x89: "CALIBRATION",
     0xFF: "ERROR",
 }
 
@@ -122,6 +126,7 @@ KD_SERVO_DRIVER = const(13)
 KD_WATCHDOG_MS = const(14)
 KD_DOWNSTREAM_PRESENT = const(15)
 KD_CONFIG_ERROR = const(16)  # why the segment refused its config.json ("" if it did not)
+KD_CONFIG_HASH = const(17)  # protocol/calibration.py config_hash of what the segment runs
 
 # descriptor key -> host-side name (docs/architecture.md), in key order
 DESCRIPTOR_KEYS = (
@@ -142,6 +147,7 @@ DESCRIPTOR_KEYS = (
     "watchdog_ms",
     "downstream_present",
     "config_error",
+    "config_hash",
 )
 
 # --- event codes -----------------------------------------------------------------------------

@@ -434,6 +434,7 @@ _DESC_KINDS = (
     "uint",  # watchdog_ms
     "bool",  # downstream_present
     "str",  # config_error
+    "uint",  # config_hash
 )
 _DESC_REQUIRED = 4  # uid, fw_version, protocol_version, model are mandatory
 

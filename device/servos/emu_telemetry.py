@@ -2,7 +2,12 @@
 
 Config keys (docs/firmware.md): ``emulated_voltage`` (V, default 12.0), ``emulated_temperature``
 (deg C per servo, default 30.0), ``emulated_load_per_rad`` (default 0.5): the load, a fraction
-of max torque, rises with tendon tension, i.e. with how far the servo is from its zero (rad).
+of max torque, rises with tendon tension: ``k * max(0, pull + emulated_pretension)`` where pull
+(rad) is how far the servo has wound its tendon in from the physical zero (``emulated_zero``, raw
+rad per servo, in the sense ``emulated_direction``; both default to config.json's calibration)
+and ``emulated_pretension`` (rad, default 0) the tension it was built with. An unwound tendon
+goes slack: no load. Each tendon is modelled on its own (a simplification: real tendons share
+the backbone's bend), which is enough to find its direction and its taut point.
 ``emulated_ids`` (the bus ids the emulated servos really have, a list) models a missing, wrong
 or duplicate id: a configured servo whose id is absent from it, or present twice (two servos
 answer at once: a garbled reply), never answers.
@@ -24,8 +29,28 @@ def telemetry(bus, i):
     if not isinstance(t, list) or len(t) != bus.n:
         raise ValueError("emulated_temperature must list one value (deg C) per servo")
     temp = _num({"t": t[i]}, "t", 30.0)
-    load = abs(bus.true_pos[i] - bus.cfg.zero[i]) / 10000.0 * k
-    return (v, temp, min(1.0, load))
+    pre = _num(si, "emulated_pretension", 0.0)
+    pull = bus.true_dir[i] * (bus.true_pos[i] - bus.true_zero[i]) / 10000.0
+    load = k * (pull + pre)
+    return (v, temp, min(1.0, max(0.0, load)))
+
+
+def physical(bus, si):
+    """Set the physical zero (``emulated_zero``, rad) and winding sense (``emulated_direction``)
+    of every servo; ValueError unless one value per servo."""
+    z = si.get("emulated_zero")
+    if z is not None:
+        if not isinstance(z, list) or len(z) != bus.n:
+            raise ValueError("emulated_zero must list one raw angle (rad) per servo")
+        for i in range(bus.n):
+            a = _num({"z": z[i]}, "z", 0.0)
+            bus.true_zero[i] = int(a * 10000.0 + (0.5 if a >= 0 else -0.5))
+    d = si.get("emulated_direction")
+    if d is not None:
+        if not isinstance(d, list) or len(d) != bus.n or any(x not in (1, -1) for x in d):
+            raise ValueError("emulated_direction must list 1 or -1 per servo")
+        for i in range(bus.n):
+            bus.true_dir[i] = d[i]
 
 
 def _num(si, key, default):

@@ -10,9 +10,11 @@ Faults (injected by ``UCR_FAULTS`` or PARAM_SET ``faults``), spec ``"IDX:KIND[,I
 * ``raise``: reading the servos raises an exception (an exception inside the control tick);
 * ``hang``: reading the servos never returns (a hung loop, for the hardware watchdog).
 
-Config key ``emulated_start`` (list of raw angles in rad, one per servo; default the zero
+Config key ``emulated_start`` (list of raw angles in rad, one per servo; default the true zero
 offsets) is where the servos are at power-on: far from zero, even outside their range, to test
 the first-motion rules. Travel limits stop a servo moving outwards, never pull it inwards.
+``emulated_zero`` / ``emulated_direction`` (servos/emu_telemetry.py) make the physical segment
+differ from its configuration: what ``ucr calibrate`` has to find.
 """
 
 from array import array
@@ -67,16 +69,25 @@ class EmulatedBus(ServoBus):
         ServoBus.__init__(self, cfg.n)
         si = cfg.si
         n = cfg.n
-        self.lo = array("i", [cfg.zero[i] + cfg.min_angle[i] for i in range(n)])
-        self.hi = array("i", [cfg.zero[i] + cfg.max_angle[i] for i in range(n)])
-        self.true_pos = array("i", cfg.zero)  # physical angle; at the calibrated zero, or:
+        # the physical segment: where each tendon is straight and just taut (``emulated_zero``,
+        # raw rad) and which raw sense winds it in (``emulated_direction``); by default exactly
+        # what config.json says (a calibrated segment). Calibration tests set them apart.
+        self.true_zero = array("i", cfg.zero)
+        self.true_dir = array("b", cfg.direction)
+        if si.get("emulated_zero") is not None or si.get("emulated_direction") is not None:
+            from servos.emu_telemetry import physical
+
+            physical(self, si)
+        self.lo = array("i", [self.true_zero[i] + cfg.min_angle[i] for i in range(n)])
+        self.hi = array("i", [self.true_zero[i] + cfg.max_angle[i] for i in range(n)])
+        self.true_pos = array("i", self.true_zero)  # physical angle; at the true zero, or:
         start = si.get("emulated_start")
         if start is not None:
             for i in range(n):
                 self.true_pos[i] = int(start[i] * 10000.0 + (0.5 if start[i] >= 0 else -0.5))
         for i in range(n):
             self.pos[i] = self.true_pos[i]
-        self.target = array("i", cfg.zero)
+        self.target = array("i", self.true_pos)
         self.speed = max(1, int(si["servo_speed"] * 10.0 + 0.5))  # 1e-4 rad per ms
         tau_ms = si["servo_tau"] * 1000.0
         # first-order gain per ms in Q14 (tau = 0: reach the target at the speed limit)

@@ -1,0 +1,135 @@
+"""Slow path: the segment's stored calibration (``calibration.json``) and CALIBRATE (0x09).
+
+Loaded on demand only (a CALIBRATE request, or a boot that finds ``calibration.json``), so the
+boot heap does not pay for it. A calibration is, per servo, the zero offset (rad) and direction
+(docs/protocol.md, CALIBRATE). The file is written atomically (temp file, then rename) and read at
+boot by ``config.load`` through ``merge``: an invalid file is refused with the reason and the
+segment does not move (docs/firmware.md, "Calibration"); it never falls back to config.json's
+values in place of a calibration it was given.
+
+Changes apply only while the segment is not moving: motion then restarts from the measured
+position through the one motion path (MC limits and slew, SC servo speed), whatever the offsets.
+"""
+
+import os
+
+import calib_store as store
+
+from protocol import calibration as cal
+from protocol import cbor
+from protocol.constants import (
+    ERR_BAD_VALUE,
+    ERR_IDENTITY_MISMATCH,
+    ERR_MALFORMED,
+    FLAG_BCAST,
+    HEADER_LEN,
+    T_CALIBRATE,
+    T_CALIBRATION,
+)
+
+
+def running(seg):
+    """(zeros rad, dirs) the segment runs now."""
+    cfg = seg.cfg
+    return [z / 10000.0 for z in cfg.zero], [int(d) for d in cfg.direction]
+
+
+def config_hash(seg):
+    """Hash of the running configuration (params.py caches it; ``apply`` resets the cache)."""
+    import params
+
+    return params._config_hash(seg)
+
+
+def _e4(x):
+    v = x * 10000.0
+    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+
+
+def apply(seg, zeros, dirs):
+    """Run calibration (``zeros`` rad, ``dirs``) now. Only while not moving: the targets become
+    the measured positions, and the next motion starts there (MC/SC limits and slew)."""
+    cfg = seg.cfg
+    base = getattr(cfg, "base_zero", None)
+    if base is None:
+        base = [z / 10000.0 for z in cfg.zero]
+        cfg.base_zero = base
+    why = store.check_shift(base, zeros)
+    if why:
+        raise ValueError(why)
+    mc = seg.mc
+    for i in range(seg.n):
+        z = _e4(zeros[i])
+        d = dirs[i]
+        cfg.zero[i] = z
+        cfg.direction[i] = d
+        mc.zero[i] = z
+        mc.dir[i] = d
+        seg.range_lo[i] = z + cfg.min_angle[i] - 500  # segment._RANGE_TOL
+        seg.range_hi[i] = z + cfg.max_angle[i] + 500
+        s = cfg.si["servos"][i]
+        s["zero_offset"] = z / 10000.0
+        s["direction"] = d
+    seg.cfg_hash = None
+    seg.mc.hold_here(seg.bus.pos)
+    seg.sc.reset(seg.bus.pos)
+
+
+def _same_as_file(seg):
+    try:
+        got = store.read_file()
+    except ValueError:
+        return False
+    if got is None:
+        return False
+    zeros, dirs = running(seg)
+    for i in range(seg.n):
+        if _e4(got[0][i]) != _e4(zeros[i]) or got[1][i] != dirs[i]:
+            return False
+    return True
+
+
+def request(seg, flags, raw, pe, seq):
+    """CALIBRATE: decode, check identity and state, act, answer CALIBRATION or ERROR."""
+    if flags & FLAG_BCAST:
+        seg.dropped += 1
+        seg._error(seq, ERR_MALFORMED, T_CALIBRATE, "CALIBRATE must be addressed, not broadcast")
+        return
+    try:
+        action, zeros, dirs, uid = cal.decode_calibrate(cbor.loads(raw, HEADER_LEN, pe))
+    except ValueError as e:
+        seg.dropped += 1
+        seg._error(seq, ERR_MALFORMED, T_CALIBRATE, "CALIBRATE: %s" % (e,))
+        return
+    if uid is not None and uid.lower() != seg.uid:
+        seg._error(
+            seq,
+            ERR_IDENTITY_MISMATCH,
+            T_CALIBRATE,
+            "identity mismatch: this segment is %s" % seg.uid,
+        )
+        return
+    if len(zeros or ()) not in (0, seg.n):
+        seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "this segment has %d servos" % seg.n)
+        return
+    try:
+        if action in (cal.ACTION_APPLY, cal.ACTION_PERSIST):
+            if seg.moving:
+                raise ValueError("moving: send HOLD first (calibration changes only in hold)")
+            if seg.cfg.error:
+                raise ValueError("configuration refused, nothing to calibrate: %s" % seg.cfg.error)
+            apply(seg, zeros, dirs)
+            if action == cal.ACTION_PERSIST:
+                store.write_file(zeros, dirs)
+        elif action == cal.ACTION_FORGET:
+            try:
+                os.remove(store.FILE)
+            except OSError:
+                pass
+    except (ValueError, OSError) as e:
+        seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "%s" % (e,))
+        return
+    z, d = running(seg)
+    seg._reply(
+        T_CALIBRATION, seq, cal.calibration_payload(z, d, _same_as_file(seg), config_hash(seg))
+    )

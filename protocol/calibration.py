@@ -1,0 +1,205 @@
+"""CALIBRATE (0x09) / CALIBRATION (0x89) and the configuration hash (docs/protocol.md).
+
+One source for both runtimes: the segment's slow path (``device/calib.py``) decodes requests and
+builds answers with these functions, the host (``host/calibrate_link.py``, ``ucr doctor``) too.
+A calibration is, per servo, the zero offset (rad, raw servo angle where the segment is straight)
+and the direction (+1/-1: the raw sense that winds the tendon in). ``config_hash`` condenses the
+configuration a segment runs (geometry, limits, servo ids and calibration) into a 30-bit number
+(FNV-1a over fixed-point text) that the host computes from the U(C)RDF too: a stale flash shows as
+a different hash even when only a zero offset differs. Allocates: never on the control cycle.
+"""
+
+from protocol.constants import (
+    DEFAULT_KAPPA_RATE_MAX,
+    FLAG_UP,
+    T_CALIBRATE,
+    T_CALIBRATION,
+)
+
+CAL_VERSION = 1  # calibration format version (key 0 of both messages, and of calibration.json)
+
+# CALIBRATE keys (host -> segment)
+KC_VERSION = 0
+KC_ACTION = 1
+KC_ZERO = 2
+KC_DIRECTION = 3
+KC_UID = 15
+# CALIBRATION keys (segment -> host); 0, 2, 3 as above
+KC_STORED = 4  # bool: the running calibration is the one stored on the segment's flash
+KC_HASH = 5  # uint: config_hash of the running configuration
+
+ACTION_READ = 0  # answer the running calibration, change nothing
+ACTION_APPLY = 1  # run the given calibration now (RAM only; lost at reboot)
+ACTION_PERSIST = 2  # apply, then store it on the segment (calibration.json, atomic)
+ACTION_FORGET = 3  # delete the stored calibration (config.json's values from the next boot)
+ACTIONS = ("read", "apply", "persist", "forget")
+
+#: a calibration may move a zero offset at most this far (rad) from config.json's value
+MAX_SHIFT = 1.0
+
+_HASH_MASK = 0x3FFFFFFF  # 30 bits: every wire int stays below 2**30
+
+
+def _q(x, scale):
+    """Round ``x * scale`` half away from zero (same result on float32 and float64 for values
+    given to the scale's resolution, which is what the tools write)."""
+    v = float(x) * scale
+    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+
+
+def config_text(cfg):
+    """Canonical text of the hashed part of a configuration dict (config.json keys, SI).
+
+    Lengths in um, angles in 1e-4 rad, curvature in 1e-4 1/m; servos with the firmware's defaults
+    filled in (id = index, zero 0, direction 1, range -pi..pi)."""
+    rate = cfg.get("kappa_rate_max")
+    if rate is None:
+        rate = DEFAULT_KAPPA_RATE_MAX
+    angles = cfg.get("tendon_angles") or []
+    parts = [
+        "l%d" % _q(cfg.get("length", 0.0), 1000000),
+        "a" + ",".join(["%d" % _q(a, 10000) for a in angles]),
+        "r%d" % _q(cfg.get("tendon_radius", 0.0), 1000000),
+        "s%d" % _q(cfg.get("spool_radius", 0.0), 1000000),
+        "k%d" % _q(cfg.get("kappa_max", 0.0), 10000),
+        "v%d" % _q(rate, 10000),
+        "d%s" % (cfg.get("servo_driver") or ""),
+    ]
+    servos = cfg.get("servos") or [{} for _ in angles]
+    for i in range(len(servos)):
+        s = servos[i]
+        parts.append(
+            "i%d,%d,%d,%d,%d"
+            % (
+                s.get("id", i),
+                _q(s.get("zero_offset", 0.0), 10000),
+                s.get("direction", 1),
+                _q(s.get("min_angle", -3.141592653589793), 10000),
+                _q(s.get("max_angle", 3.141592653589793), 10000),
+            )
+        )
+    return ";".join(parts)
+
+
+def config_hash(cfg):
+    """30-bit FNV-1a of ``config_text(cfg)``."""
+    h = 0x811C9DC5
+    for b in config_text(cfg).encode():
+        h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF
+    return h & _HASH_MASK
+
+
+def _is_num(v):
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and v - v == 0
+
+
+def check_values(zeros, dirs, n):
+    """None if ``zeros`` (rad) and ``dirs`` (+1/-1) are a calibration of ``n`` servos, else why."""
+    if not isinstance(zeros, list) or len(zeros) != n:
+        return "zero offsets must list one angle (rad) per servo (%d)" % n
+    if not isinstance(dirs, list) or len(dirs) != n:
+        return "directions must list one of 1, -1 per servo (%d)" % n
+    for i in range(n):
+        if not _is_num(zeros[i]) or not -50.0 <= zeros[i] <= 50.0:
+            return "servo %d: zero offset %r is not an angle within +-50 rad" % (i, zeros[i])
+        if isinstance(dirs[i], bool) or dirs[i] not in (1, -1):
+            return "servo %d: direction %r is not 1 or -1" % (i, dirs[i])
+    return None
+
+
+def calibrate_payload(action, zeros=None, dirs=None, uid=None):
+    """CALIBRATE payload; ``zeros``/``dirs`` required for apply and persist."""
+    if action not in (ACTION_READ, ACTION_APPLY, ACTION_PERSIST, ACTION_FORGET):
+        raise ValueError("action must be 0..3 (%s)" % ", ".join(ACTIONS))
+    d = {KC_VERSION: CAL_VERSION, KC_ACTION: action}
+    if action in (ACTION_APPLY, ACTION_PERSIST):
+        why = check_values(zeros, dirs, len(zeros) if isinstance(zeros, list) else -1)
+        if why:
+            raise ValueError(why)
+        d[KC_ZERO] = [float(z) for z in zeros]
+        d[KC_DIRECTION] = [int(x) for x in dirs]
+    if uid is not None:
+        if not isinstance(uid, str):
+            raise ValueError("uid must be text")
+        d[KC_UID] = uid
+    return d
+
+
+def encode_calibrate(seq, position, action, zeros=None, dirs=None, uid=None):
+    """CALIBRATE frame addressed to ``position`` (never broadcast: each segment has its own)."""
+    from protocol.frame import encode_frame  # (not at import: the segment's boot heap)
+
+    if not 0 <= position <= 255:
+        raise ValueError("position must be 0..255")
+    return encode_frame(
+        0, position, T_CALIBRATE, seq & 0xFF, calibrate_payload(action, zeros, dirs, uid)
+    )
+
+
+def decode_calibrate(d):
+    """CALIBRATE payload (decoded CBOR map) -> (action, zeros, dirs, uid); ValueError if bad."""
+    if not isinstance(d, dict):
+        raise ValueError("payload is not a map")
+    for k in d:
+        if not isinstance(k, int) or isinstance(k, bool):
+            raise ValueError("keys must be ints")
+    if d.get(KC_VERSION) != CAL_VERSION:
+        raise ValueError(
+            "calibration version %r unsupported (this segment: %d)" % (d.get(0), CAL_VERSION)
+        )
+    action = d.get(KC_ACTION)
+    if isinstance(action, bool) or action not in (0, 1, 2, 3):
+        raise ValueError("key 1 (action) must be 0..3")
+    uid = d.get(KC_UID)
+    if uid is not None and not isinstance(uid, str):
+        raise ValueError("key 15 (uid) must be text")
+    zeros = d.get(KC_ZERO)
+    dirs = d.get(KC_DIRECTION)
+    if action in (ACTION_APPLY, ACTION_PERSIST):
+        why = check_values(zeros, dirs, len(zeros) if isinstance(zeros, list) else -1)
+        if why:
+            raise ValueError(why)
+    return action, zeros, dirs, uid
+
+
+def calibration_payload(zeros, dirs, stored, chash):
+    """CALIBRATION payload: the running calibration, whether it is stored, the config hash."""
+    return {
+        KC_VERSION: CAL_VERSION,
+        KC_ZERO: [float(z) for z in zeros],
+        KC_DIRECTION: [int(x) for x in dirs],
+        KC_STORED: bool(stored),
+        KC_HASH: chash & _HASH_MASK,
+    }
+
+
+def encode_calibration(seq, zeros, dirs, stored, chash):
+    """CALIBRATION frame (UP, hop 0) answering CALIBRATE ``seq``."""
+    from protocol.frame import encode_frame
+
+    return encode_frame(
+        FLAG_UP, 0, T_CALIBRATION, seq & 0xFF, calibration_payload(zeros, dirs, stored, chash)
+    )
+
+
+def decode_calibration(d):
+    """CALIBRATION payload (decoded map) -> {version, zero_offsets, directions, stored,
+    config_hash}; ValueError if malformed (bytes from a segment are untrusted)."""
+    if not isinstance(d, dict) or d.get(KC_VERSION) != CAL_VERSION:
+        raise ValueError("not a version %d CALIBRATION" % CAL_VERSION)
+    zeros = d.get(KC_ZERO)
+    dirs = d.get(KC_DIRECTION)
+    why = check_values(zeros, dirs, len(zeros) if isinstance(zeros, list) else -1)
+    if why:
+        raise ValueError(why)
+    stored = d.get(KC_STORED)
+    chash = d.get(KC_HASH)
+    if not isinstance(stored, bool) or isinstance(chash, bool) or not isinstance(chash, int):
+        raise ValueError("CALIBRATION keys 4 (stored) / 5 (config_hash) malformed")
+    return {
+        "version": CAL_VERSION,
+        "zero_offsets": [float(z) for z in zeros],
+        "directions": list(dirs),
+        "stored": stored,
+        "config_hash": chash,
+    }
