@@ -104,3 +104,35 @@ def write_file(zeros, dirs, path=FILE, tmp=_TMP):
     os.rename(tmp, path)
 
 
+def load_config(config, driver, path="config.json"):
+    """Boot (main.build), when calibration.json exists: ``config.load`` with the stored
+    calibration merged in; an invalid calibration refuses the configuration (``error`` says why:
+    the segment does not move). This module and protocol.calibration are dropped afterwards."""
+    import gc
+    import json
+    import sys
+
+    where = path
+    try:
+        with open(path) as f:
+            data = json.loads(f.read())
+        where = FILE
+        base = merge(data)
+        where = path
+        cfg = config.Config(data, driver)
+        cfg.base_zero = base
+        import mechanism
+
+        mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
+    except (OSError, ValueError, TypeError, KeyError) as e:
+        cfg = config.Config(None, driver)
+        cfg.error = "%s rejected: %s" % (where, e)
+    if sys.implementation.name == "micropython":
+        for m in ("calib_store", "protocol.calibration"):
+            sys.modules.pop(m, None)
+        import protocol
+
+        if hasattr(protocol, "calibration"):
+            del protocol.calibration
+    gc.collect()
+    return cfg

@@ -282,54 +282,14 @@ def load(path="config.json", default_driver="emulated"):
             text = f.read()
     except OSError:
         return Config(None, default_driver)
-    where = "config.json"
     try:
         data = json.loads(text)
-        base = None
-        if _exists(CAL_FILE):  # a stored calibration (device/calib.py, slow path) wins
-            where = CAL_FILE
-            base = _merge_calibration(data)
-            where = "config.json"
         cfg = Config(data, default_driver)
-        cfg.base_zero = base
         import mechanism
 
         mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
         return cfg
     except (ValueError, TypeError, KeyError) as e:
         c = Config(None, default_driver)
-        c.error = "%s rejected: %s" % (where, e)
+        c.error = "config.json rejected: %s" % (e,)
         return c
-
-
-CAL_FILE = "calibration.json"
-
-
-def _merge_calibration(data):
-    """device/calib_store.py merge, then free it: it is needed once per boot (heap peak)."""
-    import gc
-    import sys
-
-    gc.collect()
-    import calib_store
-
-    try:
-        return calib_store.merge(data, CAL_FILE)
-    finally:
-        if sys.implementation.name == "micropython":
-            for m in ("calib_store", "protocol.calibration"):
-                sys.modules.pop(m, None)
-            import protocol
-
-            if hasattr(protocol, "calibration"):
-                del protocol.calibration
-            del calib_store
-            gc.collect()
-
-
-def _exists(path):
-    try:
-        open(path).close()
-        return True
-    except OSError:
-        return False

@@ -9,6 +9,7 @@ stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends it and leaves
 ``micropython -i``) at the REPL.
 """
 
+import os
 import sys
 
 TICK_MS = 5  # 200 Hz control tick
@@ -40,7 +41,13 @@ def build(tick_ms=TICK_MS):
     gc.collect()
     import config
 
-    cfg = config.load("config.json", halmod.DEFAULT_DRIVER)  # the board rules come and go here
+    if "calibration.json" in os.listdir():  # a stored calibration wins (slow path, on demand)
+        import calib_store
+
+        cfg = calib_store.load_config(config, halmod.DEFAULT_DRIVER)
+        del calib_store
+    else:
+        cfg = config.load("config.json", halmod.DEFAULT_DRIVER)  # board rules come and go here
     gc.collect()
     import servos
 
