@@ -673,6 +673,31 @@ def decode_error(payload) -> dict:
 # --------------------------------------------------------------------------------------------
 # dispatch
 # --------------------------------------------------------------------------------------------
+def decode_calibrate(payload) -> dict:
+    """CALIBRATE payload -> ``{action, zero_offsets, directions, uid}`` (see calibration.py)."""
+    from protocol import calibration
+
+    try:
+        action, zeros, dirs, uid = calibration.decode_calibrate(decode_map(payload))
+    except MalformedError:
+        raise
+    except ValueError as e:
+        raise MalformedError(str(e)) from None
+    return {"action": action, "zero_offsets": zeros, "directions": dirs, "uid": uid}
+
+
+def decode_calibration(payload) -> dict:
+    """CALIBRATION payload -> ``{version, zero_offsets, directions, stored, config_hash}``."""
+    from protocol import calibration
+
+    try:
+        return calibration.decode_calibration(decode_map(payload))
+    except MalformedError:
+        raise
+    except ValueError as e:
+        raise MalformedError(str(e)) from None
+
+
 _DECODERS = {
     T_DISCOVER: decode_empty,
     T_SYNC: decode_sync,
@@ -687,6 +712,8 @@ _DECODERS = {
     T_PARAM_VALUE: decode_param_value,
     T_EVENT: decode_event,
     T_ERROR: decode_error,
+    0x09: decode_calibrate,  # T_CALIBRATE
+    0x89: decode_calibration,  # T_CALIBRATION
 }
 
 

@@ -137,6 +137,46 @@ SPECS = [
     ),
     ("descriptor", "DESCRIPTOR of a 3-tendon PCC segment", "encode_descriptor", [DESC, 1], {}, {}),
     (
+        "calibrate_persist",
+        "CALIBRATE persist at position 1: zero offsets 0.12, -0.08, 0.05 rad, servo 1 reversed",
+        "encode_calibrate",
+        [24, 1, 2, [0.12, -0.08, 0.05], [1, -1, 1], "24a1600c3b5e"],
+        {},
+        {},
+    ),
+    ("calibrate_read", "CALIBRATE read at position 0", "encode_calibrate", [25, 0, 0], {}, {}),
+    (
+        "calibration",
+        "CALIBRATION answer: the stored calibration and the configuration hash",
+        "encode_calibration",
+        [24, [0.12, -0.08, 0.05], [1, -1, 1], True, 0x1234567],
+        {},
+        {},
+    ),
+    (
+        "config_hash",
+        "configuration hash of a 3-tendon segment (FNV-1a 30 bit over the canonical text)",
+        "config_hash",
+        [
+            {
+                "length": 0.316,
+                "tendon_angles": [0.0, 2.0943951023931953, 4.1887902047863905],
+                "tendon_radius": 0.06,
+                "spool_radius": 0.025,
+                "kappa_max": 3.313916301255056,
+                "kappa_rate_max": 5.0,
+                "servo_driver": "feetech_sts",
+                "servos": [
+                    {"id": 1, "zero_offset": 0.12, "direction": 1},
+                    {"id": 2, "zero_offset": -0.08, "direction": -1},
+                    {"id": 3, "zero_offset": 0.05, "direction": 1},
+                ],
+            }
+        ],
+        {},
+        {},
+    ),
+    (
         "state_3t",
         "STATE of a segment with 3 servos",
         "encode_state",

@@ -8,6 +8,7 @@ interpreters and compare the JSON results. ``main(in_path, out_path)`` is the VM
 import json
 import struct
 
+from protocol import calibration as CAL
 from protocol import cbor, cobs, crc
 from protocol import device as D
 from protocol import frame as F
@@ -28,6 +29,8 @@ _FRAME_CALLS = {
     "encode_event": M.encode_event,
     "encode_error": M.encode_error,
     "encode_version_error": M.encode_version_error,
+    "encode_calibrate": CAL.encode_calibrate,
+    "encode_calibration": CAL.encode_calibration,
 }
 
 
@@ -132,6 +135,10 @@ def run_vector(v):
             enc = cobs.encode(_unhex(args[0]))
             res["hex"] = _hex(enc)
             res["decoded"] = _hex(cobs.decode(enc))
+            return res
+        elif call == "config_hash":
+            res["hex"] = "%08x" % CAL.config_hash(args[0])
+            res["decoded"] = CAL.config_text(args[0])
             return res
         elif call == "crc16":
             res["hex"] = "%04x" % crc.crc16(_unhex(args[0]))

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from protocol import calibration as CAL
 from protocol import cbor
 from protocol import device as D
 from protocol import messages as M
@@ -83,6 +84,8 @@ def _every_message() -> list[bytes]:
         M.encode_event(11, 5, 2, 100),
         M.encode_error(12, 1, 0x42, "unknown"),
         M.encode_version_error(13, 2),
+        CAL.encode_calibrate(14, 1, CAL.ACTION_PERSIST, [0.1, -0.2, 0.0], [1, -1, 1], "abc"),
+        CAL.encode_calibration(15, [0.1, -0.2, 0.0], [1, -1, 1], True, 123456),
     ]
 
 
