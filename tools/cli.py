@@ -19,6 +19,7 @@ _AREAS = (
     "tools.tools_cli",
     "host.cli",
     "host.doctor",
+    "host.calibrate_cli",
     "tools.demo",
     "host.client_cli",
     "interop.cli",

@@ -1,0 +1,119 @@
+"""``ucr calibrate``: command line (script form) and the entry to the terminal UI."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="calibrate one segment: zero offsets, directions, tendon tension (moves it)",
+        description="Calibrate the segment NAME over the chain (the daemon must be stopped: the "
+        "port is opened exclusively). With --script FILE the steps run unattended; without it a "
+        "terminal UI (the 'tui' extra) guides you. Ctrl-C or the hold key holds the segment at "
+        "once. `persist` stores the calibration on the segment and, with --robot, in the U(C)RDF.",
+    )
+    p.add_argument("--segment", required=True, help="segment name (descriptor), position or uid")
+    p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
+    p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
+    p.add_argument("--robot", help="U(C)RDF to write the calibration into (on persist)")
+    p.add_argument("--script", help="run these steps instead of the terminal UI")
+    p.set_defaults(func=cmd_calibrate)
+
+
+def find_segment(descs: list[dict], which: str) -> dict:
+    """The descriptor named ``which`` (name, then position, then uid); ValueError if none."""
+    for d in descs:
+        if d.get("name") == which:
+            return d
+    if which.isdigit():
+        for d in descs:
+            if d.get("position") == int(which):
+                return d
+    for d in descs:
+        if str(d.get("uid", "")).lower() == which.lower():
+            return d
+    names = ", ".join(f"{d.get('position')}: {d.get('name')} ({d.get('uid')})" for d in descs)
+    raise ValueError(f"no segment {which!r} in the chain ({names or 'none answers'})")
+
+
+def open_session(args: argparse.Namespace, say=print) -> tuple[Any, Any]:
+    """(link, session) for the segment of ``args``; LinkError/ValueError say why not."""
+    from host.calibrate import Session  # noqa: PLC0415
+    from host.link import ChainLink, LinkError  # noqa: PLC0415
+
+    link = ChainLink(args.port, args.baud)
+    try:
+        descs: list[dict] = []
+        for _ in range(3):
+            try:
+                descs = link.discover(timeout=1.0)
+            except LinkError:
+                descs = []
+            if descs:
+                break
+        d = find_segment(descs, args.segment)
+        if d.get("config_error"):
+            raise ValueError(
+                f"segment {args.segment} refused its configuration ({d['config_error']}): "
+                "fix it first (`ucr doctor`)"
+            )
+        return link, Session(link, d["position"], len(descs), d, say)
+    except BaseException:
+        link.close()
+        raise
+
+
+def persist_robot(args: argparse.Namespace, session: Any, result: Any, say=print) -> None:
+    """Write the persisted calibration into the U(C)RDF given with --robot (if any)."""
+    if not args.robot or result is None:
+        return
+    from host.calibrate_robot import write  # noqa: PLC0415
+
+    name = session.desc.get("name") or args.segment
+    write(args.robot, name, result.zero_offsets, result.directions)
+    say(f"persist: written to {args.robot} (bendable {name}); `ucr check {args.robot}` passes")
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from host.calibrate import CalibrationError  # noqa: PLC0415
+    from host.calibrate_robot import RobotFileError  # noqa: PLC0415
+    from host.calibrate_script import ScriptError, load, run  # noqa: PLC0415
+    from host.link import LinkError  # noqa: PLC0415
+
+    if args.script is None:
+        print(
+            "ucr calibrate: the interactive terminal UI is not available in this release; "
+            "give the steps with --script FILE (docs/commissioning.md)",
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        steps = load(args.script)  # the whole script is checked before anything moves
+        link, session = open_session(args)
+    except (ScriptError, ValueError, LinkError) as exc:
+        print(f"ucr calibrate: {exc}", file=sys.stderr)
+        return 1
+    try:
+        result = run(session, steps, args.script)
+        persist_robot(args, session, result)
+        return 0
+    except KeyboardInterrupt:
+        session.stop()
+        print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
+        return 130
+    except (CalibrationError, RobotFileError, LinkError) as exc:
+        try:
+            session.stop()
+        except LinkError:
+            pass
+        print(f"ucr calibrate: {exc} (the segment holds)", file=sys.stderr)
+        return 1
+    finally:
+        link.close()
+
+
+__all__ = ["cmd_calibrate", "find_segment", "open_session", "register"]
