@@ -131,5 +131,9 @@ def request(seg, flags, raw, pe, seq):
         return
     z, d = running(seg)
     seg._reply(
-        T_CALIBRATION, seq, cal.calibration_payload(z, d, _same_as_file(seg), config_hash(seg))
+        T_CALIBRATION,
+        seq,
+        cal.calibration_payload(
+            z, d, _same_as_file(seg), config_hash(seg), seg.cfg.si.get("board")
+        ),
     )

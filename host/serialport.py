@@ -12,6 +12,7 @@ import errno
 import grp
 import os
 import pwd
+import stat
 from pathlib import Path
 
 #: The alias Raspberry Pi OS gives the UART on GPIO 14/15 (when enabled).
@@ -136,3 +137,47 @@ def describe_open_error(url: str, exc: BaseException) -> str:
     real = os.path.realpath(url)
     shown = url if real == url else f"{url} (→ {real})"
     return f"cannot open chain port {shown}: {why}"
+
+
+def access_problem(
+    path: str, *, uid: int | None = None, groups: set[int] | None = None
+) -> tuple[str, str] | None:
+    """Why this user cannot use the serial device ``path``, judged by its mode bits (not by
+    being root: ``uid``/``groups`` default to this process's), as (problem, fix); None if it
+    can. pyserial URLs are not device files: None. ``ucr doctor`` asks this before opening."""
+    if not _is_path(path):
+        return None
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return (
+            f"{path} {_missing(path)}",
+            (
+                "plug in the USB serial adapter of the chain; `ls /dev/ttyUSB* /dev/ttyACM*` "
+                "lists the candidates; give the right one with --port"
+            ),
+        )
+    except OSError as exc:
+        return f"{path}: {exc.strerror}", "check the path given to --port"
+    if not stat.S_ISCHR(st.st_mode):
+        return (
+            f"{path} is not a character device (a serial port)",
+            "give the serial device of the chain with --port, e.g. /dev/ttyUSB0",
+        )
+    uid = os.geteuid() if uid is None else uid
+    groups = (set(os.getgroups()) | {os.getegid()}) if groups is None else groups
+    if uid == 0:
+        return None
+    if st.st_uid == uid:
+        bits = stat.S_IRUSR | stat.S_IWUSR
+    elif st.st_gid in groups:
+        bits = stat.S_IRGRP | stat.S_IWGRP
+    else:
+        bits = stat.S_IROTH | stat.S_IWOTH
+    if st.st_mode & bits == bits:
+        return None
+    group = _group_name(st.st_gid)
+    return (
+        f"no permission to read and write {path} (group {group}, mode {stat.filemode(st.st_mode)})",
+        f"add yourself to the group: `sudo usermod -aG {group} $USER`, then log out and in",
+    )

@@ -27,6 +27,7 @@ KC_UID = 15
 # CALIBRATION keys (segment -> host); 0, 2, 3 as above
 KC_STORED = 4  # bool: the running calibration is the one stored on the segment's flash
 KC_HASH = 5  # uint: config_hash of the running configuration
+KC_BOARD = 6  # text: the board profile the segment runs as (protocol/boards.py), optional
 
 ACTION_READ = 0  # answer the running calibration, change nothing
 ACTION_APPLY = 1  # run the given calibration now (RAM only; lost at reboot)
@@ -162,15 +163,19 @@ def decode_calibrate(d):
     return action, zeros, dirs, uid
 
 
-def calibration_payload(zeros, dirs, stored, chash):
-    """CALIBRATION payload: the running calibration, whether it is stored, the config hash."""
-    return {
+def calibration_payload(zeros, dirs, stored, chash, board=None):
+    """CALIBRATION payload: the running calibration, whether it is stored, the config hash,
+    the board profile (optional)."""
+    d = {
         KC_VERSION: CAL_VERSION,
         KC_ZERO: [float(z) for z in zeros],
         KC_DIRECTION: [int(x) for x in dirs],
         KC_STORED: bool(stored),
         KC_HASH: chash & _HASH_MASK,
     }
+    if board is not None:
+        d[KC_BOARD] = board
+    return d
 
 
 def encode_calibration(seq, zeros, dirs, stored, chash):
@@ -196,7 +201,11 @@ def decode_calibration(d):
     chash = d.get(KC_HASH)
     if not isinstance(stored, bool) or isinstance(chash, bool) or not isinstance(chash, int):
         raise ValueError("CALIBRATION keys 4 (stored) / 5 (config_hash) malformed")
+    board = d.get(KC_BOARD)
+    if board is not None and not isinstance(board, str):
+        raise ValueError("CALIBRATION key 6 (board) must be text")
     return {
+        "board": board,
         "version": CAL_VERSION,
         "zero_offsets": [float(z) for z in zeros],
         "directions": list(dirs),

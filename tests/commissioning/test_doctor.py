@@ -221,3 +221,46 @@ def test_doctor_finds_a_servo_with_a_wrong_or_duplicate_bus_id(kind: str) -> Non
     assert errs and f"servo(s) {want} do not answer" in errs[0].message, doctor.format_text(
         findings
     )
+
+
+def test_doctor_finds_a_stale_flash_that_differs_only_by_a_zero_offset() -> None:
+    cfgs = _configs()
+    servos = [dict(s) for s in cfgs[1]["servos"]]
+    servos[2]["zero_offset"] = servos[2].get("zero_offset", 0.0) + 0.05  # recalibrated by hand
+    cfgs[1] = {**cfgs[1], "servos": servos}
+    with chain_and_link(len(cfgs), config_for=cfgs) as (chain, link):
+        wait_discover(link, len(cfgs))
+        link.close()
+        findings = _run(chain.host_port, str(ROBOT))
+    assert not _errors(findings, "robot"), "geometry/limits/ids agree: only the hash can see it"
+    errs = _errors(findings, "config_hash")
+    assert [f.position for f in errs] == [1], doctor.format_text(findings)
+    assert "zero offsets" in errs[0].message and "stale flash" in errs[0].fix
+    oks = [f for f in findings if f.check == "config_hash" and f.level == "ok"]
+    assert [f.position for f in oks] == [0]
+
+
+def test_doctor_scans_other_baud_rates_when_the_chain_is_silent() -> None:
+    with EmulatedChain(1, config_for=_configs()[:1], line_baud=115200) as chain:
+        with ChainLink(chain.host_port, 115200) as link:
+            wait_discover(link, 1)  # booted (it answers at its own rate)
+        findings = doctor.run(chain.host_port, 921600, None, 0.0)
+        ok = doctor.run(chain.host_port, 115200, None, 0.0)
+    assert _errors(findings, "chain")
+    errs = _errors(findings, "baud")
+    assert errs and "answer at 115200 bit/s" in errs[0].message, doctor.format_text(findings)
+    assert "--baud 115200" in errs[0].fix
+    assert not [f for f in ok if f.level == "error"], doctor.format_text(ok)
+
+
+def test_doctor_finds_a_segment_flashed_for_another_board() -> None:
+    cfgs = _configs()
+    wrong = {k: v for k, v in cfgs[0].items() if k not in ("pins", "bus", "pwm")}
+    cfgs[0] = {**wrong, "board": "esp32s3"}
+    with chain_and_link(len(cfgs), config_for=cfgs) as (chain, link):
+        wait_discover(link, len(cfgs))
+        link.close()
+        findings = _run(chain.host_port, str(ROBOT))
+    errs = _errors(findings, "board")
+    assert [f.position for f in errs] == [0], doctor.format_text(findings)
+    assert "'esp32s3'" in errs[0].message and "'esp32'" in errs[0].message

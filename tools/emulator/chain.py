@@ -146,6 +146,46 @@ class _Segment:
         self.powered = True
 
 
+_SPEEDS = {
+    getattr(termios, f"B{r}"): r
+    for r in (
+        9600,
+        19200,
+        38400,
+        57600,
+        115200,
+        230400,
+        460800,
+        500000,
+        576000,
+        921600,
+        1000000,
+        1152000,
+        1500000,
+        2000000,
+    )
+    if hasattr(termios, f"B{r}")
+}
+
+
+def _baud_gate(end: PtyEnd, baud: int, feed: Callable[[bytes, float], None] | None):
+    """``feed`` passing bytes through only while the host port is set to ``baud`` bit/s; at any
+    other rate each byte arrives garbled (a UART sampling at the wrong rate)."""
+
+    def on_read(data: bytes, now: float) -> None:
+        if feed is None:
+            return
+        try:
+            speed = _SPEEDS.get(termios.tcgetattr(end.slave)[4])
+        except termios.error:
+            speed = None
+        if speed != baud:
+            data = bytes(b ^ 0xA5 for b in data)
+        feed(data, now)
+
+    return on_read
+
+
 class EmulatedChain:
     """``n`` emulated segments behind one host port. Use as a context manager.
 
@@ -157,7 +197,9 @@ class EmulatedChain:
     ``reuse_dirs`` (keep existing segment directories, e.g. flashed ones, instead of
     repopulating), ``seed`` (corruption RNG), ``board`` (run every segment as this board; default
     each configuration's ``board``, else esp32), ``timing`` (the board's timing model: RTOS-tick
-    waits and compute stretched by ``cpu_factor``, default measured, tools/emulator/timing.py).
+    waits and compute stretched by ``cpu_factor``, default measured, tools/emulator/timing.py),
+    ``line_baud`` (the first segment's UART rate: bytes the host sends at another rate, as set
+    on the host port by termios, arrive garbled, as on a real UART; default: any rate works).
     """
 
     def __init__(
@@ -177,6 +219,7 @@ class EmulatedChain:
         board: str | None = None,
         timing: bool = False,
         cpu_factor: float | None = None,
+        line_baud: int | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1:
             raise EmulatorError(f"a chain needs at least one segment, got {n!r}")
@@ -184,6 +227,7 @@ class EmulatedChain:
             raise EmulatorError(f"{len(uids)} uids given for {n} segments")
         self.n = n
         self._heap = heap
+        self._line_baud = line_baud
         if board is not None and board not in boards.BOARDS:
             raise EmulatorError(f"unknown board {board!r} (boards: {', '.join(boards.NAMES)})")
         self.board = board
@@ -257,6 +301,8 @@ class EmulatedChain:
             seg.repl_inner.on_read = self._tee(seg.log, from_proc)
         # The tip's downstream port has nothing plugged in: its bytes are read and dropped.
         self._segments[-1].down.on_read = None
+        if self._line_baud is not None:
+            self._host.on_read = _baud_gate(self._host, self._line_baud, self._host.on_read)
 
     @staticmethod
     def _tee(log: RingLog, pipe: Pipe) -> Callable[[bytes, float], None]:

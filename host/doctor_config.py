@@ -1,0 +1,107 @@
+"""``ucr doctor``: the flashed configuration against the U(C)RDF, by hash and by board.
+
+The configuration hash (descriptor key 17, protocol/calibration.py) covers geometry, limits,
+servo ids and the calibration (zero offsets, directions): a segment flashed from an older
+U(C)RDF, or calibrated since without the robot file being updated, shows a different hash even
+when only one zero offset differs. The board a segment reports (CALIBRATE read, read-only) must
+be the ``<actuation board=…>`` of its bendable (protocol/boards.py profiles).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from host.doctor_checks import Finding
+from protocol import calibration as cal
+from protocol.constants import T_CALIBRATE, T_CALIBRATION
+
+_FIX_STALE = (
+    "stale flash: reflash the segment from this U(C)RDF (`ucr flash --robot ... --segment ...`); "
+    "if it was calibrated since, write the calibration into the U(C)RDF "
+    "(`ucr calibrate --robot ...`)"
+)
+
+
+def _bendables(robot_path: str) -> list[Any] | None:
+    from host.topology import chain_bendables  # noqa: PLC0415
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    try:
+        robot = load(robot_path)
+    except Exception:  # noqa: BLE001 - check_robot reports the file's errors
+        return None
+    return [robot.bendables[n] for n in chain_bendables(robot)]
+
+
+def check_config_hash(robot_path: str, descs: list[dict]) -> list[Finding]:
+    """Each segment's configuration hash against the one its bendable's configuration has."""
+    from ucrdf.checks import segment_config  # noqa: PLC0415
+
+    bendables = _bendables(robot_path)
+    if bendables is None:
+        return []
+    out = []
+    for d, b in zip(descs, bendables, strict=False):
+        pos = d.get("position")
+        have = d.get("config_hash")
+        if have is None:
+            out.append(
+                Finding("config_hash", "warning", "the firmware reports no hash", "update it", pos)
+            )
+            continue
+        if b.actuation is None:
+            continue
+        want = cal.config_hash(segment_config(b))
+        if have == want:
+            out.append(Finding("config_hash", "ok", f"{b.name}: hash {have:08x}", position=pos))
+        else:
+            out.append(
+                Finding(
+                    "config_hash",
+                    "error",
+                    f"{b.name}: the segment runs configuration {have:08x}, the U(C)RDF gives "
+                    f"{want:08x} (geometry, limits, servo ids, zero offsets or directions differ)",
+                    _FIX_STALE,
+                    pos,
+                )
+            )
+    return out
+
+
+def check_board(link: Any, robot_path: str, descs: list[dict]) -> list[Finding]:
+    """The board each segment says it runs on against its bendable's ``<actuation board=…>``."""
+    from host.link import LinkError  # noqa: PLC0415
+    from ucrdf.boards import board_of  # noqa: PLC0415
+
+    bendables = _bendables(robot_path)
+    if bendables is None:
+        return []
+    out = []
+    for d, b in zip(descs, bendables, strict=False):
+        pos = d.get("position")
+        if b.actuation is None:
+            continue
+        payload = cal.calibrate_payload(cal.ACTION_READ, uid=d.get("uid"))
+        try:
+            got = cal.decode_calibration(
+                link.request(pos, T_CALIBRATE, payload, T_CALIBRATION, 0.5)
+            )
+        except (LinkError, ValueError) as exc:
+            out.append(Finding("board", "warning", f"board not reported: {exc}", "", pos))
+            continue
+        want = board_of(b.actuation)
+        have = got.get("board")
+        if have == want:
+            out.append(Finding("board", "ok", f"board {have}", position=pos))
+        else:
+            out.append(
+                Finding(
+                    "board",
+                    "error",
+                    f"the segment runs as board {have!r}, the U(C)RDF says {want!r}",
+                    "flash the segment with the configuration of its board (`ucr flash`), or "
+                    "fix <actuation board=…> (`ucr check` shows each board's pins and UARTs)",
+                    pos,
+                )
+            )
+    return out
