@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 VENV=${UCR_VENV:-.venv}
 PY=${PYTHON:-python3}
-ALL_EXTRAS="test emulator gamepad view record ros2"   # with gamepad: the 'dev' extra
+ALL_EXTRAS="test emulator gamepad view record ros2 tui"   # with gamepad: the 'dev' extra
 
 # Which optional parts (pyproject extras) to install here. Platform markers leave out what has no
 # wheel for this machine (reported by host/extras.py after the install); evdev, an sdist, is only
@@ -21,7 +21,7 @@ plan_extras() {
         EXTRAS=${UCR_EXTRAS//,/ }
         return
     fi
-    EXTRAS="test emulator view record ros2"
+    EXTRAS="test emulator view record ros2 tui"
     local missing=()
     if [ "$(uname -s)" != Linux ]; then
         SKIPS+=("gamepad (evdev): Linux only; ucr teleop --keyboard works everywhere")

@@ -128,11 +128,13 @@ def load_config(config, driver, path="config.json"):
         cfg = config.Config(None, driver)
         cfg.error = "%s rejected: %s" % (where, e)
     if sys.implementation.name == "micropython":
-        for m in ("calib_store", "protocol.calibration"):
+        for m in ("calib_store", "protocol.calibration", "protocol.confighash"):
             sys.modules.pop(m, None)
         import protocol
 
         if hasattr(protocol, "calibration"):
             del protocol.calibration
+        if hasattr(protocol, "confighash"):
+            del protocol.confighash
     gc.collect()
     return cfg

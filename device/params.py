@@ -142,7 +142,7 @@ def _config_hash(self):
     """protocol/calibration.py config_hash of what runs (cached; device/calib.py resets it)."""
     h = getattr(self, "cfg_hash", None)
     if h is None:
-        from protocol.calibration import config_hash
+        from protocol.confighash import config_hash
 
         h = config_hash(self.cfg.si)
         self.cfg_hash = h

@@ -28,6 +28,7 @@ audit = logging.getLogger("ucr.audit")
 
 P_SERVO_TELEMETRY = 22
 CYCLE_S = 0.02  # SYNC period while calibrating (50 Hz; the watchdog is >= 10x longer)
+MISSES = 5  # SYNC answers missed in a row before a step fails (and the segment is held)
 
 
 class CalibrationError(RuntimeError):
@@ -107,10 +108,15 @@ class Session:
             raise Stopped("stopped: the segment holds")
         sps: list[tuple[float, float] | None] = [None] * self.count
         sps[self.position] = self.setpoint
-        states = self.link.sync(sps, timeout=0.2, expected=self.count, resume=True)
-        st = states[self.position] if self.position < len(states) else None
+        st = None
+        for _ in range(MISSES):  # a lost answer (a loaded host) is retried, never skipped over
+            states = self.link.sync(sps, timeout=0.3, expected=self.count, resume=True)
+            st = states[self.position] if self.position < len(states) else None
+            if st is not None:
+                break
         if st is None:
-            raise CalibrationError(f"segment {self.position} did not answer SYNC")
+            self.stop()
+            raise CalibrationError(f"segment {self.position} did not answer {MISSES} SYNCs")
         bad = {"FAULT", "SERVO_FAULT", "UNCONFIGURED"} & set(st.get("status", ()))
         if bad:
             self.stop()

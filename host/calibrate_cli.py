@@ -85,12 +85,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from host.link import LinkError  # noqa: PLC0415
 
     if args.script is None:
-        print(
-            "ucr calibrate: the interactive terminal UI is not available in this release; "
-            "give the steps with --script FILE (docs/commissioning.md)",
-            file=sys.stderr,
-        )
-        return 2
+        from host.calibrate_tui import run_tui  # noqa: PLC0415 - textual only here
+
+        return run_tui(args)
     try:
         steps = load(args.script)  # the whole script is checked before anything moves
         link, session = open_session(args)

@@ -23,6 +23,7 @@ PURPOSE = {
     "view": "the live view",
     "record": "recording",
     "ros2": "ROS 2 over Zenoh (ucr zenoh)",
+    "tui": "the terminal UI of ucr calibrate",
     "test": "the test suite",
 }
 
