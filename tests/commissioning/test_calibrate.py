@@ -131,3 +131,55 @@ def test_calibrate_script_errors_name_the_line_and_move_nothing(
     )
     assert rc == 1
     assert f"{script}:2: jog at most 0.5 rad" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("{not json", "not JSON"),
+        ('{"version": 2, "servos": []}', "version must be 1"),
+        ('{"version": 1, "servos": [{"zero_offset": 0.1, "direction": 1}]}', "1 servos calibrated"),
+        (
+            (
+                '{"version": 1, "servos": [{"zero_offset": 3.0, "direction": 1}, '
+                '{"zero_offset": 0, "direction": 1}, {"zero_offset": 0, "direction": 1}]}'
+            ),
+            "more than 1.0 rad",
+        ),
+    ],
+)
+def test_an_invalid_stored_calibration_is_refused_at_boot_and_nothing_moves(
+    text: str, why: str
+) -> None:
+    cfg = _config()
+    with EmulatedChain(1, config_for=[cfg]) as chain:
+        (chain.segment_dir(0) / "calibration.json").write_text(text)
+        chain.restart(0)
+        with ChainLink(chain.host_port) as link:
+            desc = _discover(link)[0]
+            full = link.param_get(0, 16)  # config_error, full text
+            before = _bend(link, 0.0, 0.0, 0.3)["servo_angles"]
+            st = _bend(link, 2.0, 0.6, 1.0)
+    assert desc["config_error"].startswith("calibration.json rejected")
+    assert why in full
+    assert {"HOLD", "UNCONFIGURED"} <= set(st["status"])
+    assert st["servo_angles"] == pytest.approx(before, abs=1e-3)  # never moves on it
+
+
+def test_calibration_changes_only_in_hold_and_forget_deletes_the_stored_one() -> None:
+    with EmulatedChain(1, config_for=[_config()]) as chain:
+        with ChainLink(chain.host_port) as link:
+            _discover(link)
+            _bend(link, 1.0, 0.0, 1.0)  # moving
+            payload = cal.calibrate_payload(cal.ACTION_APPLY, [0.1, 0.0, 0.0], [1, 1, 1])
+            with pytest.raises(LinkError, match="send HOLD first"):
+                link.request(0, T_CALIBRATE, payload, T_CALIBRATION)
+            link.hold()
+            time.sleep(0.1)
+            payload = cal.calibrate_payload(cal.ACTION_PERSIST, [0.1, 0.0, 0.0], [1, 1, 1])
+            got = cal.decode_calibration(link.request(0, T_CALIBRATE, payload, T_CALIBRATION))
+            assert got["stored"] and (chain.segment_dir(0) / "calibration.json").exists()
+            assert not (chain.segment_dir(0) / "calibration.tmp").exists()  # renamed, not left
+            forget = cal.calibrate_payload(cal.ACTION_FORGET)
+            got = cal.decode_calibration(link.request(0, T_CALIBRATE, forget, T_CALIBRATION))
+    assert not got["stored"] and not (chain.segment_dir(0) / "calibration.json").exists()
