@@ -99,8 +99,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         persist_robot(args, session, result)
         return 0
     except KeyboardInterrupt:
-        session.stop()
-        print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
+        try:
+            session.stop()
+            said = "the segment holds"
+        except LinkError as exc:
+            said = f"HOLD not sent ({exc}); its watchdog holds it"
+        print(f"ucr calibrate: stopped (Ctrl-C): {said}", file=sys.stderr)
         return 130
     except (CalibrationError, RobotFileError, LinkError) as exc:
         try:
