@@ -85,8 +85,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from host.link import LinkError  # noqa: PLC0415
 
     if args.script is None:
-        from host.calibrate_tui import run_tui  # noqa: PLC0415 - textual only here
-
         return run_tui(args)
     try:
         steps = load(args.script)  # the whole script is checked before anything moves
@@ -114,6 +112,30 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"ucr calibrate: {exc} (the segment holds)", file=sys.stderr)
         return 1
     finally:
+        link.close()
+
+
+def run_tui(args: argparse.Namespace) -> int:
+    """``ucr calibrate --segment NAME`` without --script: the terminal UI (the 'tui' extra)."""
+    from host.calibrate_tui import CalibrateApp  # noqa: PLC0415 - textual only here
+    from host.link import LinkError  # noqa: PLC0415
+
+    try:
+        link, session = open_session(args, say=print)
+    except (ValueError, LinkError) as exc:
+        print(f"ucr calibrate: {exc}", file=sys.stderr)
+        return 1
+    try:
+        app = CalibrateApp(
+            session, on_persist=lambda r: persist_robot(args, session, r, session.say)
+        )
+        app.run()
+        return 0
+    finally:
+        try:
+            session.stop()
+        except LinkError:
+            pass
         link.close()
 
 

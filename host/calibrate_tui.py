@@ -9,7 +9,6 @@ responsive so the hold key always works. Ctrl-C quits the same way (textual maps
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
 
 from host.calibrate import CalibrationError, Session
@@ -155,29 +154,3 @@ class CalibrateApp(App):
     async def action_quit(self) -> None:
         self.session.stop()
         self.exit(self.result)
-
-
-def run_tui(args: argparse.Namespace) -> int:
-    """``ucr calibrate --segment NAME`` without --script."""
-    import sys  # noqa: PLC0415
-
-    from host.calibrate_cli import open_session, persist_robot  # noqa: PLC0415
-    from host.link import LinkError  # noqa: PLC0415
-
-    try:
-        link, session = open_session(args, say=print)
-    except (ValueError, LinkError) as exc:
-        print(f"ucr calibrate: {exc}", file=sys.stderr)
-        return 1
-    try:
-        app = CalibrateApp(
-            session, on_persist=lambda r: persist_robot(args, session, r, session.say)
-        )
-        app.run()
-        return 0
-    finally:
-        try:
-            session.stop()
-        except LinkError:
-            pass
-        link.close()
