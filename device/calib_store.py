@@ -101,19 +101,27 @@ def write_file(zeros, dirs, path=FILE, tmp=_TMP):
     with open(tmp, "w") as f:
         f.write(json.dumps(d))
         f.flush()
-    os.rename(tmp, path)
+    try:
+        os.rename(tmp, path)
+    except OSError:  # FAT (unlike littlefs, POSIX) renames over no file: remove, then rename;
+        os.remove(path)  # a power cut in between leaves the complete temp file, which the next
+        os.rename(tmp, path)  # boot takes (load_config)
 
 
 def load_config(config, driver, path="config.json"):
-    """Boot (main.build), when calibration.json exists: ``config.load`` with the stored
-    calibration merged in; an invalid calibration refuses the configuration (``error`` says why:
-    the segment does not move). This module and protocol.calibration are dropped afterwards."""
+    """Boot (main.build), when calibration.json (or its temp file) exists: ``config.load``
+    with the stored calibration merged in; an invalid calibration refuses the configuration
+    (``error`` says why: the segment does not move). This module and protocol.calibration are
+    dropped afterwards."""
     import gc
     import json
     import sys
 
     where = path
     try:
+        names = os.listdir()
+        if FILE not in names and _TMP in names:
+            os.rename(_TMP, FILE)  # a replace interrupted after the remove (write_file)
         with open(path) as f:
             data = json.loads(f.read())
         where = FILE

@@ -41,7 +41,8 @@ def build(tick_ms=TICK_MS):
     gc.collect()
     import config
 
-    if "calibration.json" in os.listdir():  # a stored calibration wins (slow path, on demand)
+    names = os.listdir()
+    if "calibration.json" in names or "calibration.tmp" in names:  # stored calibration wins
         import calib_store
 
         cfg = calib_store.load_config(config, halmod.DEFAULT_DRIVER)

@@ -183,3 +183,20 @@ def test_calibration_changes_only_in_hold_and_forget_deletes_the_stored_one() ->
             forget = cal.calibrate_payload(cal.ACTION_FORGET)
             got = cal.decode_calibration(link.request(0, T_CALIBRATE, forget, T_CALIBRATION))
     assert not got["stored"] and not (chain.segment_dir(0) / "calibration.json").exists()
+
+
+def test_a_replace_interrupted_after_the_remove_is_completed_at_boot() -> None:
+    """FAT cannot rename over a file: persist removes the old one, then renames the complete
+    temp file. A power cut in between leaves only the temp file; the next boot takes it."""
+    with EmulatedChain(1, config_for=[_config()]) as chain:
+        (chain.segment_dir(0) / "calibration.tmp").write_text(
+            '{"version": 1, "servos": [{"zero_offset": 0.1, "direction": 1}, '
+            '{"zero_offset": -0.05, "direction": -1}, {"zero_offset": 0.0, "direction": 1}]}'
+        )
+        chain.restart(0)
+        with ChainLink(chain.host_port) as link:
+            desc = _discover(link)[0]
+            got = _read(link)
+    assert desc["config_error"] == ""
+    assert got["stored"] and got["directions"] == [1, -1, 1]
+    assert got["zero_offsets"] == pytest.approx([0.1, -0.05, 0.0])
