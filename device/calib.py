@@ -15,7 +15,7 @@ import os
 
 import calib_store as store
 
-from protocol import calibration as cal
+from protocol import cal_core as cal
 from protocol import cbor
 from protocol.constants import (
     ERR_BAD_VALUE,
@@ -71,6 +71,7 @@ def apply(seg, zeros, dirs):
         s["zero_offset"] = z / 10000.0
         s["direction"] = d
     seg.cfg_hash = None
+    cfg.hash = None  # recomputed for the new calibration (params._config_hash)
     seg.mc.hold_here(seg.bus.pos)
     seg.sc.reset(seg.bus.pos)
 
@@ -90,50 +91,62 @@ def _same_as_file(seg):
 
 
 def request(seg, flags, raw, pe, seq):
-    """CALIBRATE: decode, check identity and state, act, answer CALIBRATION or ERROR."""
-    if flags & FLAG_BCAST:
-        seg.dropped += 1
-        seg._error(seq, ERR_MALFORMED, T_CALIBRATE, "CALIBRATE must be addressed, not broadcast")
+    """CALIBRATE: decode, check identity and state, act, answer CALIBRATION or ERROR. (Small
+    functions: each compiles in the small free blocks of a running segment's heap.)"""
+    got = _decode(seg, flags, raw, pe, seq)
+    if got is None:
         return
     try:
-        action, zeros, dirs, uid = cal.decode_calibrate(cbor.loads(raw, HEADER_LEN, pe))
-    except ValueError as e:
-        seg.dropped += 1
-        seg._error(seq, ERR_MALFORMED, T_CALIBRATE, "CALIBRATE: %s" % (e,))
-        return
-    if uid is not None and uid.lower() != seg.uid:
-        seg._error(
-            seq,
-            ERR_IDENTITY_MISMATCH,
-            T_CALIBRATE,
-            "identity mismatch: this segment is %s" % seg.uid,
-        )
-        return
-    if len(zeros or ()) not in (0, seg.n):
-        seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "this segment has %d servos" % seg.n)
-        return
-    try:
-        if action in (cal.ACTION_APPLY, cal.ACTION_PERSIST):
-            if seg.moving:
-                raise ValueError("moving: send HOLD first (calibration changes only in hold)")
-            if seg.cfg.error:
-                raise ValueError("configuration refused, nothing to calibrate: %s" % seg.cfg.error)
-            apply(seg, zeros, dirs)
-            if action == cal.ACTION_PERSIST:
-                store.write_file(zeros, dirs)
-        elif action == cal.ACTION_FORGET:
-            try:
-                os.remove(store.FILE)
-            except OSError:
-                pass
+        _act(seg, got[0], got[1], got[2])
     except (ValueError, OSError) as e:
         seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "%s" % (e,))
         return
+    _answer(seg, seq)
+
+
+def _decode(seg, flags, raw, pe, seq):
+    why = None
+    if flags & FLAG_BCAST:
+        why = "CALIBRATE must be addressed, not broadcast"
+    else:
+        try:
+            got = cal.decode_calibrate(cbor.loads(raw, HEADER_LEN, pe))
+        except ValueError as e:
+            why = "CALIBRATE: %s" % (e,)
+    if why is not None:
+        seg.dropped += 1
+        seg._error(seq, ERR_MALFORMED, T_CALIBRATE, why)
+        return None
+    uid = got[3]
+    if uid is not None and uid.lower() != seg.uid:
+        seg._error(
+            seq, ERR_IDENTITY_MISMATCH, T_CALIBRATE, "identity mismatch: this segment is " + seg.uid
+        )
+        return None
+    if len(got[1] or ()) not in (0, seg.n):
+        seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "this segment has %d servos" % seg.n)
+        return None
+    return got
+
+
+def _act(seg, action, zeros, dirs):
+    if action == cal.ACTION_APPLY or action == cal.ACTION_PERSIST:
+        if seg.moving:
+            raise ValueError("moving: send HOLD first (calibration changes only in hold)")
+        if seg.cfg.error:
+            raise ValueError("configuration refused, nothing to calibrate: " + seg.cfg.error)
+        apply(seg, zeros, dirs)
+        if action == cal.ACTION_PERSIST:
+            store.write_file(zeros, dirs)
+    elif action == cal.ACTION_FORGET:
+        try:
+            os.remove(store.FILE)
+        except OSError:
+            pass
+
+
+def _answer(seg, seq):
     z, d = running(seg)
-    seg._reply(
-        T_CALIBRATION,
-        seq,
-        cal.calibration_payload(
-            z, d, _same_as_file(seg), config_hash(seg), seg.cfg.si.get("board")
-        ),
-    )
+    stored = _same_as_file(seg)
+    p = cal.calibration_payload(z, d, stored, config_hash(seg), seg.cfg.si.get("board"))
+    seg._reply(T_CALIBRATION, seq, p)

@@ -7,7 +7,7 @@ Kept apart from ``calib.py`` so each compiles in a small heap (docs/firmware.md,
 
 import os
 
-from protocol import calibration as cal
+from protocol import cal_core as cal
 
 FILE = "calibration.json"
 _TMP = "calibration.tmp"
@@ -111,7 +111,7 @@ def write_file(zeros, dirs, path=FILE, tmp=_TMP):
 def load_config(config, driver, path="config.json"):
     """Boot (main.build), when calibration.json (or its temp file) exists: ``config.load``
     with the stored calibration merged in; an invalid calibration refuses the configuration
-    (``error`` says why: the segment does not move). This module and protocol.calibration are
+    (``error`` says why: the segment does not move). This module and protocol.cal_core are
     dropped afterwards."""
     import gc
     import json
@@ -136,13 +136,11 @@ def load_config(config, driver, path="config.json"):
         cfg = config.Config(None, driver)
         cfg.error = "%s rejected: %s" % (where, e)
     if sys.implementation.name == "micropython":
-        for m in ("calib_store", "protocol.calibration", "protocol.confighash"):
+        for m in ("calib_store", "protocol.cal_core"):
             sys.modules.pop(m, None)
         import protocol
 
-        if hasattr(protocol, "calibration"):
-            del protocol.calibration
-        if hasattr(protocol, "confighash"):
-            del protocol.confighash
+        if hasattr(protocol, "cal_core"):
+            del protocol.cal_core
     gc.collect()
     return cfg

@@ -29,6 +29,38 @@ def _hal_module():
     return hal_unix
 
 
+def _hash(cfg):
+    """cfg.hash: the configuration hash (DESCRIPTOR key 17), computed while the heap is tidy;
+    the module is dropped again (compiled later, a fragmented heap might not fit it)."""
+    from protocol.confighash import config_hash
+
+    cfg.hash = config_hash(cfg.si)
+    if sys.implementation.name == "micropython":
+        sys.modules.pop("protocol.confighash", None)
+        import protocol
+
+        if hasattr(protocol, "confighash"):
+            del protocol.confighash
+
+
+def _intern_calib():
+    """Compile the slow-path calibration modules once at boot and drop them again: the names
+    they use stay interned (MicroPython never frees a qstr), so when the first CALIBRATE loads
+    them, in a heap the boot left fragmented, the compiler needs no new qstr pool, the one large
+    block it could not find then (docs/firmware.md, "Calibration")."""
+    try:
+        import calib  # noqa: F401
+    except MemoryError:
+        print("[main] no heap to prepare the calibration module")
+    if sys.implementation.name == "micropython":
+        for m in ("calib", "calib_store", "protocol.cal_core"):
+            sys.modules.pop(m, None)
+        import protocol
+
+        if hasattr(protocol, "cal_core"):
+            del protocol.cal_core
+
+
 def build(tick_ms=TICK_MS):
     """Construct (hal, segment) from config.json and the platform's HAL.
 
@@ -42,13 +74,17 @@ def build(tick_ms=TICK_MS):
     import config
 
     names = os.listdir()
-    if "calibration.json" in names or "calibration.tmp" in names:  # stored calibration wins
+    if "calibration.json" in names or "calibration.tmp" in names:  # a stored calibration wins
         import calib_store
 
         cfg = calib_store.load_config(config, halmod.DEFAULT_DRIVER)
         del calib_store
     else:
         cfg = config.load("config.json", halmod.DEFAULT_DRIVER)  # board rules come and go here
+    gc.collect()
+    _hash(cfg)
+    gc.collect()
+    _intern_calib()
     gc.collect()
     import servos
 

@@ -142,17 +142,22 @@ def _config_hash(self):
     """protocol/calibration.py config_hash of what runs (cached; device/calib.py resets it)."""
     h = getattr(self, "cfg_hash", None)
     if h is None:
-        from protocol.confighash import config_hash
+        h = getattr(self.cfg, "hash", None)  # main.build computes it at boot
+        if h is None:
+            try:
+                from protocol.confighash import config_hash
 
-        h = config_hash(self.cfg.si)
+                h = config_hash(self.cfg.si)
+            except MemoryError:
+                return None  # not sent (key 17 absent): `ucr doctor` says so
         self.cfg_hash = h
     return h
 
 
 def descriptor_payload(self):
-    """DESCRIPTOR payload: int keys 0..16 of the contract, SI floats."""
+    """DESCRIPTOR payload: int keys 0..17 of the contract, SI floats."""
     d = descriptor(self)
-    return {
+    p = {
         0: d["uid"],
         1: d["fw_version"],
         2: d["protocol_version"],
@@ -172,6 +177,9 @@ def descriptor_payload(self):
         16: d["config_error"],
         17: d["config_hash"],
     }
+    if p[17] is None:
+        del p[17]  # not computed (no heap for it): absent, the host reports that
+    return p
 
 
 def param_request(self, t, raw, pe, seq):

@@ -440,9 +440,12 @@ class Segment:
         elif t == _T_CALIBRATE:
             import gc
 
-            gc.collect()  # the compiler's peak needs a tidy heap
-            import calib  # slow path, loaded on demand (device/calib.py)
-
+            gc.collect()
+            try:
+                import calib  # slow path, loaded on demand (device/calib.py)
+            except MemoryError:
+                self._error(seq, ERR_BAD_VALUE, t, "no heap for calibration: reboot, retry")
+                return
             calib.request(self, flags, raw, pe, seq)
         else:
             self.dropped += 1
