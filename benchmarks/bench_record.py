@@ -113,28 +113,13 @@ def free_port() -> int:
 
 
 def jitter_phases(phase_s: float, rounds: int) -> None:
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(ROBOT)
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = None
+    rig = EmulatedRig(ROBOT, boot_timeout_s=20)
+    robot, daemon, srv = rig.robot, rig.daemon, rig.srv
     procs: list[subprocess.Popen] = []
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     try:
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
         # keep the robot moving: a slow wave on every segment, resent when it ends
         pts = [{"time_from_start": 2.0 * (k + 1), "segments": {
             n: {"kappa": 1.0 + 0.8 * math.sin(k + i), "phi": 0.5 * k} for i, n in
@@ -201,11 +186,7 @@ def jitter_phases(phase_s: float, rounds: int) -> None:
     finally:
         for p in procs:
             p.kill()
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+        rig.close()
 
 
 def main() -> None:

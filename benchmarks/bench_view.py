@@ -127,27 +127,12 @@ def update_rate(browser, n: int, seconds: float, tmp: Path) -> None:
 
 
 def live(browser, seconds: float) -> None:
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
     from view.launch import start_view_process
 
-    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = view = None
+    rig = EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", boot_timeout_s=20)
+    robot, daemon, srv, view = rig.robot, rig.daemon, rig.srv, None
     try:
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
 
         def jitter() -> float:
             daemon.loop.stats.reset()
@@ -197,11 +182,7 @@ def live(browser, seconds: float) -> None:
     finally:
         if view is not None:
             view.stop()
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+        rig.close()
 
 
 def main() -> int:

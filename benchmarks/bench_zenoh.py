@@ -64,14 +64,10 @@ def _stop(proc: subprocess.Popen) -> None:
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
     from interop import ros2
     from interop.ros2.type_hash import type_hash
     from interop.zenoh import rmw
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
@@ -84,20 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
 
-    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
     js_type, tf_type = "sensor_msgs/msg/JointState", "tf2_msgs/msg/TFMessage"
-    ns = rmw.namespace_for(robot.name)
-    with EmulatedChain(3, config_for=configs(robot)) as chain:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
+    with EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", boot_timeout_s=15) as rig:
+        robot, daemon, srv = rig.robot, rig.daemon, rig.srv
+        ns = rmw.namespace_for(robot.name)
         port = _free_port()
         router = bridge = None
         try:
@@ -161,8 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             for p in (bridge, router):
                 if p is not None:
                     _stop(p)
-            srv.stop()
-            daemon.stop()
+            rig.stop_daemon()
     return 0
 
 
