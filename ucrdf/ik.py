@@ -28,6 +28,11 @@ from ucrdf.models.pcc import _A, _B, _C, _DA, _DB, SERIES_T, PCCModel, project_d
 
 #: A start point is abandoned when this many iterations have not halved its error.
 STALL_ITERATIONS = 30
+#: A start point is also abandoned after this many accepted steps in a row that each lower the
+#: squared error by less than FLAT_DECREASE of itself: a local minimum (often on a kappa limit)
+#: the error no longer leaves; a slow valley still gains a few per cent per step.
+FLAT_STEPS = 3
+FLAT_DECREASE = 1e-3
 #: After all start points, the best one continues for this many times max_iter (no stall rule).
 POLISH_FACTOR = 4
 
@@ -487,6 +492,8 @@ class IKSolver:
         e, perr, rerr = errors(tw)
         cost = sum(x * x for x in e)
         mu = 1e-3
+        nu = 2.0  # growth of mu after a rejected step; doubles while steps keep failing
+        flat = 0  # accepted steps in a row that hardly lowered the error
         it = 0
         ref_cost, ref_it = cost, 0
         while it < max_iter:
@@ -521,10 +528,23 @@ class IKSolver:
             en, perrn, rerrn = errors(twn)
             costn = sum(x * x for x in en)
             if costn < cost:
+                # gain ratio: actual over predicted (linear model) decrease; a step the model
+                # predicts well lets the damping fall fast, a poor one keeps it (Nielsen 1999)
+                pred = _predicted_decrease(rows, e, [a - b for a, b in zip(qn, q, strict=True)])
+                rho = (cost - costn) / pred if pred > 0.0 else 0.0
+                flat = flat + 1 if cost - costn < FLAT_DECREASE * cost else 0
                 q, tw, rows, e, perr, rerr, cost = qn, twn, rowsn, en, perrn, rerrn, costn
-                mu = max(mu * 0.2, 1e-9)
+                mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-9)
+                nu = 2.0
+                if (
+                    stall is not None
+                    and flat >= FLAT_STEPS
+                    and not (perr <= tol and (not want_rot or rerr <= rot_tol))
+                ):
+                    break  # a local minimum: let the caller restart elsewhere
             else:
-                mu *= 8.0
+                mu *= nu
+                nu *= 2.0
                 if mu > 1e4:
                     break  # no descent direction left: stuck here
             if cost < 0.5 * ref_cost:
@@ -532,6 +552,15 @@ class IKSolver:
             elif stall is not None and it - ref_it >= stall:
                 break  # stalled: let the caller restart elsewhere
         return q, cost, perr, rerr, it
+
+
+def _predicted_decrease(rows: list[list[float]], e: list[float], dq: list[float]) -> float:
+    """|e|^2 - |e - J dq|^2: the decrease of the squared error the linear model predicts."""
+    out = 0.0
+    for r, ei in zip(rows, e, strict=True):
+        jd = sum(a * b for a, b in zip(r, dq, strict=True))
+        out += 2.0 * ei * jd - jd * jd
+    return out
 
 
 def _dls_step(rows: list[list[float]], e: list[float], mu: float, n: int) -> list[float] | None:
