@@ -505,24 +505,18 @@ class IKSolver:
                 mu *= 10.0
                 continue
             active = chain.active(q, dq)
-            if active:
+            held: list[tuple[int, float, float | None]] = []
+            while active:
                 # limits active and the step pushes outwards: solve again in the remaining
-                # directions (tangent of the kappa_max circle, or nothing for a joint at its bound)
-                rows2 = [list(r) for r in rows]
-                for i, tx, ty in active:
-                    for r in rows2:
-                        if ty is None:
-                            r[i] = 0.0
-                        else:
-                            r[i], r[i + 1] = r[i] * tx + r[i + 1] * ty, 0.0
-                dq2 = _dls_step(rows2, e, mu, chain.size)
-                if dq2 is not None:
-                    for i, tx, ty in active:
-                        if ty is None:
-                            dq2[i] = 0.0
-                        else:
-                            dq2[i], dq2[i + 1] = dq2[i] * tx, dq2[i] * ty
-                    dq = dq2
+                # directions (tangent of the kappa_max circle, or nothing for a joint at its
+                # bound); a limit the new step pushes against joins them (several segments at
+                # kappa_max at once would otherwise zigzag between them, one per iteration)
+                held += active
+                dq2 = _restricted_step(rows, e, mu, chain.size, held)
+                if dq2 is None:
+                    break
+                dq = dq2
+                active = chain.active(q, dq)
             qn = chain.project([a + b for a, b in zip(q, dq, strict=True)])
             twn, rowsn = chain.evaluate(qn, want_rot, w)
             en, perrn, rerrn = errors(twn)
@@ -552,6 +546,32 @@ class IKSolver:
             elif stall is not None and it - ref_it >= stall:
                 break  # stalled: let the caller restart elsewhere
         return q, cost, perr, rerr, it
+
+
+def _restricted_step(
+    rows: list[list[float]],
+    e: list[float],
+    mu: float,
+    n: int,
+    held: list[tuple[int, float, float | None]],
+) -> list[float] | None:
+    """The damped step with the ``held`` limits kept: a PCC coordinate pair moves only along
+    its tangent (tx, ty), a joint at its bound not at all. None if singular."""
+    rows2 = [list(r) for r in rows]
+    for i, tx, ty in held:
+        for r in rows2:
+            if ty is None:
+                r[i] = 0.0
+            else:
+                r[i], r[i + 1] = r[i] * tx + r[i + 1] * ty, 0.0
+    dq = _dls_step(rows2, e, mu, n)
+    if dq is not None:
+        for i, tx, ty in held:
+            if ty is None:
+                dq[i] = 0.0
+            else:
+                dq[i], dq[i + 1] = dq[i] * tx, dq[i] * ty
+    return dq
 
 
 def _predicted_decrease(rows: list[list[float]], e: list[float], dq: list[float]) -> float:
