@@ -237,32 +237,12 @@ def main(argv: list[str] | None = None) -> int:
             os.nice(args.nice)
         except OSError as exc:
             print(f"(cannot renice by {args.nice}: {exc}; running at the default priority)")
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
-    with EmulatedChain(3, config_for=configs(robot)) as chain:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        if args.mode == "process":
-            from host.api.process import ApiProcess
-
-            api = ApiProcess(daemon, "127.0.0.1", 0).start()
-            api_pid = api.pid
-        else:
-            from host.api.server import ApiServer
-
-            api = ApiServer(daemon, "127.0.0.1", 0).start()
-            api_pid = None
+    api_kind = "process" if args.mode == "process" else "thread"
+    with EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", api=api_kind, boot_timeout_s=15) as rig:
+        daemon, api = rig.daemon, rig.api
+        api_pid = api.pid if args.mode == "process" else None
         url = api.url
         pid = os.getpid()
         only = set(filter(None, args.only.split(",")))
@@ -331,8 +311,7 @@ def main(argv: list[str] | None = None) -> int:
                     )
             print(f"topology changes during the run: {daemon.status()['topology_changes']}")
         finally:
-            api.stop()
-            daemon.stop()
+            rig.stop_daemon()
     return 0
 
 

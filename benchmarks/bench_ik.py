@@ -4,6 +4,10 @@ Targets are FK of configurations drawn uniformly from each segment's curvature d
 (|k| <= kappa_max), so every target is reachable. Each solve starts from the straight robot (the
 ros2_control initial values), as a user's first request would.
 
+A second part solves pose targets (position and orientation of the tip, tol 1e-4 m and 1e-3 rad)
+and counts the solves that need more than ITERATION_GOAL iterations (the bound
+tests/ucrdf_kin/test_ik.py asserts for orientation round trips).
+
 Run: .venv/bin/python benchmarks/bench_ik.py [COUNT]   (prints figures; goal from issue 2)
 """
 
@@ -25,6 +29,41 @@ from ucrdf.parser import load  # noqa: E402
 
 GOAL_SUCCESS = 0.99
 GOAL_MEDIAN_S = 2e-3
+ITERATION_GOAL = 60  # pose targets: Gauss-Newton-like convergence, not a slow crawl
+
+
+def _random_config(kin: RobotKinematics, rng: np.random.Generator) -> dict:
+    config = {}
+    for name, model in kin.models.items():
+        kmax = model.spec.limits.kappa_max
+        config[name] = {"kappa": kmax * math.sqrt(rng.random()),
+                        "phi": rng.uniform(-math.pi, math.pi)}  # fmt: skip
+    return config
+
+
+def pose_targets(count: int) -> None:
+    """Position + orientation targets: success, time, iterations (and how many exceed the goal)."""
+    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
+    kin = RobotKinematics(robot)
+    solver = IKSolver(kin)
+    rng = np.random.default_rng(2)
+    times, iterations, ok = [], [], 0
+    for _ in range(count):
+        goal = kin.fk(_random_config(kin, rng))[solver.tip]
+        t0 = time.perf_counter()
+        result = solver.solve(goal[:3, 3], target_rot=goal[:3, :3])
+        times.append(time.perf_counter() - t0)
+        iterations.append(result.iterations)
+        ok += bool(result.success)
+    slow = sum(1 for n in iterations if n > ITERATION_GOAL)
+    print(f"IK pose targets: {count} reachable poses, tol 1e-4 m / 1e-3 rad")
+    print(f"  success rate  {ok / count * 100:7.2f} %")
+    p95 = float(np.percentile(times, 95))
+    print(f"  median time   {float(np.median(times)) * 1e3:7.3f} ms   p95 {p95 * 1e3:.3f} ms"
+          f"   max {max(times) * 1e3:.2f} ms")  # fmt: skip
+    print(f"  iterations    median {np.median(iterations):.0f}, p95 "
+          f"{np.percentile(iterations, 95):.0f}, max {max(iterations)}; over {ITERATION_GOAL}: "
+          f"{slow} ({slow / count * 100:.1f} %)")  # fmt: skip
 
 
 def main(count: int = 1000) -> None:
@@ -67,4 +106,6 @@ def main(count: int = 1000) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 1000
+    main(n)
+    pose_targets(n)

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from host.positions import label
 from protocol import calibration as cal
 from protocol.constants import T_CALIBRATE, T_CALIBRATION
 
@@ -62,6 +63,7 @@ class Session:
         say: Callable[[str], None] = print,
     ) -> None:
         self.link = link
+        self.who = f"the segment at {label(position)}"  # for messages: counted from 1
         self.position = position
         self.count = count
         self.desc = descriptor
@@ -84,9 +86,7 @@ class Session:
             reply = self.link.request(self.position, T_CALIBRATE, payload, T_CALIBRATION, 1.0)
             return cal.decode_calibration(reply)
         except ValueError as exc:  # LinkError is a RuntimeError; a bad reply a ValueError
-            raise CalibrationError(
-                f"segment {self.position}: bad CALIBRATION reply: {exc}"
-            ) from exc
+            raise CalibrationError(f"{self.who}: bad CALIBRATION reply: {exc}") from exc
 
     def stop(self) -> None:
         """Hold now (from any thread): HOLD to the segment, no motion until ``resume()``."""
@@ -116,11 +116,11 @@ class Session:
                 break
         if st is None:
             self.stop()
-            raise CalibrationError(f"segment {self.position} did not answer {MISSES} SYNCs")
+            raise CalibrationError(f"{self.who} did not answer {MISSES} SYNCs")
         bad = {"FAULT", "SERVO_FAULT", "UNCONFIGURED"} & set(st.get("status", ()))
         if bad:
             self.stop()
-            raise CalibrationError(f"segment {self.position} reports {', '.join(sorted(bad))}")
+            raise CalibrationError(f"{self.who} reports {', '.join(sorted(bad))}")
         self.state = st
         return st
 
@@ -148,7 +148,7 @@ class Session:
                 quiet = 0
             last = joints
             time.sleep(CYCLE_S)
-        raise CalibrationError(f"segment {self.position} did not settle within {timeout:.0f} s")
+        raise CalibrationError(f"{self.who} did not settle within {timeout:.0f} s")
 
     def loads(self) -> list[float | None]:
         """Load (fraction of max torque) per servo; None where the servo does not report it."""
@@ -176,7 +176,7 @@ class Session:
 
     def identify(self, kappa: float = 0.5, times: int = 2) -> None:
         """A small wiggle (bend one way, the other, straight) to see which segment this is."""
-        self.say(f"identify: segment {self.position} ({self.uid}) wiggles")
+        self.say(f"identify: {self.who} ({self.uid}) wiggles")
         for _ in range(times):
             self.move(kappa, 0.0)
             self.move(kappa, math.pi)

@@ -13,6 +13,7 @@ from typing import Any
 
 from host.calibrate import CalibrationError, Session
 from host.extras import require
+from host.positions import label
 
 require("textual", extra="tui")
 
@@ -63,7 +64,7 @@ class CalibrateApp(App):
     def on_mount(self) -> None:
         self._status()
         self.say(
-            f"segment {self.session.position} ({self.session.uid}): space holds at once; "
+            f"{label(self.session.position)} ({self.session.uid}): space holds at once; "
             "i identify, d check directions, t tension, p persist"
         )
 

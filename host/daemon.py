@@ -7,6 +7,8 @@ API server (and the demo) use. The daemon only composes its parts:
 - :class:`host.supervision.Supervisor` (ACROSET SMCS): segment events, silent segments,
   unexpected HOLDs → a reason for the follower to act on;
 - :class:`host.motion.Motion`: controller manager, goals, arbitration between sources;
+- :class:`host.usable_rate.UsableRate` over :class:`host.link_health.LinkHealth`: a slow link
+  lowers the loop rate (:meth:`Daemon._apply_period` says which parts follow);
 - :class:`host.publisher.Fanout` / :class:`host.publisher.PublisherThread`: state publication.
 
 One cycle (:meth:`Daemon._step`, in the loop thread): read (STATEs of the last exchange → state
@@ -40,11 +42,11 @@ from host.link import ChainLink
 from host.link_health import LinkHealth
 from host.loop import FixedRateLoop
 from host.motion import Motion
-from host.positions import label
 from host.publisher import KINDS, Fanout, PublisherThread
 from host.supervision import Supervisor
 from host.topology import Comparison, adopted_path
 from host.topology_follower import TopologyFollower
+from host.usable_rate import UsableRate
 from ucrdf.parser import load
 
 log = logging.getLogger("ucr.daemon")
@@ -116,7 +118,9 @@ class Daemon:
         )
         self.topo.gap_cycles = gap_cycles(self.period, self.cfg.watchdog)
         self.health = LinkHealth(self.period, REPLY_SHARE, min_rate_hz=10.0)
-        self._late_mark: int | None = None  # link's late-reply count at the last stall
+        self.usable_rate = UsableRate(
+            self.health, self.rate_hz, self.fanout.emit_event, self._apply_period
+        )
         self.supervisor = Supervisor(
             self.cfg.watchdog, self.period, self.fanout.emit_event, self.motion.rehold
         )
@@ -179,10 +183,7 @@ class Daemon:
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.topo.open()
-        try:
-            self._late_mark = int(self.topo.link.stats.get("unmatched", 0))
-        except (OSError, AttributeError):
-            self._late_mark = None
+        self.usable_rate.start(self.topo.link)
         self._t_started = time.monotonic()
         self._publisher.start()
         self.loop.start()
@@ -233,7 +234,7 @@ class Daemon:
             topo.link_lost(exc)
             return None
         if not hwi.exchange_probed and hwi.exchanges:
-            self._observe_health(hwi, now)
+            self.usable_rate.observe(hwi, topo.link, now)
         state = robot_state_from(hwi, now)
         reason = self.supervisor.check(hwi, state, events, topo.descriptors)
         if reason is not None:
@@ -241,9 +242,9 @@ class Daemon:
             missing = [i for i, m in enumerate(hwi.missing) if m > 0]
             topo.hotplug(reason, now, verify=self.supervisor.silent)
             if topo.hwi is not hwi:
-                self.health.reset()
+                self.usable_rate.reset()
             elif topo.stalls > stalls and missing:
-                self._stall_health(hwi, missing[0], now)
+                self.usable_rate.stall(hwi, topo.link, missing[0], now)
             return None
         self.motion.update(hwi, state, now)
         compute = time.perf_counter() - t0
@@ -255,50 +256,6 @@ class Daemon:
         except ValueError as exc:  # a setpoint the codec refuses: never send it
             log.error("setpoints refused by the codec: %s", exc)
         return compute
-
-    def _observe_health(self, hwi: HardwareInterface, now: float) -> None:
-        """Feed the link health; apply and report a change of the usable rate."""
-        link = self.topo.link
-        change = self.health.observe(
-            [s is not None for s in hwi.raw_states],
-            hwi.exchange_s,
-            now,
-            lambda: int(link.stats.get("unmatched", 0)),
-        )
-        self._report_health(hwi, change)
-
-    def _stall_health(self, hwi: HardwareInterface, position: int, now: float) -> None:
-        """A stall (silence, same chain): late replies meanwhile mean a slow link."""
-        link = self.topo.link
-        try:
-            count = int(link.stats.get("unmatched", 0))
-        except OSError:
-            return
-        late = count - (self._late_mark if self._late_mark is not None else 0)
-        self._late_mark = count
-        self._report_health(hwi, self.health.stall(position, late, now))
-
-    def _report_health(self, hwi: HardwareInterface, change: dict[str, Any] | None) -> None:
-        """Apply and report a change of the usable rate."""
-        if change is None:
-            return
-        self._apply_period(change["period"])
-        rate, nominal = change["usable_rate_hz"], round(self.rate_hz, 2)
-        if change["change"] == "degraded":
-            pos = change["position"]
-            into = hwi.names[pos] if pos < len(hwi.names) else label(pos)
-            msg = (
-                f"link {pos + 1} (into {into}) is slow: its replies come late, "
-                f"{change['loss']:.0%} missed at {round(1.0 / (change['period'] / 2), 2)} Hz; "
-                f"loop slowed to {rate} Hz (nominal {nominal} Hz)"
-            )
-            self.fanout.emit_event(
-                "link_degraded", message=msg, link=pos + 1, segment=into, **change
-            )
-        else:
-            msg = f"link recovered (exchange p90 {change['latency_ms']} ms): loop back to {rate} Hz"
-            self.fanout.emit_event("link_recovered", message=msg, **change)
-        log.warning("%s", msg)
 
     def _apply_period(self, period: float) -> None:
         """Run the loop at ``period`` s (the usable rate): reply time, gap and silence limits

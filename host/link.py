@@ -332,7 +332,8 @@ class ChainLink(_FramePlumbing):
             if frame is None:
                 self._counters["timeouts"] += 1
                 raise LinkTimeoutError(
-                    f"no answer from segment {position} within {timeout * 1000:.0f} ms"
+                    f"no answer from the segment at {label(position)} "
+                    f"within {timeout * 1000:.0f} ms"
                 )
             return self._payload(frame)
 

@@ -12,7 +12,6 @@ loop thread, without restarting. Talks to the rest through: ``motion.build`` /
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -20,14 +19,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from host.chain_report import describe_chain, rate_warning, rebuild_message
 from host.config import DaemonConfig
 from host.controllers.base import ControllerContext
 from host.errors import DaemonError, TopologyError
 from host.hwi import HardwareInterface, robot_state_from
 from host.limits import bendable_limits
-from host.link import exchange_floor_s
 from host.motion import Motion
-from host.positions import label
 from host.publisher import Fanout
 from host.topology import (
     Comparison,
@@ -243,28 +241,15 @@ class TopologyFollower:
 
     def _warn_if_rate_exceeds_the_chain(self, n: int) -> None:
         """Say so when a real UART chain of ``n`` segments cannot answer within a loop period."""
-        floor = exchange_floor_s(n, self.cfg.baudrate)
-        if floor <= self.reply_timeout:
-            return
-        max_rate = math.floor(0.8 / floor)
-        if floor > self.cfg.watchdog.reply_timeout_s:
-            advice = (
-                f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "
-                f"{max_rate}, or a higher baudrate"
-            )
-        else:
-            advice = f"use rate_hz <= {max_rate} or a higher baudrate"
-        log.warning(
-            "%d segment(s) at %d baud need at least %.1f ms per exchange on a real UART chain "
-            "(store-and-forward), more than the %.1f ms a %.0f Hz loop waits for their states: "
-            "states would arrive late or be missed; %s",
+        warning = rate_warning(
             n,
             self.cfg.baudrate,
-            floor * 1e3,
-            self.reply_timeout * 1e3,
+            self.reply_timeout,
+            self.cfg.watchdog.reply_timeout_s,
             self.rate_hz,
-            advice,
         )
+        if warning is not None:
+            log.warning("%s", warning)
 
     # -- changes (loop thread) ---------------------------------------------------------------
     def hotplug(self, reason: str, t_detect: float, verify: bool = False) -> None:
@@ -350,15 +335,7 @@ class TopologyFollower:
                 "differences": [d.as_dict() for d in cmp.differences],
             }
         )
-        msg = f"now {len(self.hwi.names)} segment(s): {', '.join(self.hwi.names)}"
-        if self.cut:
-            msg += (
-                f"; chain cut after {self.cut['after']} ({label(self.cut['after_position'])}): "
-                f"{', '.join(self.cut['lost'])} unreachable"
-            )
-        extra = [d.message for d in cmp.differences if d.blocking and d.kind != "count"]
-        if extra:
-            msg += "; " + "; ".join(extra)
+        msg = rebuild_message(list(self.hwi.names), self.cut, cmp)
         self._fanout.emit_event(
             "topology_changed",
             message=f"{reason}: {msg}",
@@ -446,35 +423,7 @@ class TopologyFollower:
     # -- read by the facade ------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
         """The chain as discovered, what is controlled, differences, cuts (caller holds lock)."""
-        cmp = self.comparison
-        controlled = set(self.hwi.names) if self.hwi else set()
-        names = chain_bendables(self.full_robot)
-        segs = []
-        for d in self.descriptors:
-            pos = d.get("position", len(segs))
-            segs.append(
-                {
-                    "position": pos,
-                    "bendable": names[pos] if pos < len(names) else None,
-                    "name": d.get("name"),
-                    "uid": d.get("uid"),
-                    "model": d.get("model"),
-                    "length": d.get("length"),
-                    "kappa_max": d.get("kappa_max"),
-                    "kappa_rate_max": d.get("kappa_rate_max"),
-                    "fw_version": d.get("fw_version"),
-                    "watchdog_ms": d.get("watchdog_ms"),
-                    "controlled": pos < len(names) and names[pos] in controlled,
-                }
-            )
-        return {
-            "robot": self.robot.name,
-            "file": self.full_robot.source or None,
-            "expected": names,
-            "segments": segs,
-            "controlled": list(self.hwi.names) if self.hwi else [],
-            "matched": cmp.matched if cmp else 0,
-            "ok": bool(cmp and cmp.ok),
-            "differences": [d.as_dict() for d in cmp.differences] if cmp else [],
-            "cut": self.cut,
-        }
+        controlled = list(self.hwi.names) if self.hwi else []
+        return describe_chain(
+            self.robot, self.full_robot, self.descriptors, controlled, self.comparison, self.cut
+        )

@@ -28,6 +28,11 @@ from ucrdf.models.pcc import _A, _B, _C, _DA, _DB, SERIES_T, PCCModel, project_d
 
 #: A start point is abandoned when this many iterations have not halved its error.
 STALL_ITERATIONS = 30
+#: A start point is also abandoned after this many accepted steps in a row that each lower the
+#: squared error by less than FLAT_DECREASE of itself: a local minimum (often on a kappa limit)
+#: the error no longer leaves; a slow valley still gains a few per cent per step.
+FLAT_STEPS = 3
+FLAT_DECREASE = 1e-3
 #: After all start points, the best one continues for this many times max_iter (no stall rule).
 POLISH_FACTOR = 4
 
@@ -487,6 +492,8 @@ class IKSolver:
         e, perr, rerr = errors(tw)
         cost = sum(x * x for x in e)
         mu = 1e-3
+        nu = 2.0  # growth of mu after a rejected step; doubles while steps keep failing
+        flat = 0  # accepted steps in a row that hardly lowered the error
         it = 0
         ref_cost, ref_it = cost, 0
         while it < max_iter:
@@ -498,33 +505,40 @@ class IKSolver:
                 mu *= 10.0
                 continue
             active = chain.active(q, dq)
-            if active:
+            held: list[tuple[int, float, float | None]] = []
+            while active:
                 # limits active and the step pushes outwards: solve again in the remaining
-                # directions (tangent of the kappa_max circle, or nothing for a joint at its bound)
-                rows2 = [list(r) for r in rows]
-                for i, tx, ty in active:
-                    for r in rows2:
-                        if ty is None:
-                            r[i] = 0.0
-                        else:
-                            r[i], r[i + 1] = r[i] * tx + r[i + 1] * ty, 0.0
-                dq2 = _dls_step(rows2, e, mu, chain.size)
-                if dq2 is not None:
-                    for i, tx, ty in active:
-                        if ty is None:
-                            dq2[i] = 0.0
-                        else:
-                            dq2[i], dq2[i + 1] = dq2[i] * tx, dq2[i] * ty
-                    dq = dq2
+                # directions (tangent of the kappa_max circle, or nothing for a joint at its
+                # bound); a limit the new step pushes against joins them (several segments at
+                # kappa_max at once would otherwise zigzag between them, one per iteration)
+                held += active
+                dq2 = _restricted_step(rows, e, mu, chain.size, held)
+                if dq2 is None:
+                    break
+                dq = dq2
+                active = chain.active(q, dq)
             qn = chain.project([a + b for a, b in zip(q, dq, strict=True)])
             twn, rowsn = chain.evaluate(qn, want_rot, w)
             en, perrn, rerrn = errors(twn)
             costn = sum(x * x for x in en)
             if costn < cost:
+                # gain ratio: actual over predicted (linear model) decrease; a step the model
+                # predicts well lets the damping fall fast, a poor one keeps it (Nielsen 1999)
+                pred = _predicted_decrease(rows, e, [a - b for a, b in zip(qn, q, strict=True)])
+                rho = (cost - costn) / pred if pred > 0.0 else 0.0
+                flat = flat + 1 if cost - costn < FLAT_DECREASE * cost else 0
                 q, tw, rows, e, perr, rerr, cost = qn, twn, rowsn, en, perrn, rerrn, costn
-                mu = max(mu * 0.2, 1e-9)
+                mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-9)
+                nu = 2.0
+                if (
+                    stall is not None
+                    and flat >= FLAT_STEPS
+                    and not (perr <= tol and (not want_rot or rerr <= rot_tol))
+                ):
+                    break  # a local minimum: let the caller restart elsewhere
             else:
-                mu *= 8.0
+                mu *= nu
+                nu *= 2.0
                 if mu > 1e4:
                     break  # no descent direction left: stuck here
             if cost < 0.5 * ref_cost:
@@ -532,6 +546,41 @@ class IKSolver:
             elif stall is not None and it - ref_it >= stall:
                 break  # stalled: let the caller restart elsewhere
         return q, cost, perr, rerr, it
+
+
+def _restricted_step(
+    rows: list[list[float]],
+    e: list[float],
+    mu: float,
+    n: int,
+    held: list[tuple[int, float, float | None]],
+) -> list[float] | None:
+    """The damped step with the ``held`` limits kept: a PCC coordinate pair moves only along
+    its tangent (tx, ty), a joint at its bound not at all. None if singular."""
+    rows2 = [list(r) for r in rows]
+    for i, tx, ty in held:
+        for r in rows2:
+            if ty is None:
+                r[i] = 0.0
+            else:
+                r[i], r[i + 1] = r[i] * tx + r[i + 1] * ty, 0.0
+    dq = _dls_step(rows2, e, mu, n)
+    if dq is not None:
+        for i, tx, ty in held:
+            if ty is None:
+                dq[i] = 0.0
+            else:
+                dq[i], dq[i + 1] = dq[i] * tx, dq[i] * ty
+    return dq
+
+
+def _predicted_decrease(rows: list[list[float]], e: list[float], dq: list[float]) -> float:
+    """|e|^2 - |e - J dq|^2: the decrease of the squared error the linear model predicts."""
+    out = 0.0
+    for r, ei in zip(rows, e, strict=True):
+        jd = sum(a * b for a, b in zip(r, dq, strict=True))
+        out += 2.0 * ei * jd - jd * jd
+    return out
 
 
 def _dls_step(rows: list[list[float]], e: list[float], mu: float, n: int) -> list[float] | None:

@@ -10,6 +10,8 @@
 Errors: :class:`ApiError` (``code``, ``message``) for refused requests; connection problems raise
 :class:`ApiConnectionError`, which is also a built-in ``ConnectionError``; a refused token raises
 :class:`ApiAuthError` (also a ``PermissionError``); timeouts raise :class:`ApiTimeoutError`.
+Opening the connection (token, TLS, handshake refusals) is :mod:`host.api.client_open`; the
+errors live in :mod:`host.api.client_errors` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -18,57 +20,32 @@ import collections
 import itertools
 import json
 import os
-import ssl
 import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
-from urllib.parse import urlsplit
 
-from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI, WebSocketException
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection
-from websockets.sync.client import connect as ws_connect
 
-from host.api import ENV_CA, ENV_TOKEN, default_url
-from host.api.auth import AuthConfigError, read_token_file
-from host.api.guard import is_loopback
+from host.api import ENV_TOKEN, default_url
+from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
+from host.api.client_open import open_websocket, read_token
 from host.api.schema import MAX_REQUEST_BYTES
+
+__all__ = [
+    "ApiAuthError",
+    "ApiConnectionError",
+    "ApiError",
+    "ApiTimeoutError",
+    "Client",
+    "Subscription",
+    "connect",
+    "read_token",
+]
 
 _COMPACT = (",", ":")
 CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
-
-
-class ApiError(Exception):
-    """The daemon refused a request; ``code`` is one of ``host.api.schema.ERROR_CODES``."""
-
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(f"{code}: {message}")
-        self.code = code
-        self.message = message
-
-
-class ApiConnectionError(ApiError, ConnectionError):
-    """The daemon cannot be reached or the connection broke."""
-
-    def __init__(self, message: str, code: str = "connection") -> None:
-        super().__init__(code, message)
-
-    def __str__(self) -> str:
-        return self.message
-
-
-class ApiAuthError(ApiConnectionError, PermissionError):
-    """The daemon refused the token (or wanted one and got none)."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message, "unauthorized")
-
-
-class ApiTimeoutError(ApiError, TimeoutError):
-    """No reply in time."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__("timeout", message)
 
 
 class _Pending:
@@ -436,26 +413,6 @@ def _chunks(points: list[dict], limit: int) -> list[list[dict]]:
     return out
 
 
-def read_token(token_file: str | None = None) -> str | None:
-    """The token from ``token_file`` (must be 0600) or ``$UCR_TOKEN``; None if neither."""
-    if token_file:
-        try:
-            return read_token_file(token_file)
-        except AuthConfigError as exc:
-            raise ApiAuthError(str(exc)) from None
-    return os.environ.get(ENV_TOKEN) or None
-
-
-def _token_may_travel(url: str) -> None:
-    """Refuse to send a token in clear to another machine (``ws://`` off loopback)."""
-    parts = urlsplit(url)
-    if parts.scheme == "ws" and not is_loopback(parts.hostname or ""):
-        raise ApiAuthError(
-            f"refusing to send the API token over plain ws:// to {parts.hostname}: anyone on "
-            "the network could read it; use wss:// (api.tls on the daemon)"
-        )
-
-
 def connect(
     url: str | None = None,
     token: str | None = None,
@@ -470,42 +427,4 @@ def connect(
     """
     url = url or default_url()
     token = token if token is not None else os.environ.get(ENV_TOKEN) or None
-    headers = {"Authorization": f"Bearer {token}"} if token else None
-    if token:
-        _token_may_travel(url)
-    ssl_ctx = None
-    cafile = cafile or os.environ.get(ENV_CA) or None
-    if url.startswith("wss:"):
-        try:
-            ssl_ctx = ssl.create_default_context(cafile=cafile)
-        except (OSError, ssl.SSLError) as exc:
-            raise ApiConnectionError(f"cannot load CA file {cafile!r}: {exc}") from None
-    try:
-        ws = ws_connect(
-            url,
-            additional_headers=headers,
-            ssl=ssl_ctx,
-            open_timeout=timeout,
-            max_size=16 * 1024 * 1024,
-            ping_interval=20,
-            close_timeout=2,
-        )
-    except InvalidStatus as exc:
-        status = exc.response.status_code
-        if status == 401:
-            what = "wrong token" if token else "a token is required (--token-file or $UCR_TOKEN)"
-            raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
-        if status == 429:
-            raise ApiAuthError(
-                f"the daemon at {url} refused the connection: too many failed attempts, "
-                f"retry in {exc.response.headers.get('Retry-After', '?')} s"
-            ) from None
-        if status in (400, 403, 404, 421):
-            reason = exc.response.body.decode(errors="replace").strip()[:200]
-            raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
-        raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
-    except InvalidURI as exc:
-        raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None
-    except (OSError, TimeoutError, WebSocketException) as exc:
-        raise ApiConnectionError(f"cannot reach the daemon at {url}: {exc}") from None
-    return Client(ws, url, timeout)
+    return Client(open_websocket(url, token, timeout, cafile), url, timeout)

@@ -1,10 +1,14 @@
-"""The API server's per-connection loop: request budget, outbox, fan-out, janitor.
+"""The API server's connection side, two parts the server composes:
 
-Mixed into :class:`host.api.server.ApiServer` (which owns the attributes used here: ``opts``,
-``counters``, ``_sessions``, ``_by_kind``, ``_link``, ...). Each published message arrives encoded
-once and is fanned out by kind to the subscribers' outboxes, bounded in messages and bytes (per
-client and in total); a client that stops reading is closed; requests are paced by a budget
-weighted by their bytes and the work they cause (``_OP_WORK``).
+- :class:`Outboxes`: fan-out and the outboxes. Each published message arrives encoded once and is
+  fanned out by kind to the subscribers' outboxes, bounded in messages and bytes (per client and
+  in total); trajectory progress goes first.
+- :class:`Connections`: one loop per client connection. Requests are paced by a budget weighted
+  by their bytes and the work they cause (``_OP_WORK``) and answered by the request side
+  (:class:`host.api.dispatch.Dispatcher`); a janitor closes clients that stopped reading.
+
+Each gets what it needs at construction (options, the shared counters, callables); neither reads
+the server's fields.
 """
 
 from __future__ import annotations
@@ -15,15 +19,15 @@ import ctypes
 import gc
 import logging
 import time
+from collections.abc import Awaitable, Callable
+from typing import Any, Protocol
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
 from host.api import schema as S
 from host.api.audit import audit_log
-from host.api.auth import (
-    CONTROL,
-)
+from host.api.auth import CONTROL
 from host.api.session import _Session, _Subscription
 
 log = logging.getLogger("ucr.api")
@@ -42,22 +46,154 @@ _OP_WORK = {
 }
 
 
-class _ConnectionMixin:
-    """Serving one client connection and fanning published messages out to the clients."""
+class Requests(Protocol):
+    """What a connection needs from the request side."""
 
-    # ------------------------------------------------------------------ connection
-    async def _handle(self, ws: ServerConnection) -> None:
+    async def serve_frame(self, session: _Session, frame: str | bytes) -> dict | str: ...
+
+    def end_upload(self, session: _Session) -> None: ...
+
+
+class Outboxes:
+    """Subscriptions by kind and every client's outbox (``queued_bytes``: all of them).
+
+    ``want_stream(kinds)`` tells the daemon side which kinds anyone subscribes to.
+    """
+
+    def __init__(
+        self, opts: Any, counters: dict[str, int], want_stream: Callable[[set[str]], None]
+    ) -> None:
+        self.opts = opts
+        self.counters = counters
+        self._want_stream = want_stream
+        self.by_kind: dict[str, dict[_Subscription, _Session]] = {k: {} for k in S.KINDS}
+        self.queued_bytes = 0
+
+    def add(self, session: _Session, sub: _Subscription) -> None:
+        """Fan ``sub``'s kinds out to ``session`` from now on."""
+        for kind in sub.kinds:
+            self.by_kind[kind][sub] = session
+        self._update_stream_wanted()
+
+    def remove(self, sub: _Subscription) -> None:
+        for kind in sub.kinds:
+            self.by_kind[kind].pop(sub, None)
+        self._update_stream_wanted()
+
+    def publish(self, kind: str, text: str) -> None:
+        """One published message (JSON text, encoded once) to every subscriber of its kind."""
+        subs = self.by_kind.get(kind)
+        if not subs:
+            return
+        now = time.monotonic()
+        for sub, session in list(subs.items()):
+            if session.closed or not sub.admit(kind, now):
+                continue
+            push = f'{{"push":"stream","sub":{sub.sid},"dropped":{sub.dropped},"msg":{text}}}'
+            self._push_stream(session, sub, push)
+
+    def _push_stream(self, session: _Session, sub: _Subscription, push: str) -> None:
+        size = len(push)
+        opts = self.opts
+        while session.stream and (
+            len(session.stream) >= opts.outbox_size
+            or session.queued_bytes + size > opts.outbox_bytes
+            or self.queued_bytes + size > opts.global_outbox_bytes
+        ):
+            victim, old = session.stream.popleft()
+            session.queued_bytes -= len(old)
+            self.queued_bytes -= len(old)
+            victim.dropped += 1
+            self.counters["dropped"] += 1
+        if self.queued_bytes + size > opts.global_outbox_bytes:
+            sub.dropped += 1
+            self.counters["dropped"] += 1
+            return
+        if not session.stream and not session.priority:
+            session.t_progress = time.monotonic()  # idle until now: not a slow reader
+        session.stream.append((sub, push))
+        session.queued_bytes += size
+        self.queued_bytes += size
+        sub.sent += 1
+        session.wakeup.set()
+
+    def push_priority(self, session: _Session, text: str) -> None:
+        """Queue ``text`` ahead of the stream messages (trajectory progress)."""
+        if not session.stream and not session.priority:
+            session.t_progress = time.monotonic()
+        session.priority.append(text)
+        session.queued_bytes += len(text)
+        self.queued_bytes += len(text)
+        session.wakeup.set()
+
+    def take(self, session: _Session) -> str | None:
+        """The next text to send to ``session`` (progress first), or None when it is empty."""
+        if session.priority:
+            text = session.priority.popleft()
+        elif session.stream:
+            _, text = session.stream.popleft()
+        else:
+            return None
+        session.queued_bytes -= len(text)
+        self.queued_bytes -= len(text)
+        return text
+
+    def drop(self, session: _Session) -> None:
+        """Forget ``session``'s outbox and stop fanning out to its subscriptions."""
+        self.queued_bytes -= session.queued_bytes
+        session.queued_bytes = 0
+        session.stream.clear()
+        session.priority.clear()
+        for sub in session.subs.values():
+            for kind in sub.kinds:
+                self.by_kind[kind].pop(sub, None)
+        self._update_stream_wanted()
+
+    def _update_stream_wanted(self) -> None:
+        self._want_stream({kind for kind, subs in self.by_kind.items() if subs})
+
+
+class Connections:
+    """The connected clients (``sessions``) and the loop serving each.
+
+    ``requests`` answers frames; ``call(name, *args)`` reaches the daemon (a departed client's
+    cFFC input is zeroed); ``tcp_total()`` is the server's count of open TCP connections.
+    """
+
+    def __init__(
+        self,
+        opts: Any,
+        counters: dict[str, int],
+        outboxes: Outboxes,
+        requests: Requests,
+        call: Callable[..., Awaitable[Any]],
+        tcp_total: Callable[[], int],
+    ) -> None:
+        self.opts = opts
+        self.counters = counters
+        self._outboxes = outboxes
+        self._requests = requests
+        self._call = call
+        self._tcp_total = tcp_total
+        self.sessions: set[_Session] = set()
+        self.max_request_rate = opts.max_request_rate
+        self.request_burst = max(1.0, opts.max_request_rate / 5)
+        self._global_tokens = opts.global_request_rate / 5
+        self._global_refill = time.monotonic()
+
+    async def handle(self, ws: ServerConnection) -> None:
+        """Serve one client until it goes; then release what it held."""
         token = getattr(ws, "ucr_token", None)
         session = _Session(ws, token, CONTROL)
         session.tokens = self.request_burst
-        self._sessions.add(session)
+        self.sessions.add(session)
         self.counters["connections"] += 1
         log.info("API: client %s connected (%s, %s)", session.peer, session.who, session.scope)
         sender = asyncio.create_task(self._sender(session))
         try:
             async for frame in ws:
                 await self._throttle(session, frame)
-                reply = await self._serve_frame(session, frame)
+                reply = await self._requests.serve_frame(session, frame)
                 text = reply if isinstance(reply, str) else self._encode_reply(reply)
                 await ws.send(text)
         except ConnectionClosed:
@@ -66,8 +202,8 @@ class _ConnectionMixin:
             session.closed = True
             session.wakeup.set()
             sender.cancel()
-            self._sessions.discard(session)
-            self._drop_outbox(session)
+            self.sessions.discard(session)
+            self._outboxes.drop(session)
             await self._cleanup(session)
             log.info("API: client %s gone", session.peer)
 
@@ -127,31 +263,15 @@ class _ConnectionMixin:
             while not session.closed:
                 await session.wakeup.wait()
                 session.wakeup.clear()
-                while session.priority or session.stream:
-                    if session.priority:
-                        text = session.priority.popleft()
-                    else:
-                        _, text = session.stream.popleft()
-                    session.queued_bytes -= len(text)
-                    self._queued_bytes -= len(text)
+                while (text := self._outboxes.take(session)) is not None:
                     await ws.send(text)
                     session.t_progress = time.monotonic()
         except ConnectionClosed:
             pass
 
-    def _drop_outbox(self, session: _Session) -> None:
-        self._queued_bytes -= session.queued_bytes
-        session.queued_bytes = 0
-        session.stream.clear()
-        session.priority.clear()
-        for sub in session.subs.values():
-            for kind in sub.kinds:
-                self._by_kind[kind].pop(sub, None)
-        self._update_stream_wanted()
-
     async def _cleanup(self, session: _Session) -> None:
         """Release what a departed client held: uploads, subscriptions and its cFFC stream."""
-        self._end_upload(session)
+        self._requests.end_upload(session)
         session.subs.clear()
         if session.ffc_active:
             # Stop its cFFC input at once rather than waiting for the daemon's deadman.
@@ -160,83 +280,35 @@ class _ConnectionMixin:
                 session.peer, session.who, session.scope, "ffc.input", None, "zeroed on disconnect"
             )
             try:
-                await self._link.call("ffc_input", zeros)
+                await self._call("ffc_input", zeros)
             except Exception:  # noqa: BLE001 - e.g. a segment gone meanwhile: try one by one
                 for name in sorted(session.ffc_active):
                     with contextlib.suppress(Exception):
-                        await self._link.call("ffc_input", {name: (0.0, 0.0)})
+                        await self._call("ffc_input", {name: (0.0, 0.0)})
 
-    async def _janitor(self) -> None:
+    async def janitor(self) -> None:
         """Once a second: close clients that stopped reading; forget stale uploads; give memory
         back to the OS once a crowd of connections has gone."""
         peak = 0
         while True:
             await asyncio.sleep(min(1.0, self.opts.slow_close_s / 2))
             now = time.monotonic()
-            peak = max(peak, self._tcp_total)
-            if peak >= 32 and self._tcp_total <= peak // 8:
-                peak = self._tcp_total
+            total = self._tcp_total()
+            peak = max(peak, total)
+            if peak >= 32 and total <= peak // 8:
+                peak = total
                 _release_memory()
-            for session in list(self._sessions):
+            for session in list(self.sessions):
                 stuck = session.stream or session.priority
                 if stuck and now - session.t_progress > self.opts.slow_close_s:
                     self.counters["slow_closed"] += 1
                     log.warning("API: closing %s: it stopped reading", session.peer)
-                    self._drop_outbox(session)
+                    self._outboxes.drop(session)
                     session.closed = True
                     session.ws.transport.abort()
                 up = session.upload
                 if up is not None and now - up.t_touched > 60.0:
-                    self._end_upload(session)
-
-    # ------------------------------------------------------------------ fan-out
-    def _publish(self, kind: str, text: str) -> None:
-        """One published message (JSON text, encoded once) to every subscriber of its kind."""
-        subs = self._by_kind.get(kind)
-        if not subs:
-            return
-        now = time.monotonic()
-        for sub, session in list(subs.items()):
-            if session.closed or not sub.admit(kind, now):
-                continue
-            push = f'{{"push":"stream","sub":{sub.sid},"dropped":{sub.dropped},"msg":{text}}}'
-            self._push_stream(session, sub, push)
-
-    def _push_stream(self, session: _Session, sub: _Subscription, push: str) -> None:
-        size = len(push)
-        opts = self.opts
-        while session.stream and (
-            len(session.stream) >= opts.outbox_size
-            or session.queued_bytes + size > opts.outbox_bytes
-            or self._queued_bytes + size > opts.global_outbox_bytes
-        ):
-            victim, old = session.stream.popleft()
-            session.queued_bytes -= len(old)
-            self._queued_bytes -= len(old)
-            victim.dropped += 1
-            self.counters["dropped"] += 1
-        if self._queued_bytes + size > opts.global_outbox_bytes:
-            sub.dropped += 1
-            self.counters["dropped"] += 1
-            return
-        if not session.stream and not session.priority:
-            session.t_progress = time.monotonic()  # idle until now: not a slow reader
-        session.stream.append((sub, push))
-        session.queued_bytes += size
-        self._queued_bytes += size
-        sub.sent += 1
-        session.wakeup.set()
-
-    def _push_priority(self, session: _Session, text: str) -> None:
-        if not session.stream and not session.priority:
-            session.t_progress = time.monotonic()
-        session.priority.append(text)
-        session.queued_bytes += len(text)
-        self._queued_bytes += len(text)
-        session.wakeup.set()
-
-    def _update_stream_wanted(self) -> None:
-        self._link.want_stream({kind for kind, subs in self._by_kind.items() if subs})
+                    self._requests.end_upload(session)
 
 
 def _release_memory() -> None:

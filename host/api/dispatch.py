@@ -1,8 +1,10 @@
-"""The API server's requests: parsing, scope check, dispatch to the daemon, uploads, goal progress.
+"""The API server's request side (:class:`Dispatcher`): parsing, scope check, dispatch to the
+daemon, uploads, goal progress.
 
-Mixed into :class:`host.api.server.ApiServer` (which owns the attributes used here: ``_link``,
-``counters``, ``opts``, ...). ``status`` is answered from the latest snapshot the daemon sent,
-without a round trip; ops that move the robot or switch controllers are written to ``ucr.audit``.
+A part the server composes: it gets the options, the shared counters, the outboxes (subscriptions,
+progress pushes) and callables to reach the daemon (``call``, ``status_text``) and to list the
+connected sessions. ``status`` is answered from the latest snapshot the daemon sent, without a
+round trip; ops that move the robot or switch controllers are written to ``ucr.audit``.
 """
 
 from __future__ import annotations
@@ -12,15 +14,14 @@ import json
 import logging
 import math
 import time
+from collections.abc import Awaitable, Callable, Iterable
 from typing import Any
 
 from host.api import schema as S
 from host.api.audit import audit_log
-from host.api.auth import (
-    CONTROL,
-    READ_OPS,
-)
+from host.api.auth import CONTROL, READ_OPS
 from host.api.bridge import BridgeClosed, RemoteError
+from host.api.connection import Outboxes
 from host.api.session import _Session, _Subscription, _Upload
 
 log = logging.getLogger("ucr.api")
@@ -60,14 +61,36 @@ def goal_done(status: Any) -> bool:
     return False
 
 
-class _DispatchMixin:
-    """Answering one request frame of a session (and pushing its goals' progress)."""
+class Dispatcher:
+    """Answering one request frame of a session (and pushing its goals' progress).
+
+    ``upload_points``: waypoints held by unfinished uploads of every client.
+    """
+
+    def __init__(
+        self,
+        opts: Any,
+        counters: dict[str, int],
+        outboxes: Outboxes,
+        call: Callable[..., Awaitable[Any]],
+        status_text: Callable[[], str | None],
+        sessions: Callable[[], Iterable[_Session]],
+    ) -> None:
+        self.opts = opts
+        self.counters = counters
+        self._outboxes = outboxes
+        self._call = call
+        self._status_text = status_text
+        self._sessions = sessions
+        self._next_sub = 1
+        self._next_upload = 1
+        self.upload_points = 0
 
     # ------------------------------------------------------------------ requests
-    async def _serve_frame(self, session: _Session, frame: str | bytes) -> dict | str:
+    async def serve_frame(self, session: _Session, frame: str | bytes) -> dict | str:
         self.counters["requests"] += 1
         try:
-            rid, op, params = S.parse_request(frame, self.max_request_bytes)
+            rid, op, params = S.parse_request(frame, self.opts.max_request_bytes)
         except S.RequestError as exc:
             self.counters["errors"] += 1
             return S.error_reply(exc.request_id, exc.code, exc.message)
@@ -97,7 +120,7 @@ class _DispatchMixin:
         audit_log(session.peer, session.who, session.scope, op, goal, summary)
 
     async def _dispatch(self, session: _Session, op: str, p: dict) -> Any:
-        call = self._link.call
+        call = self._call
         if op == "ping":
             return {"pong": True, "t": time.time()}
         if op == "status":
@@ -134,9 +157,7 @@ class _DispatchMixin:
             sub = session.subs.pop(p["sub"], None)
             if sub is None:
                 raise S.RequestError(S.NOT_FOUND, f"no subscription {p['sub']} on this connection")
-            for kind in sub.kinds:
-                self._by_kind[kind].pop(sub, None)
-            self._update_stream_wanted()
+            self._outboxes.remove(sub)
             return {
                 "sub": sub.sid,
                 "sent": sub.sent,
@@ -146,7 +167,7 @@ class _DispatchMixin:
         raise S.RequestError(S.UNKNOWN_OP, f"unknown op {op!r}")  # pragma: no cover - schema guards
 
     def _status(self) -> Any:
-        text = self._link.status_text
+        text = self._status_text()
         if text is None:
             raise S.RequestError(S.UNAVAILABLE, "no status from the daemon yet")
         if text.startswith('{"__error__"'):
@@ -164,7 +185,7 @@ class _DispatchMixin:
             self._audit(session, "ffc.input", None, f"deflected {sorted(deflected)}")
         session.ffc_active.update(deflected)
         try:
-            result = await self._link.call("ffc_input", rates)
+            result = await self._call("ffc_input", rates)
         except RemoteError as exc:
             if exc.code == S.REJECTED:
                 session.ffc_active = before  # refused: the daemon did not take this input
@@ -185,12 +206,12 @@ class _DispatchMixin:
                     S.INVALID_PARAMS, "points[0].time_from_start: must continue after the upload"
                 )
             points = up.points + points
-            self._end_upload(session)
+            self.end_upload(session)
             if len(points) > S.MAX_POINTS:
                 raise S.RequestError(S.INVALID_PARAMS, f"at most {S.MAX_POINTS} waypoints")
         if not points:
             raise S.RequestError(S.INVALID_PARAMS, "points: needs at least one waypoint")
-        goal = await self._link.call("send_trajectory", points, p["controller"])
+        goal = await self._call("send_trajectory", points, p["controller"])
         session.goals[goal] = None
         t_end = points[-1]["time_from_start"]
         self._audit(
@@ -206,7 +227,7 @@ class _DispatchMixin:
         up = session.upload
         if p.get("upload") is None:
             if up is not None:
-                self._end_upload(session)  # a new upload replaces an unfinished one
+                self.end_upload(session)  # a new upload replaces an unfinished one
             up = session.upload = _Upload(self._next_upload)
             self._next_upload += 1
         elif up is None or up.uid != p["upload"]:
@@ -222,18 +243,19 @@ class _DispatchMixin:
             raise S.RequestError(
                 S.INVALID_PARAMS, f"an upload holds at most {S.MAX_POINTS} waypoints"
             )
-        if self._upload_points + len(pts) > self.opts.upload_points_total:
+        if self.upload_points + len(pts) > self.opts.upload_points_total:
             raise S.RequestError(S.UNAVAILABLE, "too many uploads in progress; try again later")
         up.points.extend(pts)
         up.last_t = pts[-1]["time_from_start"]
         up.t_touched = time.monotonic()
-        self._upload_points += len(pts)
+        self.upload_points += len(pts)
         return {"upload": up.uid, "points": len(up.points)}
 
-    def _end_upload(self, session: _Session) -> None:
+    def end_upload(self, session: _Session) -> None:
+        """Forget ``session``'s unfinished upload (if any)."""
         up, session.upload = session.upload, None
         if up is not None:
-            self._upload_points -= len(up.points)
+            self.upload_points -= len(up.points)
 
     def _subscribe(self, session: _Session, kinds: list[str], max_rate: float | None) -> dict:
         if len(session.subs) >= self.opts.max_subscriptions:
@@ -244,17 +266,15 @@ class _DispatchMixin:
         self._next_sub += 1
         sub = _Subscription(sid, kinds, max_rate)
         session.subs[sid] = sub
-        for kind in kinds:
-            self._by_kind[kind][sub] = session
-        self._update_stream_wanted()
+        self._outboxes.add(session, sub)
         return {"sub": sid, "kinds": kinds, "max_rate": max_rate}
 
     # ------------------------------------------------------------------ goal progress
-    async def _goal_pump(self) -> None:
+    async def goal_pump(self) -> None:
         """Push the status of every goal a client sent while it changes, until it ends."""
         while True:
             await asyncio.sleep(self.opts.goal_poll_s)
-            for session in list(self._sessions):
+            for session in list(self._sessions()):
                 if session.goals and not session.closed:
                     try:
                         await self._poll_goals(session)
@@ -264,18 +284,18 @@ class _DispatchMixin:
     async def _poll_goals(self, session: _Session) -> None:
         for goal, last in list(session.goals.items()):
             try:
-                status = await self._link.call("trajectory_status", goal)
+                status = await self._call("trajectory_status", goal)
             except (RemoteError, BridgeClosed) as exc:
                 session.goals.pop(goal, None)
                 status = {"state": "unknown", "error": str(exc)}
-                self._push_priority(
+                self._outboxes.push_priority(
                     session,
                     S.encode({"push": "trajectory", "goal": goal, "status": status, "done": True}),
                 )
                 continue
             done = goal_done(status)
             if _progress_key(status) != _progress_key(last) or done:
-                self._push_priority(
+                self._outboxes.push_priority(
                     session,
                     S.encode({"push": "trajectory", "goal": goal, "status": status, "done": done}),
                 )

@@ -27,7 +27,6 @@ import math
 import socket
 import ssl
 import threading
-import time
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from pathlib import Path
@@ -49,10 +48,10 @@ from host.api.auth import (
 )
 from host.api.auth import check_bind as _check_bind_policy
 from host.api.bridge import DaemonBridge, DaemonLink
-from host.api.connection import _ConnectionMixin
-from host.api.dispatch import _DispatchMixin, goal_done
+from host.api.connection import Connections, Outboxes
+from host.api.dispatch import Dispatcher, goal_done
 from host.api.guard import GuardConfigError, WebGuard, is_loopback
-from host.api.session import _is_loopback_ip, _peer, _peer_ip, _Session, _Subscription
+from host.api.session import _is_loopback_ip, _peer, _peer_ip
 
 __all__ = [
     "ApiServer",
@@ -122,8 +121,13 @@ class ServerOptions:
     tokens: tuple[Token, ...] = field(default_factory=tuple)
 
 
-class ApiServer(_ConnectionMixin, _DispatchMixin):
+class ApiServer:
     """WebSocket API in front of a ``Daemon`` facade; ``start()`` runs it in a background thread.
+
+    Composes three parts (each gets what it needs at construction): ``outboxes`` (fan-out,
+    :class:`host.api.connection.Outboxes`), ``requests`` (:class:`host.api.dispatch.Dispatcher`)
+    and ``connections`` (:class:`host.api.connection.Connections`); the server itself owns the
+    lifecycle, the TCP caps, the handshake and the link to the daemon.
 
     ``daemon`` is the facade (the server reaches it through an in-process bridge) or, in the
     API's own process, a connected :class:`host.api.bridge.DaemonLink`. ``port=0`` picks a free
@@ -157,24 +161,13 @@ class ApiServer(_ConnectionMixin, _DispatchMixin):
         self.host = host
         self.requested_port = port
         self.port: int | None = None
-        self.max_request_bytes = opts.max_request_bytes
-        self.max_request_rate = opts.max_request_rate
-        self.request_burst = max(1.0, opts.max_request_rate / 5)
-        self._global_tokens = opts.global_request_rate / 5
-        self._global_refill = time.monotonic()
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
         self._start_error: BaseException | None = None
-        self._sessions: set[_Session] = set()
-        self._by_kind: dict[str, dict[_Subscription, _Session]] = {k: {} for k in S.KINDS}
-        self._next_sub = 1
-        self._next_upload = 1
-        self._upload_points = 0
         self._tcp_total = 0
         self._tcp_by_ip: dict[str, int] = {}
-        self._queued_bytes = 0
         self._backoff = Backoff()
         self._link: DaemonLink | None = None
         self._bridge: DaemonBridge | None = None
@@ -190,6 +183,18 @@ class ApiServer(_ConnectionMixin, _DispatchMixin):
             "forbidden": 0,
             "throttled": 0,
         }
+        self.outboxes = Outboxes(opts, self.counters, self._want_stream)
+        self.requests = Dispatcher(
+            opts,
+            self.counters,
+            self.outboxes,
+            self._call,
+            self._status_text,
+            lambda: self.connections.sessions,
+        )
+        self.connections = Connections(
+            opts, self.counters, self.outboxes, self.requests, self._call, lambda: self._tcp_total
+        )
 
     def _ssl_context(self) -> ssl.SSLContext:
         cert, key = Path(str(self.opts.tls_cert)), Path(str(self.opts.tls_key))
@@ -266,15 +271,27 @@ class ApiServer(_ConnectionMixin, _DispatchMixin):
 
     def stats(self) -> dict:
         """Counters for diagnostics: connections, requests, errors, clients, drops, throttling."""
-        sessions = list(self._sessions)
+        sessions = list(self.connections.sessions)
         return {
             **self.counters,
             "clients": len(sessions),
             "tcp_connections": self._tcp_total,
             "subscriptions": sum(len(s.subs) for s in sessions),
-            "queued_bytes": self._queued_bytes,
-            "upload_points": self._upload_points,
+            "queued_bytes": self.outboxes.queued_bytes,
+            "upload_points": self.requests.upload_points,
         }
+
+    # ------------------------------------------------------------------ the daemon side
+    async def _call(self, name: str, *args: Any) -> Any:
+        """Call ``name`` on the daemon (through the bridge)."""
+        return await self._link.call(name, *args)
+
+    def _status_text(self) -> str | None:
+        """The latest status snapshot the daemon sent (JSON text), None before the first."""
+        return self._link.status_text
+
+    def _want_stream(self, kinds: set[str]) -> None:
+        self._link.want_stream(kinds)
 
     def _run(self) -> None:
         try:
@@ -291,7 +308,7 @@ class ApiServer(_ConnectionMixin, _DispatchMixin):
         self._stop = asyncio.Event()
         server: Server
         async with serve(
-            self._handle,
+            self.connections.handle,
             self.host,
             self.requested_port,
             process_request=self._authorize,
@@ -304,12 +321,16 @@ class ApiServer(_ConnectionMixin, _DispatchMixin):
             server_header="ucr-api",
             ssl=self._ssl,
         ) as server:
-            await self._link.start(self._publish)  # once bound: a failed start leaves it alone
+            # once bound: a failed start leaves the link alone
+            await self._link.start(self.outboxes.publish)
             sock = next(iter(server.sockets))
             self.port = sock.getsockname()[1]
             self.guard = self.guard.with_port(self.port)
             self._ready.set()
-            tasks = [asyncio.create_task(self._goal_pump()), asyncio.create_task(self._janitor())]
+            tasks = [
+                asyncio.create_task(self.requests.goal_pump()),
+                asyncio.create_task(self.connections.janitor()),
+            ]
             stop_wait = asyncio.create_task(self._stop.wait())
             await asyncio.wait(
                 [stop_wait, asyncio.create_task(self._link_gone())],

@@ -15,7 +15,6 @@ from websockets.sync.client import connect as ws_connect
 
 from host.api import schema
 from host.api.client import ApiError, connect
-from host.api.server import ApiServer
 from host.teleop import ReplaySource, Teleop
 
 pytestmark = pytest.mark.timeout(120)
@@ -25,32 +24,10 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def rig():
     """(daemon, server) on an emulated chain of softrobot3; everything torn down afterwards."""
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = None
-    try:
-        deadline = time.monotonic() + 15
-        while True:  # the VMs need a moment to boot before they answer DISCOVER
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
-        yield daemon, srv
-    finally:
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+    with EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", boot_timeout_s=15) as r:
+        yield r.daemon, r.srv
 
 
 @pytest.fixture

@@ -69,33 +69,10 @@ def test_supervisor_keeps_a_fault_until_the_state_shows_it_cleared():
 
 @pytest.fixture(scope="module")
 def rig():
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(ROOT / "robots" / "softrobot3.ucrdf")
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = None
-    try:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
-        yield daemon, srv
-    finally:
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+    with EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", boot_timeout_s=15) as r:
+        yield r.daemon, r.srv
 
 
 def _wait(pred, timeout: float = 10.0) -> bool:

@@ -25,29 +25,17 @@ class Rig:
     segments) and its API server on an emulated chain of softrobot3."""
 
     def __init__(self) -> None:
-        from tools.emulator import EmulatedChain
-        from tools.segment_config import configs
-        from ucrdf.parser import load
+        from tools.rig import EmulatedRig
 
-        self.robot = load(ROBOT_FILE)
-        self.chain = EmulatedChain(3, config_for=configs(self.robot))
-        self.daemon = self.srv = None
-        self._start()
+        self._rig = EmulatedRig(ROBOT_FILE, rate_hz=50.0, boot_timeout_s=30)
 
-    def _start(self) -> None:
-        from host.api.server import ApiServer
-        from host.daemon import Daemon, DaemonError
+    @property
+    def daemon(self):
+        return self._rig.daemon
 
-        deadline = time.monotonic() + 30
-        while True:  # the VMs need a moment to boot before they answer DISCOVER
-            try:
-                self.daemon = Daemon(self.robot, port=self.chain.host_port, rate_hz=50.0).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        self.srv = ApiServer(self.daemon, "127.0.0.1", 0).start()
+    @property
+    def srv(self):
+        return self._rig.srv
 
     @property
     def url(self) -> str:
@@ -63,21 +51,12 @@ class Rig:
         an emulated segment can miss enough cycles that the daemon (rightly) cuts the chain
         there; then start a fresh daemon, which discovers the chain again."""
         if not wait_for(self._whole, 15, 0.1):
-            self.close_daemon()
-            self._start()
+            self._rig.restart_daemon()
             assert wait_for(self._whole, 60, 0.1), self.daemon.status()
         return self.url
 
-    def close_daemon(self) -> None:
-        if self.srv is not None:
-            self.srv.stop()
-        if self.daemon is not None:
-            self.daemon.stop()
-        self.srv = self.daemon = None
-
     def close(self) -> None:
-        self.close_daemon()
-        self.chain.close()
+        self._rig.close()
 
 
 @pytest.fixture(scope="package")

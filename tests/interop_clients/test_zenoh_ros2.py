@@ -624,33 +624,10 @@ def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
 @pytest.fixture(scope="module")
 def rig2():
     """A second emulated robot (softrobot2: 2 segments) with its own daemon and API."""
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(REPO / "robots" / "softrobot2.ucrdf")
-    chain = EmulatedChain(2, config_for=configs(robot))
-    daemon = srv = None
-    try:
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port, rate_hz=50.0).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
-        yield daemon, srv
-    finally:
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+    with EmulatedRig(REPO / "robots" / "softrobot2.ucrdf", rate_hz=50.0, boot_timeout_s=20) as r:
+        yield r.daemon, r.srv
 
 
 def test_two_robots_on_one_network_stay_apart_by_namespace(bridge, rig2, router, msgdir, client):

@@ -3,8 +3,6 @@ app on it, and headless Chromium (Debian's /usr/bin/chromium) driven by Playwrig
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from view_helpers import CHROMIUM_ARGS, ROBOT, chromium_path
 
@@ -28,33 +26,10 @@ def browser():
 @pytest.fixture(scope="module")
 def rig():
     """(chain, daemon, api server) on an emulated softrobot3 chain (real firmware, MicroPython)."""
-    from host.api.server import ApiServer
-    from host.daemon import Daemon, DaemonError
-    from tools.emulator import EmulatedChain
-    from tools.segment_config import configs
-    from ucrdf.parser import load
+    from tools.rig import EmulatedRig
 
-    robot = load(ROBOT)
-    chain = EmulatedChain(3, config_for=configs(robot))
-    daemon = srv = None
-    try:
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                daemon = Daemon(robot, port=chain.host_port).start()
-                break
-            except DaemonError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
-        srv = ApiServer(daemon, "127.0.0.1", 0).start()
-        yield chain, daemon, srv
-    finally:
-        if srv is not None:
-            srv.stop()
-        if daemon is not None:
-            daemon.stop()
-        chain.close()
+    with EmulatedRig(ROBOT, boot_timeout_s=20) as r:
+        yield r.chain, r.daemon, r.srv
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,88 @@
+"""Opening a connection to the daemon API: the token (file or ``$UCR_TOKEN``), the rule that a
+token never travels in clear off loopback, TLS verification, and the WebSocket handshake with
+each refusal turned into a clear :mod:`host.api.client_errors` error.
+
+The request/reply protocol on an open connection is :class:`host.api.client.Client`.
+"""
+
+from __future__ import annotations
+
+import os
+import ssl
+from urllib.parse import urlsplit
+
+from websockets.exceptions import InvalidStatus, InvalidURI, WebSocketException
+from websockets.sync.client import ClientConnection
+from websockets.sync.client import connect as ws_connect
+
+from host.api import ENV_CA, ENV_TOKEN
+from host.api.auth import AuthConfigError, read_token_file
+from host.api.client_errors import ApiAuthError, ApiConnectionError
+from host.api.guard import is_loopback
+
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024  # largest message the client accepts from the daemon
+
+
+def read_token(token_file: str | None = None) -> str | None:
+    """The token from ``token_file`` (must be 0600) or ``$UCR_TOKEN``; None if neither."""
+    if token_file:
+        try:
+            return read_token_file(token_file)
+        except AuthConfigError as exc:
+            raise ApiAuthError(str(exc)) from None
+    return os.environ.get(ENV_TOKEN) or None
+
+
+def token_may_travel(url: str) -> None:
+    """Refuse to send a token in clear to another machine (``ws://`` off loopback)."""
+    parts = urlsplit(url)
+    if parts.scheme == "ws" and not is_loopback(parts.hostname or ""):
+        raise ApiAuthError(
+            f"refusing to send the API token over plain ws:// to {parts.hostname}: anyone on "
+            "the network could read it; use wss:// (api.tls on the daemon)"
+        )
+
+
+def open_websocket(
+    url: str, token: str | None, timeout: float, cafile: str | None
+) -> ClientConnection:
+    """The WebSocket to ``url`` (``token`` as a Bearer header; ``cafile`` or ``$UCR_CA`` to
+    verify ``wss://``). Raises :class:`ApiAuthError` / :class:`ApiConnectionError`."""
+    headers = {"Authorization": f"Bearer {token}"} if token else None
+    if token:
+        token_may_travel(url)
+    ssl_ctx = None
+    cafile = cafile or os.environ.get(ENV_CA) or None
+    if url.startswith("wss:"):
+        try:
+            ssl_ctx = ssl.create_default_context(cafile=cafile)
+        except (OSError, ssl.SSLError) as exc:
+            raise ApiConnectionError(f"cannot load CA file {cafile!r}: {exc}") from None
+    try:
+        return ws_connect(
+            url,
+            additional_headers=headers,
+            ssl=ssl_ctx,
+            open_timeout=timeout,
+            max_size=MAX_MESSAGE_BYTES,
+            ping_interval=20,
+            close_timeout=2,
+        )
+    except InvalidStatus as exc:
+        status = exc.response.status_code
+        if status == 401:
+            what = "wrong token" if token else "a token is required (--token-file or $UCR_TOKEN)"
+            raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
+        if status == 429:
+            raise ApiAuthError(
+                f"the daemon at {url} refused the connection: too many failed attempts, "
+                f"retry in {exc.response.headers.get('Retry-After', '?')} s"
+            ) from None
+        if status in (400, 403, 404, 421):
+            reason = exc.response.body.decode(errors="replace").strip()[:200]
+            raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
+        raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
+    except InvalidURI as exc:
+        raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None
+    except (OSError, TimeoutError, WebSocketException) as exc:
+        raise ApiConnectionError(f"cannot reach the daemon at {url}: {exc}") from None

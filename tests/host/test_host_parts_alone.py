@@ -1,0 +1,139 @@
+"""The parts split out of the daemon, the topology follower and the API server work alone, through
+the interfaces they are given: the usable rate (link health -> events, period), the chain report,
+and the API server's outboxes and request side."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+from types import SimpleNamespace
+
+from host.api import schema as S
+from host.api.connection import Outboxes
+from host.api.dispatch import Dispatcher
+from host.api.session import _Subscription
+from host.chain_report import rate_warning, rebuild_message
+from host.link_health import LinkHealth
+from host.usable_rate import UsableRate
+
+
+def test_usable_rate_slows_the_loop_through_its_callback_and_reports_which_link():
+    events: list[tuple[str, dict]] = []
+    periods: list[float] = []
+    rate = UsableRate(
+        LinkHealth(0.01, 0.8, min_rate_hz=10.0),
+        100.0,
+        lambda kind, **kw: events.append((kind, kw)),
+        periods.append,
+    )
+    link = SimpleNamespace(stats={"unmatched": 0})
+    rate.start(link)
+    hwi = SimpleNamespace(names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008)
+    for k in range(40):  # position 1 never answers in time, its replies come late
+        link.stats["unmatched"] += 1
+        rate.observe(hwi, link, 0.01 * k)
+    assert periods == [0.02]
+    (kind, ev), *_ = events
+    assert kind == "link_degraded" and ev["segment"] == "segment_2" and ev["link"] == 2
+    assert "loop slowed to 50.0 Hz (nominal 100.0 Hz)" in ev["message"]
+
+
+def test_chain_report_words_a_cut_and_a_rate_the_chain_cannot_carry():
+    cmp = SimpleNamespace(differences=[])
+    cut = {"after": "segment_1", "after_position": 0, "lost": ["segment_2", "segment_3"]}
+    msg = rebuild_message(["segment_1"], cut, cmp)
+    assert msg == (
+        "now 1 segment(s): segment_1; chain cut after segment_1 (position 0): "
+        "segment_2, segment_3 unreachable"
+    )
+    assert rate_warning(3, 1_000_000, 0.004, 0.004, 200.0) is None
+    slow = rate_warning(8, 9600, 0.004, 0.004, 200.0)
+    assert slow is not None and "8 segment(s) at 9600 baud" in slow and "rate_hz <=" in slow
+
+
+def _session():
+    return SimpleNamespace(
+        subs={},
+        stream=collections.deque(),
+        priority=collections.deque(),
+        queued_bytes=0,
+        closed=False,
+        wakeup=asyncio.Event(),
+        t_progress=0.0,
+        upload=None,
+        scope="control",
+    )
+
+
+def _opts(**over):
+    base = dict(
+        outbox_size=2,
+        outbox_bytes=1 << 20,
+        global_outbox_bytes=1 << 20,
+        max_subscriptions=4,
+        upload_points_total=3,
+        max_request_bytes=S.MAX_REQUEST_BYTES,
+        goal_poll_s=0.1,
+    )
+    return SimpleNamespace(**{**base, **over})
+
+
+def test_outboxes_fan_out_by_kind_drop_the_oldest_and_send_progress_first():
+    wanted: list[set[str]] = []
+    counters = {"dropped": 0}
+    out = Outboxes(_opts(), counters, wanted.append)
+    session = _session()
+    sub = _Subscription(1, ["joint_states"], None)
+    session.subs[1] = sub
+    out.add(session, sub)
+    assert wanted[-1] == {"joint_states"}
+    for k in range(3):
+        out.publish("joint_states", f'{{"k":{k}}}')
+    out.publish("events", '{"e":1}')  # nobody subscribed
+    out.push_priority(session, "progress")
+    assert counters["dropped"] == 1 and sub.dropped == 1 and sub.sent == 3
+    sent = []
+    while (text := out.take(session)) is not None:
+        sent.append(text)
+    assert sent[0] == "progress" and [t[-7:] for t in sent[1:]] == ['"k":1}}', '"k":2}}']
+    assert out.queued_bytes == 0 and session.queued_bytes == 0
+    out.drop(session)
+    assert wanted[-1] == set()
+
+
+def test_dispatcher_alone_bounds_uploads_and_registers_subscriptions_with_the_outboxes():
+    counters = {k: 0 for k in ("requests", "errors", "forbidden", "dropped")}
+    out = Outboxes(_opts(), counters, lambda kinds: None)
+
+    async def call(name, *args):
+        raise AssertionError(f"no daemon call expected, got {name}")
+
+    d = Dispatcher(_opts(), counters, out, call, lambda: None, list)
+    session = _session()
+
+    def ask(op, **params):
+        frame = S.encode({"id": 1, "op": op, **params})
+        return asyncio.run(d.serve_frame(session, frame))
+
+    pts = [{"time_from_start": t, "segments": {"s": {"kx": 0.0, "ky": 0.0}}} for t in (1, 2)]
+    up = ask("trajectory.upload", points=pts)
+    assert up["ok"] and d.upload_points == 2
+    more = [{"time_from_start": t, "segments": {"s": {"kx": 0.0, "ky": 0.0}}} for t in (3, 4)]
+    over = ask("trajectory.upload", points=more, upload=up["result"]["upload"])
+    assert not over["ok"] and "too many uploads" in over["error"]["message"]
+    d.end_upload(session)
+    assert d.upload_points == 0
+    sub = ask("subscribe", kinds=["events"])
+    assert sub["ok"] and out.by_kind["events"]
+    assert ask("status")["error"]["message"] == "no status from the daemon yet"
+
+
+def test_outboxes_forget_a_removed_subscription():
+    kinds = ["joint_states", "events"]
+    wanted: list[set[str]] = []
+    out = Outboxes(_opts(), {"dropped": 0}, wanted.append)
+    sub = _Subscription(7, kinds, None)
+    out.add(_session(), sub)
+    out.remove(sub)
+    assert wanted == [set(kinds), set()]
+    assert all(not subs for subs in out.by_kind.values())
