@@ -43,7 +43,7 @@ def test_chain_report_words_a_cut_and_a_rate_the_chain_cannot_carry():
     cut = {"after": "segment_1", "after_position": 0, "lost": ["segment_2", "segment_3"]}
     msg = rebuild_message(["segment_1"], cut, cmp)
     assert msg == (
-        "now 1 segment(s): segment_1; chain cut after segment_1 (position 0): "
+        "now 1 segment(s): segment_1; chain cut after segment_1 (position 1): "
         "segment_2, segment_3 unreachable"
     )
     assert rate_warning(3, 1_000_000, 0.004, 0.004, 200.0) is None
