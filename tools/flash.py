@@ -6,9 +6,9 @@ would end on a soft reset) within an overall deadline (a device that talks but i
 up on), write every file under a temporary name, verify each by SHA-256 computed on the board,
 rename them into place (``main.py`` last), then reset the board. Any failure removes the
 temporary files and leaves the previous firmware in place and the board at the friendly REPL
-(reset, unless ``--no-reset``, so the old firmware runs the chain again). Optionally the modules
-are precompiled with mpy-cross for the board's bytecode version (``sys.implementation._mpy``),
-falling back to bytecode without native code, or to source, where the board needs it.
+(reset, unless ``--no-reset``, so the old firmware runs the chain again). The modules are
+precompiled with mpy-cross for the board's bytecode version (``sys.implementation._mpy``;
+tools/mpy.py, which also says why and how it falls back); ``--source`` flashes source files.
 docs/flashing.md has the details and the facts about mpremote and the unix port.
 """
 
@@ -19,11 +19,6 @@ import errno
 import hashlib
 import json
 import os
-import re
-import shutil
-import subprocess
-import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,32 +28,16 @@ import serial
 from mpremote.transport import TransportError
 from mpremote.transport_serial import SerialTransport
 
+from tools import mpy as mpy_tools
 from tools.mpvm import REPO
+from tools.mpy import KEEP_SOURCE, compile_mpy, mpy_cross_version  # noqa: F401 - re-exported
 
 DEVICE_DIR = REPO / "device"
 PROTOCOL_DIR = REPO / "protocol"
-#: Files that must stay source: MicroPython only runs boot.py/main.py as .py.
-KEEP_SOURCE = {"main.py", "boot.py"}
 #: What the raw REPL prints when entered (mpremote waits for the ">" that follows itself).
 RAW_BANNER = b"raw REPL; CTRL-B to exit\r\n"
 #: Suffix of a file while it is being uploaded: renamed into place only once all are verified.
 TMP_SUFFIX = ".new"
-#: ``sys.implementation._mpy`` bits 10.. name the native architecture (py/persistentcode.h).
-MPY_ARCHES = (
-    None,
-    "x86",
-    "x64",
-    "armv6",
-    "armv6m",
-    "armv7m",
-    "armv7em",
-    "armv7emsp",
-    "armv7emdp",
-    "xtensa",
-    "xtensawin",
-    "rv32imc",
-    "rv64imc",
-)
 
 
 class FlashError(RuntimeError):
@@ -76,12 +55,11 @@ class BoardInfo:
 
     @property
     def mpy_version(self) -> tuple[int, int]:
-        return self.mpy & 0xFF, (self.mpy >> 8) & 3
+        return mpy_tools.version_of(self.mpy)
 
     @property
     def arch(self) -> str | None:
-        idx = self.mpy >> 10
-        return MPY_ARCHES[idx] if idx < len(MPY_ARCHES) else None
+        return mpy_tools.arch_of(self.mpy)
 
 
 def firmware_files(
@@ -99,31 +77,6 @@ def firmware_files(
     for path in sorted(protocol_dir.glob("*.py")):
         files.append((f"protocol/{path.name}", path))
     return files
-
-
-def mpy_cross_version() -> tuple[int, int]:
-    """(version, sub-version) of the .mpy files the installed mpy-cross writes."""
-    exe = shutil.which("mpy-cross") or str(Path(sys.executable).parent / "mpy-cross")
-    try:
-        out = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise FlashError(f"mpy-cross is not usable: {exc}") from exc
-    m = re.search(r"mpy v(\d+)\.(\d+)", out.stdout + out.stderr)
-    if not m:
-        raise FlashError(f"cannot read mpy-cross version from {out.stdout.strip()!r}")
-    return int(m.group(1)), int(m.group(2))
-
-
-def compile_mpy(src: Path, dst: Path, *, arch: str | None) -> None:
-    """Precompile one module with mpy-cross (``-march`` for native/viper code)."""
-    exe = shutil.which("mpy-cross") or str(Path(sys.executable).parent / "mpy-cross")
-    cmd = [exe, "-o", str(dst), "-s", src.name]
-    if arch:
-        cmd.append(f"-march={arch}")
-    cmd.append(str(src))
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-    if proc.returncode != 0:
-        raise FlashError(f"mpy-cross failed on {src}: {proc.stderr.strip()}")
 
 
 def check_port(port: str) -> None:
@@ -415,49 +368,21 @@ def _why(exc: BaseException) -> str:
 def build_files(
     config: dict,
     *,
-    mpy: bool = False,
+    mpy: bool = True,
     info: BoardInfo | None = None,
     device_dir: Path = DEVICE_DIR,
     protocol_dir: Path = PROTOCOL_DIR,
     log: Callable[[str], None] = print,
 ) -> list[tuple[str, bytes]]:
-    """(board path, bytes) of everything to flash, compiled to .mpy if asked and possible.
-
-    ``--mpy`` falls back: to bytecode-only .mpy where mpy-cross has no native emitter for the
-    board's architecture (a module with viper code, protocol/_fast.py, then goes as source: its
-    import fails on such a board and the callers keep their Python loops), and to source where
-    the board cannot import the .mpy files mpy-cross writes (each said in a log line).
-    """
+    """(board path, bytes) of everything to flash: modules precompiled to .mpy for the board
+    (``mpy``, the default; tools/mpy.py says why and how it falls back), else source files."""
     sources = firmware_files(device_dir, protocol_dir)
-    files: list[tuple[str, bytes]] = []
     if mpy:
         assert info is not None
-        mpy = _mpy_usable(info, log)
-    if mpy:
-        assert info is not None
-        arch = info.arch
-        with tempfile.TemporaryDirectory(prefix="ucr-mpy-") as tmp:
-            for board_path, src in sources:
-                if Path(board_path).name in KEEP_SOURCE:
-                    files.append((board_path, src.read_bytes()))
-                    continue
-                dst = Path(tmp) / (board_path[:-3] + ".mpy")
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                try:
-                    compile_mpy(src, dst, arch=arch)
-                except FlashError:
-                    if arch is not None:
-                        log(f"mpy-cross has no native emitter for {arch}: bytecode-only .mpy files")
-                        arch = None
-                    try:
-                        compile_mpy(src, dst, arch=None)
-                    except FlashError:
-                        # native/viper code needs an emitter: the source, whose import falls
-                        # back to plain Python on a board without one (protocol/_fast.py)
-                        log(f"{board_path}: native code without an emitter: flashed as source")
-                        files.append((board_path, src.read_bytes()))
-                        continue
-                files.append((board_path[:-3] + ".mpy", dst.read_bytes()))
+        try:
+            files = mpy_tools.compile_sources(sources, mpy=info.mpy, log=log)
+        except mpy_tools.MpyError as exc:
+            raise FlashError(str(exc)) from exc
     else:
         files = [(p, src.read_bytes()) for p, src in sources]
     files.append(("config.json", (json.dumps(config, indent=1) + "\n").encode()))
@@ -466,26 +391,11 @@ def build_files(
     return files
 
 
-def _mpy_usable(info: BoardInfo, log: Callable[[str], None]) -> bool:
-    """Whether the board imports the .mpy files the installed mpy-cross writes (else: source)."""
-    if info.mpy == 0:
-        log("this MicroPython build cannot import .mpy files: flashing source files")
-        return False
-    host_ver = mpy_cross_version()
-    if host_ver[0] != info.mpy_version[0] or host_ver[1] != info.mpy_version[1]:
-        log(
-            f"the board imports mpy v{info.mpy_version[0]}.{info.mpy_version[1]} but mpy-cross "
-            f"writes v{host_ver[0]}.{host_ver[1]}: flashing source files"
-        )
-        return False
-    return True
-
-
 def flash(
     port: str,
     config: dict,
     *,
-    mpy: bool = False,
+    mpy: bool = True,
     reset: bool = True,
     log: Callable[[str], None] = print,
     device_dir: Path = DEVICE_DIR,

@@ -5,6 +5,7 @@ Used by tests and benchmarks that must execute firmware or protocol code under M
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import shutil
@@ -44,6 +45,21 @@ def micropython_binary() -> str:
     if not found:
         raise MicroPythonMissing("MicroPython's unix port (no micropython binary found)")
     return found
+
+
+@functools.cache
+def implementation_mpy(binary: str | None = None) -> int:
+    """``sys.implementation._mpy`` of the VM: which .mpy version and native code it imports."""
+    out = subprocess.run(
+        [binary or micropython_binary(), "-c", "import sys; print(sys.implementation._mpy)"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    try:
+        return int(out.stdout.strip())
+    except ValueError:
+        return 0  # a build that cannot import .mpy files: source files
 
 
 def short_path(path: Path) -> str:

@@ -49,6 +49,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         help="with --timing-model: board/host slowdown (default measured)",
     )
+    em.add_argument(
+        "--source",
+        action="store_true",
+        help="run the firmware from source files (each segment compiles its modules at import, "
+        "as after `ucr flash --source`); default: precompiled .mpy, as `ucr flash` deploys",
+    )
     em.set_defaults(func=cmd_emulate)
 
     fl = subparsers.add_parser(
@@ -61,7 +67,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     fl.add_argument("--port", required=True, help="serial port of the segment's USB REPL")
     fl.add_argument("--robot", required=True, type=Path, help="U(C)RDF file of the robot")
     fl.add_argument("--segment", required=True, help="name of the <bendable> this segment is")
-    fl.add_argument("--mpy", action="store_true", help="precompile modules with mpy-cross")
+    src = fl.add_mutually_exclusive_group()
+    src.add_argument(
+        "--mpy",
+        dest="mpy",
+        action="store_true",
+        default=True,
+        help="precompile modules with mpy-cross for the board (the default; kept for scripts)",
+    )
+    src.add_argument(
+        "--source",
+        dest="mpy",
+        action="store_false",
+        help="flash source files: the board compiles them at import, on its own heap (less "
+        "heap left; calibration may not find room to load)",
+    )
     fl.add_argument("--no-reset", action="store_true", help="do not reset the board afterwards")
     fl.add_argument(
         "--servo-driver",
@@ -183,6 +203,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             board=args.board,
             timing=args.timing_model,
             cpu_factor=args.cpu_factor,
+            mpy=not args.source,
         ) as chain:
             try:
                 settings = {}

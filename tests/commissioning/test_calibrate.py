@@ -20,15 +20,6 @@ from tools.mpvm import REPO
 from tools.segment_config import config_for
 from ucrdf.parser import load
 
-HEAP_XFAIL = pytest.mark.xfail(
-    strict=False,
-    reason=(
-        "a fresh protocol-v2 boot leaves the emulated ESP32 heap fragmented (about 34 KB free, "
-        "largest free block about 1.3 KB): compiling device/calib.py on the first CALIBRATE "
-        "then fails with MemoryError (answered ERROR BAD_VALUE, no FAULT); the slow-path "
-        "modules need freezing or precompiling (issue 18, not done)"
-    ),
-)
 ROBOT = REPO / "robots" / "softrobot2.ucrdf"
 TRUE_ZERO = [0.12, -0.08, 0.05]  # raw rad where each tendon is straight and just taut
 TRUE_DIR = [1, -1, 1]  # servo 1 was mounted the other way round
@@ -88,7 +79,6 @@ def _read(link: ChainLink) -> dict:
     return cal.decode_calibration(reply)
 
 
-@HEAP_XFAIL
 def test_calibrate_script_fixes_offsets_and_a_reversed_servo_and_survives_a_restart(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -176,7 +166,6 @@ def test_an_invalid_stored_calibration_is_refused_at_boot_and_nothing_moves(
     assert st["servo_angles"] == pytest.approx(before, abs=1e-3)  # never moves on it
 
 
-@HEAP_XFAIL
 def test_calibration_changes_only_in_hold_and_forget_deletes_the_stored_one() -> None:
     with EmulatedChain(1, config_for=[_config()]) as chain:
         with ChainLink(chain.host_port) as link:

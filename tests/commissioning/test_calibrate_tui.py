@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("textual", reason="the 'tui' extra (textual) is not installed")
 
-from test_calibrate import HEAP_XFAIL, _config, _discover  # noqa: E402
+from test_calibrate import _config, _discover  # noqa: E402
 
 from host.calibrate import Session  # noqa: E402
 from host.calibrate_tui import CalibrateApp  # noqa: E402
@@ -33,7 +33,6 @@ def _read(link: ChainLink) -> dict:
     return cal.decode_calibration(reply)
 
 
-@HEAP_XFAIL
 def test_tui_keys_jog_a_servo_persist_it_and_hold_at_once() -> None:
     with EmulatedChain(1, config_for=[_config()]) as chain:
         with ChainLink(chain.host_port) as link:

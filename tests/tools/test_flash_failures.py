@@ -16,6 +16,7 @@ from mpremote.transport_serial import SerialTransport
 
 from host.link import ChainLink
 from tools import flash as flash_mod
+from tools import mpy as mpy_tools
 from tools.emulator import EmulatedChain
 from tools.flash import TMP_SUFFIX, BoardInfo, FlashError, build_files, flash
 
@@ -52,14 +53,14 @@ def chain():
         link.close()
 
 
-def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail) -> str:
+def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail, mpy: bool = True) -> str:
     ch, link = chain
     seg = ch.segment_dir(0)
     before = _snapshot(seg)
     restarts = ch.stats()["segments"][0]["restarts"]
     with make_it_fail(seg):
         with pytest.raises(FlashError) as info:
-            flash(ch.repl_port(0), {"name": "after"}, log=lambda s: None)
+            flash(ch.repl_port(0), {"name": "after"}, mpy=mpy, log=lambda s: None)
     message = str(info.value)
     assert "nothing was changed" in message and "reset to its previous firmware" in message
     after = {k: v for k, v in _snapshot(seg).items() if not k.endswith(TMP_SUFFIX)}
@@ -71,12 +72,12 @@ def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail) -> str:
     return message
 
 
-def test_a_copy_that_fails_midway_keeps_the_previous_firmware_running(chain) -> None:
+def _blocked(name: str):
     class Blocked:
-        """A directory where the upload of protocol/frame.py must go: the copy fails there."""
+        """A directory where the upload of protocol/<name> must go: the copy fails there."""
 
         def __init__(self, seg: Path) -> None:
-            self.path = seg / "protocol" / ("frame.py" + TMP_SUFFIX)
+            self.path = seg / "protocol" / (name + TMP_SUFFIX)
 
         def __enter__(self):
             self.path.mkdir()
@@ -84,8 +85,17 @@ def test_a_copy_that_fails_midway_keeps_the_previous_firmware_running(chain) -> 
         def __exit__(self, *exc):
             self.path.rmdir()
 
-    message = _failed_flash_keeps_the_previous_firmware(chain, Blocked)
+    return Blocked
+
+
+def test_a_copy_that_fails_midway_keeps_the_previous_firmware_running(chain) -> None:
+    message = _failed_flash_keeps_the_previous_firmware(chain, _blocked("frame.py"), mpy=False)
     assert "copying protocol/frame.py failed" in message
+
+
+def test_a_precompiled_copy_that_fails_midway_keeps_the_previous_firmware(chain) -> None:
+    message = _failed_flash_keeps_the_previous_firmware(chain, _blocked("frame.mpy"))
+    assert "copying protocol/frame.mpy failed" in message
 
 
 def test_a_hash_mismatch_keeps_the_previous_firmware_running(chain, monkeypatch) -> None:
@@ -195,18 +205,21 @@ def _flash_cli(port: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_mpy_falls_back_to_bytecode_or_source_where_the_board_needs_it(monkeypatch) -> None:
+def test_mpy_falls_back_to_bytecode_or_source_where_the_board_needs_it(
+    monkeypatch, tmp_path
+) -> None:
     ver, sub = flash_mod.mpy_cross_version()
     logs: list[str] = []
     xtensawin = 10 << 10 | sub << 8 | ver
-    real = flash_mod.compile_mpy
+    real = mpy_tools.compile_mpy
 
     def no_native(src, dst, *, arch):
         if arch is not None:
-            raise FlashError(f"mpy-cross failed on {src}: invalid arch")
+            raise mpy_tools.MpyError(f"mpy-cross failed on {src}: invalid arch")
         return real(src, dst, arch=None)
 
-    monkeypatch.setattr(flash_mod, "compile_mpy", no_native)
+    monkeypatch.setattr(mpy_tools, "compile_mpy", no_native)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # compiled afresh: no cached .mpy
     info = BoardInfo("micropython", "esp32", xtensawin, "1.29")
     files = build_files({}, mpy=True, info=info, log=logs.append)
     assert any(p == "protocol/frame.mpy" for p, _ in files)

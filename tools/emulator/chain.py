@@ -22,6 +22,7 @@ import atexit
 import ctypes
 import fcntl
 import json
+import logging
 import os
 import secrets
 import shutil
@@ -36,12 +37,14 @@ from pathlib import Path
 from typing import Any
 
 from protocol import boards
+from tools import mpy as mpy_tools
 from tools.emulator.pipe import Pipe
 from tools.emulator.proxy import Proxy, PtyEnd, RingLog
-from tools.mpvm import REPO, micropython_binary
+from tools.mpvm import REPO, implementation_mpy, micropython_binary
 
 DEFAULT_FIRMWARE_DIR = REPO / "device"
 DEFAULT_PROTOCOL_DIR = REPO / "protocol"
+_log = logging.getLogger("ucr.emulator")
 
 _PR_SET_PDEATHSIG = 1
 try:
@@ -65,19 +68,22 @@ def _child_setup() -> None:
         _libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
 
 
-def _copy_tree_py(src: Path, dst: Path) -> list[Path]:
-    """Copy the MicroPython sources of ``src`` (``*.py``, ``*.json``) into ``dst``, recursively."""
-    copied = []
-    for path in sorted(src.rglob("*")):
-        rel = path.relative_to(src)
+def _firmware_sources(firmware_dir: Path, protocol_dir: Path | None) -> list[tuple[str, Path]]:
+    """(path in the segment's flash, host path) of every file a segment gets: the firmware tree
+    (``*.py``, ``*.json``) at the top and the ``protocol/`` package's top-level modules (its
+    vectors/ and tests are host-side material)."""
+    out = []
+    for path in sorted(firmware_dir.rglob("*")):
+        rel = path.relative_to(firmware_dir)
         if any(part == "__pycache__" or part.startswith(".") for part in rel.parts):
             continue
         if path.is_file() and path.suffix in (".py", ".json"):
-            target = dst / rel
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(path, target)
-            copied.append(target)
-    return copied
+            out.append((rel.as_posix(), path))
+    if protocol_dir is not None:
+        if not protocol_dir.is_dir():
+            raise EmulatorError(f"protocol directory {protocol_dir} does not exist")
+        out.extend((f"protocol/{path.name}", path) for path in sorted(protocol_dir.glob("*.py")))
+    return out
 
 
 def populate_segment_dir(
@@ -86,25 +92,37 @@ def populate_segment_dir(
     firmware_dir: Path = DEFAULT_FIRMWARE_DIR,
     protocol_dir: Path | None = DEFAULT_PROTOCOL_DIR,
     config: dict | None = None,
+    mpy: bool = True,
 ) -> None:
     """Lay out a segment's "flash": firmware files at the top, ``protocol/`` package, config.json.
 
-    This is the same layout ``ucr flash`` writes to a real board.
+    This is what ``ucr flash`` writes to a real board: modules precompiled to ``.mpy`` for the
+    VM by the same function (tools/mpy.py), ``main.py`` as source; ``mpy=False`` lays out source
+    files (the board then compiles each module on its own heap at import, as after
+    ``ucr flash --source``).
     """
     firmware_dir = Path(firmware_dir)
     if not (firmware_dir / "main.py").is_file():
         raise EmulatorError(f"no main.py in firmware directory {firmware_dir}")
+    sources = _firmware_sources(firmware_dir, None if protocol_dir is None else Path(protocol_dir))
+    if mpy:
+        try:
+            files = mpy_tools.compile_sources(
+                sources, mpy=implementation_mpy(), log=_log.warning, verb="running"
+            )
+        except mpy_tools.MpyError as exc:
+            raise EmulatorError(f"cannot precompile the firmware: {exc}") from exc
+    else:
+        files = [(p, src.read_bytes()) for p, src in sources]
     seg_dir.mkdir(parents=True, exist_ok=True)
-    _copy_tree_py(firmware_dir, seg_dir)
-    if protocol_dir is not None:
-        protocol_dir = Path(protocol_dir)
-        if not protocol_dir.is_dir():
-            raise EmulatorError(f"protocol directory {protocol_dir} does not exist")
-        # Only the package's top-level modules: vectors/ and tests are host-side material.
-        target = seg_dir / "protocol"
-        target.mkdir(exist_ok=True)
-        for path in sorted(protocol_dir.glob("*.py")):
-            shutil.copy2(path, target / path.name)
+    for board_path, data in files:
+        target = seg_dir / board_path
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+        # the twin a reused directory may hold: MicroPython imports a .py before a .mpy
+        twin = target.with_suffix(".py" if target.suffix == ".mpy" else ".mpy")
+        if target.suffix in (".py", ".mpy") and twin.exists():
+            twin.unlink()
     cfg_path = seg_dir / "config.json"
     if config is not None:
         cfg_path.write_text(json.dumps(config, indent=1) + "\n")
@@ -199,7 +217,9 @@ class EmulatedChain:
     each configuration's ``board``, else esp32), ``timing`` (the board's timing model: RTOS-tick
     waits and compute stretched by ``cpu_factor``, default measured, tools/emulator/timing.py),
     ``line_baud`` (the first segment's UART rate: bytes the host sends at another rate, as set
-    on the host port by termios, arrive garbled, as on a real UART; default: any rate works).
+    on the host port by termios, arrive garbled, as on a real UART; default: any rate works),
+    ``mpy`` (run the modules precompiled, as ``ucr flash`` deploys them, the default; False:
+    source files, compiled by each segment at import).
     """
 
     def __init__(
@@ -220,6 +240,7 @@ class EmulatedChain:
         timing: bool = False,
         cpu_factor: float | None = None,
         line_baud: int | None = None,
+        mpy: bool = True,
     ) -> None:
         if not isinstance(n, int) or n < 1:
             raise EmulatorError(f"a chain needs at least one segment, got {n!r}")
@@ -228,6 +249,7 @@ class EmulatedChain:
         self.n = n
         self._heap = heap
         self._line_baud = line_baud
+        self._mpy = mpy
         if board is not None and board not in boards.BOARDS:
             raise EmulatorError(f"unknown board {board!r} (boards: {', '.join(boards.NAMES)})")
         self.board = board
@@ -275,6 +297,7 @@ class EmulatedChain:
                     firmware_dir=firmware_dir,
                     protocol_dir=None if protocol_dir is None else Path(protocol_dir),
                     config=self._config(config_for, k),
+                    mpy=self._mpy,
                 )
             seg = _Segment(k, seg_dir, uid)
             seg.faults = faults_for(k) if faults_for is not None else None
