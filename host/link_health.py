@@ -17,8 +17,6 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 DEGRADE_WINDOW = 30  # cycles looked at for loss (a burst of host load is shorter)
 DEGRADE_LOSS = 0.6  # a position missing in this share of the window, with at least
 DEGRADE_LATE = 3  # this many replies arriving late meanwhile, degrades the link
@@ -36,6 +34,7 @@ class LinkHealth:
         self.min_period = max(period, 1.0 / min_rate_hz)
         self.recover_s = RECOVER_S
         self._answered: deque[tuple[bool, ...]] = deque(maxlen=DEGRADE_WINDOW)
+        self._misses: list[int] = []  # per position: exchanges in the window it did not answer
         self._latency: deque[float] = deque(maxlen=50)
         self._clean_since: float | None = None
         self._late_seen: int | None = None
@@ -50,6 +49,7 @@ class LinkHealth:
     def reset(self) -> None:
         """Forget the window (a rebuild changes the chain)."""
         self._answered.clear()
+        self._misses = []
         self._latency.clear()
         self._clean_since = None
 
@@ -70,11 +70,10 @@ class LinkHealth:
             return None
         if self._answered and len(self._answered[-1]) != len(answered):
             self.reset()
-        self._answered.append(tuple(answered))
+        self._push(tuple(answered))
         if all(answered):
             self._latency.append(exchange_s)
         loss = self.loss()
-        p90 = float(np.percentile(self._latency, 90)) if len(self._latency) >= 5 else 0.0
         worst = max(range(len(loss)), key=loss.__getitem__)
         lossy = len(self._answered) == DEGRADE_WINDOW and loss[worst] >= DEGRADE_LOSS
         late = 0
@@ -101,6 +100,7 @@ class LinkHealth:
             return None
         if now - self._clean_since < self.recover_s:
             return None
+        p90 = self._latency_p90()
         self.period = self.nominal
         self._t_restored = now
         self.reset()
@@ -115,7 +115,7 @@ class LinkHealth:
 
     def _degrade(self, position: int, loss: float, now: float) -> dict[str, Any]:
         """Halve the rate (not below the floor); the change as reported."""
-        p90 = float(np.percentile(self._latency, 90)) if len(self._latency) >= 5 else 0.0
+        p90 = self._latency_p90()
         if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
             self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
         self._t_restored = None
@@ -141,16 +141,35 @@ class LinkHealth:
         loss = self.loss()
         return self._degrade(position, loss[position] if position < len(loss) else 1.0, now)
 
+    def _push(self, answered: tuple[bool, ...]) -> None:
+        """Adds one exchange to the window, keeping the per-position miss counts (the cycle
+        pays a few integer operations, not a pass over the window)."""
+        if not self._misses:
+            self._misses = [0] * len(answered)
+        if len(self._answered) == DEGRADE_WINDOW:
+            for i, ok in enumerate(self._answered[0]):
+                self._misses[i] -= not ok
+        self._answered.append(answered)
+        for i, ok in enumerate(answered):
+            self._misses[i] += not ok
+
+    def _latency_p90(self, at_least: int = 5) -> float:
+        """p90 of the recent complete exchanges (s); 0 with fewer than ``at_least`` (or none)."""
+        if len(self._latency) < max(1, at_least):
+            return 0.0
+        ordered = sorted(self._latency)
+        return ordered[int(0.9 * (len(ordered) - 1))]
+
     def loss(self) -> list[float]:
         """Share of the window in which each position did not answer."""
         if not self._answered:
             return []
-        a = np.array(self._answered, dtype=bool)
-        return [float(x) for x in 1.0 - a.mean(axis=0)]
+        n = len(self._answered)
+        return [m / n for m in self._misses]
 
     def snapshot(self) -> dict[str, Any]:
         """For status: nominal and usable rate, per-position loss, exchange latency p90."""
-        lat = float(np.percentile(self._latency, 90)) * 1e3 if self._latency else None
+        lat = self._latency_p90(at_least=1) * 1e3 if self._latency else None
         return {
             "degraded": self.degraded,
             "nominal_rate_hz": round(1.0 / self.nominal, 2),

@@ -171,7 +171,7 @@ class TopologyFollower:
         hwi = self.hwi
         if hwi is None:
             return 0
-        missing = len(chain_bendables(self.full_robot)) - len(hwi.names)
+        missing = len(self.full_robot.bendables) - len(hwi.names)  # (a checked tree holds all)
         if missing <= 0 or now < self._next_probe or len(self.descriptors) > len(hwi.names):
             return 0  # (a segment found beyond the tip that does not match: reported, held)
         self._next_probe = now + PROBE_INTERVAL_S
