@@ -2,8 +2,10 @@
 runs in the test suite (Sybil collects the Markdown files; this file says how a block runs).
 
 A fenced block runs by its language:
-- ``sh``: every command line (``\\`` continues a line; ``# …`` after two spaces is a comment);
-- ``console``: the lines that start with ``$ `` (the others are sample output);
+- ``sh``: every command line (``\\`` continues a line; ``# …`` after two spaces is a comment); a
+  command ending in ``&`` runs in the background until the block ends, then gets Ctrl-C;
+- ``console`` (or no language, when the block starts with ``$ ``): the lines that start with
+  ``$ `` (the others are sample output);
 - ``python``: the block, in one namespace per document (later blocks see earlier names).
 Other languages (``text``, ``json``, ``yaml``, …) are not run, except as files (below).
 
@@ -16,11 +18,16 @@ An HTML comment right before a block says how it runs (``<!-- doc-test: … -->`
 - ``file=NAME``: the block's text is written to NAME in the working directory (e.g. a trajectory
   file a later command reads);
 - ``expect=TEXT``: the block's combined output must contain TEXT;
+- ``exit=N``: every command must exit with N (e.g. 1 for a documented failure);
+- ``port=host`` / ``port=repl``: the hardware port ``/dev/ttyUSB0`` in the commands becomes the
+  host port (``host``) or segment 1's REPL pty (``repl``) of an emulated 3-segment chain
+  configured from ``robots/softrobot3.ucrdf``, started for this block alone;
 - ``cwd=repo``: run in the repository itself (``./run.sh …``) instead of a scratch directory.
-Commands run in a fresh working directory per document holding links to ``robots/`` and
-``docs/``, with the project's environment first on PATH. The suite's own command
-(``./run.sh test …``) runs with ``--collect-only`` inside the suite, so it proves the command and
-the collection without running the suite twice.
+Commands run in a fresh working directory per document holding a copy of ``robots/`` (plus
+``robots/my.ucrdf``, "your robot": softrobot3's description, which the emulated chains run) and
+links to ``examples/``, ``docs/``, ``device/`` and ``protocol/``, with the project's environment
+first on PATH. The suite's own command (``./run.sh test …``) runs with ``--collect-only`` inside
+the suite, so it proves the command and the collection without running the suite twice.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import shutil
 import signal
 import socket
 import subprocess
@@ -39,7 +47,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent
-_DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>.*?)\s*-->\s*\Z", re.S)
+_DIRECTIVE = re.compile(r"<!--\s*doc-test:\s*(?P<body>(?:(?!-->).)*?)\s*-->\s*\Z", re.S)
 _TIMEOUT_S = 180.0  # one documented command, at most (the demo runs ~15 s)
 
 try:  # Sybil is a test dependency; without it the docs are simply not collected
@@ -107,7 +115,11 @@ class DocEnv:
         d = self.root / doc.stem
         if not d.exists():
             d.mkdir(parents=True)
-            for name in ("robots", "docs"):
+            # robots/ is a copy: documented commands write robot files (calibrate, adopt)
+            shutil.copytree(REPO / "robots", d / "robots")
+            # robots/my.ucrdf, "your robot" of docs/commissioning.md: the emulated chain's robot
+            shutil.copy(REPO / "robots" / "softrobot3.ucrdf", d / "robots" / "my.ucrdf")
+            for name in ("docs", "examples", "device", "protocol"):
                 (d / name).symlink_to(REPO / name)
         return d
 
@@ -124,14 +136,8 @@ class DocEnv:
     def start_daemon(self) -> str:
         if self.url is not None:
             return self.url
-        from tools.emulator import EmulatedChain  # noqa: PLC0415
-        from tools.segment_config import config_for  # noqa: PLC0415
-        from ucrdf.parser import load  # noqa: PLC0415
-
         robot_file = REPO / "robots" / "softrobot3.ucrdf"
-        robot = load(robot_file)
-        names = [b.name for b in robot.bendables]
-        self._chain = EmulatedChain(3, config_for=lambda k: config_for(robot, names[k])).start()
+        self._chain = emulated_chain()
         port = _free_port()
         cfg = self.root / "daemon.yaml"
         cfg.write_text(f"api:\n  port: {port}\n")
@@ -177,7 +183,27 @@ class DocEnv:
                 self._daemon.kill()
                 self._daemon.communicate()
         if self._chain is not None:
-            self._chain.stop()
+            self._chain.close()
+
+
+def emulated_chain():
+    """An emulated 3-segment chain configured from robots/softrobot3.ucrdf, booted."""
+    from host.link import ChainLink  # noqa: PLC0415
+    from tools.emulator import EmulatedChain  # noqa: PLC0415
+    from tools.segment_config import config_for  # noqa: PLC0415
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    robot = load(REPO / "robots" / "softrobot3.ucrdf")
+    names = list(robot.bendables)
+    chain = EmulatedChain(3, config_for=lambda k: config_for(robot, names[k]))
+    # what a reader has before typing the command: every segment booted and answering
+    with ChainLink(chain.host_port) as link:
+        end = time.monotonic() + 60
+        while len(link.discover(timeout=0.5)) < 3:
+            if time.monotonic() > end:
+                chain.close()
+                raise RuntimeError("the emulated chain did not boot 3 segments in 60 s")
+    return chain
 
 
 @pytest.fixture(scope="session")
@@ -190,7 +216,7 @@ def docenv():
             env.close()
 
 
-def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None) -> str:
+def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None, exit_code: int = 0) -> str:
     """Runs one documented command; returns its output or raises AssertionError."""
     if re.match(r"(\./)?run\.sh test\b", cmd):  # the suite itself: prove it collects
         cmd = cmd + " --collect-only -q"
@@ -213,10 +239,45 @@ def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None) -> str:
         os.killpg(proc.pid, signal.SIGKILL)
         out, _ = proc.communicate()
         raise AssertionError(f"`{cmd}` did not finish:\n{out[-3000:]}") from None
-    if proc.returncode != 0:
-        raise AssertionError(f"`{cmd}` exited {proc.returncode}:\n{out[-3000:]}")
+    if proc.returncode != exit_code:
+        raise AssertionError(
+            f"`{cmd}` exited {proc.returncode} (documented: {exit_code}):\n{out[-3000:]}"
+        )
     if "Traceback (most recent call last)" in out:
         raise AssertionError(f"`{cmd}` printed a traceback:\n{out[-3000:]}")
+    return out
+
+
+def _start(cmd: str, cwd: Path, env: dict[str, str]) -> subprocess.Popen:
+    """Starts a documented background command (``cmd &``) for the rest of its block."""
+    proc = subprocess.Popen(
+        ["bash", "-c", cmd], cwd=cwd, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, start_new_session=True,
+    )  # fmt: skip
+    proc.cmd = cmd  # type: ignore[attr-defined]
+    time.sleep(2.0)  # what a reader does: start it, then type the next command
+    return proc
+
+
+def _stop(proc: subprocess.Popen) -> str:
+    """Stops a background command with Ctrl-C; it must still have been running and stop cleanly."""
+    cmd = proc.cmd  # type: ignore[attr-defined]
+    if proc.poll() is not None:
+        out = proc.stdout.read() if proc.stdout else ""
+        raise AssertionError(
+            f"`{cmd} &` exited {proc.returncode} before its block ended:\n{out[-3000:]}"
+        )
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        raise AssertionError(f"`{cmd} &` did not stop on Ctrl-C:\n{out[-3000:]}") from None
+    if proc.returncode not in (0, 130, -signal.SIGINT):
+        raise AssertionError(f"`{cmd} &` exited {proc.returncode} on Ctrl-C:\n{out[-3000:]}")
+    if "Traceback (most recent call last)" in out:
+        raise AssertionError(f"`{cmd} &` printed a traceback:\n{out[-3000:]}")
     return out
 
 
@@ -237,13 +298,27 @@ class _Block:
             return
         env = docenv.env("daemon" in d)
         until = float(d["until"]) if "until" in d else None
+        chain = emulated_chain() if "port" in d else None
+        try:
+            self._run(example, cwd, env, until, chain)
+        finally:
+            if chain is not None:
+                chain.close()
+
+    def _run(self, example, cwd: Path, env: dict[str, str], until, chain) -> None:
+        d = self.directive
+        source = self.source
+        port = None
+        if chain is not None:
+            port = chain.host_port if d["port"] == "host" else chain.repl_port(0)
+            source = source.replace("/dev/ttyUSB0", port)
         if self.lang == "python":
             old = os.getcwd()
             saved = {k: os.environ.get(k) for k in ("UCR_URL", "UCR_TOKEN")}
             os.chdir(cwd)
             os.environ.update({k: env[k] for k in ("UCR_URL",) if k in env})
             try:
-                code = compile("\n" * example.line + self.source, example.path, "exec")
+                code = compile("\n" * example.line + source, example.path, "exec")
                 exec(code, example.namespace)
             finally:
                 os.chdir(old)
@@ -253,7 +328,19 @@ class _Block:
                     else:
                         os.environ[k] = v
             return
-        outs = [_run(c, cwd, env, until) for c in _commands(self.source, self.lang == "console")]
+        cmds = _commands(source, self.lang == "console")
+        exit_code = int(d.get("exit", "0"))
+        background: list[subprocess.Popen] = []
+        outs: list[str] = []
+        try:
+            for c in cmds:
+                if c.endswith("&"):
+                    background.append(_start(c[:-1].strip(), cwd, env))
+                else:
+                    outs.append(_run(c, cwd, env, until, exit_code))
+        finally:
+            for proc in background:
+                outs.append(_stop(proc))
         if "expect" in d and not any(d["expect"] in o for o in outs):
             raise AssertionError(f"expected {d['expect']!r} in the output of the block")
 
@@ -269,10 +356,13 @@ class _DocParser:
     def __call__(self, document):
         for region in self.lexer(document):
             lang = region.lexemes["language"]
+            source = str(region.lexemes["source"])
+            if not lang and source.lstrip().startswith("$ "):
+                lang = "console"  # an unlabelled block of shell commands is run like one
             directive = _directive(document.text[: region.start])
             if lang not in ("sh", "console", "python") and "file" not in directive:
                 continue
-            region.parsed = _Block(lang, str(region.lexemes["source"]), directive)
+            region.parsed = _Block(lang, source, directive)
             region.evaluator = region.parsed
             yield region
 

@@ -30,6 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks.figures import Figures  # noqa: E402
 from host import floors  # noqa: E402
 from host.link import ChainLink, LinkError  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
@@ -205,7 +206,16 @@ def _pct(values: list[float], q: float) -> float:
     return s[int(q * (len(s) - 1))] if s else float("nan")
 
 
-def bench_chain(n: int, timing: bool, bauds: list[int], args: argparse.Namespace) -> None:
+RTT_HEADERS = [
+    "segments", "baud (bit/s)", "SYNC → every STATE, median (p90)", "line-rate floor",
+    "× line-rate", "× cut-through", "× store-and-forward", "missed", "100 Hz sustained, missed",
+]  # fmt: skip
+
+
+def bench_chain(
+    n: int, timing: bool, bauds: list[int], args: argparse.Namespace, figs: Figures | None = None
+) -> None:
+    table = "rtt_model" if timing else "rtt"
     with EmulatedChain(n, timing=timing) as chain, ChainLink(chain.host_port) as link:
         factor = chain.cpu_factor_of(0)
         boot(link, n)
@@ -248,6 +258,19 @@ def bench_chain(n: int, timing: bool, bauds: list[int], args: argparse.Namespace
                 f"{piped.rate_hz:6.1f} Hz complete, misses {piped.misses}/{piped.cycles}",
                 flush=True,
             )
+            if figs is not None:
+                if table not in figs.tables:
+                    note = (
+                        f"emulator's ESP32 timing model on (compute × {factor:.0f})"
+                        if timing
+                        else "emulator timing model off (PC speed)"
+                    )
+                    figs.table(table, RTT_HEADERS, note=f"{note}; links throttled to the baud rate")
+                figs.row(table, [
+                    n, baud, f"{med * 1e3:.2f} ms ({_pct(rtt.times, 0.9) * 1e3:.2f})",
+                    f"{lr * 1e3:.2f} ms", f"{med / lr:.2f}", f"{med / ct:.2f}", f"{med / sf:.2f}",
+                    f"{rtt.misses}/{rtt.cycles}", f"{paced.misses}/{paced.cycles}",
+                ])  # fmt: skip
 
 
 def main() -> int:
@@ -259,17 +282,25 @@ def main() -> int:
     parser.add_argument("--segments", default="1,3,8")
     parser.add_argument("--bauds", default="115200,921600,2000000")
     parser.add_argument("--no-discovery", action="store_true")
+    parser.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     args = parser.parse_args()
+    figs = Figures.from_argv("bench_chain")
     ns = [int(x) for x in args.segments.split(",")]
     bauds = [int(x) for x in args.bauds.split(",")]
     if not args.no_discovery:
         print("discovery (unthrottled links), median / p90 over", args.repeat, "runs")
+        if figs is not None:
+            figs.table("discovery", ["segments", "DISCOVER → every descriptor, median (p90)"],
+                       note=f"unthrottled emulated links, {args.repeat} runs")  # fmt: skip
         for n in ns:
             t = bench_discovery(n, args.repeat)
             print(
                 f"  {n} segment(s): {statistics.median(t) * 1e3:7.2f} ms"
                 f"  p90 {_pct(t, 0.9) * 1e3:7.2f} ms"
             )
+            if figs is not None:
+                figs.row("discovery", [n, (f"{statistics.median(t) * 1e3:.1f} ms "
+                                          f"({_pct(t, 0.9) * 1e3:.1f})")])  # fmt: skip
     models = {"off": [False], "on": [True], "both": [False, True]}[args.timing]
     for timing in models:
         print(
@@ -278,7 +309,9 @@ def main() -> int:
             flush=True,
         )
         for n in ns:
-            bench_chain(n, timing, bauds, args)
+            bench_chain(n, timing, bauds, args, figs)
+    if figs is not None:
+        figs.save()
     return 0
 
 

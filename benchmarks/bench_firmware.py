@@ -19,6 +19,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
+from benchmarks.figures import Figures  # noqa: E402
 from protocol import messages as M  # noqa: E402
 from tools import mpvm  # noqa: E402
 
@@ -142,7 +143,9 @@ def main() -> int:
     ap.add_argument("--cycles", type=int, default=500, help="cycles per measurement (default 500)")
     ap.add_argument("--samples", type=int, default=200, help="samples per timing-model figure")
     ap.add_argument("--no-boards", action="store_true", help="skip the board/timing-model part")
+    ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     args = ap.parse_args()
+    figs = Figures.from_argv("bench_firmware")
     if args.cycles < 1:
         ap.error("--cycles must be >= 1")
     sync = M.encode_sync(1, 42, [(2.0, 0.5), (1.0, -0.5), (0.5, 2.0)])
@@ -182,18 +185,55 @@ def main() -> int:
     print(f"  heap used after boot + run               {r['heap_used']:8d} bytes")
     print(f"  heap free                                {r['heap_free']:8d} bytes")
     ok = r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0
+    if figs is not None:
+        note = (
+            f"unix port, heap {mpvm.ESP32_HEAP}, {args.cycles} cycles, best of 5; a cycle: SYNC "
+            "in and relayed, STATE out, a neighbour's STATE relayed, tick"
+        )
+        figs.table("vm", ["on the MicroPython unix VM", "per cycle"], note=note)
+        for label, value in (
+            ("control tick (servos, mechanism and servo controllers)", f"{r['tick_us']:.1f} µs"),
+            ("control tick while slew-limiting", f"{r['slew_tick_us']:.1f} µs"),
+            ("SYNC processed (decode, forward, STATE)", f"{r['sync_us']:.1f} µs"),
+            ("upstream frame relayed (hop + 1, CRC)", f"{r['forward_us']:.1f} µs"),
+            ("full cycle", f"{r['cycle_us']:.1f} µs"),
+            ("of it, viper machine code (the rest is bytecode)", f"{r['viper_us']:.1f} µs"),
+            ("heap bytes allocated per cycle (goal 0)", f"{r['heap_bytes_per_cycle']:.0f}"),
+            ("full cycle under heap_lock", "ok" if r["heap_lock_ok"] else "FAILED"),
+            ("heap used / free after boot and the run (64-bit VM objects)",
+             f"{r['heap_used'] / 1024:.1f} KB / {r['heap_free'] / 1024:.1f} KB"),
+        ):  # fmt: skip
+            figs.row("vm", [label, value])
     if not args.no_boards:
-        _boards(r, args.samples)
+        _boards(r, args.samples, figs)
+    if figs is not None:
+        figs.save()
     return 0 if ok else 2
 
 
-def _boards(r: dict, samples: int) -> None:
+def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
     import firmware_boards as fb
 
     from tools.emulator.timing import cpu_factor, host_pystones
 
-    print(f"Boards (this VM: about {host_pystones():.0f} pystones/s)")
+    pystones = host_pystones()
+    print(f"Boards (this VM: about {pystones:.0f} pystones/s)")
     byte_us = max(0.0, r["cycle_us"] - r["viper_us"])
+    if figs is not None:
+        figs.table(
+            "boards",
+            ["board (CPU factor)", "full cycle", "share of the 5 ms tick (goal ≤ 20 %)",
+             "bytecode alone"],
+            note=f"the emulator's timing model (tools/emulator/timing.py): VM time × the "
+            f"board's CPU factor, this VM at about {pystones:.0f} pystones/s",
+        )  # fmt: skip
+        figs.table("heap", ["board", "heap after boot"], note=(
+            "main.build() with the board's heap budget on the unix VM (64-bit objects; an "
+            "ESP32's 32-bit objects need less)"))  # fmt: skip
+        figs.table("wait", ["esp32 tick model, CPU factor 1", "wait overshoot p50 / p99"],
+                   note=f"{samples} waits past their deadline")  # fmt: skip
+        figs.table("forwarding", ["esp32", "per-hop SYNC forwarding p50 / p99", "lost"],
+                   note=f"{samples // 2} SYNCs; goal ≤ 1 ms")  # fmt: skip
     for name in ("esp32", "esp32s3", "esp32c3"):
         f = cpu_factor(name)
         share = r["cycle_us"] * f / 5000.0
@@ -202,16 +242,28 @@ def _boards(r: dict, samples: int) -> None:
             f"{share:7.1%} of the 5 ms tick (goal <= 20 %); bytecode alone "
             f"{byte_us * f / 1000:6.2f} ms = {byte_us * f / 5000.0:6.1%}"
         )
+        if figs is not None:
+            figs.row("boards", [
+                f"{name} ({f:.0f})", f"{r['cycle_us'] * f / 1000:.1f} ms", f"{share:.0%}",
+                f"{byte_us * f / 1000:.1f} ms",
+            ])  # fmt: skip
     print("Heap after boot, main.build() with the board's heap budget (64-bit VM objects)")
     for name, text in fb.heap_after_boot():
         print(f"  {name:16s} {text}")
+        if figs is not None:
+            figs.row("heap", [name, text])
     print(f"Wait overshoot past its deadline, esp32 tick model, CPU factor 1 ({samples} waits)")
     for label, p50, p99 in fb.wait_overshoot(samples):
         print(f"  {label:20s} p50 {p50 / 1000:6.2f} ms  p99 {p99 / 1000:6.2f} ms (goal p99 <= 0.5)")
+        if figs is not None:
+            figs.row("wait", [label, f"{p50 / 1000:.2f} / {p99 / 1000:.2f} ms"])
     factor, rows = fb.forwarding(samples // 2)
     print(f"Per-hop SYNC forwarding latency, esp32 (CPU factor {factor:.0f}), {samples // 2} SYNCs")
     for label, p50, p99, lost in rows:
         print(f"  {label:20s} p50 {p50:6.2f} ms  p99 {p99:6.2f} ms  lost {lost} (goal <= 1 ms)")
+        if figs is not None:
+            figs.row("forwarding", [f"{label} (CPU factor {factor:.0f})",
+                                    f"{p50:.2f} / {p99:.2f} ms", str(lost)])  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ A second part solves pose targets (position and orientation of the tip, tol 1e-4
 and counts the solves that need more than ITERATION_GOAL iterations (the bound
 tests/ucrdf_kin/test_ik.py asserts for orientation round trips).
 
-Run: .venv/bin/python benchmarks/bench_ik.py [COUNT]   (prints figures; goal from issue 2)
+Run: .venv/bin/python benchmarks/bench_ik.py [COUNT] [--figures FILE]   (goal from issue 2)
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.figures import Figures  # noqa: E402
 from ucrdf.fk import RobotKinematics  # noqa: E402
 from ucrdf.ik import IKSolver  # noqa: E402
 from ucrdf.parser import load  # noqa: E402
@@ -41,7 +42,11 @@ def _random_config(kin: RobotKinematics, rng: np.random.Generator) -> dict:
     return config
 
 
-def pose_targets(count: int) -> None:
+IK_HEADERS = ["targets (3-segment robot, start straight)", "success", "median time", "p95 time",
+              "iterations, median (max)"]  # fmt: skip
+
+
+def pose_targets(count: int, figs: Figures | None = None) -> None:
     """Position + orientation targets: success, time, iterations (and how many exceed the goal)."""
     robot = load(ROOT / "robots" / "softrobot3.ucrdf")
     kin = RobotKinematics(robot)
@@ -64,9 +69,15 @@ def pose_targets(count: int) -> None:
     print(f"  iterations    median {np.median(iterations):.0f}, p95 "
           f"{np.percentile(iterations, 95):.0f}, max {max(iterations)}; over {ITERATION_GOAL}: "
           f"{slow} ({slow / count * 100:.1f} %)")  # fmt: skip
+    if figs is not None:
+        figs.row("ik", [
+            f"{count} reachable poses (position + orientation), tol 1e-4 m / 1e-3 rad",
+            f"{ok / count * 100:.1f} %", f"{float(np.median(times)) * 1e3:.2f} ms",
+            f"{p95 * 1e3:.2f} ms", f"{np.median(iterations):.0f} ({max(iterations)})",
+        ])  # fmt: skip
 
 
-def main(count: int = 1000) -> None:
+def main(count: int = 1000, figs: Figures | None = None) -> None:
     robot = load(ROOT / "robots" / "softrobot3.ucrdf")
     kin = RobotKinematics(robot)
     solver = IKSolver(kin)
@@ -103,9 +114,22 @@ def main(count: int = 1000) -> None:
     print(f"  iterations    median {np.median(iterations):.0f}, max {max(iterations)}; "
           f"solves needing a restart: {sum(1 for r in restarts if r)}")  # fmt: skip
     print(f"  worst position error of a reported success (re-checked by FK): {worst:.2e} m")
+    if figs is not None:
+        figs.table("ik", IK_HEADERS, note="targets from uniformly sampled configurations")
+        figs.row("ik", [
+            f"{count} reachable positions, tol 1e-4 m", f"{success * 100:.1f} %",
+            f"{median * 1e3:.2f} ms", f"{p95 * 1e3:.2f} ms",
+            f"{np.median(iterations):.0f} ({max(iterations)})",
+        ])  # fmt: skip
 
 
 if __name__ == "__main__":
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 1000
-    main(n)
-    pose_targets(n)
+    # usage: bench_ik.py [COUNT] [--figures FILE]
+    args = [a for i, a in enumerate(sys.argv[1:]) if a != "--figures"
+            and (i == 0 or sys.argv[i] != "--figures")]  # fmt: skip
+    n = int(args[0]) if args else 1000
+    figures = Figures.from_argv("bench_ik")
+    main(n, figures)
+    pose_targets(n, figures)
+    if figures is not None:
+        figures.save()

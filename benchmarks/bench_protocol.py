@@ -140,6 +140,54 @@ def print_measured(seconds: float) -> None:
     print()
 
 
+def wire_tables() -> dict[str, tuple[list[str], list[list[str]]]]:
+    """The wire-size and implied-rate tables docs/protocol.md quotes (computed, not measured:
+    `tools/docfigures.py` renders them from here)."""
+    st_t, st_w = _state_bytes(False), _state_bytes(True)
+    sizes = []
+    for n in NS:
+        sy_t, sy_w = _sync_bytes(n, False), _sync_bytes(n, True)
+        sizes.append([str(n), f"{sy_t} / {sy_w}", f"{st_t} / {st_w}",
+                      f"{sy_t + n * st_t} / {sy_w + n * st_w}"])  # fmt: skip
+    rates = []
+    for n in NS:
+        sy = _sync_bytes(n, False)
+        cells = [str(n)]
+        for b in BAUDS:
+            seq = 1 / chain_cycle_time(n, sy, st_t, b)
+            cells.append(f"{seq:.0f} / {pipelined_rate(n, sy, st_t, b):.0f}")
+        rates.append(cells)
+    others = []
+    b, n8 = 921600, NS[-1]
+    sy8 = _sync_bytes(n8, False)
+    others.append([
+        "this protocol (CBOR, COBS, cut-through)",
+        " / ".join(str(_sync_bytes(n, False)) for n in NS), str(st_t),
+        (f"{1 / chain_cycle_time(n8, sy8, st_t, b):.0f} Hz seq, "
+        f"{pipelined_rate(n8, sy8, st_t, b):.0f} Hz pipelined"),
+    ])  # fmt: skip
+    xs = xrce_sync(n8)
+    others.append([
+        "micro-ROS / Micro XRCE-DDS serial, best-effort (on the same chain)",
+        " / ".join(str(xrce_sync(n)) for n in NS), str(xrce_state()),
+        (f"{1 / chain_cycle_time(n8, xs, xrce_state(), b):.0f} Hz seq, "
+        f"{pipelined_rate(n8, xs, xrce_state(), b):.0f} Hz pipelined"),
+    ])  # fmt: skip
+    down, up = dxl_sync_write(n8) + (10 + 4 + n8), n8 * (11 + 49)
+    others.append([
+        "Dynamixel 2.0 sync write + sync read (one half-duplex bus)",
+        " / ".join(str(dxl_sync_write(n) + 10 + 4 + n) for n in NS), str(11 + 49),
+        f"{b / BITS_PER_BYTE / (down + up):.0f} Hz",
+    ])  # fmt: skip
+    return {
+        "sizes": (["N", "SYNC bytes (typical / worst)", "STATE bytes per segment, 3 servos",
+                   "cycle bytes (SYNC + N × STATE)"], sizes),
+        "rates": (["N"] + [f"{b} bd: seq / pipe (Hz)" for b in BAUDS], rates),
+        "others": (["protocol", "down bytes, N = 1 / 3 / 8", "up bytes per segment",
+                    "921600 bd, N = 8"], others),
+    }  # fmt: skip
+
+
 def print_wire_tables() -> None:
     print("== bytes on the wire (COBS + CRC + delimiter included)")
     print(

@@ -75,6 +75,12 @@ def rebuild_message(names: list[str], cut: dict[str, Any] | None, cmp: Compariso
     return msg
 
 
+def largest_rate_hz(n: int, baudrate: int) -> int:
+    """The largest loop rate (Hz) whose reply window (0.8 x period) holds one exchange of ``n``
+    segments at ``baudrate`` (store-and-forward floor, largest frames)."""
+    return math.floor(0.8 / exchange_floor_s(n, baudrate))
+
+
 def rate_warning(
     n: int,
     baudrate: int,
@@ -87,7 +93,7 @@ def rate_warning(
     floor = exchange_floor_s(n, baudrate)
     if floor <= reply_timeout_s:
         return None
-    max_rate = math.floor(0.8 / floor)
+    max_rate = largest_rate_hz(n, baudrate)
     if floor > configured_reply_timeout_s:
         advice = (
             f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "
