@@ -34,6 +34,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 from bench_host import robot_with  # noqa: E402
 
+from benchmarks.figures import Figures  # noqa: E402
 from interop.record import McapSink  # noqa: E402
 from interop.sinks import Fanout  # noqa: E402
 from interop.topics import RobotTopics  # noqa: E402
@@ -245,17 +246,29 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=None, help="off/on rounds (3; --quick 2)")
     ap.add_argument("--phase", type=float, default=None, help="s per phase (20; --quick 12)")
     ap.add_argument("--api-in-process", action="store_true", help="API as a daemon thread")
+    ap.add_argument("--figures", metavar="FILE", help="save the table the docs quote (JSON)")
     args = ap.parse_args()
+    figs = Figures.from_argv("bench_record")
     seconds = 10.0 if args.quick else 30.0
     if not args.skip_size:
         print(f"1. MCAP size, zstd, chunk per second ({seconds:.0f} s of synthetic robot time)")
         print(f"{'segments':>9s}{'viz Hz':>8s}{'KiB/s':>9s}{'MiB/hour':>10s}{'CPU ms/s':>10s}"
               f"{'msgs/s':>8s}")  # fmt: skip
+        if figs is not None:
+            figs.table(
+                "size", ["segments", "/tf, /ucr/arcs", "KiB/s", "MiB/hour", "recorder CPU ms/s"],
+                note=f"{seconds:.0f} s of synthetic joint states at 100 Hz, every segment moving, "
+                "zstd, a chunk per second",
+            )  # fmt: skip
         for n in (3, 8):
             for viz in (20.0, 100.0):
                 rate, cpu, msgs = mcap_rate(n, seconds, viz)
                 print(f"{n:9d}{viz:8.0f}{rate / 1024:9.1f}{rate * 3600 / 2**20:10.1f}"
                       f"{cpu:10.1f}{msgs / seconds:8.0f}")  # fmt: skip
+                if figs is not None:
+                    label = f"{viz:.0f} Hz" + (" (default)" if viz == 20.0 else "")
+                    figs.row("size", [n, label, f"{rate / 1024:.1f}",
+                                      f"{rate * 3600 / 2**20:.0f}", f"{cpu:.0f}"])  # fmt: skip
     if not args.skip_jitter:
         phase = args.phase or (12.0 if args.quick else 20.0)
         rounds = args.rounds or (2 if args.quick else 3)
@@ -264,6 +277,8 @@ def main() -> None:
             f"off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
         )
         jitter_phases(phase, rounds, args.api_in_process)
+    if figs is not None:
+        figs.save()
 
 
 if __name__ == "__main__":
