@@ -140,7 +140,30 @@ def test_ctrl_c_on_the_repl_pty_interrupts_main_and_gives_the_raw_repl(echo_chai
         assert got.startswith(b"OK42")
         restarts = chain.stats()["segments"][1]["restarts"]
         repl.write(b"\x04")  # soft reset in the raw REPL ends a unix-port process
-    chain.wait_restarts(1, restarts + 1)
+        chain.wait_restarts(1, restarts + 1)
+        # ... and, as on a board (ports/esp32/main.c), comes back in the raw REPL without
+        # running main.py: what mpremote waits for after its soft reset
+        got = b""
+        deadline = time.monotonic() + 5
+        while b"raw REPL; CTRL-B to exit\r\n>" not in got and time.monotonic() < deadline:
+            got += repl.read(256)
+        assert b"MPY: soft reboot\r\n" in got, got
+        assert b"raw REPL; CTRL-B to exit\r\n>" in got and b"echo up" not in got, got
+        boots = chain.repl_output(1).count("echo up")
+        repl.write(b"print(6*7)\x04")
+        got = b""
+        while b"\x04>" not in got and time.monotonic() < deadline:
+            got += repl.read(256)
+        assert got.startswith(b"OK42"), got
+        # Ctrl-B, Ctrl-D: a soft reset from the friendly REPL runs main.py again
+        repl.write(b"\r\x02")
+        time.sleep(0.3)
+        repl.write(b"\x04")
+    chain.wait_restarts(1, restarts + 2)
+    deadline = time.monotonic() + 10
+    while chain.repl_output(1).count("echo up") <= boots:
+        assert time.monotonic() < deadline, chain.repl_output(1)[-500:]
+        time.sleep(0.1)
 
 
 def test_control_commands(echo_chain) -> None:

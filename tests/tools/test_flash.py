@@ -148,3 +148,23 @@ def test_mpremote_cli_with_resume_works_on_the_running_firmware(one_segment) -> 
     assert link.discover(timeout=0.3) == []
     chain.restart(0)
     assert discover_one(link)["position"] == 0
+
+
+def test_plain_mpremote_soft_resets_into_the_raw_repl_like_a_board(one_segment) -> None:
+    """mpremote's default soft-resets the board in the raw REPL; a board then stays there without
+    running main.py (ports/esp32/main.c), so `mpremote connect PORT fs …` works. The emulator
+    used to start main.py again and mpremote waited forever for the raw REPL."""
+    chain, link = one_segment
+    discover_one(link)
+    mpremote = str(Path(sys.executable).parent / "mpremote")
+    port = chain.repl_port(0)
+    for args in (["exec", "print(6 * 7)"], ["fs", "ls"]):
+        proc = subprocess.run(
+            [mpremote, "connect", port, *args], capture_output=True, text=True, timeout=30
+        )
+        assert proc.returncode == 0, proc.stderr
+    assert "main.py" in proc.stdout
+    # the firmware is not running (a board after a raw-REPL soft reset): the chain is silent
+    assert link.discover(timeout=0.3) == []
+    chain.restart(0)
+    assert discover_one(link)["position"] == 0

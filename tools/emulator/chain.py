@@ -11,7 +11,11 @@ stdin/stdout/stderr is a pty (its controlling terminal, so Ctrl-C raises Keyboar
 ``main.py``) proxied to a second pty whose path is what mpremote opens.
 
 A supervisor thread restarts a segment whose process exits (a soft reset through mpremote ends a
-unix-port process; a crash kills it), as a real board reboots. Everything is cleaned up by
+unix-port process; a crash kills it), as a real board reboots. Like a board, a soft reset from
+the raw REPL does not run ``main.py`` (ports/esp32/main.c runs it only in the friendly REPL): the
+process comes back with "MPY: soft reboot" in the raw REPL, and ``main.py`` runs again after a
+soft reset from the friendly REPL (Ctrl-B, Ctrl-D: what ``ucr flash`` does), a restart or a
+power-on. Everything is cleaned up by
 ``close()`` (context manager exit, atexit, and the children die with the emulator through
 PR_SET_PDEATHSIG even if it is killed).
 """
@@ -41,6 +45,8 @@ from tools import mpy as mpy_tools
 from tools.emulator.pipe import Pipe
 from tools.emulator.proxy import Proxy, PtyEnd, RingLog
 from tools.mpvm import REPO, implementation_mpy, micropython_binary
+
+_RAW_BANNER = b"raw REPL; CTRL-B to exit"  # what MicroPython prints entering its raw REPL
 
 DEFAULT_FIRMWARE_DIR = REPO / "device"
 DEFAULT_PROTOCOL_DIR = REPO / "protocol"
@@ -162,6 +168,10 @@ class _Segment:
         self.up: PtyEnd
         self.down: PtyEnd
         self.powered = True
+        self.repl_to_proc: Pipe
+        self.repl_from_proc: Pipe
+        self.raw_repl = False  # the REPL mode the process last showed (raw banner vs ">>> ")
+        self.raw_boot = False  # the next start is a raw-REPL soft reset: no main.py
 
 
 _SPEEDS = {
@@ -321,16 +331,23 @@ class EmulatedChain:
             to_proc, from_proc = Pipe(f"seg{k}.repl.in"), Pipe(f"seg{k}.repl.out")
             proxy.connect(seg.repl_outer, to_proc, seg.repl_inner)
             proxy.route(from_proc, seg.repl_outer)
-            seg.repl_inner.on_read = self._tee(seg.log, from_proc)
+            seg.repl_to_proc, seg.repl_from_proc = to_proc, from_proc
+            seg.repl_inner.on_read = self._tee(seg.log, from_proc, seg)
         # The tip's downstream port has nothing plugged in: its bytes are read and dropped.
         self._segments[-1].down.on_read = None
         if self._line_baud is not None:
             self._host.on_read = _baud_gate(self._host, self._line_baud, self._host.on_read)
 
     @staticmethod
-    def _tee(log: RingLog, pipe: Pipe) -> Callable[[bytes, float], None]:
+    def _tee(
+        log: RingLog, pipe: Pipe, seg: _Segment | None = None
+    ) -> Callable[[bytes, float], None]:
         def on_read(data: bytes, now: float) -> None:
             log.add(data)
+            if seg is not None:  # which REPL the process shows: the later marker wins
+                raw, friendly = data.rfind(_RAW_BANNER), data.rfind(b">>> ")
+                if raw >= 0 or friendly >= 0:
+                    seg.raw_repl = raw > friendly
             pipe.feed(data, now)
 
         return on_read
@@ -385,8 +402,10 @@ class EmulatedChain:
         heap = self._heap or f"{boards.profile(seg.board)['heap'] // 1024}k"
         seg.repl_inner.flush_input()
         fd = seg.repl_inner.slave
+        raw_boot, seg.raw_boot, seg.raw_repl = seg.raw_boot, False, False
+        script = [] if raw_boot else ["-i", "main.py"]
         seg.proc = subprocess.Popen(
-            [self._binary, "-X", f"heapsize={heap}", "-i", "main.py"],
+            [self._binary, "-X", f"heapsize={heap}", *script],
             cwd=seg.dir,
             env=env,
             stdin=fd,
@@ -396,6 +415,9 @@ class EmulatedChain:
             preexec_fn=_child_setup,  # noqa: PLW1509 - only async-signal-safe calls
         )
         seg.started_at = time.monotonic()
+        if raw_boot:  # a board soft-reset in its raw REPL says so and stays in the raw REPL
+            seg.repl_from_proc.feed(b"MPY: soft reboot\r\n", seg.started_at)
+            seg.repl_to_proc.feed(b"\x01", seg.started_at)
 
     def _supervise(self) -> None:
         while not self._closing.wait(0.02):
@@ -411,6 +433,8 @@ class EmulatedChain:
                     if not seg.powered or proc.poll() is None:
                         continue
                     seg.exit_codes.append(proc.returncode)
+                    # Ctrl-D in the raw REPL ends the process normally: a raw-REPL soft reset
+                    seg.raw_boot = seg.raw_repl and proc.returncode == 0
                     # A process that dies right after starting (broken firmware) is retried slowly.
                     quick = time.monotonic() - seg.started_at < 0.5
                     seg.proc = None
@@ -580,6 +604,7 @@ class EmulatedChain:
                 return
             seg.powered = True
             seg.restarts += 1
+            seg.raw_boot = False  # power-on: boot.py and main.py run
             self._spawn(seg)
 
     def wait_restarts(self, k: int, count: int, timeout: float = 5.0) -> None:
