@@ -158,6 +158,15 @@ def test_plain_mpremote_soft_resets_into_the_raw_repl_like_a_board(one_segment) 
     discover_one(link)
     mpremote = str(Path(sys.executable).parent / "mpremote")
     port = chain.repl_port(0)
+    # a session that leaves the REPL in its own terminal mode (ISIG off), then a reboot: the
+    # rebooted segment must answer Ctrl-C again, as a board's UART does after every reset
+    proc = subprocess.run(
+        [mpremote, "connect", port, "resume", "exec", "print(1)"],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    chain.restart(0)
+    discover_one(link)
     for args in (["exec", "print(6 * 7)"], ["fs", "ls"]):
         proc = subprocess.run(
             [mpremote, "connect", port, *args], capture_output=True, text=True, timeout=30

@@ -172,6 +172,7 @@ class _Segment:
         self.repl_from_proc: Pipe
         self.raw_repl = False  # the REPL mode the process last showed (raw banner vs ">>> ")
         self.raw_boot = False  # the next start is a raw-REPL soft reset: no main.py
+        self.to_raw = False  # put the process in the raw REPL once it shows its prompt
 
 
 _SPEEDS = {
@@ -348,6 +349,10 @@ class EmulatedChain:
                 raw, friendly = data.rfind(_RAW_BANNER), data.rfind(b">>> ")
                 if raw >= 0 or friendly >= 0:
                     seg.raw_repl = raw > friendly
+                if seg.to_raw and friendly >= 0:
+                    # only now: Ctrl-A sent before the REPL set up its terminal would be flushed
+                    seg.to_raw = False
+                    seg.repl_to_proc.feed(b"\x01", now)
             pipe.feed(data, now)
 
         return on_read
@@ -400,10 +405,14 @@ class EmulatedChain:
             env["UCR_TIMING"] = "1"
             env["UCR_CPU_FACTOR"] = f"{seg.cpu_factor:.3f}"
         heap = self._heap or f"{boards.profile(seg.board)['heap'] // 1024}k"
+        seg.repl_inner.reset_terminal()  # a killed REPL leaves ISIG off: Ctrl-C must work again
         seg.repl_inner.flush_input()
         fd = seg.repl_inner.slave
-        raw_boot, seg.raw_boot, seg.raw_repl = seg.raw_boot, False, False
+        raw_boot, seg.raw_boot, seg.raw_repl, seg.to_raw = seg.raw_boot, False, False, False
         script = [] if raw_boot else ["-i", "main.py"]
+        if raw_boot:  # a board soft-reset in its raw REPL says so and stays in the raw REPL
+            seg.repl_from_proc.feed(b"MPY: soft reboot\r\n", time.monotonic())
+            seg.to_raw = True
         seg.proc = subprocess.Popen(
             [self._binary, "-X", f"heapsize={heap}", *script],
             cwd=seg.dir,
@@ -415,9 +424,6 @@ class EmulatedChain:
             preexec_fn=_child_setup,  # noqa: PLW1509 - only async-signal-safe calls
         )
         seg.started_at = time.monotonic()
-        if raw_boot:  # a board soft-reset in its raw REPL says so and stays in the raw REPL
-            seg.repl_from_proc.feed(b"MPY: soft reboot\r\n", seg.started_at)
-            seg.repl_to_proc.feed(b"\x01", seg.started_at)
 
     def _supervise(self) -> None:
         while not self._closing.wait(0.02):

@@ -52,16 +52,22 @@ class PtyEnd:
 
     def __init__(self, name: str, *, isig: bool = False) -> None:
         self.name = name
+        self.isig = isig
         self.master, self.slave = os.openpty()
         self.path = os.ttyname(self.slave)
-        termios.tcsetattr(
-            self.slave, termios.TCSANOW, _raw_attrs(termios.tcgetattr(self.slave), isig=isig)
-        )
+        self.reset_terminal()
         os.set_blocking(self.master, False)
         self.pending = bytearray()
         self.overrun = 0  # bytes dropped because the reader of this port did not keep up
         self.on_read: Callable[[bytes, float], None] | None = None
         self.closed = False
+
+    def reset_terminal(self) -> None:
+        """The pty's modes as set up (raw; ``isig``: Ctrl-C is SIGINT). A process's REPL changes
+        them (the unix port's friendly REPL turns ISIG off) and a killed one cannot restore them:
+        a restart calls this, as a board's UART comes up the same after every reset."""
+        attrs = _raw_attrs(termios.tcgetattr(self.slave), isig=self.isig)
+        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
 
     def flush_input(self) -> None:
         """Discard bytes waiting to be read from the slave (e.g. before a board restarts)."""
