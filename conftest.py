@@ -220,10 +220,7 @@ def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None, exit_cod
     """Runs one documented command; returns its output or raises AssertionError."""
     if re.match(r"(\./)?run\.sh test\b", cmd):  # the suite itself: prove it collects
         cmd = cmd + " --collect-only -q"
-    proc = subprocess.Popen(
-        ["bash", "-c", cmd], cwd=cwd, env=env, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, start_new_session=True,
-    )  # fmt: skip
+    proc = _popen(cmd, cwd, env)
     try:
         if until is None:
             out, _ = proc.communicate(timeout=_TIMEOUT_S)
@@ -243,17 +240,26 @@ def _run(cmd: str, cwd: Path, env: dict[str, str], until: float | None, exit_cod
         raise AssertionError(
             f"`{cmd}` exited {proc.returncode} (documented: {exit_code}):\n{out[-3000:]}"
         )
+    _no_traceback(cmd, out)
+    return out
+
+
+def _popen(cmd: str, cwd: Path, env: dict[str, str]) -> subprocess.Popen:
+    """One documented command under bash, in a process group of its own (Ctrl-C reaches all)."""
+    return subprocess.Popen(
+        ["bash", "-c", cmd], cwd=cwd, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, start_new_session=True,
+    )  # fmt: skip
+
+
+def _no_traceback(cmd: str, out: str) -> None:
     if "Traceback (most recent call last)" in out:
         raise AssertionError(f"`{cmd}` printed a traceback:\n{out[-3000:]}")
-    return out
 
 
 def _start(cmd: str, cwd: Path, env: dict[str, str]) -> subprocess.Popen:
     """Starts a documented background command (``cmd &``) for the rest of its block."""
-    proc = subprocess.Popen(
-        ["bash", "-c", cmd], cwd=cwd, env=env, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, start_new_session=True,
-    )  # fmt: skip
+    proc = _popen(cmd, cwd, env)
     proc.cmd = cmd  # type: ignore[attr-defined]
     time.sleep(2.0)  # what a reader does: start it, then type the next command
     return proc
@@ -276,8 +282,7 @@ def _stop(proc: subprocess.Popen) -> str:
         raise AssertionError(f"`{cmd} &` did not stop on Ctrl-C:\n{out[-3000:]}") from None
     if proc.returncode not in (0, 130, -signal.SIGINT):
         raise AssertionError(f"`{cmd} &` exited {proc.returncode} on Ctrl-C:\n{out[-3000:]}")
-    if "Traceback (most recent call last)" in out:
-        raise AssertionError(f"`{cmd} &` printed a traceback:\n{out[-3000:]}")
+    _no_traceback(f"{cmd} &", out)
     return out
 
 
@@ -308,7 +313,6 @@ class _Block:
     def _run(self, example, cwd: Path, env: dict[str, str], until, chain) -> None:
         d = self.directive
         source = self.source
-        port = None
         if chain is not None:
             port = chain.host_port if d["port"] == "host" else chain.repl_port(0)
             source = source.replace("/dev/ttyUSB0", port)

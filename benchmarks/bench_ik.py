@@ -13,6 +13,7 @@ Run: .venv/bin/python benchmarks/bench_ik.py [COUNT] [--figures FILE]   (goal fr
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 import time
@@ -124,12 +125,12 @@ def main(count: int = 1000, figs: Figures | None = None) -> None:
 
 
 if __name__ == "__main__":
-    # usage: bench_ik.py [COUNT] [--figures FILE]
-    args = [a for i, a in enumerate(sys.argv[1:]) if a != "--figures"
-            and (i == 0 or sys.argv[i] != "--figures")]  # fmt: skip
-    n = int(args[0]) if args else 1000
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("count", nargs="?", type=int, default=1000, help="targets per part (1000)")
+    ap.add_argument("--figures", metavar="FILE", help="save the table the docs quote (JSON)")
+    args = ap.parse_args()
     figures = Figures.from_argv("bench_ik")
-    main(n, figures)
-    pose_targets(n, figures)
+    main(args.count, figures)
+    pose_targets(args.count, figures)
     if figures is not None:
         figures.save()

@@ -95,8 +95,13 @@ def dxl_sync_write(n: int) -> int:
     return 10 + 4 + n * (1 + 8)
 
 
-def dxl_sync_read(n: int) -> int:
-    return (10 + 4 + n) + n * (11 + 49)
+def dxl_sync_read_instruction(n: int) -> int:
+    return 10 + 4 + n
+
+
+def dxl_status() -> int:
+    """One servo's status packet answering the sync read."""
+    return 11 + 49
 
 
 # --------------------------------------------------------------------------------------------
@@ -173,10 +178,11 @@ def wire_tables() -> dict[str, tuple[list[str], list[list[str]]]]:
         (f"{1 / chain_cycle_time(n8, xs, xrce_state(), b):.0f} Hz seq, "
         f"{pipelined_rate(n8, xs, xrce_state(), b):.0f} Hz pipelined"),
     ])  # fmt: skip
-    down, up = dxl_sync_write(n8) + (10 + 4 + n8), n8 * (11 + 49)
+    down, up = dxl_sync_write(n8) + dxl_sync_read_instruction(n8), n8 * dxl_status()
     others.append([
         "Dynamixel 2.0 sync write + sync read (one half-duplex bus)",
-        " / ".join(str(dxl_sync_write(n) + 10 + 4 + n) for n in NS), str(11 + 49),
+        " / ".join(str(dxl_sync_write(n) + dxl_sync_read_instruction(n)) for n in NS),
+        str(dxl_status()),
         f"{b / BITS_PER_BYTE / (down + up):.0f} Hz",
     ])  # fmt: skip
     return {
@@ -226,7 +232,7 @@ def print_wire_tables() -> None:
             )
         print(row)
     for n in NS:
-        down, up = dxl_sync_write(n) + (10 + 4 + n), n * (11 + 49)
+        down, up = dxl_sync_write(n) + dxl_sync_read_instruction(n), n * dxl_status()
         row = f"{'Dynamixel 2.0 sync w+r':<26}{n:>3}{down:>8}{up:>7}"
         for b in BAUDS:
             rate = b / BITS_PER_BYTE / (down + up)  # half-duplex bus: everything serialised

@@ -27,9 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results"
-
 
 def _cpu_model() -> str:
     try:
