@@ -106,6 +106,46 @@ def machine_code():
         _fast.crc16(_raw, 0, len(STATE) - 4, 0xFFFF, _T)  # own STATE sealed
         _fast.cobs_encode(_raw, 0, len(STATE) - 2, _out, 0)
 
+import protocol.device as pd
+from protocol.constants import HEADER_LEN
+bus = seg.bus
+mc = seg.mc
+rd = seg.rd_up
+
+def part(f):
+    # one piece of the cycle alone, N calls (best of 5), in us per call
+    best = None
+    for _ in range(5):
+        t0 = time.ticks_us()
+        for i in range(N):
+            f()
+        dt = time.ticks_diff(time.ticks_us(), t0) / N
+        best = dt if best is None or dt < best else best
+    return best
+
+def _scan():
+    rd.scan(SYNC, 0, len(SYNC))
+
+def _state():
+    seg._send_state(42, 1)
+    hal.up.discard()
+
+PARTS = (
+    ('servo driver poll (emulated servos)', lambda: bus.poll(hal.t)),
+    ('servo fault checks', lambda: seg._faults(hal.t)),
+    ('MC measure (positions -> kappa, phi)', lambda: mc.measure(bus.pos)),
+    ('MC update (slew, servo targets)', lambda: mc.update()),
+    ('SC step and driver command', lambda: bus.command(seg.sc.step(mc.servo_target), hal.t)),
+    ('chain housekeeping (service)', lambda: seg.service(hal.t)),
+    ('frame reader: SYNC bytes -> frame', _scan),
+    ('SYNC payload decode',
+     lambda: pd.decode_sync(rd.raw, HEADER_LEN, rd.payload_end, 1, seg.sync_out)),
+    ('setpoint (kappa clamp, rate check)',
+     lambda: mc.set_target(seg.sync_out[1], seg.sync_out[2], 5)),
+    ('STATE encoded and sent', _state),
+    ('empty call (the VM floor)', lambda: None),
+)
+
 R = {{}}
 a0 = a1 = 0  # globals created before the measurement: a new global would grow the module dict
 full()   # warm up, and start moving
@@ -116,6 +156,7 @@ R['sync_us'] = timed(only_sync)
 R['forward_us'] = timed(only_forward)
 R['cycle_us'] = timed(full)
 R['viper_us'] = timed(machine_code)
+R['parts'] = [[name, part(f)] for name, f in PARTS]
 gc.collect()
 gc.disable()
 a0 = gc.mem_alloc()
@@ -184,6 +225,9 @@ def main() -> int:
     print(f"  full cycle under heap_lock               {'ok' if r['heap_lock_ok'] else 'FAILED'}")
     print(f"  heap used after boot + run               {r['heap_used']:8d} bytes")
     print(f"  heap free                                {r['heap_free']:8d} bytes")
+    print("  where it goes (each piece timed alone, one call each; they overlap the above):")
+    for name, us in r["parts"]:
+        print(f"    {name:40s} {us:6.1f} us")
     ok = r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0
     if figs is not None:
         note = (
@@ -204,6 +248,9 @@ def main() -> int:
              f"{r['heap_used'] / 1024:.1f} KB / {r['heap_free'] / 1024:.1f} KB"),
         ):  # fmt: skip
             figs.row("vm", [label, value])
+        figs.table("parts", ["piece of the cycle (timed alone)", "on the VM", "esp32 model"],
+                   note="the same run; each piece called on its own, so one call's overhead "
+                   "is in each figure; the esp32 column × the board's CPU factor")  # fmt: skip
     if not args.no_boards:
         _boards(r, args.samples, figs)
     if figs is not None:
@@ -234,6 +281,10 @@ def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
                    note=f"{samples} waits past their deadline")  # fmt: skip
         figs.table("forwarding", ["esp32", "per-hop SYNC forwarding p50 / p99", "lost"],
                    note=f"{samples // 2} SYNCs; goal ≤ 1 ms")  # fmt: skip
+    if figs is not None:
+        f = cpu_factor("esp32")
+        for name, us in r["parts"]:
+            figs.row("parts", [name, f"{us:.1f} µs", f"{us * f / 1000:.2f} ms"])
     for name in ("esp32", "esp32s3", "esp32c3"):
         f = cpu_factor(name)
         share = r["cycle_us"] * f / 5000.0

@@ -6,6 +6,11 @@ board). The REPL keeps UART0 (stock MicroPython) and the USB port; the chain use
 A configuration without a board on a chip other than a classic ESP32 must name its chain pins
 (the classic defaults may be that chip's USB pins).
 
+Clock: the CPU runs at the board profile's ``mhz`` (protocol/boards.py), set at boot with
+``machine.freq``: a stock ESP32 build starts at ESP-IDF's default 160 MHz, and the control cycle
+needs the chip's 240 MHz (docs/firmware.md "Clock"). The UARTs and PWM run from the 80 MHz APB
+clock, so their timing does not change.
+
 Waiting (``wait``): a ``select.poll`` timeout ends on a FreeRTOS tick (10 ms), so the HAL sleeps
 in the poller only while more than a tick remains, woken early by a UART rx irq (MicroPython
 >= 1.24), and spins on ``ticks_us`` for the rest (device/waiting.py).
@@ -87,16 +92,30 @@ def chain_pins(chip_name, cfg_pins):
     return p
 
 
+def set_clock(chip_name, board):
+    """Run the CPU at the board profile's clock (the classic ESP32's without a board named);
+    return the clock in MHz, or 0 where the firmware cannot know the chip's and leaves it."""
+    name = board or ("esp32" if chip_name == "ESP32" else None)
+    if name is None:
+        return 0
+    mhz = _profile(name)["mhz"]
+    if machine.freq() != mhz * 1000000:
+        machine.freq(mhz * 1000000)
+    return mhz
+
+
 class Hal:
     platform = PLATFORM
     default_driver = DEFAULT_DRIVER
 
     def __init__(self, cfg_pins=None):
-        p = chain_pins(chip(), cfg_pins)
+        name = chip()
+        p = chain_pins(name, cfg_pins)
         self.pins = p
         self.tick_us = TICK_US
         if p.get("board"):
             self.tick_us = 1000000 // _profile(p["board"])["tick_hz"]
+        self.mhz = set_clock(name, p.get("board"))
         # rxbuf holds at least one whole encoded frame (253 bytes) plus slack. timeout_char=0:
         # the port then sets the RX FIFO threshold and RX timeout to 1 (ports/esp32/machine_uart.c,
         # "rx_timeout < 1"), so bytes are readable as they arrive, which cut-through forwarding

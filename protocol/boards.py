@@ -47,8 +47,10 @@ _C3_RESERVED = _reserve(
 # uarts: hardware UART count; repl_uart: the UART stock MicroPython gives the REPL (None: REPL
 # on native USB only, a custom build); heap: bytes the firmware must fit in (-X heapsize in the
 # emulator; the unix VM's 64-bit objects make that stricter than on the 32-bit board); tick_hz:
-# FreeRTOS tick (select.poll timeouts end on it); mhz: stock CPU clock; pystones: pystone 1.2
-# score of stock MicroPython at that clock (the emulator's CPU factor).
+# FreeRTOS tick (select.poll timeouts end on it); mhz: the CPU clock the firmware runs the chip at
+# (device/hal_esp32.py sets it at boot with machine.freq: the chip's fastest, where stock builds
+# start slower); pystones: pystone 1.2 score of stock MicroPython at that clock (the emulator's
+# CPU factor, docs/emulator.md "Timing model").
 BOARDS = {
     "esp32": {
         "chip": "ESP32",
@@ -71,8 +73,8 @@ BOARDS = {
         "pwm": [25, 26, 27, 32, 33, 13, 14, 4],
         "heap": 163840,
         "tick_hz": 100,
-        "mhz": 160,
-        "pystones": 1107,
+        "mhz": 240,
+        "pystones": 1661,
     },
     "esp32s3": {
         "chip": "ESP32S3",

@@ -83,7 +83,45 @@ def test_chain_uarts_deliver_bytes_as_they_arrive_for_cut_through(hal, monkeypat
     monkeypatch.setattr(hal.select, "poll", Poll)
     monkeypatch.setattr(hal, "chip", lambda: "ESP32")
     monkeypatch.setattr(hal.time, "ticks_ms", lambda: 0, raising=False)
-    hal.Hal(None)
+    monkeypatch.setattr(hal.machine, "freq", _Freq(), raising=False)
+    assert hal.Hal(None).mhz == 240
     assert [uid for uid, _ in opened] == [1, 2]
     for _, kw in opened:
         assert kw["timeout_char"] == 0 and kw["timeout"] == 0 and kw["rxbuf"] >= 253
+
+
+class _Freq:
+    """machine.freq of a stock build: starts at ESP-IDF's default 160 MHz."""
+
+    def __init__(self, hz=160000000):
+        self.hz = hz
+        self.calls = []
+
+    def __call__(self, hz=None):
+        if hz is None:
+            return self.hz
+        self.calls.append(hz)
+        self.hz = hz
+        return None
+
+
+@pytest.mark.parametrize(
+    ("chip", "board", "mhz"),
+    [("ESP32", None, 240), ("ESP32", "esp32", 240), ("ESP32S3", "esp32s3", 240),
+     ("ESP32C3", "esp32c3-usbrepl", 160), ("ESP32S3", None, 0)],
+)  # fmt: skip
+def test_the_cpu_runs_at_the_board_profiles_clock(hal, monkeypatch, chip, board, mhz):
+    """A stock ESP32 build boots at 160 MHz; the firmware's cycle budget (and the emulator's CPU
+    factor, protocol/boards.py) assumes the profile's clock, so the HAL sets it at boot."""
+    freq = _Freq()
+    monkeypatch.setattr(hal.machine, "freq", freq, raising=False)
+    assert hal.set_clock(chip, board) == mhz
+    if mhz == 160 or not mhz:
+        assert freq.calls == []  # already there, or unknown chip: left alone
+    else:
+        assert freq.calls == [mhz * 1000000]
+    # the profile's score is the one at that clock (pystone 1.2, docs/emulator.md)
+    from protocol import boards
+
+    if board:
+        assert boards.profile(board)["mhz"] == mhz

@@ -117,7 +117,9 @@ def test_the_esp32_hal_registers_an_rx_irq_and_never_polls_with_a_timeout_near_t
             polls.append(timeout)
             return iter(())
 
-    machine = types.SimpleNamespace(UART=Uart, unique_id=lambda: b"\x01\x02")
+    machine = types.SimpleNamespace(
+        UART=Uart, unique_id=lambda: b"\x01\x02", freq=lambda *a: 240000000
+    )
     select = types.SimpleNamespace(poll=Poll, POLLIN=1)
     monkeypatch.setitem(sys.modules, "machine", machine)
     monkeypatch.setitem(sys.modules, "select", select)

@@ -2,9 +2,10 @@
 
 CPU factor = host speed / board speed, both in pystones/s (pystone 1.2, the benchmark published
 for MicroPython boards). The board's score is in its profile (``protocol/boards.py``: ESP32 at
-the stock 160 MHz 1107, derived in docs/emulator.md "Timing model"). The host's score is
-estimated by running :data:`KERNEL` (our own mix of calls, attribute and bytearray access and
-small-int arithmetic, like the firmware's cycle) on the MicroPython VM and scaling by
+the 240 MHz the firmware sets at boot, 1661, derived in docs/emulator.md "Timing model"). The
+host's score is estimated by running :data:`KERNEL` (our own mix of calls, attribute and
+bytearray access and small-int arithmetic, like the firmware's cycle) on the MicroPython VM and
+scaling by
 :data:`KERNEL_PER_PYSTONE`, the ratio measured once beside pystone on the same VM.
 """
 
