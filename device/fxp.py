@@ -171,3 +171,21 @@ def to_q(c, q):
     """Float coefficient -> int with Q shift q (rounded)."""
     v = c * (1 << q)
     return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+
+
+# machine-code versions where the VM has a native emitter (device/fxp_fast.py); the plain ones
+# above stay the reference, and the only ones on CPython or a port without an emitter
+_plain = (mulq, sin_q20, cos_q20, atan2_e4)
+try:
+    import gc
+
+    gc.collect()  # compiled from source (tests on the VM), it needs contiguous heap: start clean
+    import fxp_fast
+
+    fxp_fast.init(_SIN, _ATAN)
+    mulq = fxp_fast.mulq
+    sin_q20 = fxp_fast.sin_q20
+    cos_q20 = fxp_fast.cos_q20
+    atan2_e4 = fxp_fast.atan2_e4
+except Exception:  # ImportError on CPython; a compile error on a port without viper
+    pass

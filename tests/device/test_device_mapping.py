@@ -58,6 +58,48 @@ R['w'] = [fxp.wrap_angle(a) for a in (0, 31416, 31417, -31416, 62832 * 3 + 5)]
     assert r["w"] == [0, 31416, -31415, 31416, 5]
 
 
+def test_machine_code_fixed_point_gives_the_plain_versions_integers(vm):
+    """device/fxp_fast.py (viper) replaces fxp's mulq/sin/cos/atan2 where the VM compiles it: the
+    same integers as the plain code for every input in the documented ranges, edges included
+    (random inputs drawn on the VM, seeded)."""
+    r = vm(
+        """
+import fxp, random
+random.seed(7)
+pm, ps, pc, pa = fxp._plain
+R['fast'] = fxp.mulq is not pm and fxp.atan2_e4 is not pa
+M24 = (1 << 24) - 1
+M21 = (1 << 21) - 1
+M29 = (1 << 29) - 1
+mul = [[random.randint(-M24, M24), random.randint(-M21, M21), random.randint(12, 29)]
+       for _ in range(3000)]
+mul += [[a, c, q] for a in (-M24, -1, 0, 1, M24) for c in (-M21, -1, 1, M21)
+        for q in (12, 16, 20, 29)]
+ang = [random.randint(-M29 - 1, M29 + 1) for _ in range(2000)]
+ang += [k * 15708 + d for k in range(-5, 6) for d in (-1, 0, 1)] + [62832, -62832]
+pts = [[random.randint(-M29, M29) >> random.randint(0, 28),
+        random.randint(-M29, M29) >> random.randint(0, 28)] for _ in range(2000)]
+pts += [[x, y] for x in (-M29, -1, 0, 1, M29) for y in (-M29, -1, 0, 1, M29)]
+bad = []
+for a, c, q in mul:
+    if fxp.mulq(a, c, q) != pm(a, c, q):
+        bad.append(['mulq', a, c, q])
+for a in ang:
+    if fxp.sin_q20(a) != ps(a) or fxp.cos_q20(a) != pc(a):
+        bad.append(['sin/cos', a])
+for x, y in pts:
+    if fxp.atan2_e4(y, x) != pa(y, x):
+        bad.append(['atan2', y, x])
+R['n'] = len(mul) + len(ang) + len(pts)
+R['bad'] = bad[:10]
+""",
+        heap="4m",
+    )
+    assert r["fast"], "the VM has a native emitter: fxp must use device/fxp_fast.py"
+    assert r["n"] > 7000
+    assert r["bad"] == []
+
+
 def _forward_vm(vm, cfg, setpoints):
     return vm(
         f"""
