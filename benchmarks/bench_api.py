@@ -3,6 +3,7 @@ latency. Runs the real daemon on an emulated 3-segment chain; all load comes fro
 (as real clients would), speaking plain WebSocket JSON.
 
     .venv/bin/python benchmarks/bench_api.py [--seconds 5] [--mode process|inprocess]
+        [--rt-priority N] [--figures FILE]
 
 Phases (each ``--seconds`` long), each reporting loop overruns (count and % of cycles), jitter
 p99/max and the daemon's RSS (plus the API process's, in process mode):
@@ -17,8 +18,11 @@ p99/max and the daemon's RSS (plus the API process's, in process mode):
 - after            quiet again: memory back to the baseline?
 
 ``--mode process`` (default) runs the API as ``ucr daemon`` does, in its own process
-(host.api.process); ``inprocess`` runs it as a thread of the daemon's process. Prints figures;
-asserts nothing (the machine may be shared and noisy).
+(host.api.process); ``inprocess`` runs it as a thread of the daemon's process.
+``--rt-priority N`` runs the daemon's loop and link reader threads SCHED_FIFO N, as the service
+unit does (``ucr daemon --rt-priority``; needs root or RLIMIT_RTPRIO). Prints figures (and saves
+them with ``--figures``, for tools/docfigures.py); asserts nothing (the machine may be shared and
+noisy).
 """
 
 # ruff: noqa: PLC0415 - heavy imports (daemon, emulator) only when the benchmark runs
@@ -32,8 +36,10 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -210,6 +216,47 @@ def _collect(procs: list[subprocess.Popen]) -> list[dict]:
 
 
 # ------------------------------------------------------------------ the benchmark (parent)
+_PHASE_LABELS = {
+    "quiet": "no client",
+    "poll200": "200 clients polling status at 10 Hz (goal: overruns ≤ 0.1 %, jitter p99 ≤ 1 ms)",
+    "latency": "one joint_states subscriber",
+    "connect1000": "1,000 connection attempts",
+    "subscribe1000": "1,000 subscription requests on one connection",
+    "badtraj": "20 connections flooding ~58 KB invalid trajectories",
+    "after": "no client again",
+}
+
+
+def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: Any) -> None:
+    """The loop table (one row per phase) and the publish → client latency, for the docs."""
+    figs.table(
+        "loop",
+        ["phase", "overruns", "jitter p99 / max", "daemon RSS" + (" / API RSS" if pid_api else "")],
+        note=f"100 Hz loop, 3 emulated segments, API mode {args.mode}, loop thread {sched}, "
+        f"{args.seconds:g} s per phase; load from other processes at nice 15",
+    )
+    for name, st, rss, rss_api, _ in rows:
+        cyc = max(st["cycles"], 1)
+        figs.row("loop", [
+            _PHASE_LABELS.get(name, name),
+            f"{st['overruns']} of {st['cycles']} ({100 * st['overruns'] / cyc:.2f} %)",
+            f"{st['jitter_us']['p99']:.0f} / {st['jitter_us']['max']:.0f} µs",
+            f"{rss:.1f} MiB" + (f" / {rss_api:.1f} MiB" if pid_api else ""),
+        ])  # fmt: skip
+    for name, *_, results in rows:
+        if name == "latency" and results and "p50_ms" in results[0]:
+            figs.table(
+                "latency",
+                ["joint_states: state time → client", "p50", "p99"],
+                note="the message's t (the cycle's time) to its arrival in a client process "
+                "at nice 15; includes the cycle's own work before it publishes",
+            )
+            r = results[0]
+            figs.row("latency", [f"{r['n']} messages", f"{r['p50_ms']:.2f} ms",
+                                 f"{r['p99_ms']:.2f} ms"])  # fmt: skip
+    figs.save()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
@@ -218,6 +265,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--nice", type=int, default=-5, help="nice increment for daemon + chain (default -5)"
     )
+    ap.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        metavar="N",
+        help="SCHED_FIFO priority of the daemon's loop and link reader (0: normal; default 0)",
+    )
+    ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     ap.add_argument("--gen", help=argparse.SUPPRESS)
     ap.add_argument("--url", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=1, help=argparse.SUPPRESS)
@@ -237,16 +292,27 @@ def main(argv: list[str] | None = None) -> int:
             os.nice(args.nice)
         except OSError as exc:
             print(f"(cannot renice by {args.nice}: {exc}; running at the default priority)")
+    from benchmarks.figures import Figures
     from tools.rig import EmulatedRig
 
+    figs = Figures.from_argv("bench_api", argv)
     api_kind = "process" if args.mode == "process" else "thread"
-    with EmulatedRig(ROOT / "robots" / "softrobot3.ucrdf", api=api_kind, boot_timeout_s=15) as rig:
+    with EmulatedRig(
+        ROOT / "robots" / "softrobot3.ucrdf",
+        api=api_kind,
+        boot_timeout_s=15,
+        realtime_priority=args.rt_priority,
+    ) as rig:
         daemon, api = rig.daemon, rig.api
         api_pid = api.pid if args.mode == "process" else None
         url = api.url
         pid = os.getpid()
         only = set(filter(None, args.only.split(",")))
-        print(f"API mode: {args.mode} ({url}); phases of {args.seconds:g} s", flush=True)
+        sched = daemon.loop_stats()["scheduling"].get("control loop", "normal")
+        print(
+            f"API mode: {args.mode} ({url}); phases of {args.seconds:g} s; loop thread {sched}",
+            flush=True,
+        )
         rows = []
 
         def phase(name: str, procs: list[subprocess.Popen], settle: float = 1.0) -> list[dict]:
@@ -310,6 +376,8 @@ def main(argv: list[str] | None = None) -> int:
                         f"{p50:.2f} ms, {'met' if p50 <= 1.0 else 'NOT met'}"
                     )
             print(f"topology changes during the run: {daemon.status()['topology_changes']}")
+            if figs is not None:
+                _save(figs, rows, args, sched, pid_api=api_pid)
         finally:
             rig.stop_daemon()
     return 0

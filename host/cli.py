@@ -33,6 +33,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--adopt-out", help="where --adopt writes (default <robot>.adopted.ucrdf)")
     p.add_argument("--rate", type=float, help="control loop rate in Hz (overrides config)")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        metavar="N",
+        help="run the control loop and link reader threads SCHED_FIFO at priority N (1-98; "
+        "0: normal scheduling; overrides config realtime_priority; needs root or RLIMIT_RTPRIO)",
+    )
     p.add_argument("--no-api", action="store_true", help="do not start the network API")
     p.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING (default INFO)")
     p.set_defaults(func=cmd_daemon)
@@ -109,7 +116,13 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         robot, cfg = _load(args.robot, args.config)
         port = resolve_port(args.port, cfg.port, robot)
         daemon = Daemon(
-            robot, cfg, port=port, rate_hz=args.rate, adopt=args.adopt, adopt_path=args.adopt_out
+            robot,
+            cfg,
+            port=port,
+            rate_hz=args.rate,
+            realtime_priority=args.rt_priority,
+            adopt=args.adopt,
+            adopt_path=args.adopt_out,
         )
     except UcrdfError as exc:
         for d in exc.diagnostics:

@@ -90,6 +90,9 @@ class DaemonConfig:
     port: str | None = None
     baudrate: int = 921600
     rate_hz: float = 100.0
+    #: SCHED_FIFO priority of the control loop and link reader threads; 0: normal scheduling
+    #: (host/realtime.py, docs/daemon.md "Real-time scheduling")
+    realtime_priority: int = 0
     controllers: dict[str, dict[str, Any]] = field(
         default_factory=lambda: {
             k: {"type": v["type"], "params": dict(v["params"])}
@@ -143,7 +146,16 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
         source,
         "",
         data,
-        {"port", "baudrate", "rate_hz", "controllers", "active", "api", "watchdog"},
+        {
+            "port",
+            "baudrate",
+            "rate_hz",
+            "realtime_priority",
+            "controllers",
+            "active",
+            "api",
+            "watchdog",
+        },
     )
     if "port" in data:
         if data["port"] is not None and not isinstance(data["port"], str):
@@ -155,6 +167,10 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
         cfg.baudrate = int(_num(source, "baudrate", data["baudrate"], lo=1200, integer=True))
     if "rate_hz" in data:
         cfg.rate_hz = float(_num(source, "rate_hz", data["rate_hz"], lo=1.0, hi=2000.0))
+    if "realtime_priority" in data:
+        cfg.realtime_priority = int(
+            _num(source, "realtime_priority", data["realtime_priority"], lo=0, hi=98, integer=True)
+        )
     if "controllers" in data:
         ctrls = data["controllers"]
         if not isinstance(ctrls, dict) or not ctrls:

@@ -33,6 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from host import realtime
 from host.arbitration import Arbitrator
 from host.config import DaemonConfig
 from host.controller_manager import ControllerManager
@@ -67,8 +68,9 @@ def gap_cycles(period: float, watchdog: Any) -> int:
 class Daemon:
     """Drives one chain described by ``robot`` (a :class:`ucrdf.model.Robot` or a file path).
 
-    ``port``/``rate_hz`` override the config; ``adopt`` composes the robot from the descriptors
-    when the chain differs and writes it to ``adopt_path`` (default ``<file>.adopted.ucrdf``).
+    ``port``/``rate_hz``/``realtime_priority`` override the config; ``adopt`` composes the robot
+    from the descriptors when the chain differs and writes it to ``adopt_path`` (default
+    ``<file>.adopted.ucrdf``).
     ``link_factory(url, baudrate)`` opens the chain (default :class:`host.link.ChainLink`).
     """
 
@@ -79,6 +81,7 @@ class Daemon:
         *,
         port: str | None = None,
         rate_hz: float | None = None,
+        realtime_priority: int | None = None,
         adopt: bool = False,
         adopt_path: str | Path | None = None,
         link_factory: Callable[[str, int], Any] | None = None,
@@ -93,6 +96,11 @@ class Daemon:
         self.rate_hz = float(rate_hz or self.cfg.rate_hz)
         if not 1.0 <= self.rate_hz <= 2000.0:
             raise DaemonError(f"loop rate {self.rate_hz} Hz outside 1..2000 Hz")
+        prio = self.cfg.realtime_priority if realtime_priority is None else realtime_priority
+        try:
+            self.realtime_priority = realtime.check_priority(prio)
+        except ValueError as exc:
+            raise DaemonError(str(exc)) from None
         self.period = 1.0 / self.rate_hz
         self.reply_timeout = min(self.cfg.watchdog.reply_timeout_s, REPLY_SHARE * self.period)
         self._lock = threading.RLock()
@@ -182,6 +190,7 @@ class Daemon:
         # a shorter switch interval bounds how long it waits for it (default 5 ms).
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
+        realtime.configure(self.realtime_priority)  # before the link reader and the loop start
         self.topo.open()
         self.usable_rate.start(self.topo.link)
         self._t_started = time.monotonic()
@@ -351,6 +360,7 @@ class Daemon:
         hot-plug timings."""
         out = self.loop.stats.snapshot(self.loop.period)  # the usable rate (link health)
         out["nominal_rate_hz"] = self.rate_hz
+        out["scheduling"] = realtime.report()  # {thread: "SCHED_FIFO 10" | "normal ..."}
         with self._lock:
             out["hotplug"] = list(self.topo.hotplug_log)
             out["subscriber_drops"] = self.fanout.dropped

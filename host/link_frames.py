@@ -13,7 +13,7 @@ from typing import Any
 
 import serial
 
-from host import floors
+from host import floors, realtime
 from host.positions import label
 from protocol import constants as C
 from protocol.cbor import loads
@@ -94,6 +94,7 @@ class _FramePlumbing:
     def _read_loop(self) -> None:
         """Read bytes, cut frames, dispatch them. Any way out of this loop other than close() is
         a link failure (``_error`` set), which the daemon's normal reopen path handles."""
+        realtime.enter("link reader")  # the loop waits on this thread's STATEs
         try:
             self._read_frames()
         except BaseException as exc:  # noqa: BLE001 - the reader must never die silently

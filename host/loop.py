@@ -16,6 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from host import realtime
+
 
 class Stats:
     """Ring buffers of the last ``window`` samples plus running counts."""
@@ -114,6 +116,7 @@ class FixedRateLoop:
             self.stats.reset()
 
     def _run(self) -> None:
+        realtime.enter("control loop")  # SCHED_FIFO when configured (host/realtime.py)
         st = self.stats
         nxt = time.perf_counter()
         last_start: float | None = None

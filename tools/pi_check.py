@@ -324,10 +324,12 @@ def daemon_command(svc: dict[str, list[str]]) -> list[str]:
         f"exec {svc['ExecStart'][-1]}"
     )
     nice = svc.get("Nice", ["0"])[-1]
+    rtprio = svc.get("LimitRTPRIO", [None])[-1]  # what lets the unprivileged user run SCHED_FIFO
     return [
         "nice",
         "-n",
         nice,
+        *(["prlimit", f"--rtprio={rtprio}:{rtprio}", "--"] if rtprio else []),
         "setpriv",
         f"--reuid={user}",
         f"--regid={user}",

@@ -40,11 +40,12 @@ def start_daemon_on(chain: Any, robot: Any, boot_timeout_s: float, **daemon_args
 
 class EmulatedRig:
     """``chain`` (:class:`tools.emulator.EmulatedChain`, one segment per bendable of
-    ``robot``), ``daemon`` and ``api`` (``"thread"``: :class:`host.api.server.ApiServer` in this
-    process; ``"process"``: :class:`host.api.process.ApiProcess`; None: no API).
+        ``robot``), ``daemon`` and ``api`` (``"thread"``: :class:`host.api.server.ApiServer` in this
+        process; ``"process"``: :class:`host.api.process.ApiProcess`; None: no API).
 
-    ``robot`` is a U(C)RDF path or a file name in robots/; ``rate_hz`` the loop rate (None: the
-    configuration's). :meth:`restart_daemon` starts a fresh daemon (and API) on the same chain.
+        ``robot`` is a U(C)RDF path or a file name in robots/; ``rate_hz`` the loop rate (None: the
+        configuration's); ``realtime_priority`` the daemon's SCHED_FIFO priority (0: normal,
+    host/realtime.py). :meth:`restart_daemon` starts a fresh daemon (and API) on the same chain.
     """
 
     def __init__(
@@ -52,6 +53,7 @@ class EmulatedRig:
         robot: str | Path = DEFAULT_ROBOT,
         *,
         rate_hz: float | None = None,
+        realtime_priority: int = 0,
         api: str | None = "thread",
         boot_timeout_s: float = BOOT_TIMEOUT_S,
     ) -> None:
@@ -65,6 +67,7 @@ class EmulatedRig:
         self.robot_file = path if path.is_absolute() or path.exists() else ROBOTS / path
         self.robot = load(self.robot_file)
         self.rate_hz = rate_hz
+        self.realtime_priority = realtime_priority
         self.api_kind = api
         self.boot_timeout_s = boot_timeout_s
         self.daemon: Any = None
@@ -88,7 +91,9 @@ class EmulatedRig:
 
     def start_daemon(self) -> None:
         """Start the daemon (retried while the segments boot), then its API."""
-        args = {} if self.rate_hz is None else {"rate_hz": self.rate_hz}
+        args: dict[str, Any] = {"realtime_priority": self.realtime_priority}
+        if self.rate_hz is not None:
+            args["rate_hz"] = self.rate_hz
         self.daemon = start_daemon_on(self.chain, self.robot, self.boot_timeout_s, **args)
         if self.api_kind == "thread":
             from host.api.server import ApiServer  # noqa: PLC0415

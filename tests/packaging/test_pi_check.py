@@ -40,6 +40,9 @@ def test_the_daemon_starts_as_the_unit_says() -> None:
     assert "STATE_DIRECTORY=/var/lib/ucr" in cmd and "PYTHONUNBUFFERED=1" in cmd
     assert cmd[-1].startswith("umask 0077 && cd /opt/ucr && exec /opt/ucr/.venv/bin/ucr daemon ")
     assert "--config /etc/ucr/daemon.yaml" in cmd[-1]
+    # LimitRTPRIO=10, as systemd applies it: the loop may take SCHED_FIFO 10 unprivileged
+    assert cmd[cmd.index("prlimit") + 1] == "--rtprio=10:10" and "--rt-priority 10" in cmd[-1]
+    assert cmd.index("prlimit") < cmd.index("setpriv")
 
 
 @pytest.mark.timeout(1900)
