@@ -124,7 +124,13 @@ def _cpu_s(pid: int | None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None:
+def jitter_phases(
+    phase_s: float,
+    rounds: int,
+    in_process: bool = False,
+    rt_priority: int = 0,
+    figs: Figures | None = None,
+) -> None:
     from host.api.process import start_api_process
     from host.api.server import ApiServer
     from host.daemon import Daemon, DaemonError
@@ -141,7 +147,7 @@ def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None
         deadline = time.monotonic() + 20
         while True:
             try:
-                daemon = Daemon(robot, port=chain.host_port).start()
+                daemon = Daemon(robot, port=chain.host_port, realtime_priority=rt_priority).start()
                 break
             except DaemonError:
                 if time.monotonic() > deadline:
@@ -168,6 +174,8 @@ def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None
         keep_moving()
         time.sleep(3.0)
         results: dict[str, list[dict]] = {"off": [], "on": []}
+        cpus: list[list[float]] = []
+        sizes: list[float] = []
         loads: dict[str, list[float]] = {"off": [], "on": []}
         tmp = tempfile.mkdtemp()
         for r in range(rounds):
@@ -198,6 +206,7 @@ def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None
                         (_cpu_s(p.pid) - c) * 1e3 / phase_s
                         for p, c in zip(procs, cpu0, strict=True)
                     ]
+                    cpus.append(cpu)
                     print(f"   round {r + 1}: recorder + Foxglove server {cpu[0]:.0f} CPU ms/s, "
                           f"Foxglove client {cpu[1]:.0f} CPU ms/s")  # fmt: skip
                 for p in procs:
@@ -209,6 +218,7 @@ def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None
                         p.kill()
                 if procs:
                     size = Path(f"{tmp}/bench{r}.mcap").stat().st_size
+                    sizes.append(size / phase_s / 1024)
                     print(f"   round {r + 1}: recorded {size / 1024:.0f} KiB in ~{phase_s:.0f} s "
                           f"({size / phase_s / 1024:.1f} KiB/s live, 3 segments)")  # fmt: skip
                 procs = []
@@ -228,6 +238,30 @@ def jitter_phases(phase_s: float, rounds: int, in_process: bool = False) -> None
         verdict = "ok" if ratio <= 1.05 else "ABOVE GOAL"
         print(f"jitter p99 median on/off: {p99['on']:.0f} / {p99['off']:.0f} µs = "
               f"{ratio:.3f}  (goal <= 1.05: {verdict})")  # fmt: skip
+        if figs is not None:
+            sched = daemon.loop_stats()["scheduling"].get("control loop", "normal")
+            where = "a thread of the daemon" if in_process else "its own process"
+            figs.table(
+                "jitter",
+                ["round", "loop jitter p99, nothing attached", "recording + Foxglove client",
+                 "1-min load off / on", "recorder + server / client CPU ms/s",
+                 "recorded KiB/s"],
+                note=f"100 Hz, 3 emulated segments moving a wave; API in {where}; loop thread "
+                f"{sched}; {rounds} alternating rounds of {phase_s:g} s; topology changes "
+                f"during the run: {daemon.status()['topology_changes']}",
+            )  # fmt: skip
+            for r in range(rounds):
+                c = cpus[r] if r < len(cpus) else [math.nan, math.nan]
+                figs.row("jitter", [
+                    str(r + 1), f"{results['off'][r]['jitter_us']['p99']:.0f} µs",
+                    f"{results['on'][r]['jitter_us']['p99']:.0f} µs",
+                    f"{loads['off'][r]:.1f} / {loads['on'][r]:.1f}", f"{c[0]:.0f} / {c[1]:.0f}",
+                    f"{sizes[r]:.1f}" if r < len(sizes) else "",
+                ])  # fmt: skip
+            figs.row("jitter", [
+                "median", f"{p99['off']:.0f} µs",
+                f"{p99['on']:.0f} µs (ratio {ratio:.2f}, goal ≤ 1.05)", "", "", "",
+            ])  # fmt: skip
     finally:
         for p in procs:
             p.kill()
@@ -246,7 +280,11 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=None, help="off/on rounds (3; --quick 2)")
     ap.add_argument("--phase", type=float, default=None, help="s per phase (20; --quick 12)")
     ap.add_argument("--api-in-process", action="store_true", help="API as a daemon thread")
-    ap.add_argument("--figures", metavar="FILE", help="save the table the docs quote (JSON)")
+    ap.add_argument(
+        "--rt-priority", type=int, default=0, metavar="N",
+        help="SCHED_FIFO priority of the daemon's loop and link reader (the unit: 10; 0: normal)",
+    )  # fmt: skip
+    ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     args = ap.parse_args()
     figs = Figures.from_argv("bench_record")
     seconds = 10.0 if args.quick else 30.0
@@ -276,7 +314,7 @@ def main() -> None:
             f"\n2. daemon loop jitter at 100 Hz, 3 emulated segments, {rounds} x ({phase:.0f} s "
             f"off, {phase:.0f} s on: ucr record --foxglove-port + a subscribed client)"
         )
-        jitter_phases(phase, rounds, args.api_in_process)
+        jitter_phases(phase, rounds, args.api_in_process, args.rt_priority, figs)
     if figs is not None:
         figs.save()
 

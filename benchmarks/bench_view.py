@@ -1,7 +1,8 @@
 """View benchmark: scene update rate (3 and 8 segments), daemon->page latency, and what an open
 view does to the control loop's jitter. Headless Chromium (Debian's /usr/bin/chromium) is the page.
 
-    .venv/bin/python benchmarks/bench_view.py [--seconds 5]
+    .venv/bin/python benchmarks/bench_view.py [--seconds 5] [--runs 3] [--daemon-nice -5]
+        [--rt-priority N] [--figures FILE]
 
 1. Update rate: an offline view whose configuration changes at 200 Hz (every segment moving), with
    a page open; figures: scene pushes/s by the view and state samples/s that reach the page's DOM
@@ -9,7 +10,8 @@ view does to the control loop's jitter. Headless Chromium (Debian's /usr/bin/chr
 2. Live, on the real daemon and an emulated 3-segment chain: daemon->page latency p50/p99 (daemon
    sample time -> the page's DOM showing it; same machine, wall clock), and the loop's jitter p99
    with the view closed vs open (goal ratio <= 1.1).
-Prints figures; asserts nothing (the machine may be shared and noisy).
+Prints figures (saved with ``--figures`` for tools/docfigures.py); asserts nothing (the
+machine may be shared and noisy).
 """
 
 # ruff: noqa: PLC0415 - heavy imports (daemon, emulator, browser) only when the benchmark runs
@@ -50,6 +52,13 @@ def _pct(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, int(q * len(s)))] if s else math.nan
 
 
+def _lat_cell(lat: list[float]) -> str:
+    """p50 / p99 of a latency list for the figures, or why there is none."""
+    if not lat:
+        return "none: no sample reached the page's DOM"
+    return f"{_pct(lat, 0.5):.0f} / {_pct(lat, 0.99):.0f} ms (n = {len(lat)})"
+
+
 def robot_file(n: int, tmp: Path) -> Path:
     """softrobot3's segment, n times, as a U(C)RDF file."""
     from tools.segment_config import config_for
@@ -88,7 +97,7 @@ def page_samples(page, frames: list[int], seconds: float) -> tuple[list[list[flo
     return got, n / (time.monotonic() - t0)
 
 
-def update_rate(browser, n: int, seconds: float, tmp: Path) -> None:
+def update_rate(browser, n: int, seconds: float, tmp: Path) -> list[str]:
     from view.app import ViewApp
     from view.source import OfflineSource
 
@@ -126,6 +135,10 @@ def update_rate(browser, n: int, seconds: float, tmp: Path) -> None:
         f"slider->DOM p50 {_pct(lat, 0.5):.1f} ms, p99 {_pct(lat, 0.99):.1f} ms",
         flush=True,
     )
+    return [
+        str(n), f"{pushes:.0f} Hz", f"{ws_rate:.0f} /s", f"{shown:.1f} /s",
+        _lat_cell(lat),
+    ]  # fmt: skip
 
 
 def _cpu_s(pid: int | None) -> float:
@@ -170,7 +183,9 @@ def _median(values: list[float]) -> float:
     return s[len(s) // 2] if s else math.nan
 
 
-def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int) -> None:
+def live(
+    browser, seconds: float, runs: int, in_process: bool, daemon_nice: int, rt_priority: int = 0
+) -> dict:
     from host.api.process import start_api_process
     from host.api.server import ApiServer
     from host.daemon import Daemon, DaemonError
@@ -188,7 +203,9 @@ def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int)
             deadline = time.monotonic() + 20
             while True:
                 try:
-                    return Daemon(robot, port=chain.host_port).start()
+                    return Daemon(
+                        robot, port=chain.host_port, realtime_priority=rt_priority
+                    ).start()
                 except DaemonError:
                     if time.monotonic() > deadline:
                         raise
@@ -204,6 +221,8 @@ def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int)
             api = _start_niced(lambda: start_api_process(daemon, "127.0.0.1", 0), daemon_nice)
         where = "a thread of the daemon" if in_process else "its own process (as ucr daemon)"
         where += f", daemon nice {daemon_nice}"
+        sched = daemon.loop_stats()["scheduling"].get("control loop", "normal")
+        where += f", loop thread {sched}"
         api_pid = None if in_process else api.pid
 
         # a slow wave keeps joint states changing (every push carries news)
@@ -235,6 +254,11 @@ def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int)
             f"{_pct(lat, 0.5):.1f} ms, p99 {_pct(lat, 0.99):.1f} ms (n={len(lat)})",
             flush=True,
         )
+        out = {
+            "where": where,
+            "live": [m.group(1) + " Hz" if m else "?", f"{ws_rate:.0f} /s", _lat_cell(lat)],
+            "runs": [],
+        }  # fmt: skip
         view.stop()
         view = None
         # jitter: closed / view process (no page) / view + page, alternating, `runs` times
@@ -254,6 +278,10 @@ def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int)
             view.stop()
             view = None
             c, v, pg = phases["closed"][-1], phases["view"][-1], phases["page"][-1]
+            out["runs"].append([
+                f"run {r + 1}", f"{c[0]:.0f} µs", f"{v[0]:.0f} µs", f"{pg[0]:.0f} µs",
+                f"{c[1]:.1f} / {v[1]:.1f} / {pg[1]:.1f}",
+            ])  # fmt: skip
             print(
                 f"  run {r + 1}: loop jitter p99 closed {c[0]:.0f} us, view process {v[0]:.0f} "
                 f"us, view + page {pg[0]:.0f} us (load average {c[1]:.1f} / {v[1]:.1f} / "
@@ -272,6 +300,13 @@ def live(browser, seconds: float, runs: int, in_process: bool, daemon_nice: int)
             f"{paged / closed:.2f}; cores {os.cpu_count()}",
             flush=True,
         )
+        out["runs"].append([
+            f"median of {runs}", f"{closed:.0f} µs",
+            f"{viewed:.0f} µs (ratio {viewed / closed:.2f})",
+            f"{paged:.0f} µs (ratio {paged / closed:.2f})", "",
+        ])  # fmt: skip
+        out["topology_changes"] = daemon.status()["topology_changes"]
+        return out
     finally:
         if view is not None:
             view.stop()
@@ -293,7 +328,15 @@ def main() -> int:
     ap.add_argument(
         "--daemon-nice", type=int, default=0, help="the daemon nice (the systemd unit: -5)"
     )
+    ap.add_argument(
+        "--rt-priority", type=int, default=0, metavar="N",
+        help="SCHED_FIFO priority of the daemon's loop and link reader (the unit: 10; 0: normal)",
+    )  # fmt: skip
+    ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     args = ap.parse_args()
+    from benchmarks.figures import Figures
+
+    figs = Figures.from_argv("bench_view")
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p, tempfile.TemporaryDirectory() as tmp:
@@ -304,11 +347,43 @@ def main() -> int:
             Path(exe).write_text(script)
             os.chmod(exe, 0o755)
         browser = p.chromium.launch(executable_path=exe, args=ARGS)
+        rates = []
         if not args.skip_rate:
             for n in (3, 8):
-                update_rate(browser, n, args.seconds, Path(tmp))
-        live(browser, args.seconds, args.runs, args.api_in_process, args.daemon_nice)
+                rates.append(update_rate(browser, n, args.seconds, Path(tmp)))
+        got = live(
+            browser, args.seconds, args.runs, args.api_in_process, args.daemon_nice,
+            args.rt_priority,
+        )  # fmt: skip
         browser.close()
+    if figs is not None:
+        gl = "headless Chromium with software WebGL (SwiftShader) on the same machine"
+        if rates:
+            figs.table(
+                "rate",
+                ["segments", "view pushes (goal ≥ 30 Hz)", "page receives", "page DOM shows",
+                 "slider → DOM p50 / p99"],
+                note=f"offline view, every segment moving at 200 Hz; {gl}; {args.seconds:g} s",
+            )  # fmt: skip
+            for row in rates:
+                figs.row("rate", row)
+        figs.table(
+            "live",
+            ["view pushes", "page receives", "daemon → page DOM latency p50 / p99"],
+            note=f"live, 3 emulated segments; API in {got['where']}; {gl}",
+        )
+        figs.row("live", got["live"])
+        figs.table(
+            "jitter",
+            ["loop jitter p99", "view closed", "view process, no page (goal ratio ≤ 1.1)",
+             "view + page on this machine", "1-min load closed / view / page"],
+            note=f"alternating phases of {args.seconds:g} s; API in {got['where']}; {gl}; "
+            f"topology changes during the run (segments starved of CPU, seen as lost): "
+            f"{got['topology_changes']}",
+        )  # fmt: skip
+        for row in got["runs"]:
+            figs.row("jitter", row)
+        figs.save()
     return 0
 
 

@@ -4,7 +4,8 @@ bridge plus a subscriber do to the control loop's jitter. Runs the real daemon o
 ``ucr daemon`` runs it), `ucr zenoh-router` and `ucr zenoh` as their own processes (as deployed),
 and a Zenoh subscriber on /<robot>/joint_states and /<robot>/tf in another process.
 
-    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5] [--rounds 5] [--loop-fifo 10]
+    .venv/bin/python benchmarks/bench_zenoh.py [--seconds 5] [--rounds 5] [--rt-priority 10]
+        [--figures FILE]
 
 Latency: receive time (wall clock) minus the JointState header stamp, which is the daemon's
 time of the cycle that produced the state (daemon monotonic clock mapped to wall clock; same
@@ -18,9 +19,11 @@ so that the machine's background load falls on all alike:
 - API subscription only: a client holding the subscription ``ucr zenoh`` holds (no Zenoh);
 - on: router, bridge and subscriber running.
 Goal: ratio on/off <= 1.05. CPU per process and phase shows where the work is (the daemon's
-own share grows only by what the API subscription costs it). ``--loop-fifo`` runs the loop
-thread SCHED_FIFO; ``--api thread`` runs the API server in the daemon's process (not deployed).
-Prints figures, ratios and the load average; asserts nothing (the machine may be shared).
+own share grows only by what the API subscription costs it). ``--rt-priority N`` runs the
+daemon's loop and link reader SCHED_FIFO N, as the service unit does (``ucr daemon
+--rt-priority``); ``--api thread`` runs the API server in the daemon's process (not deployed).
+Prints figures, ratios and the load average (saved with ``--figures`` for tools/docfigures.py);
+asserts nothing (the machine may be shared).
 """
 
 # ruff: noqa: PLC0415 - heavy imports (daemon, emulator, zenoh) only when the benchmark runs
@@ -38,6 +41,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -185,13 +189,14 @@ def main(argv: list[str] | None = None) -> int:
         "(12: about what bridge, subscriber and the API's extra work use; 0: no control phase)",
     )
     ap.add_argument(
-        "--loop-fifo",
+        "--rt-priority",
         type=int,
         default=0,
-        metavar="PRIO",
-        help="run the control-loop thread SCHED_FIFO at this priority (1-99; needs root or "
-        "CAP_SYS_NICE; 0: normal scheduling, as now deployed)",
+        metavar="N",
+        help="SCHED_FIFO priority of the daemon's loop and link reader threads (1-98; needs "
+        "root or RLIMIT_RTPRIO; the service unit: 10; 0: normal scheduling)",
     )
+    ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     ap.add_argument("--hog", type=float, help=argparse.SUPPRESS)
     ap.add_argument("--api-subscriber", help=argparse.SUPPRESS)
     ap.add_argument("--subscriber", nargs=2, metavar=("ENDPOINT", "NS"), help=argparse.SUPPRESS)
@@ -203,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.subscriber:
         return subscriber(*args.subscriber, seconds=args.seconds, warmup=2.0)
 
+    from benchmarks.figures import Figures
     from host.api.process import ApiProcess
     from host.api.server import ApiServer
     from host.daemon import Daemon, DaemonError
@@ -211,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     from tools.segment_config import configs
     from ucrdf.parser import load
 
+    figs = Figures.from_argv("bench_zenoh", argv)
     daemon_nice = 0
     if args.daemon_nice:
         try:
@@ -224,21 +231,15 @@ def main(argv: list[str] | None = None) -> int:
         deadline = time.monotonic() + 15
         while True:
             try:
-                daemon = Daemon(robot, port=chain.host_port).start()
+                daemon = Daemon(
+                    robot, port=chain.host_port, realtime_priority=args.rt_priority
+                ).start()
                 break
             except DaemonError:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
         srv = (ApiProcess if args.api == "process" else ApiServer)(daemon, "127.0.0.1", 0).start()
-        policy = "normal"
-        if args.loop_fifo:
-            tid = daemon.loop._thread.native_id  # the loop thread only; the daemon's others stay
-            try:
-                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(args.loop_fifo))
-                policy = f"SCHED_FIFO {args.loop_fifo}"
-            except PermissionError:
-                print("cannot set SCHED_FIFO (not root): normal scheduling")
         port = _free_port()
         endpoint = f"tcp/127.0.0.1:{port}"
         offs: list[dict] = []
@@ -351,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
                         f"CPU in the {label} phases (% of one core): "
                         + ", ".join(f"{k} {100 * v / total:.1f}" for k, v in acc.items())
                     )
+            policy = daemon.loop_stats()["scheduling"].get("control loop", "normal")
             print(f"daemon at nice {daemon_nice}; loop thread scheduling: {policy}")
             print(f"load average (1 min) at start {load0[0]:.2f}, at end {load1[0]:.2f}")
             for label, sts in (
@@ -387,6 +389,58 @@ def main(argv: list[str] | None = None) -> int:
                     f"mean {m_h / max(m_off, 1e-9):.3f}  (CPU load alone, no Zenoh, no API "
                     "subscription)"
                 )
+            if figs is not None:
+                cond = (
+                    f"daemon at nice {daemon_nice}, loop thread {policy}; API {args.api}; "
+                    f"router, bridge and subscriber at nice {args.nice}; {args.rounds} rounds of "
+                    f"{args.seconds:g} s"
+                )
+                figs.table(
+                    "jitter",
+                    [
+                        "phase",
+                        "loop jitter p99 (median over rounds)",
+                        "worst round's p99",
+                        "mean",
+                        "ratio p99 / off (goal on ≤ 1.05)",
+                    ],
+                    note=cond,
+                )
+                for label, sts in (
+                    ("bridge off", offs),
+                    (f"control: a process busy {args.hog_percent:.0f} % of one core", hogs),
+                    ("API subscription only (no Zenoh)", apis),
+                    ("bridge + subscriber on", ons),
+                ):
+                    if sts:
+                        p = statistics.median(s["jitter_us"]["p99"] for s in sts)
+                        m = statistics.median(s["jitter_us"]["mean"] for s in sts)
+                        figs.row(
+                            "jitter",
+                            [
+                                label,
+                                f"{p:.0f} µs",
+                                f"{max(s['jitter_us']['p99'] for s in sts):.0f} µs",
+                                f"{m:.1f} µs",
+                                f"{p / max(p99_off, 1e-9):.2f}",
+                            ],
+                        )
+                if n:
+                    figs.table(
+                        "latency",
+                        ["STATE → Zenoh subscriber (/joint_states)", "p50", "p99", "max"],
+                        note=cond,
+                    )
+                    figs.row(
+                        "latency",
+                        [
+                            f"{n} messages",
+                            f"{statistics.median(lat):.2f} ms",
+                            f"{_pct(lat, 0.99):.2f} ms",
+                            f"{max(lat):.2f} ms",
+                        ],
+                    )
+                figs.save()
         finally:
             srv.stop()
             daemon.stop()
