@@ -61,7 +61,7 @@ class BufUart:
         return n
 
     def write(self, buf, n=-1):
-        if n < 0:
+        if n < 0 or n > len(buf):  # as a board's stream write: MIN(len(buf), n) (py/stream.c)
             n = len(buf)
         self.total += n
         o = self.ow
