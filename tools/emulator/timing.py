@@ -54,9 +54,12 @@ def kernel_loops_per_s():
     return 20000 * 1000000 // best
 """
 
-KERNEL = KERNEL_FUNC + """
+KERNEL = (
+    KERNEL_FUNC
+    + """
 print('@@', kernel_loops_per_s())
 """
+)
 
 
 def kernel_rate(runs: int = 3) -> int:
