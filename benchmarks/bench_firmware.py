@@ -265,15 +265,11 @@ def main() -> int:
 def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
     import firmware_boards as fb
 
-    from protocol import boards
-    from tools.emulator.timing import KERNEL_PER_PYSTONE
+    from tools.emulator.timing import KERNEL_PER_PYSTONE, cpu_factor
 
     # the host's speed measured in the same VM process as the cycle (a shared machine can run
     # a whole process at half speed: a factor from another process would not cancel it)
     pystones = r["kernel"] / KERNEL_PER_PYSTONE
-
-    def cpu_factor(name: str) -> float:
-        return max(1.0, pystones / boards.profile(name)["pystones"])
 
     print(f"Boards (this VM: about {pystones:.0f} pystones/s, measured beside the cycle)")
     byte_us = max(0.0, r["cycle_us"] - r["viper_us"])
@@ -294,11 +290,11 @@ def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
         figs.table("forwarding", ["esp32", "per-hop SYNC forwarding p50 / p99", "lost"],
                    note=f"{samples // 2} SYNCs; goal ≤ 1 ms")  # fmt: skip
     if figs is not None:
-        f = cpu_factor("esp32")
+        f = cpu_factor("esp32", pystones)
         for name, us in r["parts"]:
             figs.row("parts", [name, f"{us:.1f} µs", f"{us * f / 1000:.2f} ms"])
     for name in ("esp32", "esp32s3", "esp32c3"):
-        f = cpu_factor(name)
+        f = cpu_factor(name, pystones)
         share = r["cycle_us"] * f / 5000.0
         print(
             f"  {name:8s} CPU factor {f:6.1f}: full cycle {r['cycle_us'] * f / 1000:7.2f} ms = "

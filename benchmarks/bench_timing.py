@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     factors = []
     for name in ("esp32", "esp32s3", "esp32c3"):
         prof = boards.profile(name)
-        f = host / prof["pystones"]
+        f = timing.cpu_factor(name, host)
         factors.append((name, prof, f))
         print(f"  {name:8s} {prof['pystones']} pystones/s at {prof['mhz']} MHz: CPU factor {f:.0f}")
     if figs is not None:

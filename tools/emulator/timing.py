@@ -82,9 +82,10 @@ def host_pystones() -> float:
     return kernel_rate() / KERNEL_PER_PYSTONE
 
 
-def cpu_factor(board: str) -> float:
-    """How many times longer ``board`` takes than this host's VM for the same code (>= 1)."""
+def cpu_factor(board: str, host: float | None = None) -> float:
+    """How many times longer ``board`` takes than this host's VM for the same code (>= 1);
+    ``host``: the host's pystones/s when the caller measured them (default: estimated here)."""
     p = boards.profile(board)
     if not p["pystones"]:
         return 1.0
-    return max(1.0, host_pystones() / p["pystones"])
+    return max(1.0, (host_pystones() if host is None else host) / p["pystones"])
