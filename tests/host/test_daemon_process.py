@@ -216,6 +216,7 @@ def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(
     100 Hz loop cannot get their states in time, and the daemon says so (with the limit and what
     to change); at 921600 it is silent."""
     import logging
+    import threading
 
     from host.config import DaemonConfig, WatchdogConfig
     from host.daemon import Daemon
@@ -231,7 +232,14 @@ def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(
         with caplog.at_level(logging.WARNING, logger="ucr.daemon"):
             d.start()
             d.stop()
-        return [r.getMessage() for r in caplog.records if "per exchange" in r.getMessage()]
+        # the report of start(), made in this thread; a rebuild in the loop thread (a stall
+        # seen on a loaded machine) repeats it by design (docs/daemon.md) and is not counted
+        me = threading.get_ident()
+        return [
+            r.getMessage()
+            for r in caplog.records
+            if "per exchange" in r.getMessage() and r.thread == me
+        ]
 
     slow = warnings_at(115200)
     assert len(slow) == 1, slow
