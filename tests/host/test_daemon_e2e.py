@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 from daemon_helpers import (
+    assert_succeeded,
     emulated_configs,
     retry_if_the_link_was_disturbed,
     start_daemon,
@@ -121,8 +122,7 @@ def _converges(d):
         ]
     )
     assert wait_for(lambda: d.trajectory_status(gid)["done"], 10.0)
-    st = d.trajectory_status(gid)
-    assert st["state"] == "succeeded", st
+    assert_succeeded(d, gid)
     js = d.status()["joint_states"]
     for n, (k, p) in target.items():
         err = math.hypot(
@@ -156,6 +156,7 @@ def _full_range_fast(d):
     finally:
         d.unsubscribe(q)
     assert wait_for(lambda: d.trajectory_status(gid)["done"], 5.0)
+    goal = d.trajectory_status(gid)
     i = NAMES.index("segment_2")
     t = np.array([m["t_ms"][i] for m in msgs]) / 1000.0  # the segment's clock
     kx = np.array([m["kx"][i] for m in msgs])
@@ -167,7 +168,8 @@ def _full_range_fast(d):
     speed = windowed_speed(t, kx, ky)
     if not speed.max() <= rate * 1.1:
         pytest.fail(f"speed {speed.max()} beyond kappa_rate_max {rate} * 1.1")
-    assert np.hypot(kx[-1], ky[-1]) == pytest.approx(kmax, abs=0.02)
+    assert_succeeded(d, gid)
+    assert np.hypot(kx[-1], ky[-1]) == pytest.approx(kmax, abs=0.02), goal
 
 
 def test_replacing_a_trajectory_midway_has_no_jump(ready):
