@@ -143,8 +143,63 @@ PARTS = (
     ('setpoint (kappa clamp, rate check)',
      lambda: mc.set_target(seg.sync_out[1], seg.sync_out[2], 5)),
     ('STATE encoded and sent', _state),
+    ('relay point, nothing arrived', seg.relay_point),
     ('empty call (the VM floor)', lambda: None),
 )
+
+def _relay_path():
+    rewind(hal.up, len(SYNC))
+    seg.poll()
+    hal.down.discard()
+
+_rx = bytearray(256)
+
+def _uart_calls():
+    # the loopback UART's calls the relay path makes (a board's UART methods are C, costing
+    # about one empty call each): read the SYNC, find the down port empty, write it on
+    rewind(hal.up, len(SYNC))
+    hal.up.readinto(_rx)
+    hal.down.readinto(_rx)
+    hal.down.write(_rx, len(SYNC))
+    hal.down.discard()
+
+def relay_path():
+    # a SYNC's bytes read, scanned and relayed downstream, its handling left out: what a relay
+    # point costs when a frame arrived, with the loopback UART's bytecode replaced by the cost
+    # of three C calls
+    real = seg._on_up
+    seg._on_up = lambda r: None
+    try:
+        harness = part(lambda: rewind(hal.up, len(SYNC)) or hal.down.discard())
+        path = part(_relay_path) - harness
+        uart = part(_uart_calls) - harness
+        return path - uart + 3 * part(lambda: None)
+    finally:
+        seg._on_up = real
+
+def _wake_work():
+    s = 0
+    for i in range(20):
+        s += i
+    return s
+
+def wake():
+    # the same small piece of bytecode hot and right after a 5 ms sleep (the timing model
+    # sleeps between compute intervals): medians of 50, in us
+    gc.collect()
+    hot, cold = [], []
+    for i in range(50):
+        t0 = time.ticks_us()
+        _wake_work()
+        hot.append(time.ticks_diff(time.ticks_us(), t0))
+    for i in range(50):
+        time.sleep_us(5000)
+        t0 = time.ticks_us()
+        _wake_work()
+        cold.append(time.ticks_diff(time.ticks_us(), t0))
+    hot.sort()
+    cold.sort()
+    return [hot[25], cold[25]]
 
 k0 = kernel_loops_per_s()
 R = {{}}
@@ -159,6 +214,9 @@ R['cycle_us'] = timed(full)
 R['viper_us'] = timed(machine_code)
 R['kernel'] = max(k0, kernel_loops_per_s())  # the host's speed, before and after, same process
 R['parts'] = [[name, part(f)] for name, f in PARTS]
+RELAY = 'relay path: a SYNC read, scanned, relayed (not handled; UART calls as C)'
+R['parts'].insert(-1, [RELAY, relay_path()])
+R['wake'] = wake()
 gc.collect()
 gc.disable()
 a0 = gc.mem_alloc()
@@ -262,6 +320,48 @@ def main() -> int:
     return 0 if ok else 2
 
 
+def _forwarding_bound(r: dict, pystones: float, figs: Figures | None) -> None:
+    """Per-hop forwarding from the hot VM figures × the esp32 factor: a frame waits for the
+    running phase of the tick to reach its next relay point, then takes the relay path. The
+    process measurement below stretches wall time, which this host inflates after every sleep
+    (the 'wake' figures), so it is an upper bound; this is the estimate from the same figures
+    as the cycle's share of the tick."""
+    from tools.emulator.timing import cpu_factor
+
+    parts = dict(r["parts"])
+    f = cpu_factor("esp32", pystones)
+    phases = {
+        "servo driver poll": parts["servo driver poll (emulated servos)"],
+        "servo fault checks": parts["servo fault checks"],
+        "MC measure": parts["MC measure (positions -> kappa, phi)"],
+        "MC update + SC + command": parts["MC update (slew, servo targets)"]
+        + parts["SC step and driver command"],
+        "housekeeping until the next poll": parts["chain housekeeping (service)"],
+    }
+    name, longest = max(phases.items(), key=lambda kv: kv[1])
+    relay = parts["relay path: a SYNC read, scanned, relayed (not handled; UART calls as C)"]
+    handling = max(0.0, r["sync_us"] - relay)
+    hot, cold = r["wake"]
+    rows = [
+        ("relay path (bytes in, relayed out)", relay),
+        (f"longest tick phase between relay points ({name})", longest),
+        ("per-hop bound while the segment ticks (the two above)", relay + longest),
+        ("a SYNC being handled (no relay point inside)", handling),
+    ]
+    print(f"Per-hop forwarding from the hot figures, esp32 (CPU factor {f:.0f})")
+    for label, us in rows:
+        print(f"  {label:55s} {us:6.1f} us VM = {us * f / 1000:6.2f} ms")
+    print(f"  this host after a 5 ms sleep: {cold} us for what takes {hot} us hot")
+    if figs is not None:
+        figs.table("forwarding_bound", ["piece", "on the VM", "esp32 model"], note=(
+            f"the hot figures above × the esp32 CPU factor ({f:.0f}); for comparison this host "
+            f"ran a piece of bytecode that takes {hot} µs hot in {cold} µs right after a 5 ms "
+            "sleep (median of 50), an inflation the process measurement below multiplies by "
+            "the factor too"))  # fmt: skip
+        for label, us in rows:
+            figs.row("forwarding_bound", [label, f"{us:.1f} µs", f"{us * f / 1000:.2f} ms"])
+
+
 def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
     import firmware_boards as fb
 
@@ -316,6 +416,7 @@ def _boards(r: dict, samples: int, figs: Figures | None = None) -> None:
         print(f"  {label:20s} p50 {p50 / 1000:6.2f} ms  p99 {p99 / 1000:6.2f} ms (goal p99 <= 0.5)")
         if figs is not None:
             figs.row("wait", [label, f"{p50 / 1000:.2f} / {p99 / 1000:.2f} ms"])
+    _forwarding_bound(r, pystones, figs)
     factor, rows = fb.forwarding(samples // 2)
     print(f"Per-hop SYNC forwarding latency, esp32 (CPU factor {factor:.0f}), {samples // 2} SYNCs")
     for label, p50, p99, lost in rows:

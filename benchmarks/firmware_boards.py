@@ -28,6 +28,7 @@ from pathlib import Path
 from protocol import boards
 from protocol import messages as M
 from tools import mpvm
+from tools.emulator.chain import populate_segment_dir
 from tools.emulator.timing import cpu_factor
 
 REPO = mpvm.REPO
@@ -56,13 +57,9 @@ print('@@' + json.dumps(over))
 
 
 def _seg_dir(tmp: Path, config: dict | None) -> Path:
+    """A segment's files as ``ucr flash`` writes them (modules precompiled, main.py as source)."""
     seg = tmp / "seg"
-    subprocess.run(["cp", "-r", str(REPO / "device"), str(seg)], check=True)
-    (seg / "protocol").mkdir(exist_ok=True)
-    for f in (REPO / "protocol").glob("*.py"):
-        (seg / "protocol" / f.name).write_bytes(f.read_bytes())
-    if config is not None:
-        (seg / "config.json").write_text(json.dumps(config))
+    populate_segment_dir(seg, config=config)
     return seg
 
 

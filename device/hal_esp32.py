@@ -168,6 +168,11 @@ class Hal:
     def wait(self, ms):
         waiting.wait(self.poller, ms, self.tick_us, waiting.spin)
 
+    def rx_any(self):
+        """Has either chain UART received bytes not read yet (``UART.any``: the driver's ring
+        buffer, ports/esp32/machine_uart.c)?"""
+        return self.up.any() or self.down.any()
+
     def servo_uart(self, b):
         chain = [self.pins[k] for k in _CHAIN_PINS]
         if (

@@ -206,6 +206,15 @@ class Hal:
                 waiting.wait(self.poller, ms, self.tick_us, self._spin)
         self._busy_from = time.ticks_us()
 
+    def rx_any(self):
+        """Has either UART input waiting? With the timing model the board first computes what
+        this host did since the last wait or write (a tick's relay point comes that much later)."""
+        if self.timing:
+            self.stretch()
+        for _ in self._host_poller.ipoll(0):
+            return True
+        return False
+
     def stretch(self):
         """Timing model: the board is still computing what this host did since the last wait
         or write: hold for that time x (cpu_factor - 1)."""

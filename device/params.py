@@ -1,4 +1,5 @@
-"""Slow path of a segment: parameters (PARAM_GET / PARAM_SET), the descriptor, CLEAR_FAULT.
+"""Slow path of a segment: parameters (PARAM_GET / PARAM_SET), the descriptor, FAULT entry and
+CLEAR_FAULT.
 
 Functions of the ``Segment`` (passed as ``self``), kept out of segment.py so that each module is
 compiled on its own at boot (the compiler's peak heap grows with a module's size). They allocate
@@ -18,14 +19,22 @@ import config
 import sc as scmod
 
 from protocol import cbor
+from protocol import device as pd
 from protocol.constants import (
     ERR_BAD_VALUE,
     ERR_IDENTITY_MISMATCH,
     ERR_MALFORMED,
     ERR_UNKNOWN_PARAM,
+    ERR_UNKNOWN_TYPE,
+    EV_FAULT,
+    EV_FAULT_CLEARED,
     FAULT_NAMES,
+    FLAG_BCAST,
     HEADER_LEN,
     T_CLEAR_FAULT,
+    T_DESCRIPTOR,
+    T_DISCOVER,
+    T_PARAM_GET,
     T_PARAM_SET,
     T_PARAM_VALUE,
     VERSION,
@@ -81,6 +90,81 @@ PARAM_NAMES = (
     "fault_count",
     "servo_telemetry",
 )
+
+
+_T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
+
+
+def request(self, t, flags, hop, raw, pe, seq):
+    """A request other than SYNC, HEARTBEAT, HOLD and ALIVE (``Segment._process``): DISCOVER,
+    PARAM_GET/SET, CLEAR_FAULT, CALIBRATE; any other type is answered with ERROR."""
+    if t == T_DISCOVER:
+        if flags & FLAG_BCAST:
+            self.position = hop
+        if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
+            self.dropped += 1
+            self._error(seq, ERR_MALFORMED, t, "malformed DISCOVER")
+            return
+        self._reply(T_DESCRIPTOR, seq, descriptor_payload(self))
+    elif t == T_PARAM_GET or t == T_PARAM_SET:
+        param_request(self, t, raw, pe, seq)
+    elif t == T_CLEAR_FAULT:
+        clear_fault_request(self, raw, pe, seq)
+    elif t == _T_CALIBRATE:
+        import gc
+
+        gc.collect()
+        try:
+            import calib  # slow path, loaded on demand (device/calib.py)
+        except MemoryError:
+            self._error(seq, ERR_BAD_VALUE, t, "no heap for calibration: reboot, retry")
+            return
+        calib.request(self, flags, raw, pe, seq)
+    else:
+        self.dropped += 1
+        self._error(seq, ERR_UNKNOWN_TYPE, t, "unknown or non-request message type 0x%02x" % t)
+
+
+def enter_fault(self, code, text):
+    """Enter FAULT (``Segment.enter_fault``). Servos hold where they are (config
+    ``fault_action`` "release": stop driving them), an EVENT FAULT (detail = code, key 3 =
+    ``text``) goes up, STATE carries the FAULT and HOLD bits, ``fault_count`` counts every
+    exception. Only CLEAR_FAULT leaves it (for HOLD)."""
+    self.fault_count += 1
+    if self.fault_code:
+        return  # already in FAULT: counted
+    self.fault_code = code
+    b = text.encode()
+    n = len(b)
+    room = len(self.fault_msg)
+    if n > room:
+        n = room
+        while n and b[n] & 0xC0 == 0x80:
+            n -= 1  # never cut a UTF-8 sequence
+    for i in range(n):
+        self.fault_msg[i] = b[i]
+    self.fault_len = n
+    self.hold = True
+    try:
+        if self.cfg.fault_action == "release":
+            self.moving = False
+            self.bus.release()
+        elif self.moving:
+            self._stop_moving()
+    except Exception:  # noqa: BLE001 - the bus may be what failed; the fault stands
+        self.moving = False
+    self.event(EV_FAULT, code)
+
+
+def clear_fault(self):
+    """Leave FAULT for HOLD (``Segment.clear_fault``); False if not in FAULT."""
+    code = self.fault_code
+    if not code:
+        return False
+    self.fault_code = 0
+    self.fault_len = 0
+    self.event(EV_FAULT_CLEARED, code)
+    return True
 
 
 def clear_fault_request(self, raw, pe, seq):

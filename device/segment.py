@@ -44,13 +44,11 @@ from protocol.constants import (  # noqa: E402
     DOWNSTREAM_TIMEOUT_MS,
     ERR_BAD_VALUE,
     ERR_MALFORMED,
-    ERR_UNKNOWN_TYPE,
     ERR_UNSUPPORTED_VERSION,
     EV_BOOT,
     EV_DOWNSTREAM_DOWN,
     EV_DOWNSTREAM_UP,
     EV_FAULT,
-    EV_FAULT_CLEARED,
     EV_LIMIT_CLAMPED,
     EV_SERVO_FAULT,
     EV_WATCHDOG_CLEARED,
@@ -71,14 +69,9 @@ from protocol.constants import (  # noqa: E402
     ST_UNCONFIGURED,
     ST_WATCHDOG,
     T_ALIVE,
-    T_CLEAR_FAULT,
-    T_DESCRIPTOR,
-    T_DISCOVER,
     T_ERROR,
     T_HEARTBEAT,
     T_HOLD,
-    T_PARAM_GET,
-    T_PARAM_SET,
     T_SYNC,
     VERSION_MAX,
     VERSION_MIN,
@@ -111,7 +104,6 @@ _PEND = const(252)  # an own upstream frame held while a relayed frame is half s
 # the port; generous, because a frame's bytes come back to back on a wire but an emulated link
 # under load may pause for milliseconds (the reader itself never gives up on a frame)
 _RELAY_SILENCE_MS = const(50)
-_T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
 
 
 def _diff(a, b):
@@ -157,6 +149,10 @@ class Segment:
         self.pend_len = 0
         self.t_rx_up = 0
         self.t_rx_dn = 0
+        # relay points inside a tick: a frame completed there waits (held) for the next poll,
+        # with the unscanned rest of its read kept in rx (keep: up pos, up len, down pos, len)
+        self.held = bytearray(2)
+        self.keep = array("H", [0, 0, 0, 0])
         # transmit side: scratch raw frame + one wire buffer, written with write(buf, n)
         # (stream write with a length: no slice object, which would be a heap allocation)
         self.raw = bytearray(MAX_FRAME)
@@ -302,45 +298,85 @@ class Segment:
         """Handle everything waiting on both ports; return the number of bytes read."""
         now = self.hal.ticks_ms()
         self.now = now
-        hal = self.hal
-        n = self._drain(hal.up, self.rxu, self.rd_up, self._on_up, self.rl_dn, hal.down)
-        if n:
-            self.t_rx_up = now
-        elif self.rl_dn.busy and _diff(now, self.t_rx_up) > _RELAY_SILENCE_MS:
+        total = self._pump(now, False)
+        # (the silence clocks t_rx_up/t_rx_dn are now when bytes came just now)
+        if self.rl_dn.busy and _diff(now, self.t_rx_up) > _RELAY_SILENCE_MS:
             m = self.rl_dn.abort(self.rout)  # the frame stopped mid-way: end it invalid
             if m:
-                hal.down.write(self.rout, m)
-        k = self._drain(hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up)
-        if k:
-            self.t_rx_dn = now
-        elif self.rl_up.busy and _diff(now, self.t_rx_dn) > _RELAY_SILENCE_MS:
+                self.hal.down.write(self.rout, m)
+        if self.rl_up.busy and _diff(now, self.t_rx_dn) > _RELAY_SILENCE_MS:
             m = self.rl_up.abort(self.rout)
             if m:
-                hal.up.write(self.rout, m)
+                self.hal.up.write(self.rout, m)
             self._flush_pending()
+        return total
+
+    def relay_point(self):
+        """Pass on what arrived meanwhile, between two phases of a tick (docs/firmware.md,
+        "Forwarding inside a tick"): bytes are relayed (cut-through) at once, but a frame that
+        completes here is only held (``held``) and handled by the next ``poll``, after the tick,
+        so no phase of a tick sees the segment's state change under it."""
+        if self.hal.rx_any():
+            self._pump(self.hal.ticks_ms(), True)
+
+    def _pump(self, now, defer):
+        hal = self.hal
+        n = self._drain(hal.up, self.rxu, self.rd_up, self._on_up, self.rl_dn, hal.down, 0, defer)
+        if n:
+            self.t_rx_up = now
+        k = self._drain(hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up, 1, defer)
+        if k:
+            self.t_rx_dn = now
         return n + k
 
-    def _drain(self, uart, rx, rd, handle, relay, dst):
+    def _drain(self, uart, rx, rd, handle, relay, dst, side, defer):
         """Read ``uart`` into ``rx`` until empty; relay what passes through to ``dst`` as it comes
-        and hand every complete frame to ``handle``."""
+        and hand every complete frame to ``handle``. ``defer``: stop at a complete frame instead
+        (``held[side]``), keeping the bytes after it (``keep``) for the next call; a held frame
+        blocks further reading on that side until a call without ``defer`` handles it."""
+        held = self.held
+        if held[side]:
+            if defer:
+                return 0
+            held[side] = 0
+            handle(rd)
+            if self.pend_len:
+                self._flush_pending()
         total = 0
         rout = self.rout
-        n = uart.readinto(rx)
-        while n:
-            total += n
+        keep = self.keep
+        j = side + side
+        pos = keep[j]
+        n = keep[j + 1]
+        fresh = False
+        if pos >= n:
             pos = 0
+            n = uart.readinto(rx)
+            fresh = True
+        while n:
+            if fresh:
+                total += n
             while pos < n:
                 nxt = rd.scan(rx, pos, n)
                 ok = rd.ready
                 m = relay.feed(rx, pos, nxt, ok, rd, rout)
                 if m:
                     dst.write(rout, m)
+                pos = nxt
                 if ok:
+                    if defer:
+                        held[side] = 1
+                        keep[j] = pos
+                        keep[j + 1] = n
+                        return total
                     handle(rd)
                 if self.pend_len:
                     self._flush_pending()
-                pos = nxt
-            n = uart.readinto(rx) if n == _RXBUF else 0
+            n = uart.readinto(rx) if n == _RXBUF or not fresh else 0
+            pos = 0
+            fresh = True
+        keep[j] = 0
+        keep[j + 1] = 0
         return total
 
     def _from_up(self, r):
@@ -417,39 +453,16 @@ class Segment:
             self.last_feed = self.now
             self.wd_armed = True
             self._send_state(c, seq)
-        elif t == T_DISCOVER:
-            if flags & FLAG_BCAST:
-                self.position = hop
-            if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
-                self.dropped += 1
-                self._error(seq, ERR_MALFORMED, t, "malformed DISCOVER")
-                return
-            self._reply(T_DESCRIPTOR, seq, self.descriptor_payload())
         elif t == T_HOLD:
             if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
                 self.dropped += 1
                 self._error(seq, ERR_MALFORMED, t, "malformed HOLD")
                 return
             self.enter_hold()
-        elif t == T_PARAM_GET or t == T_PARAM_SET:
-            params.param_request(self, t, raw, pe, seq)
-        elif t == T_CLEAR_FAULT:
-            params.clear_fault_request(self, raw, pe, seq)
         elif t == T_ALIVE:
             return  # link-local keep-alive from the host side: nothing to do
-        elif t == _T_CALIBRATE:
-            import gc
-
-            gc.collect()
-            try:
-                import calib  # slow path, loaded on demand (device/calib.py)
-            except MemoryError:
-                self._error(seq, ERR_BAD_VALUE, t, "no heap for calibration: reboot, retry")
-                return
-            calib.request(self, flags, raw, pe, seq)
-        else:
-            self.dropped += 1
-            self._error(seq, ERR_UNKNOWN_TYPE, t, "unknown or non-request message type 0x%02x" % t)
+        else:  # DISCOVER, PARAM_*, CLEAR_FAULT, CALIBRATE, unknown: the slow path
+            params.request(self, t, flags, hop, raw, pe, seq)
 
     def _on_sync(self, res, out, seq):
         self.last_feed = self.now
@@ -535,45 +548,13 @@ class Segment:
             self._stop_moving()
 
     def enter_fault(self, code, text):
-        """An exception escaped the loop (``main.Runner``): enter FAULT, the one place.
-
-        Servos hold where they are (config ``fault_action`` "release": stop driving them), an
-        EVENT FAULT (detail = code, key 3 = ``text``) goes up, STATE carries the FAULT and HOLD
-        bits, ``fault_count`` counts every exception. Only CLEAR_FAULT leaves it (for HOLD).
-        """
-        self.fault_count += 1
-        if self.fault_code:
-            return  # already in FAULT: counted
-        self.fault_code = code
-        b = text.encode()
-        n = len(b)
-        if n > _FAULT_TEXT:
-            n = _FAULT_TEXT
-            while n and b[n] & 0xC0 == 0x80:
-                n -= 1  # never cut a UTF-8 sequence
-        for i in range(n):
-            self.fault_msg[i] = b[i]
-        self.fault_len = n
-        self.hold = True
-        try:
-            if self.cfg.fault_action == "release":
-                self.moving = False
-                self.bus.release()
-            elif self.moving:
-                self._stop_moving()
-        except Exception:  # noqa: BLE001 - the bus may be what failed; the fault stands
-            self.moving = False
-        self.event(EV_FAULT, code)
+        """An exception escaped the loop (``main.Runner``): enter FAULT, the one place
+        (params.enter_fault, the slow path)."""
+        params.enter_fault(self, code, text)
 
     def clear_fault(self):
         """CLEAR_FAULT: leave FAULT for HOLD (a SYNC with resume moves again); False if none."""
-        code = self.fault_code
-        if not code:
-            return False
-        self.fault_code = 0
-        self.fault_len = 0
-        self.event(EV_FAULT_CLEARED, code)
-        return True
+        return params.clear_fault(self)
 
     # ---- control tick ----------------------------------------------------------------------
     def tick(self, now):
@@ -583,8 +564,11 @@ class Segment:
         bus = self.bus
         mc = self.mc
         bus.poll(now)
+        self.relay_point()
         self._faults(now)
+        self.relay_point()
         mc.measure(bus.pos)
+        self.relay_point()
         if self.wd_armed and not self.wd_tripped:
             if _diff(now, self.last_feed) > self.watchdog_ms:
                 self.wd_tripped = True
@@ -600,6 +584,7 @@ class Segment:
             self.clamp_pending |= f
         elif bus.enabled:
             bus.command(mc.servo_target, now)  # keep holding the measured position
+        self.relay_point()
         bus.request(now)
         self.service(now)
         us = self.hal.ticks_diff(self.hal.ticks_us(), t0)

@@ -72,6 +72,11 @@ class BufUart:
         self.ow = o + n
         return n
 
+    def any(self):
+        """Bytes readable now (machine.UART.any)."""
+        n = (self.w if self.gate < 0 else self.gate) - self.r
+        return n if n > 0 else 0
+
     def take(self):
         if self.lost:
             raise RuntimeError("test UART buffer overflowed: " + str(self.lost) + " bytes lost")
@@ -109,6 +114,9 @@ class LoopHal:
 
     def wait(self, ms):
         pass
+
+    def rx_any(self):
+        return self.up.any() or self.down.any()
 
     def servo_uart(self, b):
         raise ValueError("no servo uart on the loopback HAL")
