@@ -30,15 +30,18 @@ from protocol.constants import (
     EV_FAULT_CLEARED,
     FAULT_NAMES,
     FLAG_BCAST,
+    FLAG_UP,
     HEADER_LEN,
     T_CLEAR_FAULT,
     T_DESCRIPTOR,
     T_DISCOVER,
+    T_ERROR,
     T_PARAM_GET,
     T_PARAM_SET,
     T_PARAM_VALUE,
     VERSION,
 )
+from protocol.frame import frame_into
 
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
 _P_WATCHDOG_MS = const(0)
@@ -92,12 +95,23 @@ PARAM_NAMES = (
 )
 
 
-_T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
+def reply(self, mtype, seq, obj):
+    """CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it (``Segment._reply``)."""
+    try:
+        end = cbor.dumps_into(obj, self.raw, HEADER_LEN)
+        end = frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire)
+    except (IndexError, ValueError, TypeError):
+        # too long for one frame (or not encodable): say so instead of going silent
+        end = cbor.dumps_into(
+            {0: ERR_BAD_VALUE, 1: mtype, 2: "reply does not fit a frame"}, self.raw, HEADER_LEN
+        )
+        end = frame_into(self.raw, end, FLAG_UP, 0, T_ERROR, seq, self.wire)
+    self._up(end)
 
 
 def request(self, t, flags, hop, raw, pe, seq):
-    """A request other than SYNC, HEARTBEAT, HOLD and ALIVE (``Segment._process``): DISCOVER,
-    PARAM_GET/SET, CLEAR_FAULT, CALIBRATE; any other type is answered with ERROR."""
+    """A request other than SYNC, HEARTBEAT, HOLD, ALIVE and CALIBRATE (``Segment._process``):
+    DISCOVER, PARAM_GET/SET, CLEAR_FAULT; any other type is answered with ERROR."""
     if t == T_DISCOVER:
         if flags & FLAG_BCAST:
             self.position = hop
@@ -110,16 +124,6 @@ def request(self, t, flags, hop, raw, pe, seq):
         param_request(self, t, raw, pe, seq)
     elif t == T_CLEAR_FAULT:
         clear_fault_request(self, raw, pe, seq)
-    elif t == _T_CALIBRATE:
-        import gc
-
-        gc.collect()
-        try:
-            import calib  # slow path, loaded on demand (device/calib.py)
-        except MemoryError:
-            self._error(seq, ERR_BAD_VALUE, t, "no heap for calibration: reboot, retry")
-            return
-        calib.request(self, flags, raw, pe, seq)
     else:
         self.dropped += 1
         self._error(seq, ERR_UNKNOWN_TYPE, t, "unknown or non-request message type 0x%02x" % t)

@@ -37,7 +37,6 @@ from mechanism import CLAMP_SERVO, Mechanism  # noqa: E402
 from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL  # noqa: E402
 
 gc.collect()
-from protocol import cbor  # noqa: E402
 from protocol import device as pd  # noqa: E402
 from protocol.constants import (  # noqa: E402
     ALIVE_SILENCE_MS,
@@ -76,7 +75,7 @@ from protocol.constants import (  # noqa: E402
     VERSION_MAX,
     VERSION_MIN,
 )
-from protocol.frame import FrameReader, forward_into, frame_into  # noqa: E402
+from protocol.frame import FrameReader, forward_into  # noqa: E402
 
 gc.collect()
 from protocol.relay import Relay  # noqa: E402
@@ -104,6 +103,7 @@ _PEND = const(252)  # an own upstream frame held while a relayed frame is half s
 # the port; generous, because a frame's bytes come back to back on a wire but an emulated link
 # under load may pause for milliseconds (the reader itself never gives up on a frame)
 _RELAY_SILENCE_MS = const(50)
+_T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
 
 
 def _diff(a, b):
@@ -245,17 +245,8 @@ class Segment:
         return True
 
     def _reply(self, mtype, seq, obj):
-        """Slow path: CBOR-encode ``obj`` (protocol.cbor) into an UP frame and send it."""
-        try:
-            end = cbor.dumps_into(obj, self.raw, HEADER_LEN)
-            end = frame_into(self.raw, end, FLAG_UP, 0, mtype, seq, self.wire)
-        except (IndexError, ValueError, TypeError):
-            # too long for one frame (or not encodable): say so instead of going silent
-            end = cbor.dumps_into(
-                {0: ERR_BAD_VALUE, 1: mtype, 2: "reply does not fit a frame"}, self.raw, HEADER_LEN
-            )
-            end = frame_into(self.raw, end, FLAG_UP, 0, T_ERROR, seq, self.wire)
-        self._up(end)
+        """Slow path: ``obj`` CBOR-encoded into an UP frame and sent (params.reply)."""
+        params.reply(self, mtype, seq, obj)
 
     def _error(self, seq, code, mtype, text):
         self._reply(T_ERROR, seq, {0: code, 1: mtype, 2: text})
@@ -461,7 +452,17 @@ class Segment:
             self.enter_hold()
         elif t == T_ALIVE:
             return  # link-local keep-alive from the host side: nothing to do
-        else:  # DISCOVER, PARAM_*, CLEAR_FAULT, CALIBRATE, unknown: the slow path
+        elif t == _T_CALIBRATE:
+            import gc
+
+            gc.collect()
+            try:
+                import calib  # slow path, loaded on demand (device/calib.py)
+            except MemoryError:
+                self._error(seq, ERR_BAD_VALUE, t, "no heap for calibration: reboot, retry")
+                return
+            calib.request(self, flags, raw, pe, seq)
+        else:  # DISCOVER, PARAM_*, CLEAR_FAULT, unknown: the slow path
             params.request(self, t, flags, hop, raw, pe, seq)
 
     def _on_sync(self, res, out, seq):

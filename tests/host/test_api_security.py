@@ -253,7 +253,9 @@ def test_wss_with_configured_cert_and_key(stub, tls_files):
     ).start()
     try:
         assert srv.url.startswith("wss://")
-        with connect(srv.url, token=CONTROL_TOKEN, cafile=str(cert)) as c:
+        # (a generous handshake timeout: once, in a full-suite run, the 5 s default expired
+        # with the server never seeing the request line; alone the handshake takes ms)
+        with connect(srv.url, token=CONTROL_TOKEN, cafile=str(cert), timeout=20) as c:
             assert wait_for(lambda: c.status()["state"] == "connected")
         with pytest.raises(ConnectionError):  # plain ws:// to the TLS port gets nowhere
             connect(f"ws://127.0.0.1:{srv.port}", token=CONTROL_TOKEN, timeout=3)
