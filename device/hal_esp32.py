@@ -151,6 +151,7 @@ class Hal:
             except (AttributeError, ValueError):
                 pass  # MicroPython < 1.24: no UART.irq; the spin still meets the deadline
         self.faults_spec = None
+        self.idle_us = 0  # time spent waiting; Segment reads and resets it (CPU load)
         self._t0 = time.ticks_ms()
 
     def uid(self):
@@ -166,7 +167,9 @@ class Hal:
         return time.ticks_diff(a, b)
 
     def wait(self, ms):
+        t0 = time.ticks_us()
         waiting.wait(self.poller, ms, self.tick_us, waiting.spin)
+        self.idle_us += time.ticks_diff(time.ticks_us(), t0)  # the segment's CPU load
 
     def rx_any(self):
         """Has either chain UART received bytes not read yet (``UART.any``: the driver's ring

@@ -158,6 +158,7 @@ class Hal:
             self.up = emu_board.StretchUart(self.up, self)
             self.down = emu_board.StretchUart(self.down, self)
         self.naive_wait = os.getenv("UCR_NAIVE_WAIT") == "1"
+        self.idle_us = 0  # time spent waiting (the board's, under the timing model): CPU load
         self._busy_from = time.ticks_us()
 
     def uid(self):
@@ -184,14 +185,17 @@ class Hal:
         (the link is down until the emulator reconnects it).
         """
         if not self.timing:
+            t0 = time.ticks_us()
             for _, ev in self._host_poller.ipoll(ms):
                 if ev & (select.POLLHUP | select.POLLERR):
                     time.sleep_ms(ms)
                 break
+            self.idle_us += time.ticks_diff(time.ticks_us(), t0)
             return
         start = time.ticks_us()
         self.stretch()
-        ms -= time.ticks_diff(time.ticks_us(), start) // 1000
+        t0 = time.ticks_us()  # the board computed until here; from here on it waits
+        ms -= time.ticks_diff(t0, start) // 1000
         if ms > 0:
             for _, ev in self._host_poller.ipoll(0):
                 if ev & (select.POLLHUP | select.POLLERR):
@@ -205,6 +209,7 @@ class Hal:
             else:
                 waiting.wait(self.poller, ms, self.tick_us, self._spin)
         self._busy_from = time.ticks_us()
+        self.idle_us += time.ticks_diff(self._busy_from, t0)
 
     def rx_any(self):
         """Has either UART input waiting? With the timing model the board first computes what

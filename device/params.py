@@ -67,6 +67,7 @@ _P_SERVO_TARGETS = const(19)
 _P_FAULT = const(20)
 _P_FAULT_COUNT = const(21)
 _P_SERVO_TELEMETRY = const(22)
+_P_CPU_LOAD = const(23)
 
 PARAM_NAMES = (
     "watchdog_ms",
@@ -92,6 +93,7 @@ PARAM_NAMES = (
     "fault",
     "fault_count",
     "servo_telemetry",
+    "cpu_load",
 )
 
 
@@ -376,6 +378,8 @@ def get_param(self, pid):
             t = tel(i) if tel else None
             out.append(None if t is None else [float(t[0]), float(t[1]), float(t[2])])
         return out
+    if pid == _P_CPU_LOAD:
+        return [self.cpu_load, self.cpu_load_peak]
     raise ValueError("unknown parameter")
 
 

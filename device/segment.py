@@ -103,6 +103,7 @@ _PEND = const(252)  # an own upstream frame held while a relayed frame is half s
 # the port; generous, because a frame's bytes come back to back on a wire but an emulated link
 # under load may pause for milliseconds (the reader itself never gives up on a frame)
 _RELAY_SILENCE_MS = const(50)
+_LOAD_WINDOW_MS = const(1000)  # CPU load measured over windows this long
 _T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
 
 
@@ -164,6 +165,12 @@ class Segment:
         self.overruns = 0
         self.cycle_us = 0
         self.cycle_us_max = 0
+        # CPU load: % of the last window (>= 1 s) not spent in hal.wait, and its peak
+        self.cpu_load = 0
+        self.cpu_load_peak = 0
+        self.load_us = hal.ticks_us()
+        self.load_ms = hal.ticks_ms()
+        hal.idle_us = 0
         # safety state
         self.armed = False  # boot hold until the first SYNC
         self.hold = False
@@ -592,6 +599,29 @@ class Segment:
         self.cycle_us = us
         if us > self.cycle_us_max:
             self.cycle_us_max = us
+        if _diff(now, self.load_ms) >= _LOAD_WINDOW_MS:
+            self._measure_load(now)
+
+    def _measure_load(self, now):
+        """CPU load of the window that ends now: the share not spent waiting in ``hal.wait``
+        (docs/firmware.md, "CPU load"). Small ints only (no allocation)."""
+        hal = self.hal
+        t = hal.ticks_us()
+        span = hal.ticks_diff(t, self.load_us)
+        idle = hal.idle_us
+        hal.idle_us = 0
+        self.load_us = t
+        self.load_ms = now
+        if span < 100:
+            return
+        pct = (span - idle) // (span // 100)
+        if pct < 0:
+            pct = 0
+        elif pct > 100:
+            pct = 100
+        self.cpu_load = pct
+        if pct > self.cpu_load_peak:
+            self.cpu_load_peak = pct
 
     def service(self, now):
         """Chain housekeeping of a tick (downstream presence, LIMIT_CLAMPED, EVENT or ALIVE).

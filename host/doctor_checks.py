@@ -29,6 +29,13 @@ P_CONFIG_ERROR = 16
 P_FAULT = 20
 P_FAULT_COUNT = 21
 P_SERVO_TELEMETRY = 22
+P_CPU_LOAD = 23
+
+# a segment's CPU load (PARAM 23, % of the last second not spent waiting): above this it has
+# little slack left for frames arriving at once; at or above CPU_SATURATED_PCT its ticks and
+# forwarding run late
+CPU_WARN_PCT = 80
+CPU_SATURATED_PCT = 98
 
 # servo telemetry limits (Feetech STS defaults: 70 deg C cut-off, 6-14 V supply)
 TEMP_WARN_C = 55.0
@@ -215,7 +222,36 @@ def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
             )
         )
     out.append(Finding("cycle", "ok", f"longest control cycle {cycle_us} us", position=pos))
+    out.append(check_cpu(link, pos, uid))
     return out
+
+
+def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
+    """The segment's CPU load (PARAM 23: [% of the last second, peak %] not spent waiting)."""
+    from host.link import LinkError  # noqa: PLC0415
+
+    try:
+        load = _param(link, pos, P_CPU_LOAD, uid)
+    except LinkError as exc:
+        return Finding("cpu", "ok", f"CPU load not reported ({exc})", position=pos)
+    if not (
+        isinstance(load, list)
+        and len(load) == 2
+        and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 100 for x in load)
+    ):
+        return Finding("cpu", "warning", f"CPU load unreadable: {load!r}", position=pos)
+    now, peak = load
+    msg = f"CPU busy {now} % of the last second (peak {peak} % since boot)"
+    fix = (
+        "the segment's control tick and the host's rate leave it no slack: frames wait at this "
+        "hop and ticks run late; lower the daemon's rate_hz (docs/daemon.md) or use a faster "
+        'board (docs/firmware.md, "CPU load")'
+    )
+    if now >= CPU_SATURATED_PCT:
+        return Finding("cpu", "error", msg + ": saturated", fix, pos)
+    if max(now, peak) >= CPU_WARN_PCT:
+        return Finding("cpu", "warning", msg, fix, pos)
+    return Finding("cpu", "ok", msg, position=pos)
 
 
 def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:

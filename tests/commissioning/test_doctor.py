@@ -264,3 +264,27 @@ def test_doctor_finds_a_segment_flashed_for_another_board() -> None:
     errs = _errors(findings, "board")
     assert [f.position for f in errs] == [0], doctor.format_text(findings)
     assert "'esp32s3'" in errs[0].message and "'esp32'" in errs[0].message
+
+
+def test_doctor_reports_each_segments_cpu_load_and_a_saturated_board() -> None:
+    """PARAM 23: an emulated ESP32 under the timing model with a CPU this slow cannot keep its
+    200 Hz tick (docs/firmware.md, "CPU load"); the same firmware at PC speed is nearly idle."""
+    cfgs = _configs()[:1]
+    with chain_and_link(1, config_for=cfgs) as (chain, link):
+        wait_discover(link, 1)
+        time.sleep(1.2)  # one whole load window
+        link.close()
+        fast = [f for f in _run(chain.host_port) if f.check == "cpu"]
+    assert len(fast) == 1 and fast[0].level == "ok", fast
+    assert "CPU busy" in fast[0].message and fast[0].position == 0
+    with chain_and_link(1, config_for=cfgs, board="esp32", timing=True, cpu_factor=200.0) as (
+        chain,
+        link,
+    ):
+        wait_discover(link, 1, timeout=40.0)
+        time.sleep(1.2)
+        link.close()
+        found = _run(chain.host_port)
+        slow = [f for f in found if f.check == "cpu"]
+    assert len(slow) == 1 and slow[0].level in ("warning", "error"), doctor.format_text(found)
+    assert "rate_hz" in slow[0].fix

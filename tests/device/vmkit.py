@@ -99,6 +99,7 @@ class LoopHal:
         self.t = 0
         self._uid = uid
         self.faults_spec = None
+        self.idle_us = 0
 
     def uid(self):
         return self._uid
