@@ -172,9 +172,14 @@ class Hal:
         self.idle_us += time.ticks_diff(time.ticks_us(), t0)  # the segment's CPU load
 
     def rx_any(self):
-        """Has either chain UART received bytes not read yet (``UART.any``: the driver's ring
-        buffer, ports/esp32/machine_uart.c)?"""
-        return self.up.any() or self.down.any()
+        """Which chain UARTs hold bytes not read yet (``UART.any``: the driver's ring buffer,
+        ports/esp32/machine_uart.c): bit 0 upstream, bit 1 downstream."""
+        m = 0
+        if self.up.any():
+            m = 1
+        if self.down.any():
+            m |= 2
+        return m
 
     def servo_uart(self, b):
         chain = [self.pins[k] for k in _CHAIN_PINS]

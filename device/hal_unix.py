@@ -139,6 +139,7 @@ class Hal:
         for u in (self.up, self.down):
             if u.f is not None:
                 self._host_poller.register(u.f, select.POLLIN)
+        self._up_f = self.up.f
         self.faults_spec = os.getenv("UCR_FAULTS")
         self._t0 = time.ticks_ms()
         self.timing = os.getenv("UCR_TIMING") == "1" and prof["tick_hz"] > 0
@@ -212,13 +213,18 @@ class Hal:
         self.idle_us += time.ticks_diff(self._busy_from, t0)
 
     def rx_any(self):
-        """Has either UART input waiting? With the timing model the board first computes what
-        this host did since the last wait or write (a tick's relay point comes that much later)."""
+        """Which UARTs have input waiting: bit 0 upstream, bit 1 downstream (a hung-up pty
+        counts: its read then finds nothing). With the timing model the board first computes
+        what this host did since the last wait or write (a relay point comes that much later)."""
         if self.timing:
             self.stretch()
-        for _ in self._host_poller.ipoll(0):
-            return True
-        return False
+        m = 0
+        for f, _ in self._host_poller.ipoll(0):
+            if f is self._up_f:
+                m |= 1
+            else:
+                m |= 2
+        return m
 
     def stretch(self):
         """Timing model: the board is still computing what this host did since the last wait

@@ -296,7 +296,7 @@ class Segment:
         """Handle everything waiting on both ports; return the number of bytes read."""
         now = self.hal.ticks_ms()
         self.now = now
-        total = self._pump(now, False)
+        total = self._pump(now, False, self.hal.rx_any())
         # (the silence clocks t_rx_up/t_rx_dn are now when bytes came just now)
         if self.rl_dn.busy and _diff(now, self.t_rx_up) > _RELAY_SILENCE_MS:
             m = self.rl_dn.abort(self.rout)  # the frame stopped mid-way: end it invalid
@@ -314,17 +314,29 @@ class Segment:
         "Forwarding inside a tick"): bytes are relayed (cut-through) at once, but a frame that
         completes here is only held (``held``) and handled by the next ``poll``, after the tick,
         so no phase of a tick sees the segment's state change under it."""
-        if self.hal.rx_any():
-            self._pump(self.hal.ticks_ms(), True)
+        mask = self.hal.rx_any()
+        if mask:
+            self._pump(self.hal.ticks_ms(), True, mask)
 
-    def _pump(self, now, defer):
+    def _pump(self, now, defer, mask):
+        """Drain the ports ``mask`` names (``hal.rx_any``: 1 upstream, 2 downstream) and those
+        holding a frame; a quiet port costs no call."""
         hal = self.hal
-        n = self._drain(hal.up, self.rxu, self.rd_up, self._on_up, self.rl_dn, hal.down, 0, defer)
-        if n:
-            self.t_rx_up = now
-        k = self._drain(hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up, 1, defer)
-        if k:
-            self.t_rx_dn = now
+        held = self.held
+        n = 0
+        k = 0
+        if mask & 1 or held[0]:
+            n = self._drain(
+                hal.up, self.rxu, self.rd_up, self._on_up, self.rl_dn, hal.down, 0, defer
+            )
+            if n:
+                self.t_rx_up = now
+        if mask & 2 or held[1]:
+            k = self._drain(
+                hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up, 1, defer
+            )
+            if k:
+                self.t_rx_dn = now
         return n + k
 
     def _drain(self, uart, rx, rd, handle, relay, dst, side, defer):

@@ -117,7 +117,7 @@ class LoopHal:
         pass
 
     def rx_any(self):
-        return self.up.any() or self.down.any()
+        return (1 if self.up.any() else 0) | (2 if self.down.any() else 0)
 
     def servo_uart(self, b):
         raise ValueError("no servo uart on the loopback HAL")
