@@ -8,7 +8,8 @@ map), ``pwm`` (hobby servo calibration), ``bus`` (serial bus servo settings); ``
 pins are generated too and checked against protocol/boards.py, whose defaults fill the gaps.
 
 Device-only safety keys: ``fault_action`` ("hold" | "release": what the servos do in FAULT),
-``hw_watchdog_ms`` (0 = off: the hardware watchdog, fed only by a healthy loop), per servo
+``hw_watchdog_ms`` (0 = off: the hardware watchdog, fed only by a healthy loop), ``tick_ms``
+(the control tick's period, 2..50 ms, default 5), per servo
 ``rest_angle`` (rad from zero: the power-on pose an open-loop servo is assumed at), and for the
 emulated driver ``emulated_start`` (raw power-on angles, rad).
 
@@ -22,6 +23,8 @@ import math
 FW_VERSION = "0.1.0"
 
 _TWO_PI_3 = 2.0 * math.pi / 3.0
+_TICK_MIN = 2  # ms: the control tick's period, 500 Hz ...
+_TICK_MAX = 50  # ... to 20 Hz (docs/firmware.md "CPU load": a slower tick for a slow board)
 
 # Defaults: the paper's segment (316 mm, three tendons 120 deg apart, bend up to 60 deg).
 DEFAULTS = {
@@ -49,6 +52,7 @@ DEFAULTS = {
     "board": None,  # None: protocol/boards.py default_board(servo_driver)
     "fault_action": "hold",
     "hw_watchdog_ms": 0,
+    "tick_ms": 5,  # the control tick's period (200 Hz); main.py runs it
     "emulated_start": None,
 }
 
@@ -152,6 +156,11 @@ class Config:
         hw = cfg["hw_watchdog_ms"]
         if isinstance(hw, bool) or not isinstance(hw, int) or not (hw == 0 or 50 <= hw <= 60000):
             raise ValueError("hw_watchdog_ms must be 0 (off) or an int 50..60000, got %r" % (hw,))
+        tk = cfg["tick_ms"]
+        if isinstance(tk, bool) or not isinstance(tk, int) or not (_TICK_MIN <= tk <= _TICK_MAX):
+            raise ValueError(
+                "tick_ms must be an int %d..%d (ms), got %r" % (_TICK_MIN, _TICK_MAX, tk)
+            )
         servos = cfg["servos"]
         if servos is None:
             servos = [{"id": i} for i in range(len(ang))]
@@ -220,6 +229,7 @@ class Config:
         self.rest = [_e4(d["rest_angle"]) for d in s]
         self.fault_action = cfg["fault_action"]
         self.hw_watchdog_ms = cfg["hw_watchdog_ms"]
+        self.tick_ms = cfg["tick_ms"]
         self.driver = cfg["servo_driver"]
         self.sc = cfg["sc"]
         self.uid_override = cfg["uid_override"]

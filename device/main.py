@@ -2,11 +2,11 @@
 
 Picks the HAL by platform, loads config.json (defaults when absent), builds servo driver, MC, SCs
 and the segment coordinator, then runs forever (``Runner``): frames are handled as they arrive,
-the control tick runs every TICK_MS. An exception in either puts the segment in FAULT
-(``Segment.enter_fault``) and the loop goes on, so the chain keeps forwarding; the optional
-hardware watchdog (``wdt.py``) is fed only after a pass that raised nothing. The loop never reads
-stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends it and leaves the board (or
-``micropython -i``) at the REPL.
+the control tick runs every ``tick_ms`` (config.json, default TICK_MS). An exception in either
+puts the segment in FAULT (``Segment.enter_fault``) and the loop goes on, so the chain keeps
+forwarding; the optional hardware watchdog (``wdt.py``) is fed only after a pass that raised
+nothing. The loop never reads stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends
+it and leaves the board (or ``micropython -i``) at the REPL.
 """
 
 import os
@@ -61,8 +61,9 @@ def _intern_calib():
             del protocol.cal_core
 
 
-def build(tick_ms=TICK_MS):
-    """Construct (hal, segment) from config.json and the platform's HAL.
+def build(tick_ms=None):
+    """Construct (hal, segment) from config.json and the platform's HAL; the tick's period is
+    ``tick_ms`` or else the configuration's (``tick_ms``, default TICK_MS).
 
     Modules are compiled one after the other on the board; a collection between them leaves each
     compilation a tidy heap (the compiler's peak, not the firmware's size, bounds the boot).
@@ -109,7 +110,7 @@ def build(tick_ms=TICK_MS):
             bus.set_faults(hal.faults_spec)
         except ValueError as e:
             print("[main] UCR_FAULTS ignored:", e)
-    return hal, Segment(hal, cfg, bus, tick_ms)
+    return hal, Segment(hal, cfg, bus, tick_ms or cfg.tick_ms or TICK_MS)
 
 
 def _why(where, e):
@@ -172,7 +173,7 @@ class Runner:
         return wait if 0 < wait <= tick_ms else 0
 
 
-def run(tick_ms=TICK_MS):
+def run(tick_ms=None):
     import gc
 
     import micropython
@@ -180,6 +181,7 @@ def run(tick_ms=TICK_MS):
     if hasattr(micropython, "alloc_emergency_exception_buf"):  # not on the unix port
         micropython.alloc_emergency_exception_buf(128)
     hal, seg = build(tick_ms)
+    tick_ms = seg.tick_ms
     dog = None
     if seg.cfg.hw_watchdog_ms:  # (without a watchdog there is no watchdog reset to report)
         import wdt

@@ -244,8 +244,9 @@ def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
     msg = f"CPU busy {now} % of the last second (peak {peak} % since boot)"
     fix = (
         "the segment's control tick and the host's rate leave it no slack: frames wait at this "
-        "hop and ticks run late; lower the daemon's rate_hz (docs/daemon.md) or use a faster "
-        'board (docs/firmware.md, "CPU load")'
+        "hop and ticks run late; lower the daemon's rate_hz (docs/daemon.md), slow the "
+        "segment's tick (hardware param tick_ms, reflash) or use a faster board "
+        '(docs/firmware.md, "CPU load")'
     )
     if now >= CPU_SATURATED_PCT:
         return Finding("cpu", "error", msg + ": saturated", fix, pos)

@@ -13,7 +13,12 @@ import os
 from pathlib import Path
 
 from ucrdf import boards as board_plan
-from ucrdf.checks import DEFAULT_KAPPA_RATE_MAX, firmware_refusal, segment_config
+from ucrdf.checks import (
+    DEFAULT_KAPPA_RATE_MAX,
+    firmware_refusal,
+    segment_config,
+    segment_ms_param,
+)
 from ucrdf.model import Actuation, Bendable, Robot
 
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
@@ -67,23 +72,21 @@ def validate(config: dict, where: str = "") -> dict:
     return config
 
 
-def _watchdog_ms(robot: Robot, bendable: Bendable) -> int:
-    """``watchdog_ms`` from the bendable's model params, else a ros2_control hardware param."""
-    value: object = bendable.model.params.get("watchdog_ms")
+def _ms_param(robot: Robot, bendable: Bendable, name: str) -> int | None:
+    """Hardware param ``name`` (ucrdf/checks.py SEGMENT_MS_PARAMS) from the bendable's model
+    params, else a ros2_control hardware param; None when not given."""
+    value: object = bendable.model.params.get(name)
     if value is None:
         for rc in robot.ros2_control:
-            if "watchdog_ms" in rc.hardware_params:
-                value = rc.hardware_params["watchdog_ms"]
+            if name in rc.hardware_params:
+                value = rc.hardware_params[name]
                 break
     if value is None:
-        return DEFAULT_WATCHDOG_MS
+        return None
     try:
-        ms = float(value)
-    except (TypeError, ValueError):
-        raise SegmentConfigError(f"watchdog_ms must be a number of ms, got {value!r}") from None
-    if not 10 <= ms <= 60000:
-        raise SegmentConfigError(f"watchdog_ms {ms:g} is outside 10..60000 ms")
-    return int(round(ms))
+        return segment_ms_param(name, value)
+    except ValueError as exc:
+        raise SegmentConfigError(str(exc)) from None
 
 
 def config_for(robot: Robot, bendable_name: str) -> dict:
@@ -112,7 +115,11 @@ def config_for(robot: Robot, bendable_name: str) -> dict:
         raise SegmentConfigError(
             f"bendable {bendable_name!r}: {len(act.servos)} servos for {len(act.angles)} tendons"
         )
-    config = segment_config(bendable, _watchdog_ms(robot, bendable))
+    watchdog = _ms_param(robot, bendable, "watchdog_ms")
+    config = segment_config(bendable, DEFAULT_WATCHDOG_MS if watchdog is None else watchdog)
+    tick = _ms_param(robot, bendable, "tick_ms")
+    if tick is not None:
+        config["tick_ms"] = tick
     config.update(_wiring(bendable_name, act))
     return validate(config, _where(robot, bendable.line))
 

@@ -75,6 +75,28 @@ _DEVICE = Path(__file__).resolve().parent.parent / "device"
 FIRMWARE_DRIVERS = ("emulated", "pwm", "feetech_sts", "feetech_scs")
 
 
+#: hardware params flashed into each segment's config.json: name -> (min, max, whole ms only)
+SEGMENT_MS_PARAMS: dict[str, tuple[int, int, bool]] = {
+    "watchdog_ms": (10, 60000, False),
+    "tick_ms": (2, 50, True),
+}
+
+
+def segment_ms_param(name: str, value: object) -> int:
+    """A segment hardware param (``SEGMENT_MS_PARAMS``) as the int ms flashed; ValueError with
+    the reason if the firmware could not run it (``ucr check`` and ``ucr flash`` both use this)."""
+    lo, hi, whole = SEGMENT_MS_PARAMS[name]
+    try:
+        ms = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number of ms, got {value!r}") from None
+    if not (math.isfinite(ms) and lo <= ms <= hi):
+        raise ValueError(f"{name} {ms:g} is outside {lo}..{hi} ms")
+    if whole and ms != int(ms):
+        raise ValueError(f"{name} {ms:g} is not a whole number of ms")
+    return int(round(ms))
+
+
 def segment_config(b: Bendable, watchdog_ms: int = 200) -> dict:
     """The segment configuration (``config.json`` contract, SI units) of bendable ``b`` with a
     tendon actuation; the one mapping from U(C)RDF to firmware keys (tools/segment_config.py
@@ -544,6 +566,15 @@ class _Checker:
                         f"{where}: hardware param model={model_name!r} is not a known model "
                         f"(available: {', '.join(available)})",
                     )
+            for pname in SEGMENT_MS_PARAMS:
+                if pname in control.hardware_params:
+                    try:
+                        segment_ms_param(pname, control.hardware_params[pname])
+                    except ValueError as exc:
+                        self.error(
+                            self.line((*ckey, "param", pname), cline),
+                            f"{where}: hardware param {exc} (the segments could not run it)",
+                        )
             for pname in control.hardware_params:
                 target, sep, _ = pname.rpartition("/")
                 if sep and target not in robot.bendables and target not in robot.joints:
