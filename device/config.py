@@ -161,6 +161,11 @@ class Config:
             raise ValueError(
                 "tick_ms must be an int %d..%d (ms), got %r" % (_TICK_MIN, _TICK_MAX, tk)
             )
+        if cfg["watchdog_ms"] < 2 * tk:
+            raise ValueError(
+                "watchdog_ms %r is shorter than two ticks (tick_ms %d): the tick checks it"
+                % (cfg["watchdog_ms"], tk)
+            )
         servos = cfg["servos"]
         if servos is None:
             servos = [{"id": i} for i in range(len(ang))]

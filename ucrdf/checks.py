@@ -575,6 +575,19 @@ class _Checker:
                             self.line((*ckey, "param", pname), cline),
                             f"{where}: hardware param {exc} (the segments could not run it)",
                         )
+            try:
+                hw = control.hardware_params
+                tick = segment_ms_param("tick_ms", hw.get("tick_ms", 5))
+                dog = segment_ms_param("watchdog_ms", hw.get("watchdog_ms", 200))
+            except ValueError:
+                pass  # reported above
+            else:
+                if dog < 2 * tick:
+                    self.error(
+                        self.line((*ckey, "param", "watchdog_ms"), cline),
+                        f"{where}: hardware param watchdog_ms {dog} is shorter than two ticks "
+                        f"(tick_ms {tick}): the segments check it once per tick",
+                    )
             for pname in control.hardware_params:
                 target, sep, _ = pname.rpartition("/")
                 if sep and target not in robot.bendables and target not in robot.joints:

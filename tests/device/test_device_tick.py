@@ -95,3 +95,28 @@ def test_ucr_check_refuses_a_tick_the_segments_cannot_run_with_path_and_line(tmp
     out = res.stdout + res.stderr
     assert res.returncode != 0 and "Traceback" not in out
     assert f"{path}:{line}: " in out and "tick_ms 7.5 is not a whole number of ms" in out
+
+
+def test_a_watchdog_shorter_than_two_ticks_is_refused_by_firmware_and_ucr_check(vm, tmp_path):
+    r = vm(
+        """
+import config
+try:
+    config.Config({'tick_ms': 25, 'watchdog_ms': 40})
+    R['err'] = None
+except ValueError as e:
+    R['err'] = str(e)
+R['ok'] = config.Config({'tick_ms': 25, 'watchdog_ms': 50}).watchdog_ms
+"""
+    )
+    assert r["err"] and "two ticks" in r["err"] and r["ok"] == 50
+    from tests.device.test_device_config_rules import _line_of, _robot, _ucr
+
+    old = '<param name="watchdog_ms">200</param>'
+    new = '<param name="watchdog_ms">40</param>\n      <param name="tick_ms">25</param>'
+    path = _robot(tmp_path, **{old: new})
+    res = _ucr("check", str(path))
+    out = res.stdout + res.stderr
+    assert res.returncode != 0 and "Traceback" not in out
+    line = _line_of(path, 'name="watchdog_ms"')
+    assert f"{path}:{line}: " in out and "two ticks" in out
