@@ -167,6 +167,17 @@ class Runner:
                     seg.service(now)  # still report (EVENT FAULT) and keep the link alive
                 except Exception as e2:  # noqa: BLE001
                     self._fault(FAULT_TICK, "service", e2)
+            held = seg.held
+            if held[0] or held[1]:
+                # a frame completed at a relay point of the tick: handle it now, not after the
+                # wait (its bytes were read already, so no input would end the wait early)
+                try:
+                    seg.poll()
+                except KeyboardInterrupt:
+                    raise
+                except Exception as e:  # noqa: BLE001
+                    healthy = False
+                    self._fault(FAULT_FRAME, "frame", e)
         if healthy and self.wdt is not None:
             self.wdt.feed()
         wait = (self.next_t - hal.ticks_ms()) & _TMASK

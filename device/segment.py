@@ -311,9 +311,10 @@ class Segment:
 
     def relay_point(self):
         """Pass on what arrived meanwhile, between two phases of a tick (docs/firmware.md,
-        "Forwarding inside a tick"): bytes are relayed (cut-through) at once, but a frame that
-        completes here is only held (``held``) and handled by the next ``poll``, after the tick,
-        so no phase of a tick sees the segment's state change under it."""
+        "Forwarding inside a tick"): bytes are relayed (cut-through) at once, but a frame from
+        upstream that completes here is only held (``held``) and handled by the next ``poll``,
+        right after the tick, so no phase of a tick sees a setpoint, HOLD or parameter change
+        under it."""
         mask = self.hal.rx_any()
         if mask:
             self._pump(self.hal.ticks_ms(), True, mask)
@@ -332,8 +333,11 @@ class Segment:
             if n:
                 self.t_rx_up = now
         if mask & 2 or held[1]:
+            # frames from downstream change no control state (neighbour presence, events,
+            # forwarding): handled at once even at a relay point, so a STATE behind another
+            # one never waits for the tick to end
             k = self._drain(
-                hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up, 1, defer
+                hal.down, self.rxd, self.rd_dn, self._on_down, self.rl_up, hal.up, 1, False
             )
             if k:
                 self.t_rx_dn = now

@@ -63,8 +63,8 @@ R['after'] = [vmkit.hexs(hal.up.take()), vmkit.hexs(hal.down.take()), held(),
 
 
 def test_frames_after_a_held_one_are_kept_and_handled_in_order(vm):
-    """Two SYNCs and a neighbour's STATE in one read: the first completes at a relay point and
-    is held; the bytes after it wait in the receive buffer, nothing is lost or reordered."""
+    """Two SYNCs in one read and a neighbour's STATE: the first SYNC completes at a relay point
+    and is held; the bytes after it wait in the receive buffer, nothing is lost or reordered."""
     a, b = _sync(1, 100), _sync(2, 101)
     state = M.encode_state(
         1, cycle=100, t_ms=5, kappa=0.0, phi=0.0, servo_angles=[0.0] * 3, status=0
@@ -87,8 +87,9 @@ R['poll'] = [vmkit.hexs(hal.down.take()), vmkit.hexs(hal.up.take()), held(),
     )
     down, up, held = r["tick"]
     assert [f.seq for f in frames(down)] == [1]  # the first relayed; the second waits behind it
-    assert held == [1, 1]  # both directions hold a complete frame
-    # the neighbour's STATE was relayed upward in the tick (hop + 1); ours waits for the poll
+    # the host's frame is held; the neighbour's STATE was relayed upward in the tick (hop + 1)
+    # and handled there (it changes no control state); ours waits for the poll
+    assert held == [1, 0]
     assert [(m["seq"], m["hop"]) for m in decode(up) if m["type"] == "STATE"] == [(1, 1)]
     down, up, held, keep = r["poll"]
     assert [f.seq for f in frames(down)] == [2]
@@ -96,3 +97,39 @@ R['poll'] = [vmkit.hexs(hal.down.take()), vmkit.hexs(hal.up.take()), held(),
     assert got == [(1, 0), (2, 0)]  # ours, for SYNC 1 then SYNC 2
     assert all(f.flags & FLAG_UP for f in frames(up))
     assert held == [0, 0] and keep == [0, 0, 0, 0]
+
+
+def test_the_main_loop_handles_a_frame_held_in_the_tick_before_it_waits(vm):
+    """The frame's bytes were read at the relay point, so no input would end the wait early:
+    the loop handles it right after the tick (else its STATE would leave up to a tick late)."""
+    warm = [_sync(i, i, hop=1).hex() for i in range(4)]
+    sync = _sync(77, 9, hop=1)
+    r = vm(
+        f"""
+import main
+hal, seg = vmkit.make()
+held = lambda: list(getattr(seg, 'held', b''))
+for h in {warm}:
+    hal.up.feed(bytes.fromhex(h))
+    vmkit.run(hal, seg, 5)
+hal.up.take(); hal.down.take()
+runner = main.Runner(hal, seg, 5)
+bus = seg.bus
+real_poll = bus.poll
+def arriving(now):                         # the SYNC arrives while the tick reads the servos
+    real_poll(now)
+    if not R.get('fed'):
+        R['fed'] = True
+        hal.up.feed(bytes.fromhex('{sync.hex()}'))
+bus.poll = arriving
+hal.t += 5
+runner.next_t = hal.t
+wait = runner.once()
+R['after_once'] = [vmkit.hexs(hal.up.take()), vmkit.hexs(hal.down.take()), held(), wait]
+"""
+    )
+    up, down, held_now, wait = r["after_once"]
+    assert [f.seq for f in frames(down)] == [77]  # relayed in the tick
+    states = [(m["seq"], m["cycle"]) for m in decode(up) if m["type"] == "STATE"]
+    assert states == [(77, 9)], states  # and answered before the loop waits
+    assert held_now == [0, 0]
