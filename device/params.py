@@ -68,6 +68,7 @@ _P_FAULT = const(20)
 _P_FAULT_COUNT = const(21)
 _P_SERVO_TELEMETRY = const(22)
 _P_CPU_LOAD = const(23)
+_P_TICK_MS = const(24)
 
 PARAM_NAMES = (
     "watchdog_ms",
@@ -94,6 +95,7 @@ PARAM_NAMES = (
     "fault_count",
     "servo_telemetry",
     "cpu_load",
+    "tick_ms",
 )
 
 
@@ -380,6 +382,8 @@ def get_param(self, pid):
         return out
     if pid == _P_CPU_LOAD:
         return [self.cpu_load, self.cpu_load_peak]
+    if pid == _P_TICK_MS:
+        return self.tick_ms
     raise ValueError("unknown parameter")
 
 

@@ -30,6 +30,7 @@ P_FAULT = 20
 P_FAULT_COUNT = 21
 P_SERVO_TELEMETRY = 22
 P_CPU_LOAD = 23
+P_TICK_MS = 24
 
 # a segment's CPU load (PARAM 23, % of the last second not spent waiting): above this it has
 # little slack left for frames arriving at once; at or above CPU_SATURATED_PCT its ticks and
@@ -242,6 +243,12 @@ def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
         return Finding("cpu", "warning", f"CPU load unreadable: {load!r}", position=pos)
     now, peak = load
     msg = f"CPU busy {now} % of the last second (peak {peak} % since boot)"
+    try:
+        tick = _param(link, pos, P_TICK_MS, uid)
+    except LinkError:
+        tick = None  # firmware before PARAM 24
+    if isinstance(tick, int) and not isinstance(tick, bool) and 0 < tick < 1000:
+        msg += f", ticking every {tick} ms"
     fix = (
         "the segment's control tick and the host's rate leave it no slack: frames wait at this "
         "hop and ticks run late; lower the daemon's rate_hz (docs/daemon.md), slow the "

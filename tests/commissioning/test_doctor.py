@@ -270,13 +270,15 @@ def test_doctor_reports_each_segments_cpu_load_and_a_saturated_board() -> None:
     """PARAM 23: an emulated ESP32 under the timing model with a CPU this slow cannot keep its
     200 Hz tick (docs/firmware.md, "CPU load"); the same firmware at PC speed is nearly idle."""
     cfgs = _configs()[:1]
-    with chain_and_link(1, config_for=cfgs) as (chain, link):
+    ticking_10 = [{**cfgs[0], "tick_ms": 10}]  # (PARAM 24 reports the flashed tick)
+    with chain_and_link(1, config_for=ticking_10) as (chain, link):
         wait_discover(link, 1)
         time.sleep(1.2)  # one whole load window
         link.close()
         fast = [f for f in _run(chain.host_port) if f.check == "cpu"]
     assert len(fast) == 1 and fast[0].level == "ok", fast
     assert "CPU busy" in fast[0].message and fast[0].position == 0
+    assert "ticking every 10 ms" in fast[0].message
     with chain_and_link(1, config_for=cfgs, board="esp32", timing=True, cpu_factor=200.0) as (
         chain,
         link,
