@@ -2,7 +2,7 @@
 
 Picks the HAL by platform, loads config.json (defaults when absent), builds servo driver, MC, SCs
 and the segment coordinator, then runs forever (``Runner``): frames are handled as they arrive,
-the control tick runs every ``tick_ms`` (config.json, default TICK_MS). An exception in either
+the control tick runs every ``tick_ms`` (config.json, default 5 ms). An exception in either
 puts the segment in FAULT (``Segment.enter_fault``) and the loop goes on, so the chain keeps
 forwarding; the optional hardware watchdog (``wdt.py``) is fed only after a pass that raised
 nothing. The loop never reads stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends
@@ -12,7 +12,6 @@ it and leaves the board (or ``micropython -i``) at the REPL.
 import os
 import sys
 
-TICK_MS = 5  # 200 Hz control tick
 _TMASK = 0x3FFFFFFF
 FAULT_TICK = 1  # protocol.constants FAULT_* (plain ints: main.py imports nothing heavy at top)
 FAULT_FRAME = 2
@@ -63,7 +62,7 @@ def _intern_calib():
 
 def build(tick_ms=None):
     """Construct (hal, segment) from config.json and the platform's HAL; the tick's period is
-    ``tick_ms`` or else the configuration's (``tick_ms``, default TICK_MS).
+    ``tick_ms`` or else the configuration's (``tick_ms``, config.DEFAULTS).
 
     Modules are compiled one after the other on the board; a collection between them leaves each
     compilation a tidy heap (the compiler's peak, not the firmware's size, bounds the boot).
@@ -110,7 +109,7 @@ def build(tick_ms=None):
             bus.set_faults(hal.faults_spec)
         except ValueError as e:
             print("[main] UCR_FAULTS ignored:", e)
-    return hal, Segment(hal, cfg, bus, tick_ms or cfg.tick_ms or TICK_MS)
+    return hal, Segment(hal, cfg, bus, tick_ms or cfg.tick_ms)
 
 
 def _why(where, e):
@@ -121,13 +120,24 @@ def _why(where, e):
 class Runner:
     """The main loop, one pass at a time (``once``), so tests drive the very same code."""
 
-    def __init__(self, hal, seg, tick_ms=TICK_MS, wdt=None):
+    def __init__(self, hal, seg, tick_ms=None, wdt=None):
         self.hal = hal
         self.seg = seg
-        self.tick_ms = tick_ms
+        self.tick_ms = tick_ms or seg.tick_ms
         self.wdt = wdt
         self.next_t = hal.ticks_ms()
         self.printed = 0
+
+    def _poll(self):
+        """``seg.poll()``; an exception in frame handling is a FAULT (False), the loop goes on."""
+        try:
+            self.seg.poll()
+            return True
+        except KeyboardInterrupt:
+            raise
+        except Exception as e:  # noqa: BLE001 - any exception: FAULT, the loop goes on
+            self._fault(FAULT_FRAME, "frame", e)
+            return False
 
     def _fault(self, code, where, e):
         if self.printed < 10:  # the REPL shows the first tracebacks
@@ -141,14 +151,7 @@ class Runner:
         hal = self.hal
         seg = self.seg
         tick_ms = self.tick_ms
-        healthy = True
-        try:
-            seg.poll()
-        except KeyboardInterrupt:
-            raise
-        except Exception as e:  # noqa: BLE001 - any exception: FAULT, the loop goes on
-            healthy = False
-            self._fault(FAULT_FRAME, "frame", e)
+        healthy = self._poll()
         now = hal.ticks_ms()
         d = (now - self.next_t) & _TMASK
         if d < 0x20000000:  # the tick is due
@@ -171,13 +174,7 @@ class Runner:
             if held[0] or held[1]:
                 # a frame completed at a relay point of the tick: handle it now, not after the
                 # wait (its bytes were read already, so no input would end the wait early)
-                try:
-                    seg.poll()
-                except KeyboardInterrupt:
-                    raise
-                except Exception as e:  # noqa: BLE001
-                    healthy = False
-                    self._fault(FAULT_FRAME, "frame", e)
+                healthy = self._poll() and healthy
         if healthy and self.wdt is not None:
             self.wdt.feed()
         wait = (self.next_t - hal.ticks_ms()) & _TMASK

@@ -29,3 +29,16 @@ def test_host_segment_config_and_firmware_share_the_kappa_rate_default():
     fw_rate = float(out.split("@@", 1)[1])
     assert host_rate == seg_rate == fw_rate == C.DEFAULT_KAPPA_RATE_MAX
     assert math.isfinite(host_rate) and host_rate > 0
+
+
+def test_ucr_check_and_the_firmware_share_the_tick_and_watchdog_defaults():
+    """ucr check judges a robot file without tick_ms / watchdog_ms by the values its segments run
+    (ucrdf.checks SEGMENT_MS_PARAMS; the firmware's config.py DEFAULTS, a runtime of its own)."""
+    from ucrdf.checks import SEGMENT_MS_PARAMS
+
+    out = run_code(
+        "import config\nc = config.Config(None)\n"
+        "print('@@', c.si['tick_ms'], c.si['watchdog_ms'])\n"
+    )
+    tick, dog = (int(x) for x in out.split("@@", 1)[1].split())
+    assert (tick, dog) == (SEGMENT_MS_PARAMS["tick_ms"][3], SEGMENT_MS_PARAMS["watchdog_ms"][3])

@@ -15,15 +15,13 @@ from pathlib import Path
 from ucrdf import boards as board_plan
 from ucrdf.checks import (
     DEFAULT_KAPPA_RATE_MAX,
+    DEFAULT_WATCHDOG_MS,
     firmware_refusal,
     segment_config,
     segment_ms_param,
 )
 from ucrdf.model import Actuation, Bendable, Robot
 
-#: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
-#: ten to twenty missed cycles.
-DEFAULT_WATCHDOG_MS = 200
 __all__ = ["DEFAULT_KAPPA_RATE_MAX", "DEFAULT_WATCHDOG_MS", "SegmentConfigError", "config_for"]
 
 CONFIG_KEYS = (

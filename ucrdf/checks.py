@@ -75,17 +75,24 @@ _DEVICE = Path(__file__).resolve().parent.parent / "device"
 FIRMWARE_DRIVERS = ("emulated", "pwm", "feetech_sts", "feetech_scs")
 
 
-#: hardware params flashed into each segment's config.json: name -> (min, max, whole ms only)
-SEGMENT_MS_PARAMS: dict[str, tuple[int, int, bool]] = {
-    "watchdog_ms": (10, 60000, False),
-    "tick_ms": (2, 50, True),
+#: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
+#: ten to twenty missed cycles.
+DEFAULT_WATCHDOG_MS = 200
+#: The control tick's period (ms) when the robot does not say (the firmware's config.py default)
+DEFAULT_TICK_MS = 5
+
+#: hardware params flashed into each segment's config.json: name -> (min, max, whole ms only,
+#: the value a segment runs when the robot does not give it)
+SEGMENT_MS_PARAMS: dict[str, tuple[int, int, bool, int]] = {
+    "watchdog_ms": (10, 60000, False, DEFAULT_WATCHDOG_MS),
+    "tick_ms": (2, 50, True, DEFAULT_TICK_MS),
 }
 
 
 def segment_ms_param(name: str, value: object) -> int:
     """A segment hardware param (``SEGMENT_MS_PARAMS``) as the int ms flashed; ValueError with
     the reason if the firmware could not run it (``ucr check`` and ``ucr flash`` both use this)."""
-    lo, hi, whole = SEGMENT_MS_PARAMS[name]
+    lo, hi, whole, _ = SEGMENT_MS_PARAMS[name]
     try:
         ms = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -97,7 +104,7 @@ def segment_ms_param(name: str, value: object) -> int:
     return int(round(ms))
 
 
-def segment_config(b: Bendable, watchdog_ms: int = 200) -> dict:
+def segment_config(b: Bendable, watchdog_ms: int = DEFAULT_WATCHDOG_MS) -> dict:
     """The segment configuration (``config.json`` contract, SI units) of bendable ``b`` with a
     tendon actuation; the one mapping from U(C)RDF to firmware keys (tools/segment_config.py
     adds its own checks and the watchdog time)."""
@@ -577,8 +584,8 @@ class _Checker:
                         )
             try:
                 hw = control.hardware_params
-                tick = segment_ms_param("tick_ms", hw.get("tick_ms", 5))
-                dog = segment_ms_param("watchdog_ms", hw.get("watchdog_ms", 200))
+                tick = segment_ms_param("tick_ms", hw.get("tick_ms", DEFAULT_TICK_MS))
+                dog = segment_ms_param("watchdog_ms", hw.get("watchdog_ms", DEFAULT_WATCHDOG_MS))
             except ValueError:
                 pass  # reported above
             else:
