@@ -387,3 +387,33 @@ def test_a_failed_start_leaves_no_controller_manager_so_a_retry_activates_the_co
     d.cfg.controllers["jtc"]["params"] = {}  # the operator fixes the configuration
     d.start()
     assert sorted(d.status()["active_controllers"]) == ["jsb", "jtc"]
+
+
+def test_a_segment_silent_for_a_gap_gets_hold_entries_then_is_held_where_measured(robot3):
+    """Issue 12 finding 2, at the one place the rule is enforced (docs/daemon.md "No motion
+    without a command"): a segment whose STATEs stop for the gap keeps no command — its SYNC
+    entries become hold entries while a controller's setpoint (here kappa 1.0, produced while
+    the host could not see it) waits in the command interfaces — and when it answers again the
+    HWI commands its measured pose, not that stale setpoint."""
+    from host.hwi import HardwareInterface
+
+    link = FakeLink(robot3, measured={0: (0.0, 0.0), 1: (0.0, 0.0), 2: (0.2, 0.0)})
+    hwi = HardwareInterface(_limits(robot3), link)  # the default gap
+    hwi.configure()
+    hwi.activate()
+    link.silent = {2}  # segment_3's replies stop (late or lost)
+    for _ in range(hwi.gap_cycles):
+        hwi.write()
+        hwi.read()
+    hwi.set_command("segment_3/kappa", 1.0)  # a goal goes on meanwhile
+    for _ in range(5):
+        hwi.write()
+        hwi.read()
+        assert link.syncs[-1][0][2] is None, link.syncs[-1][0]  # a hold entry, not kappa 1.0
+    link.measured[2] = (0.3, 0.1)  # it answers again, where it drifted to
+    link.silent = set()
+    hwi.write()
+    hwi.read()
+    assert "segment_3" in hwi.first_measured  # every active controller re-anchors there
+    hwi.write()
+    assert link.syncs[-1][0][2] == pytest.approx((0.3, 0.1))  # held where measured
