@@ -184,12 +184,51 @@ async def gen_badtraj(url: str, conns: int, seconds: float) -> dict:
     return {**counts, "size_kb": round(len(text) / 1024, 1)}
 
 
+async def gen_floor_relay(fd: int) -> dict:
+    """The floor's middle hop: bridge frames from socket ``fd`` -> every WebSocket client, as
+    the API process does but with nothing else (no sessions, budgets, outboxes or guard).
+    Prints its port first."""
+    import socket
+    import struct
+
+    import websockets
+
+    head = struct.Struct("!IB")
+    # keep the writer: a collected StreamWriter closes the connection
+    reader, writer = await asyncio.open_connection(sock=socket.socket(fileno=fd))
+    clients: set = set()
+
+    async def handler(ws: Any) -> None:
+        clients.add(ws)
+        try:
+            await ws.wait_closed()
+        finally:
+            clients.discard(ws)
+
+    sent = 0
+    async with websockets.serve(handler, "127.0.0.1", 0) as srv:
+        print(srv.sockets[0].getsockname()[1], flush=True)
+        while True:
+            try:
+                length, _ = head.unpack(await reader.readexactly(head.size))
+                body = await reader.readexactly(length)
+            except asyncio.IncompleteReadError:
+                break
+            text = body.partition(b"\n")[2].decode()
+            for ws in list(clients):
+                await ws.send(f'{{"push":"stream","sub":1,"dropped":0,"msg":{text}}}')
+                sent += 1
+    writer.close()
+    return {"sent": sent}
+
+
 GENERATORS = {
     "poll": lambda a: gen_poll(a.url, a.n, a.rate, a.seconds),
     "latency": lambda a: gen_latency(a.url, a.seconds),
     "connect": lambda a: gen_connect(a.url, a.n, a.seconds),
     "subscribe": lambda a: gen_subscribe(a.url, a.n, a.seconds),
     "badtraj": lambda a: gen_badtraj(a.url, a.n, a.seconds),
+    "floorrelay": lambda a: gen_floor_relay(int(a.url)),
 }
 
 
@@ -216,6 +255,53 @@ def _collect(procs: list[subprocess.Popen]) -> list[dict]:
 
 
 # ------------------------------------------------------------------ the benchmark (parent)
+def measure_floor(daemon: Any, seconds: float) -> dict:
+    """This machine's floor for the hops a joint_states message takes after the daemon publishes
+    it, with none of our code in them: a thread of this process writes a bridge frame (a real
+    joint_states message, re-stamped) every 20 ms to a socket, a minimal asyncio process
+    relays it over WebSocket (:func:`gen_floor_relay`) to the same client as the latency phase
+    (a process at nice 15). Measured while the daemon and chain run, as the phase is."""
+    import queue
+    import socket
+    import threading
+
+    from host.api.feed import HEAD, publication
+
+    q = daemon.subscribe(["joint_states"])
+    try:
+        sample = q.get(timeout=5.0)
+    except queue.Empty:
+        return {"floor": True, "error": "no joint_states published"}
+    finally:
+        daemon.unsubscribe(q)
+    ours, theirs = socket.socketpair()
+    relay = subprocess.Popen(
+        [sys.executable, __file__, "--gen", "floorrelay", "--url", str(theirs.fileno())],
+        cwd=ROOT, stdout=subprocess.PIPE, text=True, pass_fds=[theirs.fileno()],
+    )  # fmt: skip
+    theirs.close()
+    stop = threading.Event()
+    try:
+        port = relay.stdout.readline().strip()
+        client = _spawn("latency", f"ws://127.0.0.1:{port}", 1, seconds)
+
+        def feed() -> None:
+            while not stop.wait(0.02):
+                body = publication({**sample, "t": time.monotonic()})
+                ours.sendall(HEAD.pack(len(body), ord("P")) + body)
+
+        threading.Thread(target=feed, daemon=True).start()
+        (result,) = _collect([client])
+    finally:
+        stop.set()
+        ours.close()
+        try:
+            relay.wait(5)
+        except subprocess.TimeoutExpired:
+            relay.kill()
+    return {"floor": True, **result}
+
+
 class _InProcessLatency:
     """A joint_states subscriber thread in the daemon's own process (no API, no other process):
     state time stamp -> receipt, the part of the latency the daemon alone adds."""
@@ -283,10 +369,16 @@ def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: 
                 note="from the message's t (the time of the cycle that measured it) to its "
                 "arrival: in a client process at nice 15 through the API process, and in a "
                 "subscriber thread of the daemon's own process; both include the cycle's work "
-                "before it publishes",
+                "before it publishes (about 0.15 ms); the floor row is stamped when written, "
+                "so it starts where the daemon's publish ends",
             )
             for r in results:
+                if "p50_ms" not in r:
+                    continue
                 who = ("a subscriber thread in the daemon's process" if r.get("in_process")
+                       else "this machine's floor for the API's hops (none of our code): a "
+                       "thread → socket → a minimal asyncio WebSocket relay process → a client "
+                       "process at nice 15" if r.get("floor")
                        else "a client process through the API")  # fmt: skip
                 figs.row("latency", [f"{who}: {r['n']} messages", f"{r['p50_ms']:.2f} ms",
                                      f"{r['p99_ms']:.2f} ms"])  # fmt: skip
@@ -390,7 +482,11 @@ def main(argv: list[str] | None = None) -> int:
             for name, start in plan:
                 if only and name not in only:
                     continue
-                phase(name, start(), settle=1.5)
+                results = phase(name, start(), settle=1.5)
+                if name == "latency":
+                    floor = measure_floor(daemon, args.seconds)
+                    results.append(floor)
+                    print(f"floor (the same hops, none of our code): {json.dumps(floor)}")
             time.sleep(3.0)
             phase("after", [])
             after = rows[-1]

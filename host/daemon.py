@@ -413,11 +413,12 @@ class Daemon:
         return self.motion.hand_back(manual)
 
     def subscribe(
-        self, kinds: list[str] | tuple[str, ...] | str, maxsize: int = 1000
+        self, kinds: list[str] | tuple[str, ...] | str, maxsize: int = 1000, into: Any = None
     ) -> queue.Queue:
         """A queue receiving published messages of these kinds (joint_states, transforms,
-        event(s), topology). Full queues drop their oldest message."""
-        return self.fanout.subscribe(kinds, maxsize)
+        event(s), topology). Full queues drop their oldest message. ``into``: a never-blocking
+        queue-like object to fill instead (the API bridge's feed; host.publisher.Fanout)."""
+        return self.fanout.subscribe(kinds, maxsize, into)
 
     def unsubscribe(self, q: queue.Queue) -> None:
         self.fanout.unsubscribe(q)

@@ -79,15 +79,18 @@ class Fanout:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self.subs: dict[queue.Queue, set[str]] = {}
+        self.subs: dict[Any, set[str]] = {}
         self.dropped = 0
         self.recent_events: deque[dict] = deque(maxlen=50)
 
     def subscribe(
-        self, kinds: list[str] | tuple[str, ...] | str, maxsize: int = 1000
-    ) -> queue.Queue:
+        self, kinds: list[str] | tuple[str, ...] | str, maxsize: int = 1000, into: Any = None
+    ) -> Any:
         """A queue receiving published messages of these kinds (joint_states, transforms,
-        event(s), topology). Full queues drop their oldest message."""
+        event(s), topology). Full queues drop their oldest message. ``into``: a queue-like
+        object of the caller's to use instead (``put_nowait``/``get_nowait`` raising
+        ``queue.Full``/``queue.Empty``; called from the publishing thread, it must never block:
+        the API bridge's feed, host/api/feed.py)."""
         if isinstance(kinds, str):
             kinds = [kinds]
         want = {"event" if k == "events" else k for k in kinds}
@@ -96,7 +99,7 @@ class Fanout:
             raise ValueError(
                 f"unknown subscription kind(s) {sorted(bad)} (known: {', '.join(KINDS)})"
             )
-        q: queue.Queue = queue.Queue(maxsize=maxsize)
+        q = queue.Queue(maxsize=maxsize) if into is None else into
         with self._lock:
             self.subs[q] = want
         return q
