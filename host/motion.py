@@ -29,24 +29,31 @@ from host.hwi import HardwareInterface
 log = logging.getLogger("ucr.daemon")
 
 _MAX_GOALS = 500  # goals remembered for trajectory_status (oldest forgotten first)
-#: Waypoints carried by a ``goal_accepted`` event at most (a longer goal: count only).
+#: Waypoints one event carries at most: a longer goal's waypoints continue in ``goal_waypoints``
+#: events (each a few hundred KB of JSON at most, whatever the goal's length).
 EVENT_MAX_WAYPOINTS = 2000
 
 
-def commanded(goal_id: str, controller: str, joints: list[str], traj: Any) -> dict[str, Any]:
-    """The ``goal_accepted`` event's fields: the goal's waypoints as requested (before any
-    retiming), every bendable of the controller filled in: ``waypoints`` = [[time_from_start s,
-    [[kx, ky] 1/m per joint]], ...] (or ``waypoints_omitted``: their count, beyond
-    EVENT_MAX_WAYPOINTS)."""
+def commanded(goal_id: str, controller: str, joints: list[str], traj: Any) -> list[dict[str, Any]]:
+    """The fields of the events that publish a goal's waypoints as requested (before any
+    retiming), every bendable of the controller filled in: first ``goal_accepted`` (``goal``,
+    ``controller``, ``joints``, ``retimed``, ``waypoint_count``, ``parts``, ``part`` = 1 and
+    ``waypoints`` = [[time_from_start s, [[kx, ky] 1/m per joint]], ...], at most
+    EVENT_MAX_WAYPOINTS of them), then one ``goal_waypoints`` (``goal``, ``part`` = 2 ..
+    ``parts``, ``parts``, ``waypoints``) per further EVENT_MAX_WAYPOINTS waypoints, in order."""
     times = traj.requested_durations.cumsum().tolist()
-    out: dict[str, Any] = {"goal": goal_id, "controller": controller, "joints": list(joints),
-                           "retimed": bool(traj.retimed)}  # fmt: skip
-    if len(times) > EVENT_MAX_WAYPOINTS:
-        out["waypoints_omitted"] = len(times)
-    else:
-        pos = traj.positions[1:].round(6).tolist()
-        out["waypoints"] = [[round(t, 6), p] for t, p in zip(times, pos, strict=True)]
-    return out
+    pos = traj.positions[1:].round(6).tolist()
+    wps = [[round(t, 6), p] for t, p in zip(times, pos, strict=True)]
+    n = EVENT_MAX_WAYPOINTS
+    chunks = [wps[i : i + n] for i in range(0, len(wps), n)] or [[]]
+    head: dict[str, Any] = {"goal": goal_id, "controller": controller, "joints": list(joints),
+                            "retimed": bool(traj.retimed), "waypoint_count": len(wps),
+                            "parts": len(chunks), "part": 1, "waypoints": chunks[0]}  # fmt: skip
+    rest = [
+        {"goal": goal_id, "part": k, "parts": len(chunks), "waypoints": c}
+        for k, c in enumerate(chunks[1:], start=2)
+    ]
+    return [head, *rest]
 
 
 class Motion:
@@ -197,11 +204,17 @@ class Motion:
                             self._goals.popitem(last=False)
                         accepted = goal.id
             if accepted:  # outside the lock: recorders keep what was commanded
+                head, *rest = commanded(accepted, ctrl.name, ctrl.joints, traj)
                 self._emit(
-                    "goal_accepted",
-                    message=f"goal {accepted}: {goal.n_points} waypoints",
-                    **commanded(accepted, ctrl.name, ctrl.joints, traj),
+                    "goal_accepted", message=f"goal {accepted}: {goal.n_points} waypoints", **head
                 )
+                for part in rest:
+                    self._emit(
+                        "goal_waypoints",
+                        message=f"goal {accepted}: waypoints, part {part['part']} of "
+                        f"{part['parts']}",
+                        **part,
+                    )
                 return accepted
             log.info("trajectory goal built again (attempt %d): %s", attempt + 1, why)
             lead = 2.0 * built_s + 0.05

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from interop.sinks import Fanout
-from interop.topics import RobotTopics, commanded
+from interop.topics import CommandedGoals, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -60,6 +60,7 @@ class LiveFeed:
     ) -> None:
         self.client = client
         self.topics = topics
+        self.goals_commanded = CommandedGoals()  # a long goal's waypoints come in parts
         self.out = out
         self.viz_period = 1.0 / viz_rate if viz_rate > 0 else float("inf")
         self.js_rate = js_rate
@@ -134,8 +135,12 @@ class LiveFeed:
                     elif kind in ("event", "topology"):
                         for m in self.topics.event(msg, t_ns):
                             self.out.publish(m)
-                        if msg.get("event") == "goal_accepted":
-                            cmd = commanded(msg, self.topics.root, t_ns)
+                        whole, lost = self.goals_commanded.feed(msg)
+                        for ev in lost:
+                            for m in self.topics.event(ev, t_ns):
+                                self.out.publish(m)
+                        if whole is not None:
+                            cmd = commanded(whole, self.topics.root, t_ns)
                             if cmd is not None:
                                 self.out.publish(cmd)
                         if kind == "topology":
@@ -154,4 +159,8 @@ class LiveFeed:
                 self.out.tick()
                 if on_tick is not None:
                     on_tick()
+            t_ns = self._t_ns(None)
+            for ev in self.goals_commanded.finish():
+                for m in self.topics.event(ev, t_ns):
+                    self.out.publish(m)
             self.dropped = sub.dropped_local + sub.dropped_server

@@ -32,6 +32,7 @@ from host.client_common import CliError, connect_daemon
 from interop import ros2
 from interop.live import robot_for
 from interop.sinks import Fanout
+from interop.topics import CommandedGoals
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -158,15 +159,20 @@ def recorded_goals(path: str | Path) -> list[tuple[float, list[dict]]]:
     goals the daemon accepted while recording, as they were sent (before retiming)."""
     dec = None
     out = []
+    parts = CommandedGoals()  # the goals' waypoint events, to find one the recording lost
     for m in read_recording(path):
-        if m.topic == "/ucr/events" and b"waypoints_omitted" in m.data:
+        if m.topic == "/ucr/events" and b"goal_" in m.data:
             ev = json.loads(ros2.codec(m.typename).decode(m.data).data)
             if ev.get("event") == "goal_accepted" and ev.get("waypoints_omitted"):
                 raise RecordingError(
                     f"goal {ev.get('goal')} had {ev['waypoints_omitted']} waypoints, more than "
-                    "the daemon's event carries: its commanded trajectory is not in the "
+                    "the daemon's event carried then: its commanded trajectory is not in the "
                     "recording (use --measured to re-run the measured motion)"
                 )
+            if ev.get("event") == "goal_waypoints_incomplete":
+                _incomplete(ev)
+            for lost in parts.feed(ev)[1]:
+                _incomplete(lost)
         if m.topic != "/ucr/trajectory/commanded":
             continue
         if dec is None:
@@ -186,7 +192,16 @@ def recorded_goals(path: str | Path) -> list[tuple[float, list[dict]]]:
             points.append({"time_from_start": d.sec + d.nanosec * 1e-9, "segments": segs})
         if points:
             out.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, points))
+    for lost in parts.finish():  # e.g. the recorder was killed while a long goal's parts came
+        _incomplete(lost)
     return out
+
+
+def _incomplete(ev: dict) -> None:
+    raise RecordingError(
+        f"{ev.get('message') or 'a goal is incomplete in the recording'} "
+        "(use --measured to re-run the measured motion)"
+    )
 
 
 def _check_point(robot: Any, name: str, kappa: float, phi: float, when: str) -> float:

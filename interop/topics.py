@@ -340,11 +340,86 @@ class RobotTopics:
         return _string(topic, json.dumps(status, sort_keys=True, default=str), t_ns)
 
 
+class CommandedGoals:
+    """Puts a goal's waypoints back together from the daemon's events: ``goal_accepted`` carries
+    the first EVENT_MAX_WAYPOINTS of them (host.motion.commanded), ``goal_waypoints`` parts 2 ..
+    ``parts`` the rest, in order. :meth:`feed` takes every event and returns what to record:
+    the whole ``goal_accepted`` event once its last part came (for :func:`commanded`), and a
+    ``goal_waypoints_incomplete`` event (for /ucr/events, where replay finds it) for a goal one
+    of whose parts was lost — a later part of it, or the end of the recording (:meth:`finish`),
+    came before the missing part; nothing of such a goal goes to /ucr/trajectory/commanded.
+    Goals are kept apart by id (two controllers' goals may interleave)."""
+
+    def __init__(self) -> None:
+        self._open: dict[str, tuple[dict, list, int]] = {}  # goal -> (head, waypoints, next part)
+        self._lost: set[str] = set()  # goals already reported incomplete
+
+    def feed(self, ev: dict) -> tuple[dict | None, list[dict]]:
+        """(the complete goal_accepted event or None, incomplete-goal events to record)."""
+        name, goal = ev.get("event"), str(ev.get("goal"))
+        lost: list[dict] = []
+        if name == "goal_accepted":
+            wps = ev.get("waypoints")
+            parts = ev.get("parts", 1)
+            if not isinstance(wps, list) or not isinstance(parts, int):
+                return None, lost  # an older daemon's waypoints_omitted: replay refuses it
+            if parts <= 1:
+                return ev, lost
+            self._open[goal] = (ev, list(wps), 2)
+            return None, lost
+        if name != "goal_waypoints":
+            return None, lost
+        entry = self._open.get(goal)
+        wps = ev.get("waypoints")
+        if entry is None:  # its start was lost, or came before the recording began
+            if goal in self._lost:
+                return None, lost
+            self._lost.add(goal)
+            n = ev.get("parts", "?")
+            return None, [_incomplete(goal, ev.get("t"), "?", "?",
+                                      f"its goal_accepted was not recorded; part "
+                                      f"{ev.get('part')} of {n} came")]  # fmt: skip
+        head, acc, want = entry
+        if ev.get("part") != want or not isinstance(wps, list):
+            return None, self._lose(f"part {want} was lost", only=goal)
+        acc.extend(wps)
+        if want < head.get("parts", 1):
+            self._open[goal] = (head, acc, want + 1)
+            return None, lost
+        del self._open[goal]
+        return {**head, "waypoints": acc, "part": 1, "parts": 1}, lost
+
+    def finish(self) -> list[dict]:
+        """Incomplete-goal events for the goals still waiting for parts (the recording ends)."""
+        return self._lose("the recording ended first")
+
+    def _lose(self, why: str, only: str | None = None) -> list[dict]:
+        """Give up the goals (or goal ``only``) still waiting for parts."""
+        out = []
+        for goal, (head, acc, _) in list(self._open.items()):
+            if only is not None and goal != only:
+                continue
+            del self._open[goal]
+            self._lost.add(goal)
+            out.append(_incomplete(goal, head.get("t"), len(acc), head.get("waypoint_count"), why))
+        return out
+
+
+def _incomplete(goal: str, t: Any, received: Any, count: Any, why: str) -> dict:
+    return {
+        "kind": "event", "event": "goal_waypoints_incomplete", "goal": goal, "t": t,
+        "waypoints_received": received, "waypoint_count": count,
+        "message": f"goal {goal}: {received} of {count} waypoints recorded ({why}): its "
+        "commanded trajectory is not in the recording",
+    }  # fmt: skip
+
+
 def commanded(ev: dict, root: str, t_ns: int) -> Message | None:
     """trajectory_msgs/JointTrajectory of a ``goal_accepted`` event (the waypoints a goal was
     sent with, before retiming): joints ``<b>/kappa`` (1/m), ``<b>/phi`` (rad) for every bendable
-    of the controller, as ``ucr zenoh`` takes commands. None when the event carries no waypoints
-    (a goal longer than the daemon's EVENT_MAX_WAYPOINTS; its count is on /ucr/events)."""
+    of the controller, as ``ucr zenoh`` takes commands. ``ev`` is whole (:class:`CommandedGoals`
+    puts a long goal's parts together). None when the event carries no waypoints (an older
+    daemon's ``waypoints_omitted``)."""
     joints, wps = ev.get("joints"), ev.get("waypoints")
     if not isinstance(joints, list) or not isinstance(wps, list):
         return None

@@ -186,7 +186,7 @@ def _long_wave(n: int) -> list[dict]:
 def test_ten_thousand_waypoints_through_the_python_client(daemon_url):
     points = _long_wave(10_000)
     assert len(json.dumps(points)) > 10 * 64 * 1024  # far above one request's limit
-    with connect(daemon_url, timeout=10) as c:
+    with connect(daemon_url, timeout=10) as c, c.subscribe("events") as events:
         for attempt in range(3):  # a loaded machine may starve the emulated chain into a rebuild
             assert wait_for(lambda: _connected(daemon_url), 30.0, 0.2)
             try:
@@ -199,6 +199,17 @@ def test_ten_thousand_waypoints_through_the_python_client(daemon_url):
             status = c.trajectory_status(goal)
             assert status["points"] == 10_000
             assert status["state"] in ("executing", "succeeded", "aborted"), status
+            # every waypoint as commanded reaches an events subscriber (a recorder), in parts
+            parts, deadline = [], time.monotonic() + 20.0
+            while time.monotonic() < deadline and (not parts or len(parts) < parts[0]["parts"]):
+                ev = events.get(timeout=1.0)
+                if ev and ev.get("goal") == goal and ev.get("waypoints") is not None:
+                    parts.append(ev)
+            assert [p["event"] for p in parts] == ["goal_accepted"] + ["goal_waypoints"] * 4
+            assert [p["part"] for p in parts] == [1, 2, 3, 4, 5]
+            wps = [w for p in parts for w in p["waypoints"]]
+            assert len(wps) == parts[0]["waypoint_count"] == 10_000
+            assert wps[-1][0] == pytest.approx(points[-1]["time_from_start"])
         finally:
             c.cancel(goal)
 

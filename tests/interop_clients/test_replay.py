@@ -184,25 +184,51 @@ def test_ucr_replay_view_serves_the_page_and_plays_to_the_end(recording):
     assert code == 0, "".join(lines) + err
 
 
-def _synthetic(path, goals: list[dict]) -> None:
-    """A recording holding only daemon goal_accepted events (as `ucr record` writes them)."""
+def _synthetic(path, goals: list[dict], finish: bool = True) -> None:
+    """A recording holding only the daemon's goal events, written as `ucr record` writes them
+    (interop.live.LiveFeed: every event on /ucr/events, a goal's parts put together for
+    /ucr/trajectory/commanded). A goal without "event" is a goal_accepted; ``finish``: the
+    recorder ended normally (False: killed)."""
     from interop.record import McapSink
     from interop.sinks import Fanout
-    from interop.topics import RobotTopics, commanded
+    from interop.topics import CommandedGoals, RobotTopics, commanded
     from ucrdf.parser import load
 
     topics = RobotTopics(load(ROBOT_FILE), "", 4)
     sink = McapSink(path)
     out = Fanout([sink])
+    parts = CommandedGoals()
     t_ns = 1_700_000_000_000_000_000
     for i, ev in enumerate(goals):
         ev = {"kind": "event", "event": "goal_accepted", "goal": f"jtc-{i}", **ev}
-        for m in topics.event(ev, t_ns + i * 10**9):
-            out.publish(m)
-        cmd = commanded(ev, topics.root, t_ns + i * 10**9)
+        when = t_ns + i * 10**9
+        whole, lost = parts.feed(ev)
+        for e in [ev, *lost]:
+            for m in topics.event(e, when):
+                out.publish(m)
+        cmd = None if whole is None else commanded(whole, topics.root, when)
         if cmd is not None:
             out.publish(cmd)
+    for e in parts.finish() if finish else []:
+        for m in topics.event(e, t_ns + len(goals) * 10**9):
+            out.publish(m)
     sink.close()
+
+
+def _long_goal_events(n: int) -> list[dict]:
+    """The daemon's events for one goal of ``n`` waypoints (host.motion.commanded), its id
+    "jtc-long": a ramp of segment_1's kappa from 0 to 2 1/m, 2 ms apart."""
+    from types import SimpleNamespace
+
+    from host.motion import commanded
+
+    pos = np.zeros((n + 1, 3, 2))
+    pos[1:, 0, 0] = np.linspace(0.0, 2.0, n)
+    traj = SimpleNamespace(requested_durations=np.full(n, 0.002), positions=pos, retimed=False)
+    evs = commanded("jtc-long", "jtc", JOINTS, traj)
+    return [{"event": "goal_accepted", **evs[0]}] + [
+        {"event": "goal_waypoints", **e} for e in evs[1:]
+    ]
 
 
 JOINTS = ["segment_1", "segment_2", "segment_3"]
@@ -234,7 +260,44 @@ def test_commanded_goals_are_rechecked_and_sent_at_their_recorded_offsets(tmp_pa
     with pytest.raises(RecordingError, match=r"kappa 9 1/m .* outside \[0, 3\.31"):
         commanded_plan(too_far, robot)
 
-    long = tmp_path / "long.mcap"
-    _synthetic(long, [{"joints": JOINTS, "waypoints_omitted": 5000}])
+    old = tmp_path / "old.mcap"  # an older daemon's event: the count only
+    _synthetic(old, [{"joints": JOINTS, "waypoints_omitted": 5000}])
     with pytest.raises(RecordingError, match="5000 waypoints.*--measured"):
-        commanded_plan(long, robot)
+        commanded_plan(old, robot)
+
+
+def test_a_long_goal_comes_in_parts_and_replays_whole(tmp_path):
+    """A goal above EVENT_MAX_WAYPOINTS: the daemon publishes its waypoints in parts, the
+    recorder puts them together, and replay --execute has every waypoint; a part lost on the
+    way, or a recorder killed before the last part, makes replay refuse the commanded goals
+    (saying so and naming --measured) instead of replaying a truncated trajectory."""
+    from host.motion import EVENT_MAX_WAYPOINTS
+    from interop.replay import RecordingError, commanded_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    n = 2 * EVENT_MAX_WAYPOINTS + 123
+    events = _long_goal_events(n)
+    assert [e["event"] for e in events] == ["goal_accepted"] + ["goal_waypoints"] * 2
+    assert sum(len(e["waypoints"]) for e in events) == n
+    assert all(len(e["waypoints"]) <= EVENT_MAX_WAYPOINTS for e in events)
+
+    whole = tmp_path / "whole.mcap"
+    _synthetic(whole, events)
+    plan = commanded_plan(whole, robot)
+    assert plan is not None and len(plan.goals) == 1
+    points = plan.goals[0][1]
+    assert len(points) == n
+    assert points[-1]["time_from_start"] == pytest.approx(0.002 * n)
+    assert points[-1]["segments"]["segment_1"]["kappa"] == pytest.approx(2.0)
+    assert plan.kappa_range["segment_1"] == pytest.approx((0.0, 2.0))
+
+    lost = tmp_path / "lost.mcap"
+    _synthetic(lost, [events[0], events[2]])  # part 2 dropped on the way
+    with pytest.raises(RecordingError, match=r"2000 of 4123 waypoints .*part 2 .*--measured"):
+        commanded_plan(lost, robot)
+
+    killed = tmp_path / "killed.mcap"
+    _synthetic(killed, events[:2], finish=False)  # SIGKILL before the last part
+    with pytest.raises(RecordingError, match=r"4000 of 4123 waypoints .*--measured"):
+        commanded_plan(killed, robot)
