@@ -15,6 +15,7 @@ p99/max and the daemon's RSS (plus the API process's, in process mode):
 - connect1000      1,000 connection attempts, held open
 - subscribe1000    1,000 subscription requests on one connection
 - badtraj          20 connections flooding ~58 KB invalid trajectories
+- goal10k          a 10,000-waypoint goal about every second, cancelled once accepted
 - after            quiet again: memory back to the baseline?
 
 ``--mode process`` (default) runs the API as ``ucr daemon`` does, in its own process
@@ -184,6 +185,38 @@ async def gen_badtraj(url: str, conns: int, seconds: float) -> dict:
     return {**counts, "size_kb": round(len(text) / 1024, 1)}
 
 
+def _goal10k_sync(url: str, seconds: float) -> dict:
+    """10 000-waypoint goals (uploaded in chunks by the Python client), one about every second,
+    each cancelled once accepted: what a long goal's parsing, building and garbage cost the
+    loop."""
+    import math
+
+    from host.api.client import ApiError, connect
+
+    names = ("segment_1", "segment_2", "segment_3")
+    points = [
+        {"time_from_start": round(0.5 + 0.002 * i, 6), "segments": {
+            s: {"kappa": round(0.3 + 0.2 * math.sin(i / 500 + k), 6), "phi": 0.5}
+            for k, s in enumerate(names)}}
+        for i in range(10_000)
+    ]  # fmt: skip
+    sent = failed = 0
+    end = time.monotonic() + seconds
+    with connect(url, timeout=30) as c:
+        while time.monotonic() < end:
+            try:
+                c.cancel(c.send_trajectory(points, wait=False))
+                sent += 1
+            except ApiError:
+                failed += 1
+            time.sleep(1.0)
+    return {"goals": sent, "failed": failed}
+
+
+async def gen_goal10k(url: str, seconds: float) -> dict:
+    return await asyncio.to_thread(_goal10k_sync, url, seconds)
+
+
 async def gen_floor_relay(fd: int) -> dict:
     """The floor's middle hop: bridge frames from socket ``fd`` -> every WebSocket client, as
     the API process does but with nothing else (no sessions, budgets, outboxes or guard).
@@ -229,6 +262,7 @@ GENERATORS = {
     "subscribe": lambda a: gen_subscribe(a.url, a.n, a.seconds),
     "badtraj": lambda a: gen_badtraj(a.url, a.n, a.seconds),
     "floorrelay": lambda a: gen_floor_relay(int(a.url)),
+    "goal10k": lambda a: gen_goal10k(a.url, a.seconds),
 }
 
 
@@ -341,6 +375,7 @@ _PHASE_LABELS = {
     "connect1000": "1,000 connection attempts",
     "subscribe1000": "1,000 subscription requests on one connection",
     "badtraj": "20 connections flooding ~58 KB invalid trajectories",
+    "goal10k": "a 10,000-waypoint goal about every second (accepted, then cancelled)",
     "after": "no client again",
 }
 
@@ -478,6 +513,7 @@ def main(argv: list[str] | None = None) -> int:
                 ("connect1000", lambda: [_spawn("connect", url, 1000, long)]),
                 ("subscribe1000", lambda: [_spawn("subscribe", url, 1000, long)]),
                 ("badtraj", lambda: [_spawn("badtraj", url, 20, long)]),
+                ("goal10k", lambda: [_spawn("goal10k", url, 1, long)]),
             ]
             for name, start in plan:
                 if only and name not in only:

@@ -194,6 +194,7 @@ class Daemon:
         self.topo.open()
         self.usable_rate.start(self.topo.link)
         self._t_started = time.monotonic()
+        realtime.freeze_heap()  # full GC collections stay short (host/realtime.py)
         self._publisher.start()
         self.loop.start()
         log.info(

@@ -30,8 +30,9 @@ log = logging.getLogger("ucr.daemon")
 
 _MAX_GOALS = 500  # goals remembered for trajectory_status (oldest forgotten first)
 #: Waypoints one event carries at most: a longer goal's waypoints continue in ``goal_waypoints``
-#: events (each a few hundred KB of JSON at most, whatever the goal's length).
-EVENT_MAX_WAYPOINTS = 2000
+#: events. Small enough that encoding one event (tens of KB of JSON, one C call holding the
+#: interpreter lock) stays near a millisecond beside the control loop.
+EVENT_MAX_WAYPOINTS = 500
 
 
 def commanded(goal_id: str, controller: str, joints: list[str], traj: Any) -> list[dict[str, Any]]:
@@ -41,13 +42,16 @@ def commanded(goal_id: str, controller: str, joints: list[str], traj: Any) -> li
     ``waypoints`` = [[time_from_start s, [[kx, ky] 1/m per joint]], ...], at most
     EVENT_MAX_WAYPOINTS of them), then one ``goal_waypoints`` (``goal``, ``part`` = 2 ..
     ``parts``, ``parts``, ``waypoints``) per further EVENT_MAX_WAYPOINTS waypoints, in order."""
-    times = traj.requested_durations.cumsum().tolist()
-    pos = traj.positions[1:].round(6).tolist()
-    wps = [[round(t, 6), p] for t, p in zip(times, pos, strict=True)]
-    n = EVENT_MAX_WAYPOINTS
-    chunks = [wps[i : i + n] for i in range(0, len(wps), n)] or [[]]
+    times = traj.requested_durations.cumsum()
+    pos = traj.positions[1:]
+    m, n = len(times), EVENT_MAX_WAYPOINTS
+    chunks = []
+    for lo in range(0, max(m, 1), n):  # piece by piece: no long C call converting the whole goal
+        ts = times[lo : lo + n].round(6).tolist()
+        ps = pos[lo : lo + n].round(6).tolist()
+        chunks.append([[t, p] for t, p in zip(ts, ps, strict=True)])
     head: dict[str, Any] = {"goal": goal_id, "controller": controller, "joints": list(joints),
-                            "retimed": bool(traj.retimed), "waypoint_count": len(wps),
+                            "retimed": bool(traj.retimed), "waypoint_count": m,
                             "parts": len(chunks), "part": 1, "waypoints": chunks[0]}  # fmt: skip
     rest = [
         {"goal": goal_id, "part": k, "parts": len(chunks), "waypoints": c}

@@ -86,8 +86,12 @@ class CurvatureTrajectory:
         max_iterations: int = 30,
     ):
         self.t0 = t0
-        self.positions = np.stack([p0] + [p for _, p in knots])  # (m+1, J, 2)
-        times = [0.0] + [t for t, _ in knots]
+        if hasattr(knots, "positions"):  # waypoints.Knots: arrays already (no loop over points)
+            self.positions = np.concatenate([np.asarray(p0, dtype=float)[None], knots.positions])
+            times = np.concatenate([[0.0], knots.times])
+        else:
+            self.positions = np.stack([p0] + [p for _, p in knots])  # (m+1, J, 2)
+            times = np.array([0.0] + [t for t, _ in knots])
         self.requested_durations = np.diff(times)
         self.durations = self.requested_durations.astype(float).copy()
         self.v0, self.a0 = v0, a0

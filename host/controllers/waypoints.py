@@ -6,6 +6,8 @@ reason naming the waypoint and the bendable (docs/controllers.md); nothing moves
 from __future__ import annotations
 
 import math
+from array import array
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -17,8 +19,28 @@ MAX_WAYPOINTS = 10_000  # what the API accepts (docs/api.md)
 MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
 
 
+_KEYS = frozenset({"time_from_start", "t", "segments"})
+
+
 def _finite(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+class Knots(Sequence):
+    """A goal's knots as two arrays — ``times`` (m,) s from the start, ``positions`` (m, J, 2)
+    curvature vectors 1/m — and, for whoever wants it so, a sequence of (time, (J, 2)) pairs."""
+
+    def __init__(self, times: np.ndarray, positions: np.ndarray) -> None:
+        self.times = times
+        self.positions = positions
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [(float(t), p) for t, p in zip(self.times[i], self.positions[i], strict=True)]
+        return float(self.times[i]), self.positions[i]
 
 
 def parse_waypoints(
@@ -27,79 +49,97 @@ def parse_waypoints(
     joints: list[str],
     limits: dict[str, BendableLimits],
     controller: str,
-) -> list[tuple[float, np.ndarray]]:
+) -> Knots:
     """Knots for ``points`` (see ``JointTrajectoryController.parse_points``); a bendable absent
     from a point keeps its previous value, starting from ``current`` ((J, 2), order of
-    ``joints``). Raises ControllerError. Pure: safe outside the daemon lock."""
+    ``joints``). Raises ControllerError. Pure: safe outside the daemon lock.
+
+    It runs beside the control loop (a 10 000-waypoint goal: tens of ms of Python), so it holds
+    the interpreter lock only in short pieces: plain floats per point, no numpy call per point,
+    the arrays made at the end without a loop in C (``np.frombuffer``)."""
     index = {j: i for i, j in enumerate(joints)}
     if not isinstance(points, list | tuple) or not points:
         raise ControllerError("trajectory: expected a non-empty list of points")
     if len(points) > MAX_WAYPOINTS:
         raise ControllerError(f"trajectory: {len(points)} points, at most {MAX_WAYPOINTS}")
+    # per bendable, read once: (index, kappa_max, full circle, phi_min, phi_max)
+    lims = {
+        name: (i, limits[name].kappa_max, limits[name].full_circle, limits[name].phi_min,
+               limits[name].phi_max)
+        for name, i in index.items()
+    }  # fmt: skip
     prev_t = 0.0
-    knots = []
+    times = array("d")
+    flat = array("d")
+    row = [float(v) for v in np.asarray(current, dtype=float).reshape(-1)]
     for n, pt in enumerate(points):
-        where = f"trajectory point {n}"
         if not isinstance(pt, dict):
-            raise ControllerError(f"{where}: expected a mapping")
-        unknown = set(pt) - {"time_from_start", "t", "segments"}
-        if unknown:
-            raise ControllerError(f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+            raise ControllerError(f"trajectory point {n}: expected a mapping")
+        if not _KEYS.issuperset(pt):
+            unknown = ", ".join(sorted(map(str, set(pt) - _KEYS)))
+            raise ControllerError(f"trajectory point {n}: unknown key(s) {unknown}")
         t = pt.get("time_from_start", pt.get("t"))
         if not _finite(t):
-            raise ControllerError(f"{where}: 'time_from_start' (s) missing or not a number")
+            raise ControllerError(
+                f"trajectory point {n}: 'time_from_start' (s) missing or not a number"
+            )
         if t <= prev_t:
             raise ControllerError(
-                f"{where}: time_from_start {t} s must be > {prev_t} s (strictly increasing, "
-                "first > 0)"
+                f"trajectory point {n}: time_from_start {t} s must be > {prev_t} s (strictly "
+                "increasing, first > 0)"
             )
         if t - prev_t < MIN_PIECE_S:
             raise ControllerError(
-                f"{where}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms after the "
-                f"previous point; at least {MIN_PIECE_S * 1e3:g} ms between points"
+                f"trajectory point {n}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms "
+                f"after the previous point; at least {MIN_PIECE_S * 1e3:g} ms between points"
             )
         segs = pt.get("segments")
         if not isinstance(segs, dict) or not segs:
-            raise ControllerError(f"{where}: 'segments' must map bendable names to {{kappa, phi}}")
-        pos = current.copy()
+            raise ControllerError(
+                f"trajectory point {n}: 'segments' must map bendable names to {{kappa, phi}}"
+            )
         for name, val in segs.items():
-            if name not in index:
+            lim = lims.get(name)
+            if lim is None:
                 known = ", ".join(joints) or "none"
                 raise ControllerError(
-                    f"{where}: bendable {name!r} is not commanded by {controller!r} "
-                    f"(commanded: {known})"
+                    f"trajectory point {n}: bendable {name!r} is not commanded by "
+                    f"{controller!r} (commanded: {known})"
                 )
-            i = index[name]
-            lim = limits[name]
+            i, kappa_max, full_circle, phi_min, phi_max = lim
+            where = f"trajectory point {n}.{name}"  # only reached for a named bendable
             if not isinstance(val, dict):
-                raise ControllerError(f"{where}.{name}: expected {{kappa, phi}}")
+                raise ControllerError(f"{where}: expected {{kappa, phi}}")
             if "kx" in val or "ky" in val:
                 kx, ky = val.get("kx", 0.0), val.get("ky", 0.0)
                 if not (_finite(kx) and _finite(ky)):
-                    raise ControllerError(f"{where}.{name}: kx/ky must be numbers (1/m)")
-                kappa, phi = math.hypot(kx, ky), math.atan2(ky, kx)
+                    raise ControllerError(f"{where}: kx/ky must be numbers (1/m)")
+                kappa = math.hypot(kx, ky)
             else:
                 kappa = val.get("kappa")
                 phi = val.get("phi", 0.0)
                 if not _finite(kappa) or kappa < 0:
-                    raise ControllerError(f"{where}.{name}: kappa must be a number >= 0 (1/m)")
+                    raise ControllerError(f"{where}: kappa must be a number >= 0 (1/m)")
                 if not _finite(phi):
-                    raise ControllerError(f"{where}.{name}: phi must be a number (rad)")
+                    raise ControllerError(f"{where}: phi must be a number (rad)")
                 kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
-            if kappa > lim.kappa_max + 1e-9:
+            if kappa > kappa_max + 1e-9:
                 raise ControllerError(
-                    f"{where}.{name}: kappa {kappa:.4g} 1/m exceeds kappa_max "
-                    f"{lim.kappa_max:.4g} 1/m (goal rejected; nothing moved)"
+                    f"{where}: kappa {kappa:.4g} 1/m exceeds kappa_max "
+                    f"{kappa_max:.4g} 1/m (goal rejected; nothing moved)"
                 )
-            if not lim.full_circle and kappa > 1e-9:
+            if not full_circle and kappa > 1e-9:
                 ph = math.atan2(ky, kx)
-                if not lim.phi_min - 1e-9 <= ph <= lim.phi_max + 1e-9:
+                if not phi_min - 1e-9 <= ph <= phi_max + 1e-9:
                     raise ControllerError(
-                        f"{where}.{name}: phi {ph:.4g} rad outside [{lim.phi_min:.4g}, "
-                        f"{lim.phi_max:.4g}] rad"
+                        f"{where}: phi {ph:.4g} rad outside [{phi_min:.4g}, {phi_max:.4g}] rad"
                     )
-            pos[i] = (kx, ky)
-        knots.append((float(t), pos))
-        current = pos
+            row[2 * i] = float(kx)
+            row[2 * i + 1] = float(ky)
+        times.append(float(t))
+        flat.extend(row)
         prev_t = t
-    return knots
+    m, j = len(times), len(joints)
+    return Knots(
+        np.frombuffer(times, dtype=float), np.frombuffer(flat, dtype=float).reshape(m, j, 2)
+    )
