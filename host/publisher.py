@@ -125,7 +125,7 @@ class Fanout:
 
     def emit_event(self, event: str, message: str = "", **fields: Any) -> None:
         msg = {"kind": "event", "t": time.monotonic(), "event": event, "message": message, **fields}
-        # kept without a goal's waypoint lists: 50 events of 2000 waypoints would keep ~10^6
+        # kept without a goal's waypoint lists: 50 events of 500 waypoints would keep ~10^5
         # objects alive for the garbage collector to traverse (host/realtime.freeze_heap)
         self.recent_events.append(
             {k: v for k, v in msg.items() if k != "waypoints"} if "waypoints" in msg else msg

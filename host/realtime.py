@@ -90,12 +90,12 @@ def freeze_heap() -> int:
     built, before its loop starts; docs/daemon.md "Garbage collection").
 
     A full (generation 2) collection runs in whichever thread's allocation triggers it and
-    holds the interpreter lock for as long as it traverses every tracked object — measured
-    30–90 ms in the running daemon after a few 10 000-waypoint goals, during which the control
-    loop cannot run. ``gc.freeze()`` moves everything alive now (modules, the robot model,
-    controllers, numpy) out of the collector's reach for good, so a collection traverses only
-    what came later; the ``gc.collect()`` before it frees the garbage there is, so nothing
-    unreachable is frozen. Returns the number of objects frozen."""
+    holds the interpreter lock for as long as it traverses every tracked object — tens of ms in
+    the running daemon (benchmarks/bench_goal.py), during which the control loop cannot run.
+    ``gc.freeze()`` moves everything alive now (modules, the robot model, controllers, numpy)
+    out of the collector's reach for good, so a collection traverses only what came later; the
+    ``gc.collect()`` before it frees the garbage there is, so nothing unreachable is frozen.
+    Returns the number of objects frozen."""
     gc.collect()
     gc.freeze()
     return gc.get_freeze_count()
