@@ -21,6 +21,12 @@ DEGRADE_WINDOW = 30  # cycles looked at for loss (a burst of host load is shorte
 DEGRADE_LOSS = 0.6  # a position missing in this share of the window, with at least
 DEGRADE_LATE = 3  # this many replies arriving late meanwhile, degrades the link
 RECOVER_S = 1.5  # clean time at the lower rate before trying the nominal rate again (s)
+#: An exchange that returned this much later than its reply timeout was held up in this process
+#: (a garbage collection or another thread holding the interpreter lock delays the link reader
+#: and the loop alike), not on the link: its misses say nothing about the link (s).
+HOST_STALL_S = 0.002
+#: A silent stretch (a stall) within this long of a held-up exchange is the process's, too (s).
+HOST_STALL_HOLD_S = 0.5
 
 
 class LinkHealth:
@@ -40,6 +46,8 @@ class LinkHealth:
         self._late_seen: int | None = None
         self._t_restored: float | None = None
         self.degradations = 0
+        self.host_stalls = 0  # exchanges left out: held up in this process (HOST_STALL_S)
+        self._host_stall_at: float | None = None  # when the last one was seen
         self.last: dict[str, Any] | None = None  # what the last change measured
 
     @property
@@ -59,14 +67,25 @@ class LinkHealth:
         exchange_s: float,
         now: float,
         late_replies: Callable[[], int] = lambda: 1,
+        reply_timeout: float | None = None,
     ) -> dict[str, Any] | None:
         """One cycle: ``answered[i]`` whether position i answered; ``exchange_s`` how long
         the exchange waited; ``late_replies()`` a running count of replies that came after
         their exchange ended (asked only when replies miss). Missing replies that do arrive
         late mean a slow link: slowing down helps. Missing replies that never come (a cut, a
-        corrupting link) are reported in the loss figures and left to supervision.
+        corrupting link) are reported in the loss figures and left to supervision. An exchange
+        with misses that returned more than HOST_STALL_S after ``reply_timeout`` (s) was held up
+        in this process: it is left out (counted in ``host_stalls``), not taken for the link's.
         Returns a change ``{"period", "change", ...}`` or None."""
         if not answered:
+            return None
+        if (
+            reply_timeout is not None
+            and exchange_s > reply_timeout + HOST_STALL_S
+            and not all(answered)
+        ):
+            self.host_stalls += 1
+            self._host_stall_at = now
             return None
         if self._answered and len(self._answered[-1]) != len(answered):
             self.reset()
@@ -135,9 +154,12 @@ class LinkHealth:
     def stall(self, position: int, late: int, now: float) -> dict[str, Any] | None:
         """Supervision found a silent stretch and the very same chain behind it (a stall): with
         replies arriving late meanwhile (``late`` > 0) the link is slow — degrade at once,
-        without waiting for a full window. Returns a change as :meth:`observe` does."""
+        without waiting for a full window; unless an exchange was held up in this process less
+        than HOST_STALL_HOLD_S ago (:meth:`observe`). Returns a change as :meth:`observe` does."""
         if late <= 0 or self.period >= self.min_period * 0.999:
             return None
+        if self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S:
+            return None  # the process was held up meanwhile (see observe), not the link
         loss = self.loss()
         return self._degrade(position, loss[position] if position < len(loss) else 1.0, now)
 
@@ -177,5 +199,6 @@ class LinkHealth:
             "loss": [round(x, 3) for x in self.loss()],
             "latency_ms_p90": None if lat is None else round(lat, 2),
             "degradations": self.degradations,
+            "host_stalls": self.host_stalls,
             "last_change": dict(self.last) if self.last else None,
         }

@@ -59,6 +59,7 @@ class UsableRate:
             hwi.exchange_s,
             now,
             lambda: late_replies(link),
+            reply_timeout=hwi.reply_timeout,
         )
         self._report(hwi, change)
 

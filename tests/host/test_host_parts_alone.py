@@ -28,7 +28,10 @@ def test_usable_rate_slows_the_loop_through_its_callback_and_reports_which_link(
     )
     link = SimpleNamespace(stats={"unmatched": 0})
     rate.start(link)
-    hwi = SimpleNamespace(names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008)
+    hwi = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008,
+        reply_timeout=0.008,
+    )  # fmt: skip
     for k in range(40):  # position 1 never answers in time, its replies come late
         link.stats["unmatched"] += 1
         rate.observe(hwi, link, 0.01 * k)
@@ -36,6 +39,35 @@ def test_usable_rate_slows_the_loop_through_its_callback_and_reports_which_link(
     (kind, ev), *_ = events
     assert kind == "link_degraded" and ev["segment"] == "segment_2" and ev["link"] == 2
     assert "loop slowed to 50.0 Hz (nominal 100.0 Hz)" in ev["message"]
+
+
+def test_exchanges_held_up_in_the_daemons_own_process_do_not_slow_the_loop():
+    """A garbage collection (or any thread holding the interpreter lock) stalls the link reader
+    and the loop alike: replies miss their exchange and arrive late — what a slow link looks
+    like — but the exchange itself returns long after its reply timeout, which a slow link's
+    never does. Such exchanges are left out (counted), so the daemon does not halve its rate
+    for its own stalls."""
+    periods: list[float] = []
+    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
+    link = SimpleNamespace(stats={"unmatched": 0})
+    rate.start(link)
+    stalled = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008 + 0.015,
+        reply_timeout=0.008,
+    )  # fmt: skip
+    for k in range(40):
+        link.stats["unmatched"] += 1
+        rate.observe(stalled, link, 0.01 * k)
+    assert periods == [] and health.host_stalls == 40
+    assert health.snapshot()["host_stalls"] == 40 and not health.snapshot()["degraded"]
+    # supervision's silent stretch right after it is the process's too; later, the link's
+    link.stats["unmatched"] += 1
+    rate.stall(stalled, link, 1, 0.4)
+    assert periods == []
+    link.stats["unmatched"] += 1
+    rate.stall(stalled, link, 1, 2.0)
+    assert periods == [0.02]
 
 
 def test_chain_report_words_a_cut_and_a_rate_the_chain_cannot_carry():
