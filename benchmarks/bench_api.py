@@ -189,17 +189,10 @@ def _goal10k_sync(url: str, seconds: float) -> dict:
     """10 000-waypoint goals (uploaded in chunks by the Python client), one about every second,
     each cancelled once accepted: what a long goal's parsing, building and garbage cost the
     loop."""
-    import math
-
+    from benchmarks.bench_goal import wave
     from host.api.client import ApiError, connect
 
-    names = ("segment_1", "segment_2", "segment_3")
-    points = [
-        {"time_from_start": round(0.5 + 0.002 * i, 6), "segments": {
-            s: {"kappa": round(0.3 + 0.2 * math.sin(i / 500 + k), 6), "phi": 0.5}
-            for k, s in enumerate(names)}}
-        for i in range(10_000)
-    ]  # fmt: skip
+    points = wave(10_000)
     sent = failed = 0
     end = time.monotonic() + seconds
     with connect(url, timeout=30) as c:
@@ -222,11 +215,11 @@ async def gen_floor_relay(fd: int) -> dict:
     the API process does but with nothing else (no sessions, budgets, outboxes or guard).
     Prints its port first."""
     import socket
-    import struct
 
     import websockets
 
-    head = struct.Struct("!IB")
+    from host.api.feed import HEAD as head
+
     # keep the writer: a collected StreamWriter closes the connection
     reader, writer = await asyncio.open_connection(sock=socket.socket(fileno=fd))
     clients: set = set()

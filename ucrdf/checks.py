@@ -573,22 +573,20 @@ class _Checker:
                         f"{where}: hardware param model={model_name!r} is not a known model "
                         f"(available: {', '.join(available)})",
                     )
-            for pname in SEGMENT_MS_PARAMS:
-                if pname in control.hardware_params:
-                    try:
-                        segment_ms_param(pname, control.hardware_params[pname])
-                    except ValueError as exc:
-                        self.error(
-                            self.line((*ckey, "param", pname), cline),
-                            f"{where}: hardware param {exc} (the segments could not run it)",
-                        )
-            try:
-                hw = control.hardware_params
-                tick = segment_ms_param("tick_ms", hw.get("tick_ms", DEFAULT_TICK_MS))
-                dog = segment_ms_param("watchdog_ms", hw.get("watchdog_ms", DEFAULT_WATCHDOG_MS))
-            except ValueError:
-                pass  # reported above
-            else:
+            flashed: dict[str, int] = {}  # each ms param as the segments would run it
+            for pname, (_, _, _, default) in SEGMENT_MS_PARAMS.items():
+                if pname not in control.hardware_params:
+                    flashed[pname] = default
+                    continue
+                try:
+                    flashed[pname] = segment_ms_param(pname, control.hardware_params[pname])
+                except ValueError as exc:
+                    self.error(
+                        self.line((*ckey, "param", pname), cline),
+                        f"{where}: hardware param {exc} (the segments could not run it)",
+                    )
+            if len(flashed) == len(SEGMENT_MS_PARAMS):  # both valid: the watchdog spans 2 ticks
+                tick, dog = flashed["tick_ms"], flashed["watchdog_ms"]
                 if dog < 2 * tick:
                     self.error(
                         self.line((*ckey, "param", "watchdog_ms"), cline),
