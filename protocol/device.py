@@ -65,7 +65,13 @@ def decode_sync(buf, start, end, position, out):
     string of SP_LEN bytes per position (kappa int24, phi int16, big-endian); returns OK when
     the entry for ``position`` is present, HOLD when the string is too short or the entry is
     the hold marker, MALFORMED otherwise (out is then undefined). Unknown keys are skipped.
+    The usual encoding is decoded by one machine-code call where the port has the viper emitter
+    (``protocol._fast.sync_entry``, the same results); anything else is decoded here.
     """
+    if _sync_entry is not None and 0 <= start <= end <= len(buf):
+        rc = _sync_entry(buf, start, end, position, out)
+        if rc >= 0:
+            return rc
     r = _R
     r.reset(buf, start, end)
     if r.head() != 5:
@@ -225,8 +231,13 @@ def encode_empty(buf, off):
 def state_frame(raw, out, seq, cycle, t_ms, kappa, phi, servos, n_servos, status, pos=0):
     """Build a complete STATE wire frame (UP, hop 0) into ``out``; return its length.
 
-    ``raw`` is scratch space of MAX_FRAME bytes. Allocates nothing.
+    ``raw`` is scratch space of MAX_FRAME bytes. Allocates nothing. Where the port has the viper
+    emitter, one machine-code call (``protocol._fast.state_wire``, byte-identical) does it all.
     """
+    if _state_wire is not None and 26 + 2 * n_servos <= len(raw) and 28 + 2 * n_servos <= len(out):
+        return _state_wire(
+            raw, out, seq, cycle, t_ms, kappa, phi, status | pos << 8, servos, n_servos, _CRC_TABLE
+        )
     end = encode_state(raw, HEADER_LEN, cycle, t_ms, kappa, phi, servos, n_servos, status, pos)
     return frame_into(raw, end, FLAG_UP, 0, T_STATE, seq, out, 0)
 
@@ -273,3 +284,30 @@ def next_hop(flags, hop):
     if flags & (FLAG_UP | FLAG_BCAST):
         return (hop + 1) & 0xFF
     return hop - 1
+
+
+# The usual SYNC decoded in machine code (protocol/_fast.py) where the port has the viper emitter.
+try:
+    from protocol._fast import sync_entry as _sync_entry
+except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
+    _sync_entry = None
+
+# The STATE frame in machine code (protocol/_fast.py) where the port has the viper emitter,
+# checked against the bytecode path once, as crc.py and cobs.py check theirs.
+try:
+    from array import array
+
+    from protocol import _fast
+    from protocol.crc import _TABLE as _CRC_TABLE
+
+    _a = bytearray(48)
+    _b = bytearray(48)
+    _c = bytearray(48)
+    _sv = array("i", [12345, -99999, 5])
+    _n = _fast.state_wire(_a, _b, 7, 0x3FFFFFF1, 123456, -54321, -1234, 0x215, _sv, 3, _CRC_TABLE)
+    _m = encode_state(_a, HEADER_LEN, 0x3FFFFFF1, 123456, -54321, -1234, _sv, 3, 0x15, 2)
+    _m = frame_into(_a, _m, FLAG_UP, 0, T_STATE, 7, _c, 0)
+    _state_wire = _fast.state_wire if _n == _m and _b[:_n] == _c[:_m] else None
+    del _a, _b, _c, _sv, _n, _m
+except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
+    _state_wire = None

@@ -1,0 +1,139 @@
+"""The cycle's machine-code paths (protocol/_fast.py) give exactly the bytecode paths' results.
+
+``protocol.device`` decodes the usual SYNC (``sync_entry``) and builds a whole STATE frame
+(``state_wire``) in one viper call where the VM has the emitter (the ESP32's xtensawin, the C3's
+rv32imc, the emulator's x64); elsewhere, and for any SYNC in another encoding, the general
+bytecode paths run. These tests compare both on the VM, on random and edge inputs.
+"""
+
+from __future__ import annotations
+
+import random
+
+from protocol import messages as M
+from protocol.frame import decode_frame
+
+# Corpus for the SYNC decoder: host-encoded SYNCs, the corner cases of the decoder's own tests,
+# and mutations of them (bytes changed, truncated, appended), so both accepted and refused inputs
+# reach both decoders.
+_CASES = [
+    "a2000101450000010002",
+    "a2000101458000000000",
+    "a200010140",
+    "a2000101458000000001",
+    "a20001014400000100",
+    "a2000101820102",
+    "a10001",
+    "a3000101400002",
+    "a200010145000001000200",
+    "a2000101460000010002",
+    "a3000101450000010002098261 61a0".replace(" ", ""),
+    "a2001a400000000140",
+    "a2001a3fffffff0140",
+    "a200190100015800",
+    "a300010145000001000201",  # resume as 1, 0, true, false, 2, null
+    "a300010145000001000200",
+    "a3000101450000010002f5",
+    "a3000101450000010002f4",
+    "a300010145000001000202",
+    "a3000101450000010002f6",
+]
+
+
+def _sync_corpus(seed: int = 11, n: int = 1500) -> list[str]:
+    rnd = random.Random(seed)
+    out = list(_CASES)
+    for _ in range(n):
+        k = rnd.randint(0, 9)
+        sps = [
+            None if rnd.random() < 0.2 else (rnd.uniform(-100, 100), rnd.uniform(-3.14, 3.14))
+            for _ in range(k)
+        ]
+        cycle = rnd.choice([rnd.randint(0, 23), rnd.randint(0, 70000), rnd.randint(0, 2**30 - 1)])
+        p = bytearray(decode_frame(M.encode_sync(0, cycle, sps, rnd.random() < 0.5)).payload)
+        r = rnd.random()
+        if r < 0.3:
+            for _ in range(rnd.randint(1, 3)):
+                p[rnd.randrange(len(p))] = rnd.randint(0, 255)
+        elif r < 0.4:
+            p = p[: rnd.randint(0, len(p))]
+        elif r < 0.5:
+            p += bytes(rnd.randint(0, 255) for _ in range(rnd.randint(1, 3)))
+        out.append(p.hex())
+    return out
+
+
+def test_machine_code_sync_decoder_agrees_with_the_general_one(vm):
+    corpus = _sync_corpus()
+    r = vm(
+        f"""
+import protocol.device as pd
+C = {corpus!r}
+fast = pd._sync_entry
+R['fast'] = fast is not None
+bad = []
+hits = 0
+for h in C:
+    p = bytes.fromhex(h)
+    for pos in (0, 1, 2, 7):
+        a = [9, 9, 9, 9]
+        b = [9, 9, 9, 9]
+        ra = pd.decode_sync(p, 0, len(p), pos, a)
+        if fast(p, 0, len(p), pos, [0, 0, 0, 0]) >= 0:
+            hits += 1
+        pd._sync_entry = None
+        rb = pd.decode_sync(p, 0, len(p), pos, b)
+        pd._sync_entry = fast
+        same = ra == rb
+        if same and ra >= 0:
+            same = a[0] == b[0] and a[3] == b[3] and (ra == 0 or a[1:3] == b[1:3])
+        if not same:
+            bad.append([h, pos, ra, rb, a, b])
+R['bad'] = bad[:5]
+R['hits'] = hits
+R['n'] = 4 * len(C)
+""",
+        heap="8m",
+    )
+    assert r["fast"], "the VM has a native emitter: decode_sync must use protocol/_fast.py"
+    assert r["bad"] == []
+    assert r["hits"] > r["n"] // 3  # the usual encoding took the machine-code path
+
+
+def test_machine_code_state_frame_is_the_bytecode_frame_byte_for_byte(vm):
+    r = vm(
+        """
+import random
+from array import array
+import protocol.device as pd
+from protocol.constants import FLAG_UP, HEADER_LEN, T_STATE
+from protocol.frame import frame_into
+random.seed(5)
+R['fast'] = pd._state_wire is not None
+raw = bytearray(250)
+out = bytearray(260)
+raw2 = bytearray(250)
+out2 = bytearray(260)
+bad = []
+M30 = (1 << 30) - 1
+for k in range(3000):
+    n = random.randint(0, 12)
+    sv = [random.randint(-400000, 400000) for _ in range(n)]
+    if k % 2:
+        sv = array('i', sv)
+    v = [random.randint(0, 255), random.choice([0, M30, random.randint(0, M30)]),
+         random.choice([0, M30, random.randint(0, M30)]),
+         random.choice([-(1 << 23), (1 << 23) - 1, random.randint(-(1 << 23), (1 << 23) - 1)]),
+         random.randint(-32768, 32767), random.randint(0, 255), random.randint(0, 255)]
+    seq, cyc, t, ka, ph, st, po = v
+    a = pd.state_frame(raw, out, seq, cyc, t, ka, ph, sv, n, st, po)
+    e = pd.encode_state(raw2, HEADER_LEN, cyc, t, ka, ph, sv, n, st, po)
+    b = frame_into(raw2, e, FLAG_UP, 0, T_STATE, seq, out2, 0)
+    if a != b or out[:a] != out2[:b]:
+        bad.append([n, v])
+R['bad'] = bad[:5]
+""",
+        heap="4m",
+    )
+    assert r["fast"], "the VM has a native emitter: state_frame must use protocol/_fast.py"
+    assert r["bad"] == []
