@@ -86,25 +86,31 @@ def timed(f):
 from array import array
 from protocol import _fast, crc as _crc
 _T = _crc._TABLE
-_buf = bytearray(256)
 _raw = bytearray(256)
+_raw2 = bytearray(256)
 _out = bytearray(300)
-_st = array('i', [0] * 6)
+_rs = array('i', [0] * 10)
+_ls = array('i', [0] * 17)
+_sp = [0, 0, 0, 0]
+_sv = array('i', [1000, -2000, 3000])
 
 def machine_code():
-    # the viper calls one full cycle makes on these frames (reader x2, relay x2, CRCs, COBS)
+    # the viper calls one full cycle makes on these frames: for the SYNC and the neighbour's
+    # STATE the frame reader's scan and the relay's step (CRC for the next hop included), the
+    # SYNC entry, and the own STATE frame built
     for i in range(N):
-        for w in (SYNC, STATE):
-            n = len(w) - 1
-            _fast.collect(w, 0, len(w), _buf, 251 << 10)
-            m = _fast.cobs_decode(_buf, 0, n, _raw, 0)
-            _fast.crc16(_raw, 0, m - 2, 0xFFFF, _T)   # the reader's check
-            for k in range(6):
-                _st[k] = 0
-            _fast.relay(w, 4, len(w), _out, 0, _st)   # cut-through
-            _fast.crc16(_raw, 0, m - 2, 0xFFFF, _T)   # the CRC for the next hop
-        _fast.crc16(_raw, 0, len(STATE) - 4, 0xFFFF, _T)  # own STATE sealed
-        _fast.cobs_encode(_raw, 0, len(STATE) - 2, _out, 0)
+        for w, up in ((SYNC, 0), (STATE, 1)):
+            _rs[0] = 0
+            _rs[2] = 250
+            _rs[9] = 251
+            r = _fast.scan(w, 0, len(w), _raw, _rs, _T)
+            for k in range(17):
+                _ls[k] = 0
+            _ls[13] = up
+            _fast.relay_feed(w, 0, len(w), _out, _ls, r & 1, _raw, _rs[7], _T)
+            if not up:
+                _fast.sync_entry(_raw, 5, _rs[8], 1, _sp)
+        _fast.state_wire(_raw2, _out, 1, 42, 100, 5000, 1000, 16, _sv, 3, _T)
 
 import protocol.device as pd
 from protocol.constants import HEADER_LEN

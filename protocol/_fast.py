@@ -77,83 +77,6 @@ def cobs_decode(src, start: int, end: int, dst, off: int) -> int:
 
 
 @micropython.viper
-def collect(data, start: int, end: int, buf, n_cap: int) -> int:
-    """Copy non-zero bytes of data[start:end] to buf[n:cap] up to and including the first 0x00.
-
-    ``n_cap`` = n | cap << 10. Returns i << 10 | hit << 9 | n' where i is the next position,
-    hit = 1 if a delimiter was consumed, and n' = cap + 1 if bytes had to be dropped (overflow).
-    """
-    s = ptr8(data)
-    d = ptr8(buf)
-    n = n_cap & 0x3FF
-    cap = n_cap >> 10
-    i = start
-    while i < end:
-        b = s[i]
-        i += 1
-        if b == 0:
-            return (i << 10) | 0x200 | n
-        if n < cap:
-            d[n] = b
-            n += 1
-        else:
-            n = cap + 1
-    return (i << 10) | n
-
-
-@micropython.viper
-def relay(data, start: int, end: int, out, o: int, st) -> int:
-    """Cut-through core (``protocol.relay``): pass data[start:end] to out[o:] through a 3-byte
-    hold-back until a 0x00. ``st`` (array 'i'): [run, held, h0, h1, h2, count]; ``run`` counts the
-    data bytes left in the current COBS run of what was passed on. Returns i << 10 | hit << 9 | o.
-    """
-    s = ptr8(data)
-    d = ptr8(out)
-    t = ptr32(st)
-    run = t[0]
-    nh = t[1]
-    h0 = t[2]
-    h1 = t[3]
-    h2 = t[4]
-    cnt = t[5]
-    i = start
-    hit = 0
-    while i < end:
-        b = s[i]
-        i += 1
-        if b == 0:
-            hit = 1
-            break
-        cnt += 1
-        if nh == 3:
-            d[o] = h0
-            o += 1
-            if run == 0:
-                run = h0 - 1
-            else:
-                run -= 1
-            h0 = h1
-            h1 = h2
-            h2 = b
-        elif nh == 0:
-            h0 = b
-            nh = 1
-        elif nh == 1:
-            h1 = b
-            nh = 2
-        else:
-            h2 = b
-            nh = 3
-    t[0] = run
-    t[1] = nh
-    t[2] = h0
-    t[3] = h1
-    t[4] = h2
-    t[5] = cnt
-    return (i << 10) | (hit << 9) | o
-
-
-@micropython.viper
 def move(src, s0: int, dst, d0: int, n: int):
     """dst[d0:d0 + n] = src[s0:s0 + n] without a slice object."""
     s = ptr8(src)
@@ -326,3 +249,238 @@ def sync_entry(buf, start: int, end: int, position: int, out) -> int:
     out[0] = cycle
     out[3] = resume
     return rc
+
+
+@micropython.viper
+def relay_feed(data, start: int, end: int, out, st, good: int, raw, raw_len: int, table) -> int:
+    """Cut-through step of ``protocol.relay.Relay.feed`` over data[start:end] in one call; the
+    same contract and results as its bytecode twin ``protocol.relay_py.feed`` (state ``st``,
+    array 'i', layout in relay.py). Returns the bytes written to ``out`` | relayed << 9. The
+    caller checks the ranges (``out`` holds end - start + 8 bytes)."""
+    s = ptr8(data)
+    d = ptr8(out)
+    t = ptr32(st)
+    w = ptr8(raw)
+    tb = ptr16(table)
+    o = 0
+    i = start
+    relayed = 0
+    while i < end:
+        if t[6] == 1:  # passing the frame on, through a 3-byte hold-back
+            run = t[0]
+            nh = t[1]
+            h0 = t[2]
+            h1 = t[3]
+            h2 = t[4]
+            cnt = t[5]
+            hit = 0
+            while i < end:
+                b = s[i]
+                i += 1
+                if b == 0:
+                    hit = 1
+                    break
+                cnt += 1
+                if nh == 3:
+                    d[o] = h0
+                    o += 1
+                    if run == 0:
+                        run = h0 - 1
+                    else:
+                        run -= 1
+                    h0 = h1
+                    h1 = h2
+                    h2 = b
+                elif nh == 0:
+                    h0 = b
+                    nh = 1
+                elif nh == 1:
+                    h1 = b
+                    nh = 2
+                else:
+                    h2 = b
+                    nh = 3
+            t[0] = run
+            t[1] = nh
+            t[2] = h0
+            t[3] = h1
+            t[4] = h2
+            t[5] = cnt
+            bad = 0
+            if hit:
+                t[6] = 0
+                t[7] = 0
+                t[16] = 0
+                hop = t[12]
+                if (
+                    good
+                    and i == end
+                    and nh == 3
+                    and run == 0
+                    and raw_len >= 8
+                    and ((w[2] + 1) & 0xFF) == hop
+                ):
+                    p = raw_len - 2
+                    old = w[2]
+                    w[2] = hop
+                    c = 0xFFFF
+                    for k in range(p):
+                        c = ((c << 8) & 0xFFFF) ^ tb[((c >> 8) ^ w[k]) & 0xFF]
+                    w[2] = old
+                    hi = c >> 8
+                    lo = c & 0xFF
+                    if hi and lo:
+                        d[o] = 3
+                        d[o + 1] = hi
+                        d[o + 2] = lo
+                    elif hi:
+                        d[o] = 2
+                        d[o + 1] = hi
+                        d[o + 2] = 1
+                    elif lo:
+                        d[o] = 1
+                        d[o + 1] = 2
+                        d[o + 2] = lo
+                    else:
+                        d[o] = 1
+                        d[o + 1] = 1
+                        d[o + 2] = 1
+                    d[o + 3] = 0
+                    o += 4
+                    relayed = 1
+                    t[14] = t[14] + 1
+                else:
+                    bad = 1
+            elif cnt > 252:  # MAX_ENCODED: longer than any frame
+                t[16] = 0
+                t[6] = 2
+                bad = 1
+            if bad:  # end what was sent as invalid COBS
+                if run == 0:
+                    d[o] = 5
+                    o += 1
+                d[o] = 0
+                o += 1
+                t[15] = t[15] + 1
+            continue
+        b = s[i]
+        i += 1
+        if b == 0:
+            t[6] = 0
+            t[7] = 0
+            continue
+        if t[6] != 0:
+            continue  # not relayed: wait for the delimiter
+        n = t[7]
+        t[8 + n] = b
+        t[7] = n + 1
+        if n < 3:
+            continue
+        # the first four wire bytes: relay this frame?
+        t[6] = 2
+        c0 = t[8]
+        flags = t[10]
+        if c0 < 3 or t[9] != 2 or flags & 0xFC:  # zero in ver/flags, version, unknown/LOCAL
+            continue
+        if t[13]:
+            if not (flags & 0x01):
+                continue
+        elif (flags & 0x01) or not (flags & 0x02):
+            continue
+        if c0 == 3:
+            c3 = t[11]
+            if c3 > 251:
+                continue
+            d[o] = c3 + 3
+            t[0] = c3 - 1
+            t[12] = 1
+        else:
+            if t[11] == 255:
+                continue
+            d[o] = c0
+            t[0] = c0 - 4
+            t[12] = t[11] + 1
+        d[o + 1] = t[9]
+        d[o + 2] = flags
+        d[o + 3] = t[12]
+        o += 4
+        t[1] = 0
+        t[5] = 4
+        t[6] = 1
+        t[16] = 1
+    return o | (relayed << 9)
+
+
+@micropython.viper
+def scan(data, start: int, end: int, buf, st, table) -> int:
+    """``protocol.frame.FrameReader``'s byte loop in one call: collect data[start:end] into
+    ``buf`` until a delimiter, then decode the COBS in place and check length, pad and CRC; stop
+    after the first good frame. The same contract and results as its bytecode twin
+    ``protocol.frame._scan_py`` (state ``st``, array 'i', layout in frame.py). Returns the next
+    position << 1 | 1 if a frame completed. The caller checks ``0 <= start <= end <= len(data)``
+    (``st`` holds len(buf))."""
+    s = ptr8(data)
+    b = ptr8(buf)
+    t = ptr32(st)
+    tb = ptr16(table)
+    cap = t[9]
+    n = t[0]
+    i = start
+    while i < end:
+        c = s[i]
+        i += 1
+        if c != 0:
+            if n < cap:
+                b[n] = c
+                n += 1
+            else:
+                t[1] = 1
+            continue
+        if t[1]:  # the frame overflowed the buffer
+            t[6] = t[6] + 1
+            t[1] = 0
+            n = 0
+            continue
+        if n == 0:
+            continue  # idle padding
+        # COBS, in place (the output never overtakes the input)
+        q = 0
+        m = 0
+        while q < n:
+            code = b[q]
+            q += 1
+            stop = q + code - 1
+            if stop > n:
+                m = -1
+                break
+            while q < stop:
+                b[m] = b[q]
+                m += 1
+                q += 1
+            if code != 0xFF and q < n:
+                b[m] = 0
+                m += 1
+        n = 0
+        pe = -1
+        if m >= 7 and m <= t[2]:  # HEADER_LEN + CRC_LEN .. max_frame
+            if b[0] == 1:  # LEGACY_VERSION: no pad
+                pe = m - 2
+            elif m >= 8 and b[m - 3] == 0:  # MIN_FRAME, the pad
+                pe = m - 3
+        if pe < 0:
+            t[5] = t[5] + 1
+            continue
+        p = m - 2
+        crc = 0xFFFF
+        for k in range(p):
+            crc = ((crc << 8) & 0xFFFF) ^ tb[((crc >> 8) ^ b[k]) & 0xFF]
+        if crc != ((b[p] << 8) | b[p + 1]):
+            t[4] = t[4] + 1
+            continue
+        t[7] = m
+        t[8] = pe
+        t[3] = t[3] + 1
+        t[0] = 0
+        return (i << 1) | 1
+    t[0] = n
+    return i << 1

@@ -12,6 +12,8 @@ and exposes one checked frame at a time in preallocated buffers.
 Host conveniences (allocate): ``encode_frame``, ``decode_frame``, ``FrameReader.feed``, ``Frame``.
 """
 
+from array import array
+
 from protocol import cobs
 from protocol.cbor import dumps
 from protocol.constants import (
@@ -23,8 +25,15 @@ from protocol.constants import (
     TRAILER_LEN,
     VERSION,
 )
-from protocol.crc import crc16
+from protocol.crc import _TABLE, crc16
 from protocol.errors import MalformedError
+
+try:
+    from micropython import const
+except ImportError:  # CPython
+
+    def const(x):
+        return x
 
 
 # --------------------------------------------------------------------------------------------
@@ -207,6 +216,62 @@ def _payload_end(buf, m):
 # --------------------------------------------------------------------------------------------
 # incremental reader
 # --------------------------------------------------------------------------------------------
+# FrameReader state: one array 'i' the scan loop (machine code or its bytecode twin) works on
+_N = const(0)  # bytes collected of the frame being received
+_OVER = const(1)  # more than fit arrived before the delimiter
+_MAXF = const(2)  # max_frame
+_OK = const(3)
+_CRC_ERR = const(4)
+_FRAMING = const(5)
+_OVERSIZE = const(6)
+_RAW_LEN = const(7)  # of the frame just completed
+_PE = const(8)  # its payload end
+_CAP = const(9)  # len(raw)
+_ST_LEN = const(10)
+
+
+def _scan_py(data, i, end, buf, st, table):
+    """Bytecode twin of ``protocol._fast.scan`` (same contract, same results): consume
+    data[i:end] until one good frame completes; return the next position << 1 | completed."""
+    cap = st[_CAP]
+    n = st[_N]
+    while i < end:
+        b = data[i]
+        i += 1
+        if b != 0:
+            if n < cap:
+                buf[n] = b
+                n += 1
+            else:
+                st[_OVER] = 1
+            continue
+        # delimiter
+        if st[_OVER]:
+            st[_OVERSIZE] += 1
+            st[_OVER] = 0
+            n = 0
+            continue
+        if n == 0:
+            continue  # idle padding
+        m = cobs.decode_into(buf, 0, n, buf, 0)
+        n = 0
+        pe = _payload_end(buf, m) if m <= st[_MAXF] else -1
+        if pe < 0:
+            st[_FRAMING] += 1
+            continue
+        p = m - CRC_LEN
+        if crc16(buf, 0, p) != (buf[p] << 8) | buf[p + 1]:
+            st[_CRC_ERR] += 1
+            continue
+        st[_RAW_LEN] = m
+        st[_PE] = pe
+        st[_OK] += 1
+        st[_N] = 0
+        return i << 1 | 1
+    st[_N] = n
+    return i << 1
+
+
 class FrameReader:
     """Incremental receiver: bytes in, CRC-checked frames out; resynchronises on every 0x00.
 
@@ -219,16 +284,19 @@ class FrameReader:
                 handle(reader)    # reader.raw[HEADER_LEN:reader.payload_end], raw length raw_len
 
     Host use: ``frames = reader.feed(data)``.
+
     Counters: ``ok``, ``crc_error``, ``framing_error`` (bad COBS, runt, discarded partial),
     ``oversize`` (more than MAX_FRAME before a delimiter). Empty frames (0x00 0x00) are idle
-    padding and are not counted.
+    padding and are not counted. The byte loop is one call (``_scan``: machine code where the
+    port has the viper emitter) over the state array ``st``.
     """
 
     def __init__(self, max_frame=MAX_FRAME):
         self.max_frame = max_frame
         self.raw = bytearray(max_frame + 1)  # COBS-encoded bytes, decoded in place
-        self.n = 0
-        self.over = False
+        self.st = array("i", [0] * _ST_LEN)
+        self.st[_MAXF] = max_frame
+        self.st[_CAP] = max_frame + 1
         self.ready = False
         self.ver = 0
         self.flags = 0
@@ -237,17 +305,30 @@ class FrameReader:
         self.seq = 0
         self.raw_len = 0
         self.payload_end = 0
-        self.ok = 0
-        self.crc_error = 0
-        self.framing_error = 0
-        self.oversize = 0
+
+    @property
+    def ok(self):
+        return self.st[_OK]
+
+    @property
+    def crc_error(self):
+        return self.st[_CRC_ERR]
+
+    @property
+    def framing_error(self):
+        return self.st[_FRAMING]
+
+    @property
+    def oversize(self):
+        return self.st[_OVERSIZE]
 
     def reset(self):
         """Discard a partial frame (e.g. after a silence timeout); counts a framing error if any."""
-        if self.n or self.over:
-            self.framing_error += 1
-        self.n = 0
-        self.over = False
+        st = self.st
+        if st[_N] or st[_OVER]:
+            st[_FRAMING] += 1
+        st[_N] = 0
+        st[_OVER] = 0
         self.ready = False
 
     def scan(self, data, start, end):
@@ -255,65 +336,23 @@ class FrameReader:
 
         After the call ``ready`` tells whether a frame is available (valid until the next call).
         """
-        self.ready = False
-        buf = self.raw
-        cap = len(buf)
-        n = self.n
-        i = start
         if start < 0 or end > len(data):
             raise IndexError("scan range outside the data")
-        fast = _collect is not None and cap <= 510 and end < 0x80000
-        while i < end:
-            if fast:
-                r = _collect(data, i, end, buf, n | (cap << 10))
-                i = r >> 10
-                n = r & 0x1FF
-                if n > cap:
-                    self.over = True
-                    n = cap
-                if not (r & 0x200):
-                    break
-            else:
-                b = data[i]
-                i += 1
-                if b != 0:
-                    if n < cap:
-                        buf[n] = b
-                        n += 1
-                    else:
-                        self.over = True
-                    continue
-            # delimiter
-            if self.over:
-                self.oversize += 1
-                self.over = False
-                n = 0
-                continue
-            if n == 0:
-                continue
-            m = cobs.decode_into(buf, 0, n, buf, 0)
-            n = 0
-            pe = _payload_end(buf, m) if m <= self.max_frame else -1
-            if pe < 0:
-                self.framing_error += 1
-                continue
-            p = m - CRC_LEN
-            if crc16(buf, 0, p) != (buf[p] << 8) | buf[p + 1]:
-                self.crc_error += 1
-                continue
-            self.ver = buf[0]
-            self.flags = buf[1]
-            self.hop = buf[2]
-            self.mtype = buf[3]
-            self.seq = buf[4]
-            self.raw_len = m
-            self.payload_end = pe
-            self.ok += 1
+        st = self.st
+        r = _scan(data, start, end, self.raw, st, _TABLE)
+        if r & 1:
+            raw = self.raw
+            self.ver = raw[0]
+            self.flags = raw[1]
+            self.hop = raw[2]
+            self.mtype = raw[3]
+            self.seq = raw[4]
+            self.raw_len = st[_RAW_LEN]
+            self.payload_end = st[_PE]
             self.ready = True
-            self.n = 0
-            return i
-        self.n = n
-        return i
+        else:
+            self.ready = False
+        return r >> 1
 
     def frame(self):
         """The current frame as a Frame (allocates; host or slow path)."""
@@ -352,9 +391,9 @@ class FrameReader:
         }
 
 
-# Machine-code byte collector on MicroPython ports with the viper emitter (protocol/_fast.py).
-# Set to None to force the pure-Python loop.
+# The scan loop in machine code on MicroPython ports with the viper emitter (protocol/_fast.py);
+# elsewhere (CPython, a port without the emitter) its bytecode twin above.
 try:
-    from protocol._fast import collect as _collect
+    from protocol._fast import scan as _scan
 except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
-    _collect = None
+    _scan = _scan_py

@@ -22,16 +22,7 @@ Nothing here allocates; the byte loop is viper machine code where the port has t
 
 from array import array
 
-from protocol.constants import (
-    FLAG_BCAST,
-    FLAG_LOCAL,
-    FLAG_UP,
-    FLAGS_KNOWN,
-    MAX_ENCODED,
-    MIN_FRAME,
-    VERSION,
-)
-from protocol.crc import crc16
+from protocol.crc import _TABLE
 
 try:
     from micropython import const
@@ -41,9 +32,18 @@ except ImportError:  # CPython
         return x
 
 
-_HEAD = const(0)  # collecting the first four wire bytes
-_RELAY = const(1)  # passing the frame on
-_SKIP = const(2)  # not relayed: wait for the delimiter
+# The relay's state: one array 'i' the byte loop (machine code or its bytecode twin) works on.
+# 0..5 the hold-back (run, held, h0, h1, h2, bytes so far), then:
+_MODE = const(6)  # 0 collecting the first four wire bytes, 1 passing the frame on, 2 not relayed
+_HEADN = const(7)  # head bytes collected (8..11: the head)
+_HOP = const(12)  # the hop byte the relayed frame carries
+_UPWARD = const(13)
+_FRAMES = const(14)  # relayed with a good CRC
+_POISONED = const(15)  # relayed frames ended invalid (bad input or a silence)
+_BUSY = const(16)
+_RELAY = const(1)
+_SKIP = const(2)
+_ST_LEN = const(17)
 
 
 class Relay:
@@ -54,156 +54,57 @@ class Relay:
     (``ok``: it completed a good frame with the last of them) and writes what to send into
     ``out`` (room for ``end - start + 8`` bytes); returns that length. After it, ``relayed`` says
     whether the frame the reader handed out was passed on (then the caller must not forward it
-    again). ``busy`` is True while a frame is half sent: the port carries nothing else then.
+    again). ``busy`` is true while a frame is half sent: the port carries nothing else then.
+    The whole step is one call of ``_feed`` (machine code where the port has the viper emitter).
     """
 
     def __init__(self, upward):
-        self.upward = upward
-        self.mode = _HEAD
-        self.n = 0
-        self.head = bytearray(4)
-        self.hop = 0  # the hop byte the relayed frame carries
-        self.st = array("i", [0, 0, 0, 0, 0, 0])
-        self.relayed = False
-        self.busy = False
-        self.frames = 0  # relayed with a good CRC
-        self.poisoned = 0  # relayed frames ended invalid (bad input or a silence)
+        self.st = array("i", [0] * _ST_LEN)
+        self.st[_UPWARD] = 1 if upward else 0
+        self.relayed = 0
+        self.busy = 0
+
+    @property
+    def upward(self):
+        return bool(self.st[_UPWARD])
+
+    @property
+    def frames(self):
+        return self.st[_FRAMES]
+
+    @property
+    def poisoned(self):
+        return self.st[_POISONED]
 
     def feed(self, data, start, end, ok, rd, out):
-        self.relayed = False
-        o = 0
-        i = start
+        if start < 0 or end > len(data) or end - start + 8 > len(out):
+            raise IndexError("relay range outside the buffers")
         st = self.st
-        while i < end:
-            if self.mode == _RELAY:
-                r = _relay(data, i, end, out, o, st)
-                i = r >> 10
-                o = r & 0x1FF
-                if r & 0x200:
-                    o = self._finish(out, o, ok and i == end, rd)
-                elif st[5] > MAX_ENCODED:
-                    o = self._poison(out, o)
-                    self.mode = _SKIP
-                continue
-            b = data[i]
-            i += 1
-            if b == 0:
-                self.mode = _HEAD
-                self.n = 0
-                continue
-            if self.mode == _HEAD:
-                self.head[self.n] = b
-                self.n += 1
-                if self.n == 4:
-                    o = self._start(out, o)
-        return o
-
-    def _start(self, out, o):
-        """Decide from the first four wire bytes whether to relay; if so, send them."""
-        h = self.head
-        c0 = h[0]
-        self.mode = _SKIP
-        if c0 < 3 or h[1] != VERSION:
-            return o  # a zero in ver/flags, or another version: not relayed
-        flags = h[2]
-        if flags & ~FLAGS_KNOWN & 0xFF or flags & FLAG_LOCAL:
-            return o
-        if self.upward:
-            if not flags & FLAG_UP:
-                return o
-        elif flags & FLAG_UP or not flags & FLAG_BCAST:
-            return o
-        if c0 == 3:  # hop 0: raw 2 is a zero, head[3] is the code of the run after it
-            c3 = h[3]
-            if c3 > 251:
-                return o
-            out[o] = c3 + 3  # the runs (ver, flags) and (hop, ...) merge into one
-            run = c3 - 1
-            self.hop = 1
-        else:
-            if h[3] == 255:
-                return o  # the hop would wrap to 0 (no chain is that long)
-            out[o] = c0
-            run = c0 - 4
-            self.hop = h[3] + 1
-        out[o + 1] = h[1]
-        out[o + 2] = flags
-        out[o + 3] = self.hop
-        st = self.st
-        st[0] = run
-        st[1] = 0
-        st[5] = 4
-        self.mode = _RELAY
-        self.busy = True
-        return o + 4
-
-    def _finish(self, out, o, good, rd):
-        """The delimiter: the CRC for the new hop if the reader accepted the frame, else poison."""
-        st = self.st
-        self.mode = _HEAD
-        self.n = 0
-        self.busy = False
-        if (
-            good
-            and st[1] == 3
-            and st[0] == 0
-            and rd.raw_len >= MIN_FRAME
-            and (rd.hop + 1) & 0xFF == self.hop
-        ):
-            raw = rd.raw
-            p = rd.raw_len - 2
-            raw[2] = self.hop
-            c = crc16(raw, 0, p)
-            raw[2] = self.hop - 1
-            hi = c >> 8
-            lo = c & 0xFF
-            if hi and lo:
-                out[o] = 3
-                out[o + 1] = hi
-                out[o + 2] = lo
-            elif hi:
-                out[o] = 2
-                out[o + 1] = hi
-                out[o + 2] = 1
-            elif lo:
-                out[o] = 1
-                out[o + 1] = 2
-                out[o + 2] = lo
-            else:
-                out[o] = 1
-                out[o + 1] = 1
-                out[o + 2] = 1
-            out[o + 3] = 0
-            self.relayed = True
-            self.frames += 1
-            return o + 4
-        return self._end_invalid(out, o)
-
-    def _poison(self, out, o):
-        self.busy = False
-        return self._end_invalid(out, o)
-
-    def _end_invalid(self, out, o):
-        """End what was sent so far as invalid COBS: inside a run the delimiter comes too early;
-        at a code position a code claiming 4 more bytes is sent first."""
-        if self.st[0] == 0:
-            out[o] = 5
-            o += 1
-        out[o] = 0
-        self.poisoned += 1
-        return o + 1
+        r = _feed(data, start, end, out, st, ok, rd.raw, rd.raw_len, _TABLE)
+        self.relayed = r & 0x200
+        self.busy = st[_BUSY]
+        return r & 0x1FF
 
     def abort(self, out):
         """A silence inside a relayed frame: end it invalid now; return the bytes to send."""
-        if self.mode != _RELAY:
+        st = self.st
+        if st[_MODE] != _RELAY:
             return 0
-        self.mode = _SKIP
-        return self._poison(out, 0)
+        st[_MODE] = _SKIP
+        st[_BUSY] = 0
+        self.busy = 0
+        o = 0
+        if st[0] == 0:  # at a code position: a code claiming 4 more bytes first
+            out[0] = 5
+            o = 1
+        out[o] = 0  # inside a run: the delimiter comes too early
+        st[_POISONED] += 1
+        return o + 1
 
 
-# Machine-code byte loop on MicroPython ports with the viper emitter (protocol/_fast.py); its
+# The step in machine code on MicroPython ports with the viper emitter (protocol/_fast.py); its
 # bytecode twin (protocol/relay_py.py) is compiled only where there is no emitter (CPython too).
 try:
-    from protocol._fast import relay as _relay
+    from protocol._fast import relay_feed as _feed
 except Exception:  # ImportError on CPython; SyntaxError/ValueError where viper is unavailable
-    from protocol.relay_py import relay as _relay
+    from protocol.relay_py import feed as _feed

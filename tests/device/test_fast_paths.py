@@ -137,3 +137,83 @@ R['bad'] = bad[:5]
     )
     assert r["fast"], "the VM has a native emitter: state_frame must use protocol/_fast.py"
     assert r["bad"] == []
+
+
+def _streams(seed: int = 3, n: int = 150) -> list[list]:
+    """Wire streams of good, corrupted, truncated, oversized and idle frames, with chunk sizes."""
+    from protocol.constants import FLAG_BCAST, FLAG_UP
+    from protocol.frame import encode_frame
+
+    rnd = random.Random(seed)
+    out = []
+    for _ in range(n):
+        w = bytearray()
+        up = rnd.random() < 0.5
+        for _ in range(rnd.randint(1, 5)):
+            payload = bytes(rnd.randrange(256) for _ in range(rnd.randint(0, 60)))
+            flags = rnd.choice([FLAG_UP if up else FLAG_BCAST, 0, 4, 0x09])
+            f = bytearray(encode_frame(flags, rnd.randrange(4), 2, rnd.randrange(256), payload))
+            r = rnd.random()
+            if r < 0.2:
+                f[rnd.randrange(len(f) - 1)] ^= 1 << rnd.randrange(8)
+            elif r < 0.3:
+                f = f[: rnd.randint(1, len(f))]
+            elif r < 0.35:
+                f = bytearray(b"\x01" * 300 + b"\x00")  # oversize
+            elif r < 0.4:
+                f = bytearray(b"\x00\x00")  # idle
+            w += f
+        out.append([w.hex(), up, [rnd.randint(1, 40) for _ in range(3)]])
+    return out
+
+
+def test_machine_code_reader_and_relay_agree_with_their_bytecode_twins(vm):
+    """The frame reader's scan and the relay's step (one viper call each) against their bytecode
+    twins on the VM: the same frames, counters and relayed bytes in any chunking."""
+    r = vm(
+        f"""
+from protocol import frame as F, relay as RL, relay_py as RLP
+C = {_streams()!r}
+fast = (F._scan, RL._feed)
+R['fast'] = F._scan is not F._scan_py and RL._feed is not RLP.feed
+
+def run(hexs, up, chunks):
+    stream = bytes.fromhex(hexs)
+    rd = F.FrameReader()
+    rl = RL.Relay(up)
+    out = bytearray(600)
+    sent = bytearray()
+    got = []
+    a = 0
+    k = 0
+    while a < len(stream):
+        data = stream[a:a + chunks[k % len(chunks)]]
+        a += len(data)
+        k += 1
+        pos = 0
+        while pos < len(data):
+            nxt = rd.scan(data, pos, len(data))
+            m = rl.feed(data, pos, nxt, rd.ready, rd, out)
+            sent += out[:m]
+            if rd.ready:
+                got.append([rd.ver, rd.flags, rd.hop, rd.mtype, rd.seq, rd.raw_len,
+                            rd.payload_end, bytes(rd.raw[:rd.raw_len]).hex(), rl.relayed != 0])
+            pos = nxt
+    return [sent.hex(), got, rd.ok, rd.crc_error, rd.framing_error, rd.oversize,
+            rl.frames, rl.poisoned, rl.busy]
+
+bad = []
+for hexs, up, chunks in C:
+    F._scan, RL._feed = fast
+    a = run(hexs, up, chunks)
+    F._scan, RL._feed = F._scan_py, RLP.feed
+    b = run(hexs, up, chunks)
+    if a != b:
+        bad.append([hexs, up, chunks])
+F._scan, RL._feed = fast
+R['bad'] = bad[:3]
+""",
+        heap="8m",
+    )
+    assert r["fast"], "the VM has a native emitter: the reader and relay must use protocol/_fast.py"
+    assert r["bad"] == []

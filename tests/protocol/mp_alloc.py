@@ -140,8 +140,10 @@ def main(repeat=20, pure=False):
         crc._fast_crc = None
         cobs._fast_enc = None
         cobs._fast_dec = None
-        F._collect = None
-    print("fast", crc._fast_crc is not None and F._collect is not None)
+        F._scan = F._scan_py
+        D._sync_entry = None
+        D._state_wire = None
+    print("fast", crc._fast_crc is not None and F._scan is not F._scan_py)
     for name, fn in CHECKS:
         fn()  # warm up
         err = None

@@ -13,6 +13,8 @@ from protocol import cbor, cobs, crc
 from protocol import device as D
 from protocol import frame as F
 from protocol import messages as M
+from protocol import relay as RL
+from protocol import relay_py as RLP
 
 _FRAME_CALLS = {
     "encode_discover": M.encode_discover,
@@ -230,12 +232,22 @@ def use_pure_loops():
     crc._fast_crc = None
     cobs._fast_enc = None
     cobs._fast_dec = None
-    F._collect = None
+    F._scan = F._scan_py
+    RL._feed = RLP.feed
+    D._sync_entry = None
+    D._state_wire = None
 
 
 def fast_loops_active():
     """True when the viper loops are in use (MicroPython with the viper emitter)."""
-    return crc._fast_crc is not None and cobs._fast_enc is not None and F._collect is not None
+    return (
+        crc._fast_crc is not None
+        and cobs._fast_enc is not None
+        and F._scan is not F._scan_py
+        and RL._feed is not RLP.feed
+        and D._sync_entry is not None
+        and D._state_wire is not None
+    )
 
 
 def main(in_path, out_path, pure=False):

@@ -121,7 +121,7 @@ for hexs, up, chunks in cases:
             pos = nxt
     res.append(sent.hex())
 from protocol import _fast
-print('@@' + json.dumps([res, R._relay is _fast.relay]))
+print('@@' + json.dumps([res, R._feed is _fast.relay_feed]))
 """
 
 
