@@ -2,7 +2,8 @@
 tick, per processed SYNC (decode + forward + STATE), per forwarded upstream frame, per full cycle,
 heap bytes allocated per cycle (goal 0) and the heap left after boot.
 
-Run: .venv/bin/python benchmarks/bench_firmware.py [--reps N] [--cycles N] [--samples N] [--no-boards]
+Run: .venv/bin/python benchmarks/bench_firmware.py [--reps N] [--cycles N] [--samples N]
+     [--no-boards]
 The unix port on a PC is much faster than an ESP32: the board figures scale the VM's times by
 each board's CPU factor (tools/emulator/timing.py, derivation in docs/emulator.md), and the
 timing-model section runs the firmware with the model off and on (benchmarks/firmware_boards.py).
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -350,9 +352,15 @@ def main() -> int:
         servo_angles=[0.1, -0.2, 0.3],
         status=16,
     )
+    import tempfile
+
+    from tools.emulator.chain import populate_segment_dir
     from tools.emulator.timing import KERNEL_FUNC
 
-    paths = [mpvm.REPO, mpvm.REPO / "device", mpvm.REPO / "tests" / "device"]
+    # the firmware as a board runs it: precompiled (.mpy, tools/mpy.py), as `ucr flash` deploys
+    flash = Path(tempfile.mkdtemp(prefix="bench-firmware-"))
+    populate_segment_dir(flash)
+    paths = [flash, mpvm.REPO / "tests" / "device"]
     r: dict = {}
     for body in (VM_MEASURE, VM_PORTS):
         code = KERNEL_FUNC + (VM_SETUP + body).format(
@@ -363,6 +371,9 @@ def main() -> int:
         except (RuntimeError, FileNotFoundError) as e:
             print(f"bench_firmware: the VM run failed: {e}", file=sys.stderr)
             return 1
+        finally:
+            if body is VM_PORTS:
+                shutil.rmtree(flash, ignore_errors=True)
         line = next(x for x in out.splitlines() if x.startswith("@@"))
         r.update(json.loads(line[2:]))
     # On a board the UART methods are C: the test ports' bytecode and the harness that rewinds
@@ -404,9 +415,9 @@ def main() -> int:
     ok = r["heap_lock_ok"] and r["heap_bytes_per_cycle"] == 0
     if figs is not None:
         note = (
-            f"unix port, heap {mpvm.ESP32_HEAP}, best of {args.reps} batches of 40 cycles; a "
-            "cycle: SYNC "
-            "in and relayed, STATE out, a neighbour's STATE relayed, tick"
+            f"unix port, heap {mpvm.ESP32_HEAP}, the firmware precompiled (.mpy) as `ucr flash` "
+            f"deploys it; best of {args.reps} batches of 40 cycles; a cycle: SYNC in and "
+            "relayed, STATE out, a neighbour's STATE relayed, tick"
         )
         figs.table("vm", ["on the MicroPython unix VM", "per cycle"], note=note)
         for label, value in (
@@ -446,12 +457,12 @@ def _forwarding_bound(r: dict, pystones: float, figs: Figures | None) -> None:
 
     parts = dict(r["parts"])
     f = cpu_factor("esp32", pystones)
-    phases = {
-        "servo driver poll": parts["servo driver poll (emulated servos)"],
-        "servo fault checks": parts["servo fault checks"],
+    phases = {  # Segment.tick's phases between its relay points
+        "servo read + fault checks": parts["servo driver poll (emulated servos)"]
+        + parts["servo fault checks"],
         "MC measure": parts["MC measure (positions -> kappa, phi)"],
-        "MC update + SC + command": parts["MC update (slew, servo targets)"]
-        + parts["SC step and driver command"],
+        "MC update": parts["MC update (slew, servo targets)"],
+        "SC step + command": parts["SC step and driver command"],
         "housekeeping until the next poll": parts["chain housekeeping (service)"],
     }
     name, longest = max(phases.items(), key=lambda kv: kv[1])

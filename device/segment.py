@@ -75,6 +75,7 @@ from protocol.constants import (  # noqa: E402
     VERSION_MAX,
     VERSION_MIN,
 )
+from protocol.crc import _TABLE as _CRC_TABLE  # noqa: E402
 from protocol.frame import FrameReader, forward_into  # noqa: E402
 
 gc.collect()
@@ -105,16 +106,15 @@ _PEND = const(252)  # an own upstream frame held while a relayed frame is half s
 _RELAY_SILENCE_MS = const(50)
 _LOAD_WINDOW_MS = const(1000)  # CPU load measured over windows this long
 _T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
+_FWD_DOWN = const(2)  # protocol.device.FWD_DOWN (a const of another module is a lookup)
 
 
-def _diff(a, b):
-    """ms elapsed from the past stamp ``b`` to ``a`` (stamps wrap at 2**30), in [0, 2**30).
-
-    Unsigned on purpose: every use asks "how long since", and a signed difference would turn
-    negative (hold events back, never time out) after 2**29 ms (6.2 days) without a refresh of the
-    stamp. A stamp exactly k * 2**30 ms (12.4 days) old reads as new: at worst one interval late.
-    """
-    return (a - b) & _TMASK
+# Elapsed time: ``(a - b) & _TMASK`` is the ms from the past stamp ``b`` to ``a`` (stamps wrap at
+# 2**30), in [0, 2**30); written out where it is used (a call per use cost the cycle more than
+# the subtraction). Unsigned on purpose: every use asks "how long since", and a signed difference
+# would turn negative (hold events back, never time out) after 2**29 ms (6.2 days) without a
+# refresh of the stamp. A stamp exactly k * 2**30 ms (12.4 days) old reads as new: at worst one
+# interval late.
 
 
 class Segment:
@@ -159,6 +159,9 @@ class Segment:
         self.raw = bytearray(MAX_FRAME)
         self.wire = bytearray(MAX_ENCODED + 8)
         self.sync_out = [0, 0, 0, 0]
+        # STATE in one machine-code call where pd has it (raw and wire hold 26 + 2 n and
+        # 28 + 2 n bytes: MAX_FRAME and MAX_ENCODED + 8 do for any n the config allows)
+        self.state_wire = pd._state_wire if 26 + 2 * cfg.n <= MAX_FRAME else None
         # counters
         self.dropped = 0  # good CRC but not acceptable (direction, flags, version, malformed)
         self.events_lost = 0
@@ -276,6 +279,22 @@ class Segment:
 
     def _send_state(self, cycle, seq):
         mc = self.mc
+        if self.state_wire:  # pd.state_frame's machine-code path, called directly
+            end = self.state_wire(
+                self.raw,
+                self.wire,
+                seq,
+                cycle,
+                self.now,
+                mc.kappa,
+                mc.phi,
+                self.status() | self.position << 8,
+                mc.joint,
+                self.n,
+                _CRC_TABLE,
+            )
+            self._up(end)
+            return
         end = pd.state_frame(
             self.raw,
             self.wire,
@@ -298,11 +317,11 @@ class Segment:
         self.now = now
         total = self._pump(now, False, self.hal.rx_any())
         # (the silence clocks t_rx_up/t_rx_dn are now when bytes came just now)
-        if self.rl_dn.busy and _diff(now, self.t_rx_up) > _RELAY_SILENCE_MS:
+        if self.rl_dn.busy and ((now - self.t_rx_up) & _TMASK) > _RELAY_SILENCE_MS:
             m = self.rl_dn.abort(self.rout)  # the frame stopped mid-way: end it invalid
             if m:
                 self.hal.down.write(self.rout, m)
-        if self.rl_up.busy and _diff(now, self.t_rx_dn) > _RELAY_SILENCE_MS:
+        if self.rl_up.busy and ((now - self.t_rx_dn) & _TMASK) > _RELAY_SILENCE_MS:
             m = self.rl_up.abort(self.rout)
             if m:
                 self.hal.up.write(self.rout, m)
@@ -402,7 +421,7 @@ class Segment:
             self.dropped += 1
             self._error(r.seq, ERR_MALFORMED, r.mtype, "unknown flag bits 0x%02x" % flags)
             return
-        if not pd.version_supported(r.ver):
+        if not VERSION_MIN <= r.ver <= VERSION_MAX:  # pd.version_supported, without a call
             self.dropped += 1
             self._reply(
                 T_ERROR,
@@ -417,7 +436,7 @@ class Segment:
             return
         hop = r.hop
         rt = pd.route(flags, hop)
-        if rt & 3 == pd.FWD_DOWN and not self.rl_dn.relayed:
+        if rt & 3 == _FWD_DOWN and not self.rl_dn.relayed:
             # store-and-forward what was not relayed (addressed frames); payload bytes intact
             end = forward_into(r.raw, r.raw_len, pd.next_hop(flags, hop), self.wire)
             self.hal.down.write(self.wire, end)
@@ -501,7 +520,7 @@ class Segment:
             if not self.moving:
                 self._start_moving()
             if res == pd.OK:
-                c = self.mc.set_target(out[1], out[2], _diff(self.now, self.last_sp))
+                c = self.mc.set_target(out[1], out[2], (self.now - self.last_sp) & _TMASK)
                 self.last_sp = self.now
                 self.sp_clamp = c
                 self.clamped |= c
@@ -587,20 +606,22 @@ class Segment:
         self.now = now
         bus = self.bus
         mc = self.mc
+        # relay points (docs/firmware.md "Forwarding inside a tick") between phases of about
+        # equal length: servo read + fault checks, measure, MC update, SC step + command
         bus.poll(now)
-        self.relay_point()
         self._faults(now)
         self.relay_point()
         mc.measure(bus.pos)
         self.relay_point()
         if self.wd_armed and not self.wd_tripped:
-            if _diff(now, self.last_feed) > self.watchdog_ms:
+            if ((now - self.last_feed) & _TMASK) > self.watchdog_ms:
                 self.wd_tripped = True
-                self.event(EV_WATCHDOG_TRIPPED, _diff(now, self.last_feed))
+                self.event(EV_WATCHDOG_TRIPPED, (now - self.last_feed) & _TMASK)
         if self.moving and not self._may_move():
             self._stop_moving()
         if self.moving:
             f = mc.update()
+            self.relay_point()
             bus.command(self.sc.step(mc.servo_target), now)
             if bus.saturated:
                 f |= CLAMP_SERVO  # output clipped (PWM pulse range): pos holds the achieved angle
@@ -615,7 +636,7 @@ class Segment:
         self.cycle_us = us
         if us > self.cycle_us_max:
             self.cycle_us_max = us
-        if _diff(now, self.load_ms) >= _LOAD_WINDOW_MS:
+        if ((now - self.load_ms) & _TMASK) >= _LOAD_WINDOW_MS:
             self._measure_load(now)
 
     def _measure_load(self, now):
@@ -643,7 +664,7 @@ class Segment:
         """Chain housekeeping of a tick (downstream presence, LIMIT_CLAMPED, EVENT or ALIVE).
         ``main.Runner`` calls it on its own when the control part raised, so a segment in FAULT
         still reports and keeps its link alive."""
-        if self.down_present and _diff(now, self.last_down_rx) > DOWNSTREAM_TIMEOUT_MS:
+        if self.down_present and ((now - self.last_down_rx) & _TMASK) > DOWNSTREAM_TIMEOUT_MS:
             self.down_present = False
             self.event(EV_DOWNSTREAM_DOWN, 0)
         # LIMIT_CLAMPED: one in the queue at a time, queued >= 100 ms after the previous one was
@@ -651,14 +672,14 @@ class Segment:
         if (
             self.clamp_pending
             and not self.clamp_queued
-            and _diff(now, self.last_clamp_ev) >= _CLAMP_EVENT_MS
+            and ((now - self.last_clamp_ev) & _TMASK) >= _CLAMP_EVENT_MS
             and self.event(EV_LIMIT_CLAMPED, self.clamp_pending)
         ):
             self.clamp_pending = 0
             self.clamp_queued = True
         if self.rl_up.busy or self.pend_len:
             return  # a relayed frame is half sent upstream: events wait in their queue
-        if self.ev_len and _diff(now, self.last_event) >= EVENT_MIN_INTERVAL_MS:
+        if self.ev_len and ((now - self.last_event) & _TMASK) >= EVENT_MIN_INTERVAL_MS:
             j = self.ev_head * 2
             code = self.evq[j]
             if code == EV_LIMIT_CLAMPED:
@@ -672,7 +693,7 @@ class Segment:
             self.ev_head = (self.ev_head + 1) % _EVQ
             self.ev_len -= 1
             self.last_event = now
-        elif _diff(now, self.last_up_tx) >= ALIVE_SILENCE_MS:
+        elif ((now - self.last_up_tx) & _TMASK) >= ALIVE_SILENCE_MS:
             self._up(pd.alive_frame(self.raw, self.wire, 0))
 
     def _faults(self, now):
@@ -693,7 +714,7 @@ class Segment:
                 if -_STALL_TOL <= e <= _STALL_TOL or d > _STALL_MOVE or d < -_STALL_MOVE:
                     self.stall_ref[i] = p
                     self.stall_t[i] = now
-                elif _diff(now, self.stall_t[i]) > _STALL_MS:
+                elif ((now - self.stall_t[i]) & _TMASK) > _STALL_MS:
                     f = FAULT_STALL
             if f != FAULT_NONE and self.prev_fault[i] == FAULT_NONE:
                 self.fault_bits |= 1 << i
