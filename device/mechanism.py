@@ -214,6 +214,8 @@ class Mechanism:
         return flags | self._servo_targets()
 
     def _servo_targets(self):
+        if _fast:
+            return _fast.servo_targets(self)  # the loop below in machine code
         flags = 0
         cx = self.cx
         cy = self.cy
@@ -238,24 +240,29 @@ class Mechanism:
     # ---- backward --------------------------------------------------------------------------
     def measure(self, positions):
         """Servo positions (raw, 1e-4 rad, array) -> tendon lengths, (kx, ky), kappa, phi."""
-        qb = self.q_b
-        qi = self.q_i
-        sx = 0
-        sy = 0
-        for i in range(self.n):
-            rel = positions[i] - self.zero[i]
-            if rel < self.mlo[i]:
-                rel = self.mlo[i]
-            elif rel > self.mhi[i]:
-                rel = self.mhi[i]
-            a = rel if self.dir[i] > 0 else -rel
-            self.joint[i] = a
-            dl = -mulq(a, self.spool_back, qb)
-            self.tendon[i] = self.length_um + dl
-            sx += mulq(-dl, self.ix[i], qi)
-            sy += mulq(-dl, self.iy[i], qi)
-        self.mx = sx
-        self.my = sy
+        if _fast:
+            _fast.measure(self, positions)  # the loop below in machine code: sets mx, my
+            sx = self.mx
+            sy = self.my
+        else:
+            qb = self.q_b
+            qi = self.q_i
+            sx = 0
+            sy = 0
+            for i in range(self.n):
+                rel = positions[i] - self.zero[i]
+                if rel < self.mlo[i]:
+                    rel = self.mlo[i]
+                elif rel > self.mhi[i]:
+                    rel = self.mhi[i]
+                a = rel if self.dir[i] > 0 else -rel
+                self.joint[i] = a
+                dl = -mulq(a, self.spool_back, qb)
+                self.tendon[i] = self.length_um + dl
+                sx += mulq(-dl, self.ix[i], qi)
+                sy += mulq(-dl, self.iy[i], qi)
+            self.mx = sx
+            self.my = sy
         if -_PHI_HOLD_EPS < sx < _PHI_HOLD_EPS and -_PHI_HOLD_EPS < sy < _PHI_HOLD_EPS:
             # about straight: kappa from the larger component, phi held
             ax = sx if sx >= 0 else -sx
@@ -274,3 +281,13 @@ class Mechanism:
         self.rate_excess = False
         for i in range(self.n):
             self.servo_target[i] = positions[i]
+
+
+# The per-servo loops in machine code where fxp uses fxp_fast (a native emitter): mech_fast.py,
+# the same integers (tests/device/test_fast_paths.py); elsewhere the loops above.
+_fast = None
+if fxp.mulq is not fxp._plain[0]:
+    try:
+        import mech_fast as _fast
+    except Exception:  # a MemoryError compiling it from source (`ucr flash --source`)
+        _fast = None

@@ -217,3 +217,68 @@ R['bad'] = bad[:3]
     )
     assert r["fast"], "the VM has a native emitter: the reader and relay must use protocol/_fast.py"
     assert r["bad"] == []
+
+
+_MECH_CONFIGS = [
+    {},  # the paper's segment
+    {  # four tendons, mixed directions, offsets and narrow ranges: clamps on both sides
+        "length": 0.12,
+        "tendon_radius": 0.012,
+        "spool_radius": 0.008,
+        "kappa_max": 20.0,
+        "tendon_angles": [0.3, 1.9, 3.4, 5.0],
+        "servos": [
+            {"zero_offset": 0.4, "direction": -1, "min_angle": -1.0, "max_angle": 0.8},
+            {"zero_offset": -0.7, "direction": 1, "min_angle": -0.5, "max_angle": 1.2},
+            {"zero_offset": 0.0, "direction": -1, "min_angle": -2.0, "max_angle": 2.0},
+            {"zero_offset": 1.1, "direction": 1, "min_angle": -0.3, "max_angle": 0.3},
+        ],
+    },
+]
+
+
+def test_machine_code_mechanism_loops_give_the_bytecode_loops_integers(vm):
+    """device/mech_fast.py (Mechanism.measure's loop, _servo_targets) against the bytecode loops:
+    the same joint angles, tendon lengths, curvature, servo targets and clamp bit, for positions
+    inside and far outside the ranges and curvature vectors up to beyond kappa_max."""
+    import json
+
+    r = vm(
+        f"""
+import random, config, mechanism
+from array import array
+random.seed(9)
+R['fast'] = mechanism._fast is not None
+fast = mechanism._fast
+bad = []
+for c in json.loads({json.dumps(json.dumps(_MECH_CONFIGS))}):
+    cfg = config.Config(c)
+    assert not cfg.error, cfg.error
+    m = mechanism.Mechanism(cfg, 5)
+    n = cfg.n
+    for k in range(400):
+        pos = array('i', [cfg.zero[i] + random.randint(-40000, 40000) for i in range(n)])
+        res = []
+        for use in (fast, None):
+            mechanism._fast = use
+            m.measure(pos)
+            res.append([list(m.joint), list(m.tendon), m.mx, m.my, m.kappa, m.phi])
+        if res[0] != res[1]:
+            bad.append(['measure', list(pos), res])
+        km = 2 * cfg.kappa_max
+        m.cx = random.randint(-km, km)
+        m.cy = random.randint(-km, km)
+        res = []
+        for use in (fast, None):
+            mechanism._fast = use
+            f = m._servo_targets()
+            res.append([f, list(m.tendon_cmd), list(m.servo_target)])
+        if res[0] != res[1]:
+            bad.append(['targets', m.cx, m.cy, res])
+    mechanism._fast = fast
+R['bad'] = bad[:3]
+""",
+        heap="1m",
+    )
+    assert r["fast"], "the VM has a native emitter: mechanism must use device/mech_fast.py"
+    assert r["bad"] == []
