@@ -52,9 +52,15 @@ class PwmBus(ServoBus):
         self.known = True
         self.pulse_ns = array("i", [self.centre_ns] * cfg.n)
 
+    def _outputs(self):
+        """The PWM outputs, made at the first command (no pulses during the boot hold). A method
+        of its own: a comprehension in ``_send`` would make ``self`` a closure cell there, a heap
+        allocation on every command."""
+        self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
+
     def _send(self, targets, now_ms):
-        if self.pwm is None:  # first command: create the outputs (no pulses during boot hold)
-            self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
+        if self.pwm is None:
+            self._outputs()
         h = self.half
         sat = False
         for i in range(self.n):

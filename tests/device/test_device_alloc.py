@@ -11,13 +11,18 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from protocol import messages as M
 from tests.device.conftest import decode, frames
 
 CYCLES = 20
 
 
-def test_a_full_cycle_allocates_nothing_under_heap_lock(vm):
+@pytest.mark.parametrize("driver", ["emulated", "pwm"])
+def test_a_full_cycle_allocates_nothing_under_heap_lock(vm, driver):
+    """With the emulator's servo driver and with the PWM driver (an ESP32 segment's default,
+    machine.PWM replaced by the kit's LoopPwm): a PwmBus once allocated 32 bytes per command."""
     syncs = [
         M.encode_sync(i, 100 + i, [(2.0 + 0.02 * i, math.sin(i) * 3.0), (1.0, 0.0)])
         for i in range(CYCLES)
@@ -40,7 +45,7 @@ def test_a_full_cycle_allocates_nothing_under_heap_lock(vm):
         f"""
 import micropython, gc
 gc.collect()  # the script's own parse (its hex data) leaves garbage: free it before the boot
-hal, seg = vmkit.make({{'sc': 'p_slew'}})
+hal, seg = vmkit.make({{'sc': 'p_slew', 'servo_driver': '{driver}'}})
 hal.up.feed(bytes.fromhex('{b"".join(syncs).hex()}'))
 gc.collect()
 hal.down.feed(bytes.fromhex('{b"".join(states).hex()}'))

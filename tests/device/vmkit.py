@@ -123,7 +123,19 @@ class LoopHal:
         raise ValueError("no servo uart on the loopback HAL")
 
     def pwm(self, pin, freq):
-        raise ValueError("no pwm on the loopback HAL")
+        return LoopPwm(pin, freq)
+
+
+class LoopPwm:
+    """A PWM output as ``machine.PWM`` (``duty_ns`` is a C call on the board): keeps the pulse."""
+
+    def __init__(self, pin, freq):
+        self.pin = pin
+        self.freq = freq
+        self.ns = 0
+
+    def duty_ns(self, ns):
+        self.ns = ns
 
 
 def make(data=None, faults=None, tick_ms=5, unconfigured=False):
