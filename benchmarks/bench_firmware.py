@@ -28,7 +28,7 @@ from tools import mpvm  # noqa: E402
 VM_SETUP = """
 import gc, json, time, micropython
 import vmkit
-hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+hal, seg = vmkit.make({{'watchdog_ms': 60000, 'servo_driver': '{driver}'}})
 SYNC = bytes.fromhex('{sync}')
 STATE = bytes.fromhex('{state}')
 hal.up.feed(SYNC)
@@ -153,7 +153,7 @@ def _state():
     hal.up.discard()
 
 PARTS = (
-    ('servo driver poll (emulated servos)', lambda: bus.poll(hal.t)),
+    ('servo driver poll ({driver} servos)', lambda: bus.poll(hal.t)),
     ('servo fault checks', lambda: seg._faults(hal.t)),
     ('MC measure (positions -> kappa, phi)', lambda: mc.measure(bus.pos)),
     ('MC update (slew, servo targets)', lambda: mc.update()),
@@ -275,7 +275,7 @@ def harness():
         hal.up.discard()
         hal.down.discard()
 
-_calls = {{'rd_data': 0, 'rd_empty': 0, 'write': 0, 'any': 0}}
+_calls = {{'rd_data': 0, 'rd_empty': 0, 'write': 0, 'any': 0, 'pwm': 0}}
 
 def _counting(u):
     real_rd, real_wr, real_any = u.readinto, u.write, u.any
@@ -293,16 +293,30 @@ def _counting(u):
     u.write = wr
     u.any = an
 
+def _counting_pwm(p):
+    real = p.duty_ns
+    def duty(ns):
+        _calls['pwm'] += 1
+        return real(ns)
+    p.duty_ns = duty
+
+PWMS = getattr(seg.bus, 'pwm', None) or []
+
 def port_calls():
     # the test ports' calls one full cycle makes, counted (instance attributes shadow the
-    # methods for the count, then go), and what each costs as the test port's bytecode
+    # methods for the count, then go), and what each costs as the test port's bytecode; the
+    # PWM outputs' duty_ns (machine.PWM on a board: C) likewise
     for u in (hal.up, hal.down):
         _counting(u)
+    for p in PWMS:
+        _counting_pwm(p)
     full()
     for u in (hal.up, hal.down):
         del u.readinto
         del u.write
         del u.any
+    for p in PWMS:
+        del p.duty_ns
     counts = dict((k, v / N) for k, v in _calls.items())
     base = part(lambda: rewind(hal.up, len(SYNC)) or hal.down.discard())
     cost = {{
@@ -312,6 +326,7 @@ def port_calls():
                         or hal.down.discard()) - base,
         'write': part(lambda: hal.down.write(_rx, len(SYNC)) or hal.down.discard())
                  - part(lambda: hal.down.discard()),
+        'pwm': part(lambda: PWMS[0].duty_ns(1500000)) if PWMS else 0.0,
     }}
     return counts, cost
 
@@ -328,6 +343,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument(
         "--cycles", type=int, default=500, help="cycles of the heap measurements (default 500)"
+    )
+    ap.add_argument(
+        "--driver",
+        choices=("pwm", "emulated"),
+        default="pwm",
+        help="the segment's servo driver: pwm (an ESP32 segment's default; its outputs' "
+        "duty_ns counted as C calls) or emulated (the emulator's servo model, which a board "
+        "does not run)",
     )
     ap.add_argument(
         "--reps",
@@ -364,7 +387,11 @@ def main() -> int:
     r: dict = {}
     for body in (VM_MEASURE, VM_PORTS):
         code = KERNEL_FUNC + (VM_SETUP + body).format(
-            sync=sync.hex(), state=state.hex(), cycles=args.cycles, reps=args.reps
+            sync=sync.hex(),
+            state=state.hex(),
+            cycles=args.cycles,
+            reps=args.reps,
+            driver=args.driver,
         )
         try:
             out = mpvm.run_code(code, paths=paths, timeout=300)
@@ -376,6 +403,7 @@ def main() -> int:
                 shutil.rmtree(flash, ignore_errors=True)
         line = next(x for x in out.splitlines() if x.startswith("@@"))
         r.update(json.loads(line[2:]))
+    r["driver"] = args.driver
     # On a board the UART methods are C: the test ports' bytecode and the harness that rewinds
     # them are not the firmware's. The board figures use the cycle without them, each port
     # call costing one empty call instead (as the relay-path part does).
@@ -458,7 +486,7 @@ def _forwarding_bound(r: dict, pystones: float, figs: Figures | None) -> None:
     parts = dict(r["parts"])
     f = cpu_factor("esp32", pystones)
     phases = {  # Segment.tick's phases between its relay points
-        "servo read + fault checks": parts["servo driver poll (emulated servos)"]
+        "servo read + fault checks": parts[f"servo driver poll ({r['driver']} servos)"]
         + parts["servo fault checks"],
         "MC measure": parts["MC measure (positions -> kappa, phi)"],
         "MC update": parts["MC update (slew, servo targets)"],

@@ -80,12 +80,15 @@ class SimpleControllers:
 
     def step(self, targets):
         lim = self.step_limit
+        cmd = self.cmd
+        direct = self.name == "direct"  # command = target: no strategy call per servo
+        strategies = self.strategies
         for i in range(self.n):
-            c = self.cmd[i]
-            nc = self.strategies[i].step(targets[i], c)
+            c = cmd[i]
+            nc = targets[i] if direct else strategies[i].step(targets[i], c)
             if nc - c > lim:
                 nc = c + lim
             elif c - nc > lim:
                 nc = c - lim
-            self.cmd[i] = nc
-        return self.cmd
+            cmd[i] = nc
+        return cmd

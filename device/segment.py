@@ -701,14 +701,19 @@ class Segment:
         fb = bus.feedback
         moving = self.moving
         known = bus.known
+        fault = bus.fault  # arrays bound once: an attribute lookup per use cost the tick more
+        pos = bus.pos
+        lo = self.range_lo
+        hi = self.range_hi
+        prev = self.prev_fault
         for i in range(self.n):
-            f = bus.fault[i]
+            f = fault[i]
             if f == FAULT_NONE and known:
-                p = bus.pos[i]
-                if p < self.range_lo[i] or p > self.range_hi[i]:
+                p = pos[i]
+                if p < lo[i] or p > hi[i]:
                     f = FAULT_RANGE  # e.g. powered up outside its range: never start there
             if fb and moving and f == FAULT_NONE:
-                p = bus.pos[i]
+                p = pos[i]
                 e = self.sc.cmd[i] - p
                 d = p - self.stall_ref[i]
                 if -_STALL_TOL <= e <= _STALL_TOL or d > _STALL_MOVE or d < -_STALL_MOVE:
@@ -716,11 +721,11 @@ class Segment:
                     self.stall_t[i] = now
                 elif ((now - self.stall_t[i]) & _TMASK) > _STALL_MS:
                     f = FAULT_STALL
-            if f != FAULT_NONE and self.prev_fault[i] == FAULT_NONE:
+            if f != FAULT_NONE and prev[i] == FAULT_NONE:
                 self.fault_bits |= 1 << i
                 self.event(EV_SERVO_FAULT, i)
                 self.enter_hold()
-            self.prev_fault[i] = f
+            prev[i] = f
 
     # ---- slow path (device/params.py: compiled apart, so boot needs less heap at once) --------
     def descriptor(self):
