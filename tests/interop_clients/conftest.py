@@ -105,9 +105,15 @@ def whole_chain(client, timeout: float = 30.0) -> None:
 
 
 def _starved(result: dict) -> bool:
-    """An abort that a starved emulator causes on a loaded machine (the daemon being safe)."""
+    """An abort that a starved emulator causes on a loaded machine (the daemon being safe): a
+    segment process not scheduled for 150 ms reads as a neighbour gone (DOWNSTREAM_DOWN, a
+    topology change) or as a lost link, path error or hold."""
     why = result.get("reason", "")
-    return any(w in why for w in ("topology changed", "link loss", "path tolerance", "holding"))
+    cause = (result.get("abort") or {}).get("cause")
+    return cause in ("topology_change", "link_loss", "path_tolerance", "segment_fault") or any(
+        w in why
+        for w in ("topology changed", "link loss", "path tolerance", "holding", "DOWNSTREAM_DOWN")
+    )
 
 
 def straighten(client, timeout: float = 30.0) -> None:
