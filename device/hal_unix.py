@@ -218,13 +218,21 @@ class Hal:
         what this host did since the last wait or write (a relay point comes that much later)."""
         if self.timing:
             self.stretch()
+        t0 = time.ticks_us()
         m = 0
         for f, _ in self._host_poller.ipoll(0):
             if f is self._up_f:
                 m |= 1
             else:
                 m |= 2
+        if self.timing:
+            self.not_compute(t0)  # UART.any() on the board: C, not the host's poll(2)
         return m
+
+    def not_compute(self, t0):
+        """Timing model: the host time since ``t0`` (a system call standing in for the board's
+        C driver call) is left out of the compute the next ``stretch`` holds for."""
+        self._busy_from = time.ticks_add(self._busy_from, time.ticks_diff(time.ticks_us(), t0))
 
     def stretch(self):
         """Timing model: the board is still computing what this host did since the last wait

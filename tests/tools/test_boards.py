@@ -250,6 +250,31 @@ def test_the_timing_model_makes_a_segment_answer_at_the_boards_speed() -> None:
     assert min(rtts) >= 0.015, rtts
 
 
+def test_the_timing_model_does_not_stretch_the_hosts_uart_system_calls() -> None:
+    """A UART call is C on the board (copies into the driver's ring buffer): the host's read and
+    write system calls, slow on a loaded host, must not count as the board's compute and be
+    multiplied by the CPU factor. A stand-in UART whose calls take 20 ms leaves the compute to
+    stretch at what the code around them took (ms, printed)."""
+    out = _vm(
+        "import time, emu_board, hal_unix\n"
+        "class Slow:\n"
+        " f = None\n irq_set = False\n"
+        " def readinto(self, b):\n  time.sleep_ms(20)\n  return 3\n"
+        " def write(self, b, n=-1):\n  time.sleep_ms(20)\n  return n\n"
+        "class H:\n"
+        " not_compute = hal_unix.Hal.not_compute\n"
+        " def stretch(self):\n  self._busy_from = time.ticks_us()\n"
+        "h = H()\n"
+        "u = emu_board.StretchUart(Slow(), h)\n"
+        "h._busy_from = time.ticks_us()\n"
+        "u.readinto(bytearray(4))\n"
+        "u.write(b'abc', 3)\n"
+        "print('compute', time.ticks_diff(time.ticks_us(), h._busy_from) // 1000)\n"
+    )
+    compute_ms = int(out.split("compute")[1].split()[0])
+    assert compute_ms < 10, out  # both calls' 40 ms were left out
+
+
 def test_board_and_wiring_survive_a_write_and_parse(tmp_path) -> None:
     from ucrdf.parser import parse_string
     from ucrdf.writer import dumps
