@@ -106,7 +106,7 @@ _raw = bytearray(256)
 _raw2 = bytearray(256)
 _out = bytearray(300)
 _rs = array('i', [0] * 10)
-_ls = array('i', [0] * 17)
+_ls = array('i', [0] * 19)
 _sp = [0, 0, 0, 0]
 _sv = array('i', [1000, -2000, 3000])
 
@@ -120,7 +120,7 @@ def machine_code():
             _rs[2] = 250
             _rs[9] = 251
             r = _fast.scan(w, 0, len(w), _raw, _rs, _T)
-            for k in range(17):
+            for k in range(19):
                 _ls[k] = 0
             _ls[13] = up
             _fast.relay_feed(w, 0, len(w), _out, _ls, r & 1, _raw, _rs[7], _T)

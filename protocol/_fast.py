@@ -255,7 +255,7 @@ def sync_entry(buf, start: int, end: int, position: int, out) -> int:
 def relay_feed(data, start: int, end: int, out, st, good: int, raw, raw_len: int, table) -> int:
     """Cut-through step of ``protocol.relay.Relay.feed`` over data[start:end] in one call; the
     same contract and results as its bytecode twin ``protocol.relay_py.feed`` (state ``st``,
-    array 'i', layout in relay.py). Returns the bytes written to ``out`` | relayed << 9. The
+    array 'i', layout in relay.py). Returns the bytes written to ``out`` | relayed << 16. The
     caller checks the ranges (``out`` holds end - start + 8 bytes)."""
     s = ptr8(data)
     d = ptr8(out)
@@ -408,7 +408,7 @@ def relay_feed(data, start: int, end: int, out, st, good: int, raw, raw_len: int
         t[5] = 4
         t[6] = 1
         t[16] = 1
-    return o | (relayed << 9)
+    return o | (relayed << 16)
 
 
 @micropython.viper

@@ -41,9 +41,10 @@ _UPWARD = const(13)
 _FRAMES = const(14)  # relayed with a good CRC
 _POISONED = const(15)  # relayed frames ended invalid (bad input or a silence)
 _BUSY = const(16)
+# 17, 18: the bytecode twin's scratch (relay_py.relay's position and output length)
 _RELAY = const(1)
 _SKIP = const(2)
-_ST_LEN = const(17)
+_ST_LEN = const(19)
 
 
 class Relay:
@@ -77,13 +78,13 @@ class Relay:
         return self.st[_POISONED]
 
     def feed(self, data, start, end, ok, rd, out):
-        if start < 0 or end > len(data) or end - start + 8 > len(out):
-            raise IndexError("relay range outside the buffers")
+        if start < 0 or end > len(data) or end - start + 8 > len(out) or end - start > 0xFF00:
+            raise IndexError("relay range outside the buffers (or over 65280 bytes at once)")
         st = self.st
         r = _feed(data, start, end, out, st, ok, rd.raw, rd.raw_len, _TABLE)
-        self.relayed = r & 0x200
+        self.relayed = r & 0x10000
         self.busy = st[_BUSY]
-        return r & 0x1FF
+        return r & 0xFFFF
 
     def abort(self, out):
         """A silence inside a relayed frame: end it invalid now; return the bytes to send."""

@@ -5,7 +5,9 @@
 def relay(data, i, end, out, o, st):
     """The hold-back loop of ``feed``: pass data[i:end] to out[o:] through a 3-byte hold-back
     until a 0x00. ``st``: [run, held, h0, h1, h2, count, ...]; ``run`` counts the data bytes left
-    in the current COBS run of what was passed on. Returns i << 10 | hit << 9 | o."""
+    in the current COBS run of what was passed on. Leaves the next position in st[17] and the
+    output length in st[18] (no tuple: this runs on boards without viper); returns 1 if it
+    stopped at a delimiter."""
     run = st[0]
     nh = st[1]
     h0 = st[2]
@@ -42,7 +44,9 @@ def relay(data, i, end, out, o, st):
     st[3] = h1
     st[4] = h2
     st[5] = cnt
-    return (i << 10) | (hit << 9) | o
+    st[17] = i
+    st[18] = o
+    return hit
 
 
 def feed(data, start, end, out, st, good, raw, raw_len, table):
@@ -53,10 +57,10 @@ def feed(data, start, end, out, st, good, raw, raw_len, table):
     relayed = 0
     while i < end:
         if st[6] == 1:  # passing the frame on
-            r = relay(data, i, end, out, o, st)
-            i = r >> 10
-            o = r & 0x1FF
-            if r & 0x200:  # the delimiter: the CRC for the new hop if the reader accepted it
+            hit = relay(data, i, end, out, o, st)
+            i = st[17]
+            o = st[18]
+            if hit:  # the delimiter: the CRC for the new hop if the reader accepted it
                 st[6] = 0
                 st[7] = 0
                 st[16] = 0
@@ -84,7 +88,7 @@ def feed(data, start, end, out, st, good, raw, raw_len, table):
             st[7] = n + 1
             if n == 3:
                 o = _start(out, o, st)
-    return o | relayed << 9
+    return o | relayed << 16
 
 
 def _start(out, o, st):

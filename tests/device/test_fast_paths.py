@@ -164,6 +164,7 @@ def _streams(seed: int = 3, n: int = 150) -> list[list]:
                 f = bytearray(b"\x00\x00")  # idle
             w += f
         out.append([w.hex(), up, [rnd.randint(1, 40) for _ in range(3)]])
+    out.append([out[-1][0] * 3, out[-1][1], [4000]])  # one long read: > 512 bytes relayed at once
     return out
 
 
@@ -181,7 +182,7 @@ def run(hexs, up, chunks):
     stream = bytes.fromhex(hexs)
     rd = F.FrameReader()
     rl = RL.Relay(up)
-    out = bytearray(600)
+    out = bytearray(4100)
     sent = bytearray()
     got = []
     a = 0

@@ -21,7 +21,7 @@ def through(stream: bytes, upward: bool, chunks: list[int]) -> bytes:
     """Feed ``stream`` to a reader + relay pair in the given chunk sizes; return what it sends."""
     rd = FrameReader()
     rl = R.Relay(upward)
-    out = bytearray(600)
+    out = bytearray(max(chunks) + 8)
     sent = bytearray()
     a = 0
     k = 0
@@ -55,6 +55,23 @@ def test_a_relayed_broadcast_is_the_frame_with_the_next_hop(payload, hop, seq, c
 def test_a_relayed_upstream_frame_is_the_frame_with_the_next_hop(payload, hop, seq, chunks) -> None:
     w = encode_frame(FLAG_UP, hop, T_STATE, seq, payload)
     assert through(w, True, chunks) == encode_frame(FLAG_UP, hop + 1, T_STATE, seq, payload)
+
+
+def test_a_long_read_is_relayed_as_in_short_ones() -> None:
+    """More than 512 bytes relayed by one call: frames with a broken CRC do not stop the
+    reader's scan, so one read of twenty of them is one relay step (its output length once
+    shared an int with a flag at bit 9 and wrapped). The same bytes go out however it is read."""
+    frames = []
+    for k in range(20):
+        w = bytearray(encode_frame(FLAG_BCAST, 1, T_SYNC, k, bytes(range(1, 41))))
+        w[10] ^= 0x01  # a payload byte: the CRC fails at the receiver, the relay poisons the end
+        frames.append(bytes(w))
+    stream = b"".join(frames)
+    assert len(stream) > 900
+    one = through(stream, False, [len(stream)])
+    assert len(one) > 900
+    assert one == through(stream, False, [7])
+    assert FrameReader().feed(one) == []  # nothing the next segment accepts
 
 
 def test_what_is_not_cut_through_is_not_relayed() -> None:
