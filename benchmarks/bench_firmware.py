@@ -82,6 +82,11 @@ def full():
 
 BATCH = 40
 REPS = {reps}
+# the measurement runs in ROUNDS rounds of REPS // ROUNDS batches per figure, the best batch of
+# all rounds counts: a slow stretch of this shared host (seconds long) then costs one round of
+# every figure instead of all batches of one figure
+ROUNDS = 5
+REPS_R = max(1, REPS // ROUNDS)
 
 def timed(f):
     # the best of REPS batches of BATCH cycles: a shared host interrupts long runs, and the
@@ -90,7 +95,7 @@ def timed(f):
     n0 = N
     N = BATCH
     best = None
-    for _ in range(REPS):
+    for _ in range(REPS_R):
         seg.last_feed = hal.t  # as a SYNC would: tick-only batches must not trip the watchdog
         t0 = time.ticks_us()
         f()
@@ -135,9 +140,9 @@ mc = seg.mc
 rd = seg.rd_up
 
 def part(f):
-    # one piece of the cycle alone, in us per call (the best of REPS batches of BATCH calls)
+    # one piece of the cycle alone, in us per call (the best of REPS_R batches of BATCH calls)
     best = None
-    for _ in range(REPS):
+    for _ in range(REPS_R):
         t0 = time.ticks_us()
         for i in range(BATCH):
             f()
@@ -231,16 +236,23 @@ R = {{}}
 a0 = a1 = 0  # globals created before the measurement: a new global would grow the module dict
 full()   # warm up, and start moving
 gc.collect()
-R['tick_us'] = timed(only_tick)
-R['slew_tick_us'] = timed(slewing_tick)
-R['sync_us'] = timed(only_sync)
-R['forward_us'] = timed(only_forward)
-R['cycle_us'] = timed(full)
-R['viper_us'] = timed(machine_code)
-R['kernel'] = max(k0, kernel_loops_per_s())  # the host's speed, before and after, same process
-R['parts'] = [[name, part(f)] for name, f in PARTS]
+MAIN = (('tick_us', only_tick), ('slew_tick_us', slewing_tick), ('sync_us', only_sync),
+        ('forward_us', only_forward), ('cycle_us', full), ('viper_us', machine_code))
 RELAY = 'relay path: a SYNC read, scanned, relayed (not handled; UART calls as C)'
-R['parts'].insert(-1, [RELAY, relay_path()])
+PB = None
+rnd = 0
+for rnd in range(ROUNDS):  # the whole measurement in rounds, the best per figure
+    for key, f in MAIN:
+        v = timed(f)
+        if key not in R or v < R[key]:
+            R[key] = v
+    ps = [part(f) for name, f in PARTS]
+    ps.insert(-1, relay_path())
+    PB = ps if PB is None else [min(a, b) for a, b in zip(PB, ps)]
+R['kernel'] = max(k0, kernel_loops_per_s())  # the host's speed, before and after, same process
+names = [name for name, f in PARTS]
+names.insert(-1, RELAY)
+R['parts'] = [[n, v] for n, v in zip(names, PB)]
 R['wake'] = wake()
 gc.collect()
 gc.disable()
@@ -317,9 +329,11 @@ def port_calls():
         del u.any
     for p in PWMS:
         del p.duty_ns
-    counts = dict((k, v / N) for k, v in _calls.items())
+    return dict((k, v / N) for k, v in _calls.items())
+
+def port_costs():
     base = part(lambda: rewind(hal.up, len(SYNC)) or hal.down.discard())
-    cost = {{
+    return {{
         'any': part(lambda: hal.down.any()),
         'rd_empty': part(lambda: hal.down.readinto(_rx)),
         'rd_data': part(lambda: rewind(hal.up, len(SYNC)) or hal.up.readinto(_rx)
@@ -327,14 +341,22 @@ def port_calls():
         'write': part(lambda: hal.down.write(_rx, len(SYNC)) or hal.down.discard())
                  - part(lambda: hal.down.discard()),
         'pwm': part(lambda: PWMS[0].duty_ns(1500000)) if PWMS else 0.0,
+        'harness': timed(harness),
+        'empty': part(lambda: None),
     }}
-    return counts, cost
 
 full()  # warm up, and start moving
 R = {{}}
-R['harness_us'] = timed(harness)
-R['port_calls'], R['port_cost'] = port_calls()
-R['empty_call_us'] = part(lambda: None)
+R['port_calls'] = port_calls()
+C = port_costs()
+for rnd in range(ROUNDS - 1):  # rounds, the best per figure (ROUNDS in VM_SETUP)
+    D = port_costs()
+    for k in C:
+        if D[k] < C[k]:
+            C[k] = D[k]
+R['harness_us'] = C.pop('harness')
+R['empty_call_us'] = C.pop('empty')
+R['port_cost'] = C
 print('@@' + json.dumps(R))
 """
 
@@ -415,7 +437,7 @@ def main() -> int:
     tick_budget = 5000.0
     print(
         f"MicroPython VM (unix port), heap {mpvm.ESP32_HEAP}, best of {args.reps} batches "
-        f"of 40 cycles"
+        f"of 40 cycles in 5 rounds"
     )
     print(f"  control tick (servos, MC, SC, safety)    {r['tick_us']:8.1f} us")
     print(f"  control tick while slew-limiting         {r['slew_tick_us']:8.1f} us")
@@ -444,8 +466,8 @@ def main() -> int:
     if figs is not None:
         note = (
             f"unix port, heap {mpvm.ESP32_HEAP}, the firmware precompiled (.mpy) as `ucr flash` "
-            f"deploys it; best of {args.reps} batches of 40 cycles; a cycle: SYNC in and "
-            "relayed, STATE out, a neighbour's STATE relayed, tick"
+            f"deploys it; best of {args.reps} batches of 40 cycles in 5 rounds; a cycle: SYNC "
+            "in and relayed, STATE out, a neighbour's STATE relayed, tick"
         )
         figs.table("vm", ["on the MicroPython unix VM", "per cycle"], note=note)
         for label, value in (
