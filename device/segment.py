@@ -81,6 +81,11 @@ from protocol.frame import FrameReader, forward_into  # noqa: E402
 gc.collect()
 from protocol.relay import Relay  # noqa: E402
 
+try:  # the receive step in one call (rx is _RXBUF bytes, rout _RXBUF + 8: within its limits)
+    from protocol._fast import scan_relay as _scan_relay
+except Exception:  # no viper emitter: FrameReader.scan and Relay.feed
+    _scan_relay = None
+
 try:
     from protocol._fast import move as _move
 except Exception:  # no viper emitter: the same copy in bytecode
@@ -390,9 +395,15 @@ class Segment:
             if fresh:
                 total += n
             while pos < n:
-                nxt = rd.scan(rx, pos, n)
-                ok = rd.ready
-                m = relay.feed(rx, pos, nxt, ok, rd, rout)
+                if _scan_relay is not None:  # the two calls below in one machine-code call
+                    r = _scan_relay(rd, relay, rx, pos, n, rout, _CRC_TABLE)
+                    nxt = r & 0xFFF
+                    m = (r >> 12) & 0xFFF
+                    ok = r >> 24
+                else:
+                    nxt = rd.scan(rx, pos, n)
+                    ok = rd.ready
+                    m = relay.feed(rx, pos, nxt, ok, rd, rout)
                 if m:
                     dst.write(rout, m)
                 pos = nxt

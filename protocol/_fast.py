@@ -484,3 +484,38 @@ def scan(data, start: int, end: int, buf, st, table) -> int:
         return (i << 1) | 1
     t[0] = n
     return i << 1
+
+
+@micropython.viper
+def scan_relay(rd, rl, data, start: int, end: int, out, table) -> int:
+    """``FrameReader.scan`` then ``Relay.feed`` over what it consumed, in one call (a segment's
+    receive step, device/segment.py ``_drain``): the same machine-code loops (``scan``,
+    ``relay_feed``) and the same attributes set on the reader ``rd`` and the relay ``rl`` as the
+    two methods, without their bytecode. Returns the next position | bytes to send << 12 | 1 << 24
+    if a frame completed. The caller checks ``0 <= start <= end <= len(data)`` and that ``out``
+    holds end - start + 8 bytes; both below 4096."""
+    raw = rd.raw
+    st = rd.st
+    r = int(scan(data, start, end, raw, st, table))
+    nxt = r >> 1
+    ok = r & 1
+    n = 0
+    if ok:
+        b = ptr8(raw)
+        t = ptr32(st)
+        rd.ver = b[0]
+        rd.flags = b[1]
+        rd.hop = b[2]
+        rd.mtype = b[3]
+        rd.seq = b[4]
+        n = t[7]
+        rd.raw_len = n
+        rd.payload_end = t[8]
+        rd.ready = True
+    else:
+        rd.ready = False
+    ls = rl.st
+    f = int(relay_feed(data, start, nxt, out, ls, ok, raw, n, table))
+    rl.relayed = f & 0x10000
+    rl.busy = int(ptr32(ls)[16])
+    return nxt | ((f & 0xFFFF) << 12) | (ok << 24)

@@ -169,8 +169,9 @@ def _streams(seed: int = 3, n: int = 150) -> list[list]:
 
 
 def test_machine_code_reader_and_relay_agree_with_their_bytecode_twins(vm):
-    """The frame reader's scan and the relay's step (one viper call each) against their bytecode
-    twins on the VM: the same frames, counters and relayed bytes in any chunking."""
+    """The frame reader's scan and the relay's step (one viper call each, and both in one as the
+    segment calls them) against their bytecode twins on the VM: the same frames, counters and
+    relayed bytes in any chunking."""
     r = vm(
         f"""
 from protocol import frame as F, relay as RL, relay_py as RLP
@@ -178,7 +179,10 @@ C = {_streams()!r}
 fast = (F._scan, RL._feed)
 R['fast'] = F._scan is not F._scan_py and RL._feed is not RLP.feed
 
-def run(hexs, up, chunks):
+from protocol import _fast
+from protocol.crc import _TABLE
+
+def run(hexs, up, chunks, fused=False):
     stream = bytes.fromhex(hexs)
     rd = F.FrameReader()
     rl = RL.Relay(up)
@@ -193,8 +197,14 @@ def run(hexs, up, chunks):
         k += 1
         pos = 0
         while pos < len(data):
-            nxt = rd.scan(data, pos, len(data))
-            m = rl.feed(data, pos, nxt, rd.ready, rd, out)
+            if fused:  # the segment's receive step: both in one call
+                r = _fast.scan_relay(rd, rl, data, pos, len(data), out, _TABLE)
+                nxt = r & 0xFFF
+                m = (r >> 12) & 0xFFF
+                assert (r >> 24) == (1 if rd.ready else 0)
+            else:
+                nxt = rd.scan(data, pos, len(data))
+                m = rl.feed(data, pos, nxt, rd.ready, rd, out)
             sent += out[:m]
             if rd.ready:
                 got.append([rd.ver, rd.flags, rd.hop, rd.mtype, rd.seq, rd.raw_len,
@@ -207,9 +217,10 @@ bad = []
 for hexs, up, chunks in C:
     F._scan, RL._feed = fast
     a = run(hexs, up, chunks)
+    c = run(hexs, up, chunks, True)
     F._scan, RL._feed = F._scan_py, RLP.feed
     b = run(hexs, up, chunks)
-    if a != b:
+    if a != b or c != b:
         bad.append([hexs, up, chunks])
 F._scan, RL._feed = fast
 R['bad'] = bad[:3]
