@@ -164,9 +164,6 @@ class Segment:
         self.raw = bytearray(MAX_FRAME)
         self.wire = bytearray(MAX_ENCODED + 8)
         self.sync_out = [0, 0, 0, 0]
-        # STATE in one machine-code call where pd has it (raw and wire hold 26 + 2 n and
-        # 28 + 2 n bytes: MAX_FRAME and MAX_ENCODED + 8 do for any n the config allows)
-        self.state_wire = pd._state_wire if 26 + 2 * cfg.n <= MAX_FRAME else None
         # counters
         self.dropped = 0  # good CRC but not acceptable (direction, flags, version, malformed)
         self.events_lost = 0
@@ -284,23 +281,7 @@ class Segment:
 
     def _send_state(self, cycle, seq):
         mc = self.mc
-        if self.state_wire:  # pd.state_frame's machine-code path, called directly
-            end = self.state_wire(
-                self.raw,
-                self.wire,
-                seq,
-                cycle,
-                self.now,
-                mc.kappa,
-                mc.phi,
-                self.status() | self.position << 8,
-                mc.joint,
-                self.n,
-                _CRC_TABLE,
-            )
-            self._up(end)
-            return
-        end = pd.state_frame(
+        end = pd.state_frame(  # one machine-code call inside where the port has the emitter
             self.raw,
             self.wire,
             seq,

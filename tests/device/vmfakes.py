@@ -1,6 +1,6 @@
 """VM-side test doubles for the ESP32 servo drivers (kept out of vmkit to save test heap)."""
 
-from vmkit import LoopHal
+from vmkit import LoopHal, LoopPwm
 
 
 class FakeFeetech:
@@ -72,16 +72,6 @@ class FakeFeetech:
         return n
 
 
-class FakePwm:
-    def __init__(self, pin, freq):
-        self.pin = pin
-        self.freq = freq
-        self.ns = 0
-
-    def duty_ns(self, ns):
-        self.ns = ns
-
-
 class BusHal(LoopHal):
     """LoopHal with a fake Feetech bus UART and fake PWM outputs."""
 
@@ -94,6 +84,6 @@ class BusHal(LoopHal):
         return self.fake
 
     def pwm(self, pin, freq):
-        p = FakePwm(pin, freq)
+        p = LoopPwm(pin, freq)
         self.pwms.append(p)
         return p
