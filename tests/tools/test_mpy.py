@@ -86,3 +86,29 @@ def test_flash_and_the_emulator_default_to_precompiled():
     assert inspect.signature(flash.flash).parameters["mpy"].default is True
     assert inspect.signature(populate_segment_dir).parameters["mpy"].default is True
     assert (REPO / "device" / "calib.py").exists()
+
+
+def test_a_segment_flashed_as_source_boots_in_the_boards_heap_and_runs_a_cycle():
+    """`ucr flash --source` (the fallback where .mpy cannot be used): the segment compiles every
+    module on its own heap at boot, the ESP32's heap budget, and still boots, answers DISCOVER
+    and turns a SYNC into a STATE. (The firmware tests run the precompiled firmware, as a board
+    does; this is the source path's own test.)"""
+    import time
+
+    from host.link import ChainLink
+    from tools.emulator import EmulatedChain
+
+    with EmulatedChain(1, mpy=False) as chain, ChainLink(chain.host_port) as link:
+        end = time.monotonic() + 60
+        descs: list = []
+        while not descs:
+            assert time.monotonic() < end, chain.repl_output(0)
+            try:
+                descs = link.discover(timeout=1.0)
+            except OSError:
+                time.sleep(0.2)
+        seg = chain.segment_dir(0)
+        assert (seg / "segment.py").exists() and not (seg / "segment.mpy").exists()
+        states = link.sync([(0.5, 0.0)], timeout=2.0)
+        assert states[0] is not None and states[0]["cycle"] >= 0
+        assert "MemoryError" not in chain.repl_output(0), chain.repl_output(0)
