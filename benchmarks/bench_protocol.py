@@ -331,7 +331,9 @@ if %s:  # pure-Python loops instead of the viper ones (protocol/_fast.py)
     crc._fast_crc = None
     cobs._fast_enc = None
     cobs._fast_dec = None
-    F._collect = None
+    F._scan = F._scan_py
+    D._sync_entry = None
+    D._state_wire = None
 sps3 = [(12.3456, 1.2345)] * 3
 sync3 = M.encode_sync(17, 123456, sps3)
 state = M.encode_state(17, cycle=123456, t_ms=7654321, kappa=12.3456, phi=1.2345,
