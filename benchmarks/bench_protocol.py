@@ -324,16 +324,12 @@ def _cpython_timings(loops: int) -> list[tuple[str, float]]:
 
 MP_CODE = r"""
 import time
-from protocol import messages as M, frame as F, device as D, crc, cobs
+from protocol import messages as M, frame as F, device as D
 from protocol.constants import HEADER_LEN, MAX_FRAME, MAX_ENCODED
 LOOPS = %d
 if %s:  # pure-Python loops instead of the viper ones (protocol/_fast.py)
-    crc._fast_crc = None
-    cobs._fast_enc = None
-    cobs._fast_dec = None
-    F._scan = F._scan_py
-    D._sync_entry = None
-    D._state_wire = None
+    from mp_runner import use_pure_loops  # tests/protocol: the one list of those switches
+    use_pure_loops()
 sps3 = [(12.3456, 1.2345)] * 3
 sync3 = M.encode_sync(17, 123456, sps3)
 state = M.encode_state(17, cycle=123456, t_ms=7654321, kappa=12.3456, phi=1.2345,
@@ -383,9 +379,11 @@ for name, fn in (("host encode_sync N=3 (own codec)", c0), ("host feed + decode 
 
 
 def _mp_timings(loops: int, pure: bool = False) -> list[tuple[str, float]]:
+    from tools.mpvm import REPO as ROOT
     from tools.mpvm import run_code
 
-    out = run_code(MP_CODE % (loops, pure), timeout=600)
+    paths = [ROOT, ROOT / "tests" / "protocol"]
+    out = run_code(MP_CODE % (loops, pure), paths=paths, heap="2m", timeout=600)  # speed only
     res = []
     for line in out.strip().splitlines():
         name, _, us = line.partition("|")

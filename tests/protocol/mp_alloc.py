@@ -136,14 +136,11 @@ CHECKS = (
 
 
 def main(repeat=20, pure=False):
+    from mp_runner import fast_loops_active, use_pure_loops
+
     if pure:  # the pure-Python loops must not allocate either
-        crc._fast_crc = None
-        cobs._fast_enc = None
-        cobs._fast_dec = None
-        F._scan = F._scan_py
-        D._sync_entry = None
-        D._state_wire = None
-    print("fast", crc._fast_crc is not None and F._scan is not F._scan_py)
+        use_pure_loops()
+    print("fast", fast_loops_active())
     for name, fn in CHECKS:
         fn()  # warm up
         err = None
