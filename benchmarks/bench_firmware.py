@@ -106,12 +106,13 @@ def timed(f):
 
 from array import array
 from protocol import _fast, crc as _crc
+from protocol.frame import FrameReader
+from protocol.relay import Relay
 _T = _crc._TABLE
-_raw = bytearray(256)
+_rd = FrameReader()
+_rl = (Relay(False), Relay(True))  # (their states are back at the start after every frame)
 _raw2 = bytearray(256)
 _out = bytearray(300)
-_rs = array('i', [0] * 10)
-_ls = array('i', [0] * 19)
 _sp = [0, 0, 0, 0]
 _sv = array('i', [1000, -2000, 3000])
 
@@ -119,18 +120,14 @@ def machine_code():
     # the viper calls one full cycle makes on these frames: for the SYNC and the neighbour's
     # STATE the frame reader's scan and the relay's step (CRC for the next hop included), the
     # SYNC entry, and the own STATE frame built
+    raw = _rd.raw
+    st = _rd.st
     for i in range(N):
         for w, up in ((SYNC, 0), (STATE, 1)):
-            _rs[0] = 0
-            _rs[2] = 250
-            _rs[9] = 251
-            r = _fast.scan(w, 0, len(w), _raw, _rs, _T)
-            for k in range(19):
-                _ls[k] = 0
-            _ls[13] = up
-            _fast.relay_feed(w, 0, len(w), _out, _ls, r & 1, _raw, _rs[7], _T)
+            r = _fast.scan(w, 0, len(w), raw, st, _T)
+            _fast.relay_feed(w, 0, len(w), _out, _rl[up].st, r & 1, raw, st[7], _T)
             if not up:
-                _fast.sync_entry(_raw, 5, _rs[8], 1, _sp)
+                _fast.sync_entry(raw, 5, st[8], 1, _sp)
         _fast.state_wire(_raw2, _out, 1, 42, 100, 5000, 1000, 16, _sv, 3, _T)
 
 import protocol.device as pd
