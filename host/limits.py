@@ -37,6 +37,24 @@ class BendableLimits:
 DEFAULT_KAPPA_RATE_MAX = C.DEFAULT_KAPPA_RATE_MAX
 
 
+# The one rule for "is this κ within kappa_max": the daemon's goal check (host.controllers.
+# waypoints) and `ucr replay --execute`'s re-check of a recording both ask kappa_exceeds().
+# KAPPA_EPS (1/m): float rounding, e.g. κ = |(κx, κy)| of a κ that was exactly kappa_max.
+KAPPA_EPS = 1e-9
+# A *measured* κ (a recording's /joint_states) is the segment's inverse of its servo positions:
+# servo steps and the fixed-point path put it a little above kappa_max when the segment holds
+# kappa_max. Up to this fraction of kappa_max it counts as kappa_max; beyond, the recording does
+# not fit the robot file.
+MEASURED_KAPPA_SLACK = 0.01
+
+
+def kappa_exceeds(kappa: float, kappa_max: float, measured: bool = False) -> bool:
+    """True if κ (1/m) lies above ``kappa_max``: beyond float rounding for a commanded κ, beyond
+    :data:`MEASURED_KAPPA_SLACK` of ``kappa_max`` for a measured one."""
+    slack = MEASURED_KAPPA_SLACK * kappa_max if measured else 0.0
+    return kappa > kappa_max + slack + KAPPA_EPS
+
+
 def _fparam(params: dict, key: str, robot_src: str, where: str) -> float | None:
     if key not in params:
         return None

@@ -29,6 +29,8 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
+from host.errors import ConfigError
+from host.limits import KAPPA_EPS, BendableLimits, bendable_limits, kappa_exceeds
 from interop import ros2
 from interop.live import robot_for
 from interop.sinks import Fanout
@@ -204,23 +206,40 @@ def _incomplete(ev: dict) -> None:
     )
 
 
-def _check_point(robot: Any, name: str, kappa: float, phi: float, when: str) -> float:
-    """κ clipped into [0, kappa_max] after a tolerance check; RecordingError if outside."""
-    if robot is None or name not in robot.bendables:
+def _limits(robot: Any) -> dict[str, BendableLimits]:
+    """The limits the daemon enforces for ``robot`` (model limits ∩ ``<ros2_control>``)."""
+    try:
+        return bendable_limits(robot)
+    except ConfigError as exc:
+        raise RecordingError(str(exc)) from None
+
+
+def _check_point(
+    robot: Any,
+    lims: dict[str, BendableLimits],
+    name: str,
+    kappa: float,
+    phi: float,
+    when: str,
+    measured: bool = False,
+) -> float:
+    """κ clipped into [0, kappa_max] after the daemon's own check (host.limits.kappa_exceeds;
+    a measured κ gets the measurement slack); RecordingError if outside."""
+    lim = lims.get(name)
+    if lim is None:
         who = getattr(robot, "name", "?")
         raise RecordingError(
             f"the recording moves {name}, which robot {who!r} does not have: refused, nothing moves"
         )
-    lim = robot.bendables[name].model.limits
     if not (math.isfinite(kappa) and math.isfinite(phi)):
         raise RecordingError(f"{name}: non-finite waypoint {when}: refused, nothing moves")
-    if kappa < -1e-9 or kappa > lim.kappa_max * (1 + 1e-6) + 1e-9:
+    if kappa < -KAPPA_EPS or kappa_exceeds(kappa, lim.kappa_max, measured):
+        what = "measured" if measured else "recorded"
         raise RecordingError(
-            f"{name}: recorded kappa {kappa:.4g} 1/m {when} is outside "
+            f"{name}: {what} kappa {kappa:.4g} 1/m {when} is outside "
             f"[0, {lim.kappa_max:.4g}] of the robot file: refused, nothing moves"
         )
-    full = lim.phi_max - lim.phi_min >= 2 * math.pi - 1e-9
-    if not full and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
+    if not lim.full_circle and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
         raise RecordingError(
             f"{name}: recorded phi {math.degrees(phi):.1f} deg {when} is "
             f"outside [{math.degrees(lim.phi_min):.1f}, {math.degrees(lim.phi_max):.1f}] "
@@ -236,6 +255,7 @@ def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
         return None
     t0 = goals[0][0]
     plan = Plan(source="commanded")
+    lims = _limits(robot)
     prev: dict[str, tuple[float, float, float]] = {}
     for t_goal, points in goals:
         checked = []
@@ -244,7 +264,7 @@ def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
             when = f"in the goal at {t_goal - t0:.2f} s, waypoint {t:.2f} s"
             segs = {}
             for name, v in pt["segments"].items():
-                kappa = _check_point(robot, name, v["kappa"], v["phi"], when)
+                kappa = _check_point(robot, lims, name, v["kappa"], v["phi"], when)
                 phi = v["phi"]
                 segs[name] = {"kappa": kappa, "phi": phi}
                 if name not in plan.segments:
@@ -266,13 +286,13 @@ def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
     last_start, last = plan.goals[-1]
     plan.duration = last_start + last[-1]["time_from_start"]
     plan.segments.sort()
-    _rate_notes(plan, robot)
+    _rate_notes(plan, lims)
     return plan
 
 
-def _rate_notes(plan: Plan, robot: Any) -> None:
+def _rate_notes(plan: Plan, lims: dict[str, BendableLimits]) -> None:
     for name in plan.segments:
-        rate = robot.bendables[name].model.limits.kappa_rate_max
+        rate = lims[name].kappa_rate_max
         if rate is not None and plan.fastest.get(name, 0.0) > rate * (1 + 1e-3):
             plan.notes.append(
                 f"{name}: recorded rate {plan.fastest[name]:.3g} 1/m/s exceeds kappa_rate_max "
@@ -296,6 +316,7 @@ def make_plan(
             f"the recording moves {', '.join(unknown)}, which robot {robot.name!r} does not have"
         )
     plan = Plan(segments=names, lead_in=lead_in)
+    lims = _limits(robot)
     t0 = states[0][0]
     last_t = -math.inf
     prev: dict[str, tuple[float, float, float]] = {}
@@ -305,7 +326,9 @@ def make_plan(
         last_t = t
         seg_pts = {}
         for name, (kappa, phi) in s.items():
-            kappa = _check_point(robot, name, kappa, phi, f"at t = {t - t0:.2f} s")
+            kappa = _check_point(
+                robot, lims, name, kappa, phi, f"at t = {t - t0:.2f} s", measured=True
+            )
             kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
             seg_pts[name] = {"kx": kx, "ky": ky}
             lo, hi = plan.kappa_range.get(name, (kappa, kappa))
@@ -321,7 +344,7 @@ def make_plan(
         plan.points.append({"time_from_start": lead_in + (t - t0), "segments": seg_pts})
     plan.duration = plan.points[-1]["time_from_start"]
     plan.goals = [(0.0, plan.points)]
-    _rate_notes(plan, robot)
+    _rate_notes(plan, lims)
     return plan
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from host.controllers.base import ControllerError
-from host.limits import BendableLimits
+from host.limits import BendableLimits, kappa_exceeds
 
 MAX_WAYPOINTS = 10_000  # what the API accepts (docs/api.md)
 MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
@@ -123,7 +123,7 @@ def parse_waypoints(
                 if not _finite(phi):
                     raise ControllerError(f"{where}: phi must be a number (rad)")
                 kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
-            if kappa > kappa_max + 1e-9:
+            if kappa_exceeds(kappa, kappa_max):
                 raise ControllerError(
                     f"{where}: kappa {kappa:.4g} 1/m exceeds kappa_max "
                     f"{kappa_max:.4g} 1/m (goal rejected; nothing moved)"

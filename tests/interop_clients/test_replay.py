@@ -302,3 +302,54 @@ def test_a_long_goal_comes_in_parts_and_replays_whole(tmp_path):
     _synthetic(killed, events[:2], finish=False)  # SIGKILL before the last part
     with pytest.raises(RecordingError, match=rf"{2 * e} of {n} waypoints .*--measured"):
         commanded_plan(killed, robot)
+
+
+def _measured(path, kappas: list[float]) -> None:
+    """A recording of /joint_states only: segment_1 at each κ (1/m) in turn, 0.1 s apart, the
+    others straight, written as `ucr record` writes them."""
+    from interop.record import McapSink
+    from interop.sinks import Fanout
+    from interop.topics import RobotTopics
+    from ucrdf.parser import load
+
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    sink = McapSink(path)
+    out = Fanout([sink])
+    t_ns = 1_700_000_000_000_000_000
+    for i, k in enumerate(kappas):
+        js = {"t": 0.1 * i, "names": JOINTS, "kappa": [k, 0.0, 0.0], "phi": [0.5, 0.0, 0.0]}
+        out.publish(topics.joint_states(js, t_ns + i * 10**8))
+    sink.close()
+
+
+def test_a_segment_holding_kappa_max_replays_although_it_measures_a_hair_above(tmp_path):
+    """Issue 16: a segment that holds kappa_max reports the inverse of its servo positions,
+    which can lie a hair above kappa_max (seen: 3.314 1/m for kappa_max 3.31392); replaying
+    that measured motion was refused. A measured κ within the documented slack counts as
+    kappa_max; a recording beyond it, or a commanded κ beyond the daemon's own rule, is still
+    refused."""
+    from host.limits import KAPPA_EPS, MEASURED_KAPPA_SLACK
+    from interop.replay import RecordingError, commanded_plan, make_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    kmax = robot.bendables["segment_1"].model.limits.kappa_max
+    held = tmp_path / "held.mcap"
+    _measured(held, [kmax * 0.5, kmax + 8e-5, kmax + 8e-5])
+    plan = make_plan(held, robot, sample_period=0.1)
+    assert plan.kappa_range["segment_1"] == pytest.approx((kmax * 0.5, kmax), abs=1e-12)
+    assert plan.points[-1]["segments"]["segment_1"]["kx"] == pytest.approx(kmax * np.cos(0.5))
+
+    beyond = tmp_path / "beyond.mcap"
+    _measured(beyond, [kmax * (1 + 2 * MEASURED_KAPPA_SLACK)])
+    with pytest.raises(RecordingError, match=r"segment_1: measured kappa .* outside \[0, 3\.31"):
+        make_plan(beyond, robot)
+
+    # commanded: exactly what the daemon accepts (host.limits.kappa_exceeds), no slack
+    ok, far = tmp_path / "ok.mcap", tmp_path / "far.mcap"
+    _synthetic(ok, [{"joints": JOINTS, "waypoints": [[1.0, [[kmax, 0], [0, 0], [0, 0]]]]}])
+    assert commanded_plan(ok, robot).end["segment_1"][0] == pytest.approx(kmax)
+    above = kmax + 1e3 * KAPPA_EPS
+    _synthetic(far, [{"joints": JOINTS, "waypoints": [[1.0, [[above, 0], [0, 0], [0, 0]]]]}])
+    with pytest.raises(RecordingError, match=r"recorded kappa .* outside"):
+        commanded_plan(far, robot)
