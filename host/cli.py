@@ -8,6 +8,7 @@ exit 1, never as a traceback. SIGTERM/SIGINT stop the motion into HOLD and exit 
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import signal
 import sys
@@ -106,6 +107,9 @@ def start_api(
     return start_api_process(daemon, bind, port, token, log_level=log_level, **(options or {}))
 
 
+STOP_DUMP_S = 6.0  # s: a stop taking longer dumps every thread's stack to stderr
+
+
 def cmd_daemon(args: argparse.Namespace) -> int:
     from host.config import ConfigError  # noqa: PLC0415
     from host.daemon import Daemon, DaemonError  # noqa: PLC0415
@@ -157,7 +161,13 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     while not stop.wait(0.5):
         pass
     logging.getLogger("ucr").info("signal received: holding and stopping")
-    if api is not None:
-        api.stop()
-    daemon.stop(hold=True)
+    # A stop that hangs is killed by systemd (TimeoutStopSec=10); before that, every thread's
+    # stack goes to stderr (the journal), so the hang can be found.
+    faulthandler.dump_traceback_later(STOP_DUMP_S, exit=False)
+    try:
+        if api is not None:
+            api.stop()
+        daemon.stop(hold=True)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
     return 0

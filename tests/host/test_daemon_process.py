@@ -116,7 +116,12 @@ def test_sigterm_stops_into_hold_and_exits_cleanly(chain):
     try:
         time.sleep(0.5)
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=10)
+        try:
+            out, _ = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:  # the daemon dumps its threads' stacks after 6 s
+            proc.kill()
+            out, _ = proc.communicate()
+            pytest.fail("the daemon did not exit within 10 s of SIGTERM:\n" + out)
     finally:
         if proc.poll() is None:
             proc.kill()
