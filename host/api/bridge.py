@@ -180,31 +180,36 @@ class DaemonBridge:
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
-                kind, body = recv_frame(self.sock)
-                if kind == b"Q":
-                    head = json.loads(body)
-                    if head.get("parts"):  # the points follow in parts: parse them piecewise
-                        self._partial[head["id"]] = (head, [])
-                    else:
-                        self._pool.submit(self._serve, head)
-                elif kind == b"q":
-                    part = json.loads(body)
-                    head, points = self._partial[part["id"]]
-                    points.extend(part["p"])
-                    if len(points) >= head["parts"]:
-                        del self._partial[part["id"]]
-                        head["a"][0] = points
-                        self._pool.submit(self._serve, head)
-                elif kind == b"U":
-                    self._set_subscribed(body.decode().split(",") if body else [])
-                else:
-                    log.warning("API bridge: unexpected frame type %r", kind)
+                self._on_frame(*recv_frame(self.sock))
         except (BridgeClosed, OSError, RuntimeError, struct.error, ValueError, KeyError):
             pass
         finally:
             self._stop.set()
             self._set_subscribed([])
             self.closed.set()
+
+    def _on_frame(self, kind: bytes, body: bytes) -> None:
+        """One frame from the API side. A method of its own, so nothing of a request (a
+        10,000-waypoint goal is ~15 MB of parsed JSON) outlives its handling in the reader's
+        locals while the reader waits for the next frame."""
+        if kind == b"Q":
+            head = json.loads(body)
+            if head.get("parts"):  # the points follow in parts: parse them piecewise
+                self._partial[head["id"]] = (head, [])
+            else:
+                self._pool.submit(self._serve, head)
+        elif kind == b"q":
+            part = json.loads(body)
+            head, points = self._partial[part["id"]]
+            points.extend(part["p"])
+            if len(points) >= head["parts"]:
+                del self._partial[part["id"]]
+                head["a"][0] = points
+                self._pool.submit(self._serve, head)
+        elif kind == b"U":
+            self._set_subscribed(body.decode().split(",") if body else [])
+        else:
+            log.warning("API bridge: unexpected frame type %r", kind)
 
     def _serve(self, req: dict) -> None:
         rid: Any = None

@@ -145,3 +145,50 @@ def test_a_message_json_cannot_carry_is_counted_and_dropped(bad) -> None:
         feed = Feed(FrameSender(ours))
         feed.put_nowait({"kind": "joint_states", "t": 0.0, "kappa": [bad]})
         assert feed.counters["unencodable"] == 1 and feed.qsize() == 0
+
+
+def test_a_long_goal_is_not_kept_alive_by_the_bridge_once_served() -> None:
+    """A goal above PART_POINTS waypoints comes in parts; once the daemon answered it, none of
+    its parsed waypoints stays alive in the daemon's process (the bridge's reader kept the last
+    such request in its locals until the next one came: ~15 MB for 10,000 waypoints)."""
+    import gc
+
+    from host.api.bridge import PART_POINTS, send_frame
+
+    ours, theirs = socket.socketpair()
+    got: list[int] = []
+
+    class Facade:
+        def status(self) -> dict:
+            return {"state": "connected"}
+
+        def send_trajectory(self, points, controller=None) -> str:
+            got.append(len(points))
+            return "g1"
+
+    def alive() -> int:
+        gc.collect()
+        return sum(1 for o in gc.get_objects() if type(o) is dict and "bridge_probe" in o)
+
+    bridge = DaemonBridge(Facade(), ours, status_period=1.0).start()
+    lock = threading.Lock()
+    n = 3 * PART_POINTS + 7
+    try:
+        send_frame(theirs, lock, b"Q", json.dumps({"id": 1, "m": "send_trajectory",
+                                                   "a": [None], "parts": n}).encode())  # fmt: skip
+        for i in range(0, n, PART_POINTS):
+            pts = [{"time_from_start": 0.1 * (k + 1), "segments": {}, "bridge_probe": k}
+                   for k in range(i, min(n, i + PART_POINTS))]  # fmt: skip
+            send_frame(theirs, lock, b"q", json.dumps({"id": 1, "p": pts}).encode())
+        del pts
+        theirs.settimeout(10.0)
+        while True:
+            kind, body = recv_frame(theirs)
+            if kind == b"A":
+                break
+        assert json.loads(body) == {"id": 1, "ok": True, "r": "g1"}
+        assert got == [n]
+        assert alive() == 0
+    finally:
+        bridge.stop()
+        theirs.close()
