@@ -180,6 +180,7 @@ class Connections:
         self.request_burst = max(1.0, opts.max_request_rate / 5)
         self._global_tokens = opts.global_request_rate / 5
         self._global_refill = time.monotonic()
+        self.bytes_in = 0  # request bytes read from all clients (the janitor's memory rule)
 
     async def handle(self, ws: ServerConnection) -> None:
         """Serve one client until it goes; then release what it held."""
@@ -224,6 +225,7 @@ class Connections:
         later (TCP back-pressure) instead of refusing it, so one client cannot load the daemon.
         A second, global budget bounds all clients together."""
         cost = 1.0 + len(frame) / 1024.0
+        self.bytes_in += len(frame)
         if isinstance(frame, str) and len(frame) < 4096:
             op_at = frame.find('"op"')
             if op_at >= 0:
@@ -288,15 +290,21 @@ class Connections:
 
     async def janitor(self) -> None:
         """Once a second: close clients that stopped reading; forget stale uploads; give memory
-        back to the OS once a crowd of connections has gone."""
+        back to the OS once a crowd of connections has gone, or once the requests parsed since
+        the last time add up to RELEASE_AFTER_BYTES and a second passed without any."""
         peak = 0
+        seen = released = 0  # self.bytes_in at the last tick and at the last release
         while True:
             await asyncio.sleep(min(1.0, self.opts.slow_close_s / 2))
             now = time.monotonic()
             total = self._tcp_total()
             peak = max(peak, total)
-            if peak >= 32 and total <= peak // 8:
-                peak = total
+            crowd_gone = peak >= 32 and total <= peak // 8
+            quiet = self.bytes_in == seen
+            seen = self.bytes_in
+            if crowd_gone or (quiet and seen - released >= RELEASE_AFTER_BYTES):
+                peak, released = total, seen
+                self.counters["memory_releases"] += 1
                 _release_memory()
             for session in list(self.sessions):
                 stuck = session.stream or session.priority
@@ -309,6 +317,10 @@ class Connections:
                 up = session.upload
                 if up is not None and now - up.t_touched > 60.0:
                     self._requests.end_upload(session)
+
+
+#: request bytes after which a quiet second returns free memory to the OS (see janitor)
+RELEASE_AFTER_BYTES = 8 * 1024 * 1024
 
 
 def _release_memory() -> None:

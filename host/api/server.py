@@ -182,6 +182,7 @@ class ApiServer:
             "slow_closed": 0,
             "forbidden": 0,
             "throttled": 0,
+            "memory_releases": 0,
         }
         self.outboxes = Outboxes(opts, self.counters, self._want_stream)
         self.requests = Dispatcher(

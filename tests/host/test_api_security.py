@@ -467,6 +467,27 @@ def test_request_budget_is_weighted_by_bytes(stub, server):
     assert server.stats()["throttled"] > 0
 
 
+def test_memory_goes_back_to_the_os_after_a_burst_of_large_requests(stub, server, monkeypatch):
+    """Large invalid requests leave parsed garbage behind: once the bytes read since the last
+    release pass the threshold and a second goes by without requests, the server returns free
+    memory to the OS (gc + malloc_trim), counted in stats()."""
+    from host.api import connection
+
+    monkeypatch.setattr(connection, "RELEASE_AFTER_BYTES", 150_000)
+    text = json.dumps({"id": 0, "op": "trajectory.send", "points": [{"t": "x" * 40}] * 800})
+    with ws_connect(server.url, max_size=None) as ws:
+        ws.send(text)  # ~40 KB: below the threshold, nothing released
+        assert json.loads(ws.recv(timeout=30))["ok"] is False
+        time.sleep(2.5)
+        assert server.stats()["memory_releases"] == 0
+        for _ in range(4):  # now above it: released within about a quiet second
+            ws.send(text)
+            assert json.loads(ws.recv(timeout=30))["ok"] is False
+        assert wait_for(lambda: server.stats()["memory_releases"] == 1, timeout=10)
+        time.sleep(2.5)  # nothing new read: no further release
+        assert server.stats()["memory_releases"] == 1
+
+
 def test_ucr_token_writes_a_private_token_file_usable_by_server_and_cli(tmp_path, capsys):
     from host.api.auth import read_token_file
     from tools.cli import main as ucr
