@@ -182,10 +182,16 @@ class Motion:
                 ctrl = self._jtc(controller)
                 if not ctrl.active:
                     manual = self.arb.blocking_manual(self.cm, ctrl.name)
-                    if manual:
+                    if manual and manual in self.arb.takeovers:
                         raise ControllerError(
                             f"manual control by {manual!r} is active; hand back first "
-                            f"(switch_controllers(start=[{ctrl.name!r}], stop=[{manual!r}]))"
+                            "(`ucr controllers hand-back`, API controllers.hand_back)"
+                        )
+                    if manual:
+                        raise ControllerError(
+                            f"{manual!r} was switched on and holds the interfaces; switch "
+                            f"back first (`ucr controllers switch --start {ctrl.name} --stop "
+                            f"{manual}`, API controllers.switch)"
                         )
                     raise ControllerError(f"controller {ctrl.name!r} is not active")
                 t_build = time.monotonic()
@@ -290,6 +296,13 @@ class Motion:
                 if not self.arb.takeovers:
                     raise ControllerError("no manual takeover to hand back")
                 manual = next(iter(self.arb.takeovers))
+            elif manual not in self.arb.takeovers:
+                # only a takeover is handed back: naming another controller must not stop it
+                held = ", ".join(repr(m) for m in self.arb.takeovers) or "none"
+                raise ControllerError(
+                    f"{manual!r} holds no manual takeover to hand back (takeovers: {held}); "
+                    "to stop a controller use `ucr controllers switch --stop NAME`"
+                )
             rec = self.arb.hand_back(self.cm, manual, self.state)
         self._emit(
             "hand_back",

@@ -297,6 +297,31 @@ def test_ffc_takes_over_from_trajectory_and_deadman_stops_motion(ready):
     straighten(d)
 
 
+def test_hand_back_stops_only_a_takeover_never_the_controller_it_names(ready):
+    """Review 2026-11-26: hand_back(manual='jtc') stopped the trajectory controller mid-goal
+    (and 'jsb' the joint state broadcaster) and answered ok. Only a manual takeover is handed
+    back; anything else is rejected and nothing stops. A cFFC switched on explicitly blocks
+    goals with the CLI command that switches back."""
+    d = ready
+    gid = d.send_trajectory(
+        [{"time_from_start": 3.0, "segments": {"segment_1": {"kappa": 0.4, "phi": 0.0}}}]
+    )
+    for name in ("jtc", "jsb"):
+        with pytest.raises(ControllerError, match=f"{name!r} holds no manual takeover"):
+            d.hand_back(name)
+    active = d.status()["active_controllers"]
+    assert "jtc" in active and "jsb" in active
+    assert d.trajectory_status(gid)["state"] in ("executing", "succeeded")
+    d.cancel_trajectory(gid)
+    d.switch_controllers(["ffc"], ["jtc"])
+    try:
+        with pytest.raises(ControllerError, match="ucr controllers switch --start jtc --stop ffc"):
+            d.send_trajectory([{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 0}}}])
+    finally:
+        d.switch_controllers(["jtc"], ["ffc"])
+    straighten(d)
+
+
 def test_host_link_lost_and_back_recovers(ready, chain):
     d = ready
     q = d.subscribe(["event"])
