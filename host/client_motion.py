@@ -70,6 +70,12 @@ def _send(c: Any, points: list[dict], controller: str | None, no_wait: bool) -> 
         if goal is not None and not c.closed:
             c.cancel(goal)
             say_error(f"interrupted: goal {goal} canceled (the robot decelerates and holds)")
+        else:  # the request may be on its way: leaving makes the daemon cancel that goal
+            c.close()
+            say_error(
+                "interrupted before the daemon accepted the goal: it cancels the goal, since "
+                "no client is left to watch it (docs/api.md)"
+            )
         return 130
     progress.end()
     return _finish(result)

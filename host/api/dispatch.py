@@ -10,12 +10,15 @@ round trip; ops that move the robot or switch controllers are written to ``ucr.a
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
 import time
 from collections.abc import Awaitable, Callable, Iterable
 from typing import Any
+
+from websockets.protocol import State
 
 from host.api import schema as S
 from host.api.audit import audit_log
@@ -211,16 +214,29 @@ class Dispatcher:
                 raise S.RequestError(S.INVALID_PARAMS, f"at most {S.MAX_POINTS} waypoints")
         if not points:
             raise S.RequestError(S.INVALID_PARAMS, "points: needs at least one waypoint")
-        goal = await self._call("send_trajectory", points, p["controller"])
-        session.goals[goal] = None
         t_end = points[-1]["time_from_start"]
-        self._audit(
-            session,
-            "trajectory.send",
-            goal,
+        summary = (
             f"{len(points)} waypoint(s) over {t_end:g} s, segments "
-            f"{sorted({n for pt in points for n in pt['segments']})}, controller {p['controller']}",
+            f"{sorted({n for pt in points for n in pt['segments']})}, controller {p['controller']}"
         )
+        try:
+            goal = await self._call("send_trajectory", points, p["controller"])
+        except (RemoteError, S.RequestError) as exc:  # refused motion is logged too
+            code = getattr(exc, "code", "error")
+            self._audit(session, "trajectory.send", None, f"refused ({code}: {exc}): {summary}")
+            raise
+        if _gone(session):
+            # The sender left (Ctrl-C, a crash) before it could learn the goal's id: nobody
+            # could watch or cancel this goal, so it does not run.
+            with contextlib.suppress(RemoteError, BridgeClosed):
+                await self._call("cancel_trajectory", goal)
+            self._audit(
+                session, "trajectory.send", goal, f"{summary}; canceled: the sender left "
+                "before the goal was accepted"
+            )  # fmt: skip
+            return {"goal": goal, "canceled": True}
+        session.goals[goal] = None
+        self._audit(session, "trajectory.send", goal, summary)
         return {"goal": goal}
 
     def _upload(self, session: _Session, p: dict) -> dict:
@@ -325,3 +341,8 @@ def _progress_key(status: Any) -> Any:
             v = round(v, 2)
         key.append((k, repr(v)))
     return tuple(key)
+
+
+def _gone(session: _Session) -> bool:
+    """True once the client's connection is closed or closing (its reply cannot arrive)."""
+    return session.closed or getattr(session.ws, "state", State.OPEN) is not State.OPEN

@@ -372,6 +372,53 @@ _BAD = [
 ]
 
 
+def test_refused_goals_are_audited_and_a_goal_whose_sender_left_is_canceled(stub):
+    """Review 2026-11-26: a refused trajectory.send left no audit line; and Ctrl-C in
+    `ucr trajectory` before the goal was accepted left it running with nobody to watch or
+    cancel it (its id never reached the client). Now the refusal is audited with its reason,
+    and a goal accepted after its sender left is canceled at once, and audited so."""
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    audit = logging.getLogger("ucr.audit")
+    keep = Keep()
+    audit.addHandler(keep)
+    canceled: list[str] = []
+    build = stub.send_trajectory
+
+    def slow_send(points, controller=None):  # a long goal's build in the daemon
+        time.sleep(1.0)
+        return build(points, controller)
+
+    stub.send_trajectory = slow_send
+    stub.cancel_trajectory = lambda gid: canceled.append(gid) or True
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    try:
+        with connect(srv.url) as c:
+            with pytest.raises(ApiError, match="kappa_max"):
+                c.send_trajectory(
+                    [{"time_from_start": 0.2, "segments": {"s1": {"kappa": 99.0}}}], wait=False
+                )
+        point = {"time_from_start": 5.0, "segments": {"s1": {"kappa": 1.0}}}
+        goal = {"id": 7, "op": "trajectory.send", "points": [point]}
+        with ws_connect(srv.url) as ws:
+            ws.send(json.dumps(goal))
+            time.sleep(0.2)  # the daemon is building it: the client goes (Ctrl-C)
+        assert wait_for(lambda: canceled == ["g1"], timeout=10)
+        assert stub.goals.keys() == {"g1"}
+    finally:
+        srv.stop()
+        audit.removeHandler(keep)
+    lines = [r.getMessage() for r in records]
+    refused = [ln for ln in lines if "op=trajectory.send" in ln and "refused" in ln]
+    assert len(refused) == 1 and "kappa_max" in refused[0] and "1 waypoint(s)" in refused[0]
+    gone = [ln for ln in lines if "goal=g1" in ln]
+    assert len(gone) == 1 and "canceled: the sender left" in gone[0], lines
+
+
 @pytest.mark.parametrize("text", _BAD, ids=lambda t: t[:60])
 def test_every_json_value_validates_or_gets_an_error_reply_and_the_connection_stays(server, text):
     with ws_connect(server.url, max_size=None) as ws:
