@@ -204,13 +204,24 @@ def validate_points(points: Any, field: str = "points") -> list[dict]:
             if not isinstance(target, dict):
                 raise _bad(swhere, f"expected {{kappa, phi}}, got {_type_name(target)}")
             keys = set(target)
-            if keys and keys <= {"kx", "ky"}:
+            unknown = sorted(keys - {"kappa", "phi", "kx", "ky"}, key=str)
+            if unknown:
+                raise _bad(
+                    swhere,
+                    f"unknown field(s) {', '.join(map(str, unknown))} (allowed: 'kappa' (1/m) "
+                    "and 'phi' (rad), or 'kx' and 'ky' (1/m))",
+                )
+            if keys & {"kx", "ky"}:
+                if keys != {"kx", "ky"}:  # never a silent 0 for a component left out
+                    raise _bad(
+                        swhere, "give both 'kx' and 'ky' (1/m), or 'kappa' and 'phi' instead"
+                    )
                 seg_out[name] = {
-                    "kx": _number(target.get("kx", 0.0), f"{swhere}.kx"),
-                    "ky": _number(target.get("ky", 0.0), f"{swhere}.ky"),
+                    "kx": _number(target["kx"], f"{swhere}.kx"),
+                    "ky": _number(target["ky"], f"{swhere}.ky"),
                 }
                 continue
-            if "kappa" not in keys or not keys <= {"kappa", "phi"}:
+            if "kappa" not in keys:
                 raise _bad(swhere, "give 'kappa' (1/m) and 'phi' (rad), or 'kx' and 'ky' (1/m)")
             kappa = _number(target["kappa"], f"{swhere}.kappa", lo=0.0)
             phi = _number(target.get("phi", 0.0), f"{swhere}.phi", lo=-100.0, hi=100.0)
@@ -360,6 +371,19 @@ def _leading_id(data: str) -> Any:
     return int(m.group(1)) if m.group(1) is not None else m.group(2)
 
 
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
+    """A JSON object whose keys are unique: a repeated key (e.g. two "op") is an error, never
+    "the last one wins" (RFC 8259 leaves it to the reader; we refuse to guess)."""
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise ValueError(f"duplicate key {key!r} in an object")
+            seen.add(key)
+    return obj
+
+
 def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tuple[Any, str, dict]:
     """Decode and validate one request frame; returns ``(id, op, params)``.
 
@@ -378,7 +402,7 @@ def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tupl
     if len(data.encode("utf-8", "surrogatepass")) > max_bytes:
         raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes", _leading_id(data))
     try:
-        obj = json.loads(data, parse_constant=_reject_constant)
+        obj = json.loads(data, parse_constant=_reject_constant, object_pairs_hook=_no_duplicates)
     except (ValueError, RecursionError) as exc:
         raise RequestError(BAD_JSON, f"invalid JSON: {exc}") from None
     if not isinstance(obj, dict):

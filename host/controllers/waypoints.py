@@ -43,6 +43,16 @@ class Knots(Sequence):
         return float(self.times[i]), self.positions[i]
 
 
+def distinct(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` with 4 significant digits, or as many more as it takes for them to read
+    differently (a refusal must never say "3.314 exceeds 3.314")."""
+    for digits in range(4, 18):
+        ta, tb = f"{a:.{digits}g}", f"{b:.{digits}g}"
+        if ta != tb:
+            break
+    return ta, tb
+
+
 def parse_waypoints(
     points: Any,
     current: np.ndarray,
@@ -111,7 +121,9 @@ def parse_waypoints(
             if not isinstance(val, dict):
                 raise ControllerError(f"{where}: expected {{kappa, phi}}")
             if "kx" in val or "ky" in val:
-                kx, ky = val.get("kx", 0.0), val.get("ky", 0.0)
+                if "kx" not in val or "ky" not in val or "kappa" in val or "phi" in val:
+                    raise ControllerError(f"{where}: give both kx and ky (1/m), or kappa and phi")
+                kx, ky = val["kx"], val["ky"]
                 if not (_finite(kx) and _finite(ky)):
                     raise ControllerError(f"{where}: kx/ky must be numbers (1/m)")
                 kappa = math.hypot(kx, ky)
@@ -124,9 +136,10 @@ def parse_waypoints(
                     raise ControllerError(f"{where}: phi must be a number (rad)")
                 kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
             if kappa_exceeds(kappa, kappa_max):
+                k_txt, max_txt = distinct(kappa, kappa_max)
                 raise ControllerError(
-                    f"{where}: kappa {kappa:.4g} 1/m exceeds kappa_max "
-                    f"{kappa_max:.4g} 1/m (goal rejected; nothing moved)"
+                    f"{where}: kappa {k_txt} 1/m exceeds kappa_max "
+                    f"{max_txt} 1/m (goal rejected; nothing moved)"
                 )
             if not full_circle and kappa > 1e-9:
                 ph = math.atan2(ky, kx)

@@ -222,6 +222,26 @@ def wait_for(pred, timeout: float = 5.0) -> bool:
             17,
         ),
         ('{"id": 18, "op": "controllers.switch"}', schema.INVALID_PARAMS, 18),
+        # review 2026-11-26: duplicate keys were accepted, the last one winning
+        ('{"id": 20, "op": "status", "op": "ping"}', schema.BAD_JSON, None),
+        ('{"id": 21, "op": "ping", "id": 22}', schema.BAD_JSON, None),
+        (
+            (
+                '{"id": 23, "op": "trajectory.send", "points": [{"t": 1, "segments": '
+                '{"s1": {"kappa": 1, "kappa": 2}}}]}'
+            ),
+            schema.BAD_JSON,
+            None,
+        ),
+        # a curvature vector with one component left out was accepted as 0
+        (
+            (
+                '{"id": 24, "op": "trajectory.send", "points": [{"t": 1, "segments": '
+                '{"s1": {"ky": 1}}}]}'
+            ),
+            schema.INVALID_PARAMS,
+            24,
+        ),
         ('{"id": 19, "op": "unsubscribe", "sub": 999}', schema.NOT_FOUND, 19),
         ('{"id": "x", "op": "controllers.switch", "start": ["nope"]}', schema.REJECTED, "x"),
     ],
@@ -468,3 +488,22 @@ def test_token_is_checked_on_connect(stub):
 def test_port_in_use_is_a_clear_start_error(stub, server):
     with pytest.raises(ApiServerError, match="cannot listen"):
         ApiServer(stub, "127.0.0.1", server.port).start()
+
+
+@pytest.mark.parametrize(
+    ("target", "message"),
+    [
+        ({"kx": 0.5}, "give both 'kx' and 'ky'"),
+        ({"ky": 1.0}, "give both 'kx' and 'ky'"),
+        ({"kx": 0.5, "ky": 0.1, "phi": 1.0}, "give both 'kx' and 'ky' (1/m), or 'kappa' and 'phi'"),
+        ({"kappa": 1.0, "foo": 2}, "unknown field(s) foo"),
+        ({"kapa": 1.0}, "unknown field(s) kapa"),
+    ],
+)
+def test_a_waypoints_segment_names_what_is_wrong_and_never_guesses_a_component(target, message):
+    """Review 2026-11-26: {"kx": 0.5} drove the other axis to 0 without a word; an unknown
+    field got only the generic hint."""
+    pts = [{"time_from_start": 1.0, "segments": {"s1": target}}]
+    with pytest.raises(schema.RequestError) as ei:
+        schema.validate_points(pts)
+    assert message in ei.value.message and "points[0].segments.s1" in ei.value.message

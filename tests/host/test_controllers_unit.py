@@ -363,3 +363,28 @@ def test_manual_input_takes_over_from_a_trajectory_and_hands_back_explicitly(ctx
     assert arb.blocking_manual(cm, "jtc") == "ffc"
     back = arb.hand_back(cm, "ffc", st)
     assert back["restarted"] == ["jtc"] and cm.active_names() == ["jtc"]
+
+
+@pytest.mark.parametrize("target", [{"kx": 0.5}, {"ky": 1.0}, {"kx": 0.1, "ky": 0.1, "phi": 0.3}])
+def test_a_waypoint_with_half_a_curvature_vector_is_rejected_not_completed_with_zero(
+    robot, target
+):
+    """Review 2026-11-26: in-process callers (the API validates too) got a missing kx/ky as 0."""
+    from host.controllers.waypoints import parse_waypoints
+
+    names = list(robot.bendables)
+    pts = [{"time_from_start": 1.0, "segments": {"segment_1": target}}]
+    with pytest.raises(ControllerError, match="give both kx and ky"):
+        parse_waypoints(pts, np.zeros((len(names), 2)), names, bendable_limits(robot), "jtc")
+
+
+def test_a_refusal_shows_enough_digits_to_tell_kappa_from_kappa_max(robot):
+    """Review 2026-11-26: `ucr move --kappa 3.314` said "kappa 3.314 1/m exceeds kappa_max
+    3.314 1/m" (the limit is 3.3139163...)."""
+    from host.controllers.waypoints import parse_waypoints
+
+    names = list(robot.bendables)
+    pts = [{"time_from_start": 1.0, "segments": {"segment_2": {"kappa": 3.314, "phi": 0.0}}}]
+    with pytest.raises(ControllerError) as ei:
+        parse_waypoints(pts, np.zeros((len(names), 2)), names, bendable_limits(robot), "jtc")
+    assert "kappa 3.314 1/m exceeds kappa_max 3.3139 1/m" in str(ei.value)
