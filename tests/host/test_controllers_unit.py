@@ -366,9 +366,7 @@ def test_manual_input_takes_over_from_a_trajectory_and_hands_back_explicitly(ctx
 
 
 @pytest.mark.parametrize("target", [{"kx": 0.5}, {"ky": 1.0}, {"kx": 0.1, "ky": 0.1, "phi": 0.3}])
-def test_a_waypoint_with_half_a_curvature_vector_is_rejected_not_completed_with_zero(
-    robot, target
-):
+def test_a_waypoint_with_half_a_curvature_vector_is_rejected_not_completed_with_zero(robot, target):
     """Review 2026-11-26: in-process callers (the API validates too) got a missing kx/ky as 0."""
     from host.controllers.waypoints import parse_waypoints
 
