@@ -115,9 +115,9 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
         if p.suffix.lower() == ".json":
             doc = json.loads(text)
         else:
-            import yaml  # noqa: PLC0415
+            from host.yamlload import safe_load  # noqa: PLC0415
 
-            doc = yaml.safe_load(text)
+            doc = safe_load(text)
     except Exception as exc:  # noqa: BLE001 - YAML/JSON syntax errors of any kind
         raise CliError(
             f"{p}: not valid {'JSON' if p.suffix == '.json' else 'YAML'}: "

@@ -18,6 +18,7 @@ import yaml
 from host.controllers import known_types
 from host.errors import ConfigError
 from host.limits import DEFAULT_KAPPA_RATE_MAX, BendableLimits, bendable_limits
+from host.yamlload import safe_load
 
 __all__ = [
     "ApiConfig",
@@ -319,7 +320,7 @@ def load_config(path: str | Path | None) -> DaemonConfig:
     except OSError as exc:
         raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
     try:
-        data = yaml.safe_load(text)
+        data = safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "YAML"

@@ -204,6 +204,21 @@ def test_trajectory_json_file_and_missing_file(capsys, tmp_path):
     assert rc == 1 and "cannot read" in err
 
 
+def test_yaml_numbers_with_an_exponent_are_numbers(capsys, tmp_path):
+    """Review 2026-11-26: `t: 5e-1` was refused as "expected a number, got string" (PyYAML
+    reads YAML 1.1, where an exponent needs a dot); the daemon's config file likewise."""
+    f = tmp_path / "e.yaml"
+    f.write_text("waypoints:\n- t: 5e-1\n  segments: {s1: {kappa: 1e0, phi: -2E-1}}\n")
+    rc, out, err = run(capsys, "trajectory", str(f), "--check")
+    assert rc == 0, err
+    assert "1 waypoints over 0.5 s for s1: ok" in out
+    from host.config import load_config
+
+    cfg = tmp_path / "d.yaml"
+    cfg.write_text("rate_hz: 5e1\n")
+    assert load_config(cfg).rate_hz == 50.0
+
+
 def test_controllers_list_and_switch(capsys, url):
     rc, out, _ = run(capsys, "controllers", "--url", url)
     assert rc == 0 and "jtc" in out and "active" in out

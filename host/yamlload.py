@@ -1,0 +1,26 @@
+"""YAML as users write numbers: PyYAML follows YAML 1.1, where ``5e-1`` or ``1e300`` (no dot)
+are strings, so ``t: 5e-1`` in a trajectory file was refused as "expected a number, got
+string". This loader reads YAML 1.2 floats as floats and is otherwise ``yaml.safe_load``."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import yaml
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader plus YAML 1.2 floats written with an exponent and no dot."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def safe_load(text: str) -> Any:
+    """``yaml.safe_load`` with YAML 1.2 exponent floats (``5e-1``, ``-2E+3``, ``.5e1``)."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
