@@ -17,10 +17,23 @@ AUDIT_LOGGER = "ucr.audit"
 _audit = logging.getLogger(AUDIT_LOGGER)
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes each record to ``sys.stderr`` as it is when the record comes (not the stream of
+    the moment the logger was set up, which a test harness or a redirection may have closed)."""
+
+    @property  # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
 def audit_logger() -> logging.Logger:
     """The audit logger, set up once: INFO, own stderr handler, not propagated."""
     if not getattr(_audit, "_ucr_ready", False):
-        handler = logging.StreamHandler(sys.stderr)
+        handler = _StderrHandler()
         handler.setFormatter(logging.Formatter("%(asctime)s AUDIT %(message)s"))
         _audit.addHandler(handler)
         _audit.setLevel(logging.INFO)

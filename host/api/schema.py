@@ -5,6 +5,9 @@ the raw text into ``(id, op, params)`` or raises :class:`RequestError` carrying 
 the request id (when one could be read), so the server can always answer. Validation is strict:
 unknown ops, unknown fields, wrong types and out-of-range numbers are errors, never ignored.
 Units on the wire are SI (s, 1/m, rad); degrees appear only in the CLI.
+
+One piece: the error codes, the shared field validators and every op's parameter table are
+together the API's wire contract, and each op's table uses the validators defined beside it.
 """
 
 from __future__ import annotations
