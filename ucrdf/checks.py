@@ -17,6 +17,7 @@ element; for robots built in code (``ucrdf.compose``) the lines fall back to 0.
 
 from __future__ import annotations
 
+import difflib
 import importlib.util
 import math
 import re
@@ -26,13 +27,23 @@ from functools import cache
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
+
 import ucrdf.models as registry
 from protocol import constants as C
 from ucrdf.boards import check as board_plans
 from ucrdf.boards import plan as board_wiring
 from ucrdf.boards import problems as board_problems
 from ucrdf.errors import Diagnostic
-from ucrdf.model import Bendable, ControlJoint, Inertial, Interface, Joint, Robot
+from ucrdf.model import (
+    Bendable,
+    ControlJoint,
+    Inertial,
+    Interface,
+    Joint,
+    Robot,
+    Ros2Control,
+)
 from ucrdf.models.base import CurvatureModel, ModelError
 
 # Key of a line-number table entry: ("bendable", name, "limits"), ("ros2_control", 0, "joint", 2)…
@@ -48,6 +59,12 @@ def _exceeds(value: float, bound: float) -> bool:
 
 def _below(value: float, bound: float) -> bool:
     return value < bound - 1e-9 * max(1.0, abs(bound))
+
+
+def _did_you_mean(name: str, known: object) -> str:
+    """`` (did you mean 'x'?)`` for the closest known name, or ''."""
+    close = difflib.get_close_matches(name, [str(k) for k in known], n=1)  # type: ignore[attr-defined]
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _names(items: object) -> str:
@@ -69,10 +86,23 @@ def model_registry() -> tuple[Callable[[str], type[CurvatureModel]], Callable[[]
 #: segment configuration and the firmware (protocol/constants.py).
 DEFAULT_KAPPA_RATE_MAX = C.DEFAULT_KAPPA_RATE_MAX
 _DEVICE = Path(__file__).resolve().parent.parent / "device"
-#: Servo drivers of the ucr segment firmware: a bendable actuated through one of them is a ucr
-#: segment, and its configuration must be one the firmware runs. Other driver names belong to
-#: other hardware and are only checked for their U(C)RDF ranges.
+#: Servo drivers of the ucr segment firmware (device/config.py): the only values of
+#: ``<actuation driver>`` (docs/ucrdf.md); a bendable's configuration must be one the firmware runs.
 FIRMWARE_DRIVERS = ("emulated", "pwm", "feetech_sts", "feetech_scs")
+
+#: Relative slack on the inertia triangle inequality and on negative principal moments (fraction
+#: of the largest principal moment): inertias written with 3 significant digits still pass.
+INERTIA_SLACK = 1e-2
+
+#: ros2_control interface names of a rigid joint (hardware_interface/types).
+JOINT_INTERFACES = ("position", "velocity", "acceleration", "effort")
+
+#: The hardware plugin of this project's segment chain, and the <hardware> params it takes (a
+#: param ``<bendable>/uid`` besides): name -> meaning (docs/ucrdf.md).
+SEGMENT_PLUGIN = "SoftRobotInterface"
+SEGMENT_PLUGIN_PARAMS = ("model", "port", "baudrate", "watchdog_ms", "tick_ms")
+#: Lowest UART speed accepted for the ``baudrate`` hardware param (bit/s, as host/config.py).
+MIN_BAUDRATE = 1200
 
 
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
@@ -193,6 +223,31 @@ def check(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
     return checker.diagnostics
 
 
+def inertia_problem(inertia: tuple[float, ...]) -> str | None:
+    """Why the inertia tensor (ixx, ixy, ixz, iyy, iyz, izz) in kg m^2 no rigid body has, or None:
+    its principal moments must be >= 0 and each at most the sum of the other two (a slack of
+    INERTIA_SLACK times the largest one absorbs rounding)."""
+    ixx, ixy, ixz, iyy, iyz, izz = inertia
+    tensor = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], dtype=float)
+    moments = np.linalg.eigvalsh(tensor)
+    slack = INERTIA_SLACK * float(np.abs(moments).max())
+    text = ", ".join(f"{m:.4g}" for m in moments)
+    if moments.min() < -slack:
+        return f"a principal moment is negative (principal moments {text} kg m^2)"
+    diag = {"ixx": ixx, "iyy": iyy, "izz": izz}
+    for name, value in diag.items():
+        others = sum(v for k, v in diag.items() if k != name)
+        if value > others + slack:
+            rest = " + ".join(k for k in diag if k != name)
+            return f"{name} {value:g} exceeds {rest} = {others:g} (triangle inequality)"
+    if moments[2] > moments[0] + moments[1] + slack:
+        return (
+            f"the largest principal moment {moments[2]:.4g} exceeds the sum of the other two "
+            f"(principal moments {text} kg m^2; triangle inequality)"
+        )
+    return None
+
+
 class _Checker:
     def __init__(self, robot: Robot, lines: LineTable):
         self.robot = robot
@@ -211,10 +266,22 @@ class _Checker:
     # -------------------------------------------------------------------------------------------
     def run(self) -> None:
         robot = self.robot
+        rline = self.line(("robot",))
         if not robot.name.strip():
-            self.error(0, "robot has an empty name")
+            self.error(rline, "robot has an empty name")
         if not robot.links:
-            self.error(0, f"robot {robot.name!r} has no <link>; a robot needs at least one")
+            self.error(rline, f"robot {robot.name!r} has no <link>; a robot needs at least one")
+        for kind, items in (
+            ("link", robot.links),
+            ("joint", robot.joints),
+            ("bendable", robot.bendables),
+        ):
+            for name, item in items.items():
+                if not name.strip():
+                    self.error(
+                        self.line((kind, name), item.line),
+                        f"{kind} name {name!r} is blank: a name needs a visible character",
+                    )
         for name in robot.joints.keys() & robot.bendables.keys():
             b = robot.bendables[name]
             self.error(
@@ -269,39 +336,47 @@ class _Checker:
                 continue
             parent_of[child] = (kind, name, parent, line)
 
-        # cycles: with one parent per link, following parents either reaches a root or loops
-        reported: set[str] = set()
+        # cycles: with one parent per link, following parents either reaches a root or loops.
+        # One walk per link, colouring each link once (done / on the current walk), so the whole
+        # check is linear in the number of links.
+        done: set[str] = set()
         for start in robot.links:
             path: list[str] = []
-            seen: set[str] = set()
+            on_path: set[str] = set()
             node = start
-            while node in parent_of and node not in seen:
-                seen.add(node)
+            while node in parent_of and node not in done and node not in on_path:
+                on_path.add(node)
                 path.append(node)
                 node = parent_of[node][2]
-            if node in seen and node not in reported:
-                cycle = path[path.index(node) :]
-                reported.update(cycle)
-                # parent -> child order, starting at the parent of the earliest edge in the file
-                order = list(reversed(cycle))
-                first = min(cycle, key=lambda n: parent_of[n][3])
-                start_at = order.index(parent_of[first][2])
-                order = order[start_at:] + order[:start_at]
-                names = " -> ".join([*order, order[0]])
-                line = parent_of[first][3]
-                via = ", ".join(
-                    f"{parent_of[n][0]} {parent_of[n][1]!r}" for n in [*order[1:], order[0]]
-                )
-                self.error(line, f"kinematic cycle {names} (through {via})")
+            if node in on_path:
+                self.cycle(path[path.index(node) :], parent_of)
+            done.update(path)
 
-        roots = [name for name in robot.links if name not in parent_of]
-        if len(roots) > 1:
+        # links that are the child of a joint/bendable already reported invalid (and left out)
+        # are not roots: one problem, one report
+        invalid = [k for k in self.lines if k[:1] == ("invalid",)]
+        adopted = {k[4] for k in invalid if k[4] is not None}
+        unknown_children = sum(1 for k in invalid if k[4] is None)  # e.g. a joint lacking <child>
+        roots = [name for name in robot.links if name not in parent_of and name not in adopted]
+        if len(roots) - unknown_children > 1:
             line = robot.links[roots[1]].line
             self.error(
                 line,
                 f"robot has {len(roots)} root links ({', '.join(roots)}); exactly one link may "
                 "lack a parent — connect the others with a joint or bendable",
             )
+
+    def cycle(self, cycle: list[str], parent_of: dict[str, tuple[str, str, str, int]]) -> None:
+        """Report one kinematic cycle (links in child -> parent order)."""
+        # parent -> child order, starting at the parent of the earliest edge in the file
+        order = list(reversed(cycle))
+        first = min(cycle, key=lambda n: parent_of[n][3])
+        start_at = order.index(parent_of[first][2])
+        order = order[start_at:] + order[:start_at]
+        names = " -> ".join([*order, order[0]])
+        line = parent_of[first][3]
+        via = ", ".join(f"{parent_of[n][0]} {parent_of[n][1]!r}" for n in [*order[1:], order[0]])
+        self.error(line, f"kinematic cycle {names} (through {via})")
 
     # -- rigid joints --------------------------------------------------------------------------
     def joint(self, joint: Joint) -> None:
@@ -321,6 +396,15 @@ class _Checker:
                 self.error(lline, f"{where}: <limit> has a non-finite value")
             elif lim.lower > lim.upper:
                 self.error(lline, f"{where}: limit lower {lim.lower} > upper {lim.upper}")
+            elif joint.type == "revolute":
+                for attr, value in (("lower", lim.lower), ("upper", lim.upper)):
+                    if abs(value) > math.tau + 1e-9:  # -135 for -2.356: degrees for radians
+                        self.error(
+                            lline,
+                            f"{where}: limit {attr} {value:g} is beyond 2*pi: revolute limits are "
+                            f"radians (if {value:g} is degrees, write "
+                            f"{math.radians(value):.10g}; a joint without bounds is 'continuous')",
+                        )
             if lim.effort < 0 or lim.velocity < 0:
                 self.error(lline, f"{where}: limit effort and velocity must be >= 0")
         if joint.type in ("revolute", "continuous", "prismatic", "planar"):
@@ -336,6 +420,10 @@ class _Checker:
         values = (*inertial.origin.xyz, *inertial.origin.rpy, *inertial.inertia)
         if not all(map(math.isfinite, values)):
             self.error(line, f"{where}: <inertial> has a non-finite origin or inertia value")
+            return
+        problem = inertia_problem(inertial.inertia)
+        if problem:
+            self.error(line, f"{where}: <inertia> is not physically possible: {problem}")
 
     # -- bendables -----------------------------------------------------------------------------
     def bendable(self, b: Bendable) -> None:
@@ -415,6 +503,17 @@ class _Checker:
             self.error(mline, f"{where}: model {b.model.type!r} failed to load: {exc}")
             return
         self.model_classes[b.name] = cls
+        known_extra = tuple(getattr(cls, "extra_limits", ()))
+        unknown = [name for name in b.model.limits.extra if name not in known_extra]
+        if unknown:
+            known = ("kappa_max", "kappa_rate_max", "phi_min", "phi_max", *known_extra)
+            for name in unknown:
+                self.error(
+                    self.line((*key, "limits"), mline),
+                    f"{where}: unknown <limits> attribute {name!r} for model {b.model.type!r}"
+                    f"{_did_you_mean(name, known)} (known: {', '.join(known)})",
+                )
+            return  # the model would refuse the same limits again
         if not sound:
             return  # the generic range errors above already explain why the model would refuse
         try:
@@ -447,7 +546,11 @@ class _Checker:
             self.error(aline, f"{where}: type {act.type!r} is not supported (only 'tendon')")
         if not act.angles:
             self.error(aline, f"{where}: no tendons")
-        if act.servos and len(act.servos) != len(act.angles):
+        if (
+            act.servos
+            and len(act.servos) != len(act.angles)
+            and (*key, "servo_reported") not in self.lines  # the parser named the bad <servo>
+        ):
             self.error(
                 aline,
                 f"{where}: {len(act.angles)} tendons but {len(act.servos)} servos "
@@ -466,6 +569,13 @@ class _Checker:
             self.error(aline, f"{where}: spool radius must be > 0 m, got {act.spool_radius}")
         if not act.driver.strip():
             self.error(aline, f"{where}: empty servo driver name")
+        elif act.driver not in FIRMWARE_DRIVERS:
+            self.error(
+                aline,
+                f"{where}: unknown servo driver {act.driver!r}"
+                f"{_did_you_mean(act.driver, FIRMWARE_DRIVERS)}; the segment firmware knows "
+                f"{', '.join(FIRMWARE_DRIVERS)}",
+            )
         seen: dict[float, int] = {}
         for i, angle in enumerate(act.angles):
             tline = self.line((*key, "tendon", i), aline)
@@ -531,6 +641,8 @@ class _Checker:
         error above already explains the problem."""
         if any(f"bendable {b.name!r}" in d.message for d in self.diagnostics):
             return
+        if ("bendable", b.name, "servo_reported") in self.lines:
+            return  # the parser reported a bad <servo>, which the firmware would refuse too
         reason = firmware_refusal(segment_config(b))
         if reason is None:
             return
@@ -573,6 +685,10 @@ class _Checker:
                         f"{where}: hardware param model={model_name!r} is not a known model "
                         f"(available: {', '.join(available)})",
                     )
+                else:
+                    self.hardware_model(control, ckey, cline, model_name)
+            if control.plugin.strip() == SEGMENT_PLUGIN:
+                self.segment_plugin_params(control, ckey, cline)
             flashed: dict[str, int] = {}  # each ms param as the segments would run it
             for pname, (_, _, _, default) in SEGMENT_MS_PARAMS.items():
                 if pname not in control.hardware_params:
@@ -613,6 +729,75 @@ class _Checker:
                 controlled.setdefault(cjoint.name, jline)
                 self.control_joint(cjoint, jkey, jline)
 
+    def hardware_model(
+        self, control: Ros2Control, ckey: LineKey, cline: int, model_name: str
+    ) -> None:
+        """The hardware ``model`` param must be the model of the bendables it drives (those its
+        joints name, else every bendable of the robot)."""
+        robot = self.robot
+        driven = [j.name for j in control.joints if j.name in robot.bendables] or list(
+            robot.bendables
+        )
+        other = [n for n in driven if robot.bendables[n].model.type != model_name]
+        if other:
+            types = sorted({robot.bendables[n].model.type for n in other})
+            self.error(
+                self.line((*ckey, "param", "model"), cline),
+                f"ros2_control {control.name!r}: hardware param model={model_name!r} but "
+                f"bendable(s) {', '.join(other)} use model {', '.join(map(repr, types))}",
+            )
+
+    def segment_plugin_params(self, control: Ros2Control, ckey: LineKey, cline: int) -> None:
+        """The ``<hardware>`` params of SoftRobotInterface: known names only, valid values
+        (watchdog_ms/tick_ms and model are checked by the caller)."""
+        where = f"ros2_control {control.name!r}"
+        for pname, value in control.hardware_params.items():
+            pline = self.line((*ckey, "param", pname), cline)
+            target, sep, what = pname.rpartition("/")
+            if sep:
+                if what != "uid":
+                    self.error(
+                        pline,
+                        f"{where}: hardware param {pname!r}: {SEGMENT_PLUGIN} knows only "
+                        f"'<bendable>/uid' per segment, not '<…>/{what}'",
+                    )
+                elif target in self.robot.joints:
+                    self.error(
+                        pline, f"{where}: hardware param {pname!r}: {target!r} is a rigid joint; "
+                        "only a bendable (a segment) has a uid"
+                    )  # fmt: skip
+                elif not value or any(c.isspace() for c in value):
+                    self.error(
+                        pline,
+                        f"{where}: hardware param {pname} must be the segment's unique id "
+                        f"(e.g. a4cf12fe0b3c), got {value!r}",
+                    )
+                continue
+            if pname not in SEGMENT_PLUGIN_PARAMS:
+                self.error(
+                    pline,
+                    f"{where}: unknown hardware param {pname!r} for {SEGMENT_PLUGIN}"
+                    f"{_did_you_mean(pname, SEGMENT_PLUGIN_PARAMS)} (known: "
+                    f"{', '.join(SEGMENT_PLUGIN_PARAMS)}, <bendable>/uid)",
+                )
+            elif pname == "port" and (not value or any(c.isspace() for c in value)):
+                self.error(
+                    pline,
+                    f"{where}: hardware param port must be 'auto', a device path or a pyserial "
+                    f"URL without spaces, got {value!r}",
+                )
+            elif pname == "baudrate":
+                try:
+                    baud = int(value, 10)
+                except ValueError:
+                    baud = None
+                if baud is None or baud < MIN_BAUDRATE:
+                    self.error(
+                        pline,
+                        f"{where}: hardware param baudrate must be a whole number of bit/s >= "
+                        f"{MIN_BAUDRATE}, got {value!r}",
+                    )
+
     def control_joint(self, cjoint: ControlJoint, jkey: LineKey, jline: int) -> None:
         robot = self.robot
         name = cjoint.name
@@ -643,6 +828,14 @@ class _Checker:
                 return
             for kind, iface in self._interfaces(cjoint):
                 iline = self.line((*jkey, kind, iface.name), jline)
+                if iface.name not in JOINT_INTERFACES:
+                    self.error(
+                        iline,
+                        f"{where}: {kind} {iface.name!r} is not an interface of a rigid joint"
+                        f"{_did_you_mean(iface.name, JOINT_INTERFACES)} (known: "
+                        f"{', '.join(JOINT_INTERFACES)})",
+                    )
+                    continue
                 bound = None
                 if (
                     iface.name == "position"
@@ -653,6 +846,8 @@ class _Checker:
                 limit_text = f"the <limit> of joint {name!r}"
                 self.interface_params(where, kind, iface, iline, bound, limit_text)
             return
+        if any(k[:1] == ("invalid",) and k[2] == name for k in self.lines):
+            return  # its joint/bendable was reported invalid and left out: not a second problem
         self.error(
             jline,
             f"{where} names neither a bendable nor a joint "

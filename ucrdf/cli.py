@@ -123,6 +123,10 @@ def _bendable_lines(b: Bendable) -> list[str]:
     return out
 
 
+#: Tree levels the summary indents; deeper levels print at this indentation.
+_MAX_INDENT = 32
+
+
 def summary(robot: Robot) -> str:
     """The robot as an indented tree from its root link, then its ros2_control blocks."""
     lines = [
@@ -137,19 +141,25 @@ def summary(robot: Robot) -> str:
     for b in robot.bendables.values():
         children.setdefault(b.parent, []).append((_bendable_lines(b), b.child))
 
-    def walk(link: str, prefix: str) -> None:
-        items = children.get(link, [])
-        for i, (label, child) in enumerate(items):
-            last = i == len(items) - 1
-            inner = prefix + ("   " if last else "│  ")
-            lines.append(f"{prefix}{'└─' if last else '├─'} {label[0]}")
-            lines.extend(f"{inner}│    {detail}" for detail in label[1:])
-            lines.append(f"{inner}└─ link {child}")
-            walk(child, inner + "   ")
-
+    # depth-first with an explicit stack (a chain of thousands of links must not hit Python's
+    # recursion limit); the indentation stops growing after _MAX_INDENT levels, so the summary of
+    # a deep chain stays linear in size
     root = robot.root_link()
     lines.append(f"link {root}")
-    walk(root, "")
+    stack: list[tuple[list[tuple[list[str], str]], int, str]] = [(children.get(root, []), 0, "")]
+    while stack:
+        items, i, prefix = stack.pop()
+        if i >= len(items):
+            continue
+        stack.append((items, i + 1, prefix))  # the next sibling, after this child's subtree
+        label, child = items[i]
+        last = i == len(items) - 1
+        inner = prefix + ("   " if last else "│  ")
+        lines.append(f"{prefix}{'└─' if last else '├─'} {label[0]}")
+        lines.extend(f"{inner}│    {detail}" for detail in label[1:])
+        lines.append(f"{inner}└─ link {child}")
+        deeper = inner + "   " if len(inner) < 6 * _MAX_INDENT else prefix
+        stack.append((children.get(child, []), 0, deeper))
     for control in robot.ros2_control:
         lines.append(f"ros2_control {control.name} ({control.type}), plugin {control.plugin}")
         if control.hardware_params:

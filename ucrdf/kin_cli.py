@@ -53,10 +53,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "export-urdf",
         help="export plain URDF: each bendable as a chain of rigid subdivisions",
         description="Write a plain URDF in which every bendable is a pseudo-rigid-body chain of "
-        "N subdivisions (universal joints). With --config the pose is baked into fixed joints.",
+        "N subdivisions (universal joints). With --config the pose (bendables and rigid joints) is "
+        "baked into fixed joints.",
     )
     p.add_argument("file", metavar="FILE", help="U(C)RDF file")
-    p.add_argument("--subdivisions", "-n", type=int, default=10, help="per bendable (10)")
+    p.add_argument(
+        "--subdivisions", "-n", type=int, default=10, help="per bendable (10; at most 1000)"
+    )
     p.add_argument("-o", "--output", required=True, help="output URDF path ('-' for stdout)")
     p.add_argument("--config", help="bake this configuration (JSON or @file) as fixed joints")
     p.set_defaults(func=_guard(run_export))
@@ -98,6 +101,9 @@ def _json_arg(text: str, option: str) -> Any:
         raise _CliError(
             f"{source} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
         ) from None
+    except (ValueError, RecursionError) as exc:  # e.g. an integer of 5000 digits, deep nesting
+        reason = str(exc).split(";")[0] if isinstance(exc, ValueError) else "nested too deeply"
+        raise _CliError(f"{source} is not usable JSON: {reason}") from None
     if not isinstance(value, dict):
         raise _CliError(f"{source} must be a JSON object mapping names to values")
     return value
@@ -133,6 +139,7 @@ def _target(text: str) -> tuple[float, float, float]:
 
 
 def run_ik(args: argparse.Namespace) -> int:
+    from ucrdf.fk import ConfigError  # noqa: PLC0415
     from ucrdf.ik import solve_ik  # noqa: PLC0415
 
     target = _target(args.target)
@@ -140,6 +147,13 @@ def run_ik(args: argparse.Namespace) -> int:
     if not (args.tol > 0.0 and math.isfinite(args.tol)):
         raise _CliError(f"--tol must be a positive number of metres, got {args.tol}")
     robot = _load(args.file)
+    if initial is not None:  # a start outside the limits is refused as by fk --config
+        from ucrdf.fk import RobotKinematics  # noqa: PLC0415
+
+        try:
+            RobotKinematics(robot).resolve(initial)
+        except ConfigError as exc:
+            raise _CliError(f"--initial: {exc}") from None
     result = solve_ik(robot, target, tip=args.tip, initial=initial, tol=args.tol)
     out = {
         "success": result.success,
@@ -158,10 +172,10 @@ def run_ik(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from ucrdf.export import export_urdf  # noqa: PLC0415
+    from ucrdf.export import MAX_SUBDIVISIONS, export_urdf  # noqa: PLC0415
 
-    if args.subdivisions < 1:
-        raise _CliError(f"--subdivisions must be >= 1, got {args.subdivisions}")
+    if not 1 <= args.subdivisions <= MAX_SUBDIVISIONS:
+        raise _CliError(f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}, got {args.subdivisions}")
     config = _json_arg(args.config, "--config") if args.config else None
     robot = _load(args.file)
     text = export_urdf(robot, args.subdivisions, config)

@@ -94,11 +94,13 @@ def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]
     """Syntax and schema errors raise at once (nothing to build on); document-level problems are
     returned so the semantic checks can add theirs to the same report."""
     root = _parse_xml(data, source)
+    _refuse_entities(root, data, source)
     if root.tag != "robot":
         line = root.sourceline or 0
         raise UcrdfError(
             [Diagnostic(source, line, f"root element is <{root.tag}>, expected <robot>")]
         )
+    _refuse_xacro(root, source)
     xsd = schema()
     try:
         valid = xsd.validate(root)
@@ -115,11 +117,82 @@ def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]
     return robot, builder.lines, list(builder.diagnostics)
 
 
+#: Namespace URIs xacro files declare (``xmlns:xacro="…"``).
+XACRO_NAMESPACES = frozenset(
+    {"http://www.ros.org/wiki/xacro", "http://ros.org/wiki/xacro", "http://wiki.ros.org/xacro"}
+)
+# ${expression} and $(substitution arg) are xacro syntax, never U(C)RDF text
+_XACRO_SUBSTITUTION = re.compile(r"\$[{(]")
+
+
+def _refuse_xacro(root: etree._Element, source: str) -> None:
+    """A file that still holds xacro (``<xacro:include>``, ``<xacro:macro>``, macro calls,
+    ``${…}``/``$(…)`` substitutions) is not an expanded robot: one diagnostic per element, at its
+    line. The bare ``xmlns:xacro`` declaration is tolerated (the paper's Listing 1 has it)."""
+    found: list[Diagnostic] = []
+    hint = "expand it first: xacro FILE > robot.ucrdf"
+    for el in root.iter():
+        if not isinstance(el.tag, str):
+            continue
+        qname = etree.QName(el)
+        if qname.namespace in XACRO_NAMESPACES or el.prefix == "xacro":
+            found.append(
+                Diagnostic(
+                    source,
+                    el.sourceline or 0,
+                    f"xacro element <xacro:{qname.localname}>: this file is unexpanded xacro, "
+                    f"not a U(C)RDF robot; {hint}",
+                )
+            )
+            continue
+        texts = [(f"attribute {k}", v) for k, v in el.attrib.items()]
+        texts.append(("text", el.text or ""))
+        for what, value in texts:
+            if _XACRO_SUBSTITUTION.search(value):
+                found.append(
+                    Diagnostic(
+                        source,
+                        el.sourceline or 0,
+                        f"xacro substitution in <{qname.localname}> {what} {value.strip()!r}: "
+                        f"this file is unexpanded xacro; {hint}",
+                    )
+                )
+                break
+    if found:
+        raise UcrdfError(found)
+
+
+def _refuse_entities(root: etree._Element, data: bytes, source: str) -> None:
+    """Entity declarations in a DTD are refused (they are never expanded nor read: a description
+    must not pull in files, and text hidden behind an entity hides what the robot is)."""
+    dtd = root.getroottree().docinfo.internalDTD
+    entities = list(dtd.iterentities()) if dtd is not None else []
+    if not entities:
+        return
+    found = []
+    for entity in entities:
+        m = re.search(rb"<!ENTITY\s+(?:%\s+)?" + re.escape(entity.name.encode()) + rb"\b", data)
+        line = data.count(b"\n", 0, m.start()) + 1 if m else 1
+        if entity.system_url is not None:
+            what = f"external entity {entity.name!r} ({entity.system_url}): never read"
+        else:
+            what = f"entity {entity.name!r}"
+        found.append(
+            Diagnostic(
+                source,
+                line,
+                f"DTD entity declarations are not supported in U(C)RDF ({what}); write the text "
+                "in place (the predefined entities such as &amp; and character references work)",
+            )
+        )
+    raise UcrdfError(found)
+
+
 def _parse_xml(data: bytes, source: str) -> etree._Element:
-    # internal entities (declared in the document) expand; a reference to an external one is a
-    # syntax error ("Entity 'x' not defined"), so a description never reads files or the network
+    # entities are never expanded: a document declaring any is refused after parsing
+    # (_refuse_entities), so a description never reads files or the network
     parser = etree.XMLParser(
-        resolve_entities="internal", no_network=True, load_dtd=False, huge_tree=False
+        resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False
     )
     try:
         root = etree.fromstring(data, parser)
@@ -206,6 +279,12 @@ class _Builder:
         self.diagnostics: list[Diagnostic] = []
         self.lines: LineTable = {}
 
+    def dropped(self, kind: str, name: str, parent: str | None, child: str | None) -> None:
+        """Record a joint/bendable left out of the Robot because it was reported invalid, so the
+        semantic checks do not report its absence again (a second root link, a ros2_control
+        joint naming nothing): ``("invalid", kind, name, parent, child)`` in the line table."""
+        self.lines[("invalid", kind, name, parent, child)] = 0
+
     def error(self, element: etree._Element | int, message: str) -> None:
         line = element if isinstance(element, int) else (element.sourceline or 0)
         self.diagnostics.append(Diagnostic(self.source, line, message))
@@ -213,6 +292,7 @@ class _Builder:
     # -- robot ---------------------------------------------------------------------------------
     def build(self, root: etree._Element) -> Robot:
         robot = Robot(name=root.get("name", ""), source=self.source)
+        self.lines[("robot",)] = root.sourceline or 0
         seen_kinematic: dict[str, tuple[str, int]] = {}  # joint/bendable name -> (kind, line)
         for child in _children(root):
             tag = child.tag
@@ -231,6 +311,7 @@ class _Builder:
                 if item is None:
                     continue
                 if item.name in seen_kinematic:
+                    self.dropped(tag, item.name, item.parent, item.child)
                     kind, line = seen_kinematic[item.name]
                     self.error(
                         child,
@@ -317,6 +398,12 @@ class _Builder:
         axis = self._once(element, "axis", owner)
         limit_el = self._once(element, "limit", owner)
         if not ok:
+            self.dropped(
+                "joint",
+                name,
+                parent.get("link") if parent is not None else None,
+                child.get("link") if child is not None else None,
+            )
             return None
         limit = None
         if limit_el is not None:
@@ -358,6 +445,7 @@ class _Builder:
         self.lines[(*key, "child")] = child.sourceline or 0
         model = self.model(element.find("curvature/model"), name)
         if model is None:
+            self.dropped("bendable", name, parent.get("link"), child.get("link"))
             return None
         inertial_el = element.find("inertial")
         inertial = None
@@ -458,6 +546,9 @@ class _Builder:
                     pwm_pins[index] = int(child.get("pin"))
                 continue
             table = tendons if child.tag == "tendon" else servos
+            if child.tag == "servo" and (index in table or index >= count):
+                # reported here: the servo-per-tendon count check must not repeat it
+                self.lines[(*key, "servo_reported")] = child.sourceline or 0
             if index in table:
                 self.error(child, f"{owner} has two <{child.tag}> with index {index}")
                 continue
@@ -483,12 +574,6 @@ class _Builder:
             self.error(
                 element,
                 f"{owner} declares count={count} but has {len(tendons)} <tendon> elements",
-            )
-        if servos and len(servos) != count:
-            self.error(
-                element,
-                f"{owner} has {count} tendons but {len(servos)} <servo> elements "
-                "(give one servo per tendon, or none)",
             )
         return Actuation(
             type=element.get("type"),

@@ -193,7 +193,7 @@ CASES = [
         "tendon-servo-count-mismatch",
         '      <servo index="2" id="3"/>\n',
         "",
-        "has 3 tendons but 2 <servo> elements (give one servo per tendon, or none)",
+        "actuation: 3 tendons but 2 servos (give one servo per tendon, or none)",
         "<actuation",
         1,
     ),
@@ -360,7 +360,7 @@ PPC = edit(
     '<model type="pcc">\n        <limits kappa_max="3.0" kappa_rate_max="5.0"/>',
     '<model type="ppc">\n        <param name="steps" value="32"/>\n'
     '        <limits kappa_max="3.0" kappa_rate_max="5.0" kappa_slope_max="4.0"/>',
-)
+).replace('<param name="model">pcc</param>', '<param name="model">ppc</param>')
 
 
 def test_model_params_extra_limits_and_extra_variables_reach_the_plugin():

@@ -77,18 +77,30 @@ def test_unknown_extension_elements_and_xacro_attributes_are_tolerated_and_kept(
         '  <gazebo reference="arm"><mu1>0.2</mu1></gazebo>\n'
         '  <transmission name="tr"><joint name="j1"><hardwareInterface>x</hardwareInterface>'
         "</joint></transmission>\n"
-        '  <xacro:property name="l" value="0.3"/>\n'
         "  <my_vendor_tag answer='42'/>\n"
         "  <ros2_control",
         text,
     )
-    text = edit('<link name="tip"/>', '<link name="tip" xacro:note="x"><xacro:stuff/></link>', text)
+    text = edit(
+        '<link name="tip"/>', '<link name="tip" xacro:note="x"><vendor:stuff xmlns:vendor="urn:v"/>'
+        "</link>", text
+    )  # fmt: skip
     robot = parse_string(text)
-    assert len(robot.extensions) == 4
+    assert len(robot.extensions) == 3
     assert robot.extensions[0] == '<gazebo reference="arm"><mu1>0.2</mu1></gazebo>'
-    assert robot.links["tip"].extensions == [
-        '<xacro:stuff xmlns:xacro="http://www.ros.org/wiki/xacro"></xacro:stuff>'
-    ]
+    assert robot.links["tip"].extensions == ['<vendor:stuff xmlns:vendor="urn:v"></vendor:stuff>']
+
+
+def test_xacro_elements_are_refused_each_at_its_line():
+    """<xacro:…> elements mean the file was not expanded (docs/ucrdf.md): an error, not kept."""
+    text = edit('<robot name="t">', '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="t">')
+    text = edit(
+        "  <ros2_control", '  <xacro:property name="l" value="0.3"/>\n  <ros2_control', text
+    )
+    text = edit('<link name="tip"/>', '<link name="tip"><xacro:stuff/></link>', text)
+    diags = diagnostics_of(text)
+    assert [d.line for d in diags] == [line_of(text, "xacro:stuff"), line_of(text, "xacro:prop")]
+    assert all("unexpanded xacro" in d.message for d in diags)
 
 
 def test_comments_are_ignored():

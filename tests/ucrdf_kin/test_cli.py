@@ -129,7 +129,7 @@ def test_export_urdf_writes_a_loadable_file(robot_file, tmp_path, capsys):
     urdf = yourdfpy.URDF.load(str(out_path), load_meshes=False)
     assert len(urdf.actuated_joint_names) == 2 * (2 * 6 + 1)
     code, _, err = run(["export-urdf", str(robot_file), "-n", "0", "-o", str(out_path)], capsys)
-    assert code == 1 and "--subdivisions must be >= 1" in err
+    assert code == 1 and "--subdivisions must be in 1..1000" in err
 
 
 def test_commands_on_the_example_robot(capsys):

@@ -21,6 +21,7 @@ finite differences. Models with analytic derivatives override ``coordinate_jacob
 from __future__ import annotations
 
 import math
+import numbers
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -89,12 +90,23 @@ class CurvatureModel(ABC):
     type_name: str = ""
     #: Step (in coordinate units) of the default finite-difference Jacobian.
     fd_step: float = 1e-6
+    #: Model-specific ``<limits>`` attributes the model reads (besides kappa_max, kappa_rate_max,
+    #: phi_min, phi_max); any other attribute is refused, so a misspelt limit never silently
+    #: becomes its default.
+    extra_limits: tuple[str, ...] = ()
 
     def __init__(self, spec: ModelSpec):
         self.spec = spec
         self.length = spec.backbone.length
         if not (self.length > 0.0 and math.isfinite(self.length)):
             raise ModelError(f"backbone length must be a positive number (m), got {self.length}")
+        unknown = sorted(set(spec.limits.extra) - set(self.extra_limits))
+        if unknown:
+            known = ", ".join(self.extra_limits) or "none"
+            raise ModelError(
+                f"unknown <limits> attribute(s) {', '.join(unknown)} for model "
+                f"{self.type_name!r} (model-specific limits it reads: {known})"
+            )
         self.validate()
 
     # -- description -------------------------------------------------------------------------
@@ -151,10 +163,10 @@ class CurvatureModel(ABC):
         bounds = self.limits()
         for v in self.variables():
             raw = config.get(v.name, v.default)
-            try:
-                value = float(raw)
-            except (TypeError, ValueError):
-                raise ModelError(f"{v.name} must be a number ({v.unit}), got {raw!r}") from None
+            if isinstance(raw, (bool, str, bytes)) or not isinstance(raw, numbers.Real):
+                # "1" or True are not numbers: refused as for rigid joints, never converted
+                raise ModelError(f"{v.name} must be a number ({v.unit}), got {raw!r}")
+            value = float(raw)
             if not math.isfinite(value):
                 raise ModelError(f"{v.name} must be finite, got {value}")
             if v.name == "phi":

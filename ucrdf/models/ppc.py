@@ -98,6 +98,8 @@ class PPCModel(CurvatureModel):
 
     type_name = "ppc"
 
+    extra_limits = ("kappa_slope_max",)
+
     @classmethod
     def variables(cls) -> list[Variable]:
         return [
