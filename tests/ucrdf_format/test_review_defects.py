@@ -180,11 +180,14 @@ def test_tree_check_is_linear_in_chain_length():
             )
         return "\n".join([*parts, "</robot>"])
 
-    def seconds(n: int) -> float:
+    def seconds(n: int) -> float:  # the best of 3: one slow stretch of a shared host is not it
         robot = parse_string(chain(n), check=False)
-        start = time.perf_counter()
-        assert check(robot) == []
-        return time.perf_counter() - start
+        best = float("inf")
+        for _ in range(3):
+            start = time.perf_counter()
+            assert check(robot) == []
+            best = min(best, time.perf_counter() - start)
+        return best
 
     small, big = seconds(500), seconds(4000)
     # O(n) gives ~8x; the old walk from every link to the root gave ~64x
