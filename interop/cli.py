@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import sys
 from typing import Any
@@ -29,8 +30,11 @@ def missing_dependency(command: str) -> str | None:
     return None
 
 
-def _guard(command: str, fn: Any) -> Any:
+def _guard(command: str, fn: Any, parser: argparse.ArgumentParser | None = None) -> Any:
     def run(args: argparse.Namespace) -> int:
+        usage = _usage_error(command, args)
+        if usage and parser is not None:
+            parser.error(usage)  # exit 2, as argparse's own checks
         mod = missing_dependency(command)
         if command == "record" and getattr(args, "foxglove_port", None) is not None and not mod:
             mod = missing_dependency("foxglove")
@@ -44,6 +48,15 @@ def _guard(command: str, fn: Any) -> Any:
     return run
 
 
+def _usage_error(command: str, args: argparse.Namespace) -> str | None:
+    """An option combination argparse cannot express, else None."""
+    if command == "replay" and not args.execute:
+        given = [o for o, on in (("--go", args.go), ("--measured", args.measured)) if on]
+        if given:
+            return f"{' and '.join(given)} only with --execute (re-running the recorded motion)"
+    return None
+
+
 #: Default nice increment of these clients (as the API process and ``ucr view``): on the daemon's
 #: machine the control loop keeps the CPU first.
 CLIENT_NICE = 5
@@ -55,6 +68,41 @@ def _lower_priority(nice: int) -> None:
             os.nice(nice)
         except OSError as exc:  # not fatal: recording works at any priority
             print(f"ucr: priority unchanged ({exc.strerror})", file=sys.stderr)
+
+
+def _number(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
+    """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``); an
+    impossible value is a usage error (exit 2) naming the bound."""
+
+    def parse(text: str) -> Any:
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(v) or v < low or (v == low and not low_ok):
+            raise argparse.ArgumentTypeError(
+                f"must be {'>=' if low_ok else '>'} {low:g}{unit}, got {text}"
+            )
+        return v
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
+POSITIVE_S = _number(float, 0.0, False, " s")
+POSITIVE_HZ = _number(float, 0.0, False, " Hz")
+NON_NEGATIVE_S = _number(float, 0.0, True, " s")
+AT_LEAST_ONE = _number(int, 1, True)
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port 0..65535, got {text}")
+    return v
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -71,6 +119,9 @@ def _common(p: argparse.ArgumentParser) -> None:
         help=f"lower this process's scheduling priority by this much (default {CLIENT_NICE}: "
         "a daemon on the same machine keeps the CPU first; 0: unchanged)",
     )
+
+
+OFF_LOOPBACK = "loopback; any other address needs --serve-token-file and --insecure"
 
 
 def _serve(p: argparse.ArgumentParser) -> None:
@@ -114,32 +165,34 @@ def register(subparsers: Any) -> None:
         "loop statistics (docs/recording.md). Ctrl-C or SIGTERM stops and closes the file.",
     )  # fmt: skip
     p.add_argument("-o", "--output", required=True, help="MCAP file to write (e.g. run.mcap)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the output file if it exists (default: refuse)")  # fmt: skip
+    p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
         "--subdivisions",
-        type=int,
+        type=AT_LEAST_ONE,
         default=10,
         help="pseudo-rigid links per bendable in /robot_description and /tf (10)",
     )
     p.add_argument(
-        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+        "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     p.add_argument(
         "--flush-interval",
-        type=float,
+        type=POSITIVE_S,
         default=1.0,
         help="close a chunk at least this often, s: at most this much is lost if the "
         "recorder is killed (1)",
     )
     p.add_argument(
         "--foxglove-port",
-        type=int,
+        type=_port,
         default=None,
         help="also serve the same data live to Foxglove on this port",
     )
-    p.add_argument("--foxglove-host", default="127.0.0.1",
-                   help="address of that server (loopback; else --serve-token-file)")  # fmt: skip
+    p.add_argument("--foxglove-host", default="127.0.0.1", help="address of that server "
+                   f"({OFF_LOOPBACK})")  # fmt: skip
     _serve(p)
     _common(p)
     p.set_defaults(func=_guard("record", _record))
@@ -150,18 +203,17 @@ def register(subparsers: Any) -> None:
         "With --execute: re-run the recorded motion on the robot (dry run unless --go).",
     )  # fmt: skip
     p.add_argument("file", help="MCAP file written by `ucr record`")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed, x recorded (1)")
-    p.add_argument(
-        "--host", default="127.0.0.1", help="server address (loopback; else --serve-token-file)"
-    )
-    p.add_argument("--port", type=int, default=8766, help="Foxglove server port (8766)")
+    p.add_argument("--rate", type=_number(float, 0.0, True), default=1.0,
+                   help="playback speed, x recorded (1; 0: as fast as possible)")  # fmt: skip
+    p.add_argument("--host", default="127.0.0.1", help=f"server address ({OFF_LOOPBACK})")
+    p.add_argument("--port", type=_port, default=8766, help="Foxglove server port (8766)")
     p.add_argument("--no-foxglove", action="store_true", help="no Foxglove server (with --view)")
     p.add_argument("--view", action="store_true", help="play into the 3D view (`ucr view`) as well")
     p.add_argument("--view-host", default="127.0.0.1", help="view address (loopback)")
-    p.add_argument("--view-port", type=int, default=8080, help="view port (8080; 0: any free)")
+    p.add_argument("--view-port", type=_port, default=8080, help="view port (8080; 0: any free)")
     p.add_argument(
         "--wait-client",
-        type=float,
+        type=NON_NEGATIVE_S,
         default=0.0,
         help="wait this many s before playing, for a viewer to connect (0)",
     )
@@ -177,17 +229,20 @@ def register(subparsers: Any) -> None:
         help="with --execute: re-run the measured motion (/joint_states), not the commanded goals",
     )
     p.add_argument(
-        "--sample-period", type=float, default=0.1, help="with --execute: waypoint spacing, s (0.1)"
+        "--sample-period",
+        type=POSITIVE_S,
+        default=0.1,
+        help="with --execute: waypoint spacing, s (0.1)",
     )
     p.add_argument(
         "--lead-in",
-        type=float,
+        type=POSITIVE_S,
         default=2.0,
         help="with --execute: time to reach the first recorded pose, s (2)",
     )
     _serve(p)
     _common(p)
-    p.set_defaults(func=_guard("replay", _replay))
+    p.set_defaults(func=_guard("replay", _replay, p))
 
     p = subparsers.add_parser(
         "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
@@ -196,14 +251,14 @@ def register(subparsers: Any) -> None:
         "--serve-token-file and --insecure (docs/recording.md, security).",
     )  # fmt: skip
     p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (loopback; else --serve-token-file)")  # fmt: skip
-    p.add_argument("--port", type=int, default=8766, help="port (8766; 0: any free port)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+                   help=f"address to listen on ({OFF_LOOPBACK})")  # fmt: skip
+    p.add_argument("--port", type=_port, default=8766, help="port (8766; 0: any free port)")
+    p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
-        "--subdivisions", type=int, default=10, help="pseudo-rigid links per bendable (10)"
+        "--subdivisions", type=AT_LEAST_ONE, default=10, help="pseudo-rigid links per bendable (10)"
     )
     p.add_argument(
-        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+        "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
     _serve(p)
     _common(p)

@@ -17,6 +17,7 @@ import threading
 from typing import Any
 
 import foxglove
+from foxglove.websocket import ServerListener
 
 from host.api.auth import AuthConfigError, read_token_file
 from host.api.client import ApiError
@@ -34,7 +35,10 @@ FoxgloveBindError = GuardError  # a refused address or token
 class FoxgloveSink:
     """A foxglove-sdk WebSocket server in its own context; one channel per topic, created when
     the topic first appears. Latched topics (/robot_description, /tf_static, the U(C)RDF) are
-    sent again to each new subscriber."""
+    sent again to each new subscriber of theirs, and to it only: foxglove-sdk's Python binding
+    cannot address one client (its ``Client`` carries no sink id), so the guard in front of the
+    server sends the kept message on the subscribing connection itself
+    (:class:`~interop.guard.FoxgloveGuard`, ``latched``)."""
 
     def __init__(
         self,
@@ -46,23 +50,16 @@ class FoxgloveSink:
         insecure: bool = False,
     ) -> None:
         self.guard = FoxgloveGuard(
-            "ws://127.0.0.1:0", host, port, token, allowed_origins, insecure=insecure
-        )
+            "ws://127.0.0.1:0", host, port, token, allowed_origins, insecure=insecure,
+            latched=self.latched,
+        )  # fmt: skip
         self._fg = foxglove
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._latched: dict[str, tuple[bytes, int]] = {}
-        self._resend: set[str] = set()
         self._lock = threading.Lock()
-        sink = self
-
-        class Listener:
-            def on_subscribe(self, client: Any, channel: Any) -> None:
-                with sink._lock:
-                    if channel.topic in sink._latched:
-                        sink._resend.add(channel.topic)
-
-        self._listener = Listener()
+        self._closed = False
+        self._listener = _Listener()
         self.server = foxglove.start_server(
             name=name, host="127.0.0.1", port=0, capabilities=[], server_listener=self._listener,
             supported_encodings=[ros2.MESSAGE_ENCODING], context=self._ctx,
@@ -79,6 +76,11 @@ class FoxgloveSink:
     @property
     def url(self) -> str:
         return f"ws://{self.host}:{self.port}"
+
+    def latched(self, topic: str) -> tuple[bytes, int] | None:
+        """The last message (CDR bytes, log time ns) of a latched topic, else None."""
+        with self._lock:
+            return self._latched.get(topic)
 
     def _channel(self, topic: str, typename: str, schema: str) -> Any:
         ch = self._channels.get(topic)
@@ -102,17 +104,30 @@ class FoxgloveSink:
         ch.log(data, log_time=t_ns)
 
     def tick(self) -> None:
-        with self._lock:
-            again, self._resend = self._resend, set()
-            items = [(t, self._latched[t]) for t in again]
-        for topic, (data, t_ns) in items:
-            self._channels[topic].log(data, log_time=t_ns)
+        """Nothing to do: the guard re-sends latched messages as clients subscribe."""
 
     def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
         self.guard.stop()
         for ch in self._channels.values():
             ch.close()
         self.server.stop()
+
+
+class _Listener(ServerListener):
+    """foxglove-sdk's server listener: it calls every method of
+    :class:`foxglove.websocket.ServerListener` that applies (a missing one is logged as
+    ``Callback failed`` at each event). Subscriptions need no action here (latched messages:
+    the guard); the rest cannot happen on a server without capabilities (the protocol's
+    defaults, inherited)."""
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        return None
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        return None
 
 
 def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:

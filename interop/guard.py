@@ -12,14 +12,25 @@ Host and path, :mod:`host.api.auth` for tokens and the bind policy):
   ``Authorization: Bearer <token>`` or, for viewers that cannot set headers, a ``?token=`` query
   parameter; compared in constant time.
 
-Frames are forwarded unchanged both ways (the Foxglove protocol is the server's business).
+Frames are forwarded unchanged both ways (the Foxglove protocol is the server's business), with
+one addition: when a client subscribes to a latched topic (``latched``), the guard sends that
+client the topic's kept message on its subscription, so a new subscriber gets it and the other
+clients do not get it again.
+
+A malformed handshake (no WebSocket upgrade, e.g. ``curl``; no or a foreign subprotocol; not HTTP)
+is refused by ``websockets`` itself; it is logged as one line (``Foxglove: refused ADDR: why``)
+like the guard's own refusals, not as a traceback.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
+import struct
+import sys
 import threading
+from collections.abc import Callable
 from http import HTTPStatus
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
@@ -34,6 +45,8 @@ from host.api.guard import GuardConfigError, WebGuard
 
 log = logging.getLogger(__name__)
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # the same protocol, two names
+MESSAGE_DATA = 0x01  # the protocol's binary opcode: u32 subscription id, u64 log time, payload
+Latched = Callable[[str], "tuple[bytes, int] | None"]  # topic -> (data, log time ns) or None
 
 
 class GuardError(ValueError):
@@ -52,6 +65,7 @@ class FoxgloveGuard:
         token: str | None = None,
         allowed_origins: tuple[str, ...] | list[str] = (),
         insecure: bool = False,
+        latched: Latched | None = None,
     ) -> None:
         try:
             tokens = (
@@ -69,6 +83,7 @@ class FoxgloveGuard:
             )
             raise GuardError(f"Foxglove server: {msg}") from None
         self.upstream = upstream
+        self.latched = latched
         self.host = host
         self.requested_port = port
         self.tokens = tokens
@@ -91,9 +106,15 @@ class FoxgloveGuard:
         return self
 
     def stop(self) -> None:
-        if self._loop is not None and self._stop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
-        self._thread.join(5)
+        """Stop serving (again: nothing)."""
+        loop = self._loop
+        if loop is not None and self._stop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(self._stop.set)
+            except RuntimeError:  # closed meanwhile: stopped already
+                pass
+        if self._thread.is_alive():
+            self._thread.join(5)
 
     # -- server --------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -110,6 +131,7 @@ class FoxgloveGuard:
             self._handle, self.host, self.requested_port, subprotocols=SUBPROTOCOLS,
             process_request=self._authorize, max_size=None, compression=None,
             ping_interval=20, ping_timeout=20, server_header="ucr-foxglove",
+            logger=_HandshakeLog(self),
         ) as server:  # fmt: skip
             self.port = next(iter(server.sockets)).getsockname()[1]
             self.web = self.web.with_port(self.port)
@@ -139,22 +161,97 @@ class FoxgloveGuard:
 
     async def _handle(self, ws: ServerConnection) -> None:
         self.connections += 1
+        channels: dict[int, str] = {}  # the server's channel ids on this connection -> topic
         try:
             async with connect(self.upstream, subprotocols=[SUBPROTOCOLS[0]], max_size=None,
                                compression=None, open_timeout=5) as up:  # fmt: skip
-                pumps = [asyncio.create_task(_pump(ws, up)), asyncio.create_task(_pump(up, ws))]
+                subscribed = lambda m: self._from_client(m, ws, channels)  # noqa: E731
+                advertised = lambda m: _from_server(m, channels)  # noqa: E731
+                pumps = [asyncio.create_task(_pump(ws, up, subscribed)),
+                         asyncio.create_task(_pump(up, ws, advertised))]  # fmt: skip
                 _, pending = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
                 for p in pending:
                     p.cancel()
         except (ConnectionClosed, WebSocketException, OSError, TimeoutError) as exc:
             log.info("Foxglove: connection ended: %s", exc)
 
+    async def _from_client(self, msg: Any, ws: ServerConnection, channels: dict[int, str]) -> None:
+        """After a client's ``subscribe`` went to the server: the kept message of each latched
+        topic it subscribed to, on its subscription id, to this client only."""
+        if self.latched is None or not isinstance(msg, str):
+            return
+        for sub_id, channel_id in _subscriptions(msg):
+            kept = self.latched(channels.get(channel_id, ""))
+            if kept is not None:
+                data, t_ns = kept
+                await ws.send(struct.pack("<BIQ", MESSAGE_DATA, sub_id, t_ns) + data)
 
-async def _pump(src: Any, dst: Any) -> None:
+
+def _subscriptions(text: str) -> list[tuple[int, int]]:
+    """(subscription id, channel id) of a client's ``subscribe`` message, else []."""
+    try:
+        msg = json.loads(text)
+        if msg.get("op") != "subscribe":
+            return []
+        return [(int(s["id"]), int(s["channelId"])) for s in msg.get("subscriptions") or ()]
+    except (ValueError, TypeError, KeyError, AttributeError):
+        return []  # not ours to judge: the server answers it
+
+
+async def _from_server(msg: Any, channels: dict[int, str]) -> None:
+    """Keep the channel ids the server advertises on this connection (topic names)."""
+    if not isinstance(msg, str) or '"advertise"' not in msg and '"unadvertise"' not in msg:
+        return
+    try:
+        m = json.loads(msg)
+        if m.get("op") == "advertise":
+            channels.update({int(c["id"]): str(c["topic"]) for c in m.get("channels") or ()})
+        elif m.get("op") == "unadvertise":
+            for cid in m.get("channelIds") or ():
+                channels.pop(int(cid), None)
+    except (ValueError, TypeError, KeyError, AttributeError):
+        pass
+
+
+async def _pump(src: Any, dst: Any, after: Callable[[Any], Any] | None = None) -> None:
     try:
         async for msg in src:
             await dst.send(msg)
+            if after is not None:
+                await after(msg)
     except ConnectionClosed:
         pass
     finally:
         await dst.close()
+
+
+def _why(exc: BaseException | None) -> str:
+    """An exception and its causes on one line."""
+    parts = []
+    while exc is not None and len(parts) < 4:
+        text = str(exc).strip().splitlines()
+        parts.append(text[0] if text else type(exc).__name__)
+        exc = exc.__cause__
+    return "; ".join(parts) or "invalid handshake"
+
+
+class _HandshakeLog(logging.LoggerAdapter):
+    """The ``websockets`` server's logger: a handshake it refuses itself (no upgrade, no common
+    subprotocol, not HTTP) is logged as one line, as the guard's own refusals, not with a
+    traceback; everything else goes to ``websockets.server`` unchanged."""
+
+    def __init__(self, guard: FoxgloveGuard) -> None:
+        super().__init__(logging.getLogger("websockets.server"), {})
+        self.guard = guard
+
+    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
+        if msg == "opening handshake failed" and kwargs.get("exc_info"):
+            conn = (kwargs.get("extra") or {}).get("websocket")
+            self.guard.refused += 1
+            log.warning("Foxglove: refused %s: %s", getattr(conn, "remote_address", "?"),
+                        _why(sys.exc_info()[1]))  # fmt: skip
+            return
+        super().log(level, msg, *args, **kwargs)
+
+    def process(self, msg: Any, kwargs: Any) -> tuple[Any, Any]:
+        return msg, kwargs  # keep the connection's own ``extra``

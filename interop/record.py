@@ -59,13 +59,15 @@ class McapSink:
         compression: str = "zstd",
         chunk_size: int = 256 * 1024,
         flush_interval: float = 1.0,
+        overwrite: bool = True,
     ) -> None:
         kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                  "none": CompressionType.NONE}  # fmt: skip
         if compression not in kinds:
             raise ValueError(f"compression must be one of {', '.join(kinds)}, got {compression!r}")
         self.path = Path(path)
-        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        # overwrite=False: FileExistsError rather than replace a file created meanwhile
+        self._file: IO[bytes] = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=kinds[compression])
         self._writer.start(profile=PROFILE, library="ucr interop.record (mcap)")
         self._schemas: dict[str, int] = {}
@@ -162,6 +164,19 @@ class Progress:
         self.stream.flush()
 
 
+def output_refusal(path: str | os.PathLike[str], overwrite: bool) -> str | None:
+    """Why ``ucr record -o path`` must not start, else None: an existing recording is kept
+    unless ``--overwrite`` (as ``ros2 bag record``); a directory or a missing directory never."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{p} is a directory: give a file name, e.g. {p / 'run.mcap'}"
+    if p.exists() and not overwrite:
+        return f"{p} exists: refused, it is kept (--overwrite replaces it)"
+    if not p.parent.is_dir():
+        return f"{p}: directory {p.parent} does not exist"
+    return None
+
+
 def run(args: Any) -> int:
     """The ``ucr record`` command."""
     stop = threading.Event()
@@ -171,6 +186,10 @@ def run(args: Any) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    refusal = output_refusal(args.output, getattr(args, "overwrite", False))
+    if refusal:  # before connecting: nothing to wait for
+        print(f"ucr: {refusal}", file=sys.stderr)
+        return 1
     try:
         client = connect_daemon(args)
     except CliError as exc:
@@ -180,8 +199,13 @@ def run(args: Any) -> int:
     try:
         robot, text = robot_for(client, args.robot)
         topics = RobotTopics(robot, text, args.subdivisions)
-        sink = McapSink(args.output, compression=args.compression,
-                        flush_interval=args.flush_interval)  # fmt: skip
+        try:
+            sink = McapSink(args.output, compression=args.compression,
+                            flush_interval=args.flush_interval,
+                            overwrite=getattr(args, "overwrite", False))  # fmt: skip
+        except FileExistsError:
+            print(f"ucr: {output_refusal(args.output, False)}", file=sys.stderr)
+            return 1
         sinks.append(sink)
         if args.foxglove_port is not None:
             from interop.foxglove import sink_from_args  # noqa: PLC0415 - only when asked

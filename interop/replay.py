@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2._dynamic import generate_dynamic
 
@@ -54,22 +53,67 @@ class RecordedMessage:
     t_ns: int
 
 
-def read_recording(path: str | Path) -> Iterator[RecordedMessage]:
-    """Every message of an MCAP file in log-time order. A file cut short (recorder killed) is
-    read up to its last complete chunk."""
+@dataclass
+class ReadReport:
+    """What :func:`read_recording` found besides the messages: where a cut-short or damaged
+    file ended, and the messages it skipped (channels not in CDR, or without a schema)."""
+
+    messages: int = 0
+    t_first: int | None = None
+    t_last: int | None = None
+    damage: str | None = None  # why the file ends early, None if read to its end
+    skipped: dict[tuple[str, str], int] = field(default_factory=dict)  # (topic, why) -> count
+
+    def _seen(self, t_ns: int) -> None:
+        self.messages += 1
+        self.t_first = t_ns if self.t_first is None else min(self.t_first, t_ns)
+        self.t_last = t_ns if self.t_last is None else max(self.t_last, t_ns)
+
+    def warnings(self, path: str | Path) -> list[str]:
+        """One line per thing a user should know: the file ends early, messages skipped."""
+        out = []
+        if self.damage is not None:
+            span = (self.t_last - self.t_first) / 1e9 if self.t_first is not None else 0.0
+            out.append(
+                f"{path} ends early (cut short or damaged: {self.damage}): read up to "
+                f"{span:.2f} s after its first message ({self.messages} messages); the rest "
+                "is lost"
+            )
+        by_why: dict[str, list[tuple[str, int]]] = {}
+        for (topic, why), n in sorted(self.skipped.items()):
+            by_why.setdefault(why, []).append((topic, n))
+        for why, counts in by_why.items():
+            total = sum(n for _, n in counts)
+            where = (f"on {counts[0][0]}" if len(counts) == 1
+                     else "(" + ", ".join(f"{n} on {t}" for t, n in counts) + ")")  # fmt: skip
+            out.append(f"{path}: skipped {total} messages {where}: {why}")
+        return out
+
+
+def read_recording(path: str | Path, report: ReadReport | None = None) -> Iterator[RecordedMessage]:
+    """Every message of an MCAP file in log-time order. A file without a summary (recorder
+    killed, file cut short) is read as a stream up to its damage, which ``report.damage`` then
+    names; a file with a summary that cannot be read, or of which nothing can be read, is a
+    RecordingError. Only CDR messages (what ``ucr record`` writes) are delivered; the others are
+    counted in ``report.skipped``."""
     p = Path(path)
+    report = report if report is not None else ReadReport()
     try:
         f = open(p, "rb")  # noqa: SIM115 - closed below
     except OSError as exc:
         raise RecordingError(f"{p}: {exc.strerror}") from None
     with f:
-        if f.read(len(MAGIC)) != MAGIC:
+        try:
+            head = f.read(len(MAGIC))
+        except OSError as exc:  # e.g. a directory
+            raise RecordingError(f"{p}: {exc.strerror}") from None
+        if head != MAGIC:
             raise RecordingError(f"{p}: not an MCAP file")
         f.seek(0)
         try:
             reader = make_reader(f)
             summary_ok = reader.get_summary() is not None
-        except (McapError, ValueError, EOFError):
+        except Exception:  # noqa: BLE001 - any damage (McapError, OSError, ...): read as a stream
             summary_ok = False
         if summary_ok:
             it = reader.iter_messages(log_time_order=True)
@@ -78,27 +122,54 @@ def read_recording(path: str | Path) -> Iterator[RecordedMessage]:
             it = NonSeekingReader(f).iter_messages(log_time_order=False)  # written in order
         try:
             for schema, channel, message in it:
-                if schema is None or channel.message_encoding != ros2.MESSAGE_ENCODING:
+                why = _unplayable(schema, channel)
+                if why is not None:
+                    key = (channel.topic, why)
+                    report.skipped[key] = report.skipped.get(key, 0) + 1
                     continue
+                report._seen(message.log_time)
                 yield RecordedMessage(channel.topic, schema.name, schema.data.decode(),
                                       message.data, message.log_time)  # fmt: skip
-        except (McapError, EOFError, ValueError) as exc:
-            if summary_ok:
-                raise RecordingError(f"{p}: not a readable MCAP file: {exc}") from None
-            # truncated tail of a killed recording: everything before it was delivered
+        except Exception as exc:  # noqa: BLE001 - McapError, ZstdError, OSError, struct.error, ...
+            why = _describe(exc)
+            if summary_ok or report.messages == 0 and not report.skipped:
+                raise RecordingError(f"{p}: not a readable MCAP file: {why}") from None
+            report.damage = why  # a killed recording: everything before the damage was delivered
+
+
+def _unplayable(schema: Any, channel: Any) -> str | None:
+    """Why a message cannot be replayed as recorded ROS 2 data, else None."""
+    enc = channel.message_encoding
+    if enc != ros2.MESSAGE_ENCODING:
+        return f"message encoding {enc!r}, not {ros2.MESSAGE_ENCODING!r} (ROS 2), not replayed"
+    if schema is None:
+        return "no schema, not replayed"
+    return None
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    if not text:  # e.g. mcap's EndOfFile
+        return "unexpected end of file" if "EndOfFile" in type(exc).__name__ else type(exc).__name__
+    return f"{text[0]} ({type(exc).__name__})"
 
 
 def play(
-    path: str | Path, sinks: list[Any], rate: float = 1.0, stop: threading.Event | None = None
+    path: str | Path,
+    sinks: list[Any],
+    rate: float = 1.0,
+    stop: threading.Event | None = None,
+    report: ReadReport | None = None,
 ) -> int:
     """Write every message to ``sinks`` at ``rate`` x recorded speed (0: as fast as possible).
-    Returns the number of messages."""
+    Returns the number of messages; ``report`` says whether the file ended early and what was
+    skipped."""
     out = Fanout(sinks)
     stop = stop or threading.Event()
     t_rec0: int | None = None
     t_wall0 = time.monotonic()
     n = 0
-    for m in read_recording(path):
+    for m in read_recording(path, report):
         if stop.is_set():
             break
         if t_rec0 is None:
@@ -135,11 +206,13 @@ class Plan:
     goals: list[tuple[float, list[dict]]] = field(default_factory=list)  # (start s, points)
 
 
-def recorded_joint_states(path: str | Path) -> list[tuple[float, dict[str, tuple[float, float]]]]:
+def recorded_joint_states(
+    path: str | Path, report: ReadReport | None = None
+) -> list[tuple[float, dict[str, tuple[float, float]]]]:
     """(t s, {bendable: (kappa, phi)}) of every /joint_states message."""
     dec = None
     out = []
-    for m in read_recording(path):
+    for m in read_recording(path, report):
         if m.topic != "/joint_states":
             continue
         if dec is None:
@@ -156,13 +229,15 @@ def recorded_joint_states(path: str | Path) -> list[tuple[float, dict[str, tuple
     return out
 
 
-def recorded_goals(path: str | Path) -> list[tuple[float, list[dict]]]:
+def recorded_goals(
+    path: str | Path, report: ReadReport | None = None
+) -> list[tuple[float, list[dict]]]:
     """(t s, waypoints for ``trajectory.send``) of every /ucr/trajectory/commanded message: the
     goals the daemon accepted while recording, as they were sent (before retiming)."""
     dec = None
     out = []
     parts = CommandedGoals()  # the goals' waypoint events, to find one the recording lost
-    for m in read_recording(path):
+    for m in read_recording(path, report):
         if m.topic == "/ucr/events" and b"goal_" in m.data:
             ev = json.loads(ros2.codec(m.typename).decode(m.data).data)
             if ev.get("event") == "goal_accepted" and ev.get("waypoints_omitted"):
@@ -250,11 +325,12 @@ def _check_point(
 
 def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
     """The recorded goals, each waypoint checked against ``robot``; None if none recorded."""
-    goals = recorded_goals(path)
+    report = ReadReport()
+    goals = recorded_goals(path, report)
     if not goals:
         return None
     t0 = goals[0][0]
-    plan = Plan(source="commanded")
+    plan = Plan(source="commanded", notes=report.warnings(path))
     lims = _limits(robot)
     prev: dict[str, tuple[float, float, float]] = {}
     for t_goal, points in goals:
@@ -306,16 +382,18 @@ def make_plan(
     """Waypoints from the recorded joint states, checked against ``robot`` (a parsed U(C)RDF):
     every bendable must exist, κ within [0, kappa_max], φ within its range; rates above
     kappa_rate_max are reported (the daemon stretches such a goal: ``retimed``)."""
-    states = recorded_joint_states(path)
+    report = ReadReport()
+    states = recorded_joint_states(path, report)
     if not states:
-        raise RecordingError(f"{path}: no /joint_states messages to execute")
+        why = "".join(f"; {w}" for w in report.warnings(path))
+        raise RecordingError(f"{path}: no /joint_states messages to execute{why}")
     names = sorted({n for _, s in states for n in s})
     unknown = [n for n in names if n not in robot.bendables]
     if unknown:
         raise RecordingError(
             f"the recording moves {', '.join(unknown)}, which robot {robot.name!r} does not have"
         )
-    plan = Plan(segments=names, lead_in=lead_in)
+    plan = Plan(segments=names, lead_in=lead_in, notes=report.warnings(path))
     lims = _limits(robot)
     t0 = states[0][0]
     last_t = -math.inf
@@ -482,7 +560,10 @@ def run(args: Any) -> int:
         print(f"ucr: replaying {args.file} at {args.rate:g}x", file=sys.stderr, flush=True)
         if args.wait_client > 0:
             time.sleep(args.wait_client)
-        n = play(args.file, sinks, rate=args.rate, stop=stop)
+        report = ReadReport()
+        n = play(args.file, sinks, rate=args.rate, stop=stop, report=report)
+        for line in report.warnings(args.file):
+            print(f"ucr: warning: {line}", file=sys.stderr, flush=True)
         print(f"ucr: {n} messages replayed", file=sys.stderr, flush=True)
         if app is not None and not stop.is_set():
             print("ucr: end of the recording; the view stays up (Ctrl-C to stop)",

@@ -71,7 +71,7 @@ class ViewApp:
         actual = self.server.get_port()
         if port and actual != port:  # viser silently moves on to the next free port
             self.server.stop()
-            raise OSError(f"port {port} is in use (pass --port)")
+            raise OSError(f"port {port} already in use")
         guard.append(page_guard(host, actual, allow_hosts))
         why = probe_refuses_foreign_host(host, actual)
         if why is not None:  # the guard is not in the request path: never serve unguarded

@@ -70,6 +70,34 @@ def _token(args: argparse.Namespace) -> str | None:
     return os.environ.get("UCR_TOKEN") or None
 
 
+def _not_a_file(path: str) -> str | None:
+    """Why the offline view cannot show ``path`` at all, else None."""
+    p = Path(path)
+    if not p.exists():
+        return f"{p}: no such file"
+    if not p.is_file():
+        return f"{p}: not a file" + (" (a directory)" if p.is_dir() else "")
+    return None
+
+
+def _print_check(path: str) -> Any:
+    """The offline source's ``on_errors``: the file's check errors on the terminal as on the
+    page (``path:line: ...``), again after each save that changes them."""
+    state = {"bad": False}
+
+    def show(errors: list[str]) -> None:
+        if errors:
+            for e in errors:
+                print(e, file=sys.stderr)
+            print(f"ucr view: {len(errors)} check error(s) in {path} (shown on the page too; "
+                  "it reloads on save)", file=sys.stderr, flush=True)  # fmt: skip
+        elif state["bad"]:
+            print(f"ucr view: {path} loads again", file=sys.stderr, flush=True)
+        state["bad"] = bool(errors)
+
+    return show
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     try:
         import viser  # noqa: F401
@@ -104,7 +132,11 @@ def cmd_view(args: argparse.Namespace) -> int:
         if not args.file:
             print("ucr: --offline needs a U(C)RDF FILE", file=sys.stderr)
             return 2
-        source = OfflineSource(args.file).start()
+        why = _not_a_file(args.file)
+        if why:
+            print(f"ucr: {why}", file=sys.stderr)
+            return 1
+        source = OfflineSource(args.file, on_errors=_print_check(args.file)).start()
     else:
         try:
             source = LiveSource(args.url, _token(args), args.file).start()
@@ -112,8 +144,12 @@ def cmd_view(args: argparse.Namespace) -> int:
             if not args.file:
                 print(f"ucr: {exc}", file=sys.stderr)
                 return 1
+            why = _not_a_file(args.file)
+            if why:
+                print(f"ucr: {exc}; and offline: {why}", file=sys.stderr)
+                return 1
             print(f"ucr view: no daemon ({exc}); offline on {args.file}", file=sys.stderr)
-            source = OfflineSource(args.file).start()
+            source = OfflineSource(args.file, on_errors=_print_check(args.file)).start()
     try:
         app = ViewApp(
             source, args.host, args.port, tuple(args.allow_host), control, args.rate

@@ -75,10 +75,10 @@ def guarded_viser(
     up at call time and the constructor returns once it listens); other servers are unaffected.
     """
     original = wss.serve
-    calls: list[int] = []
+    calls: list[Any] = []  # the port of each serve() call
 
     def serve(*args: Any, **kwargs: Any) -> Any:
-        calls.append(1)
+        calls.append(kwargs.get("port", args[2] if len(args) > 2 else None))
         inner = kwargs.get("process_request")
 
         def process_request(connection: Any, request: Any) -> Any:
@@ -99,6 +99,9 @@ def guarded_viser(
             server = factory()
         finally:
             wss.serve = original
+    if len(calls) > 1 and _moved_on(calls):  # the port was taken: viser tried the next ones
+        _stop_quietly(server)
+        raise OSError(f"port {calls[0]} already in use")
     if len(calls) != 1:  # viser no longer starts one websockets server through serve(): fail closed
         _stop_quietly(server)
         raise GuardError(
@@ -106,6 +109,15 @@ def guarded_viser(
             "view/guard.py supports the pinned viser): the page is not served"
         )
     return server
+
+
+def _moved_on(ports: list[Any]) -> bool:
+    """Whether the serve() calls are viser's walk past a port in use: P, P+1, P+2, ..."""
+    return (
+        isinstance(ports[0], int)
+        and ports[0] > 0
+        and ports == list(range(ports[0], ports[0] + len(ports)))
+    )
 
 
 def probe_refuses_foreign_host(host: str, port: int, timeout: float = 10.0) -> str | None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,9 +50,18 @@ class OfflineSource:
 
     mode = "offline"
 
-    def __init__(self, path: str | Path, poll_s: float = 0.3):
+    def __init__(
+        self,
+        path: str | Path,
+        poll_s: float = 0.3,
+        on_errors: Callable[[list[str]], None] | None = None,
+    ):
+        """``on_errors`` is called with the check errors (``path:line: ...``) whenever they
+        change, from the first load on (``[]``: the file loads again)."""
         self.path = Path(path)
         self.poll_s = poll_s
+        self.on_errors = on_errors
+        self._reported: list[str] = []
         self.lock = threading.Lock()
         self.snap = Snapshot(robot_file=str(self.path))
         self.robot = None
@@ -79,10 +89,13 @@ class OfflineSource:
         try:
             robot = load(self.path)
         except UcrdfError as exc:
+            errors = [str(d) for d in exc.diagnostics]
             with self.lock:
-                self.snap.errors = [str(d) for d in exc.diagnostics]
+                self.snap.errors = errors
                 self.snap.seq += 1
+            self._report(errors)
             return
+        self._report([])
         with self.lock:
             self.robot = robot
             s = self.snap
@@ -94,6 +107,11 @@ class OfflineSource:
             s.valid = {n: True for n in robot.bendables}
             s.topology_seq += 1
             s.seq += 1
+
+    def _report(self, errors: list[str]) -> None:
+        if self.on_errors is not None and errors != self._reported:
+            self._reported = errors
+            self.on_errors(errors)
 
     def set_target(self, name: str, kappa: float, phi: float) -> None:
         """Offline sliders drive FK directly."""

@@ -129,3 +129,121 @@ def test_a_token_on_the_command_line_is_refused(tmp_path):
             _hello(sink.url)
     finally:
         sink.close()
+
+
+def _subscribe_all(ws, sub_base: int = 100) -> dict[int, str]:
+    """Read up to the advertise message, subscribe to every channel; {subscription id: topic}."""
+    for _ in range(10):
+        msg = json.loads(ws.recv(timeout=10))
+        if msg.get("op") == "advertise":
+            subs = {sub_base + c["id"]: (c["id"], c["topic"]) for c in msg["channels"]}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": sid, "channelId": cid} for sid, (cid, _) in subs.items()]}))  # fmt: skip
+            return {sid: topic for sid, (_, topic) in subs.items()}
+    raise AssertionError("no advertise")
+
+
+def _received(ws, subs: dict[int, str], seconds: float, sink=None) -> list[tuple[str, int]]:
+    """(topic, log time) of every message data frame within ``seconds`` (ticking ``sink`` as a
+    live feed or a replay does)."""
+    import struct
+    import time
+
+    from websockets.exceptions import ConnectionClosed
+
+    got = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if sink is not None:
+            sink.tick()
+        try:
+            m = ws.recv(timeout=0.05)
+        except TimeoutError:
+            continue
+        except ConnectionClosed:
+            break
+        if isinstance(m, bytes) and m[0] == 1:
+            sid, t_ns = struct.unpack_from("<IQ", m, 1)
+            got.append((subs[sid], t_ns))
+    return got
+
+
+def test_a_client_leaving_is_clean_for_the_sdk(sink_factory, caplog):
+    """Defect: foxglove-sdk calls on_unsubscribe when a client leaves; the listener lacked it
+    ("Callback failed: AttributeError ... 'on_unsubscribe'", once per channel)."""
+    import logging
+    import time
+
+    caplog.set_level(logging.DEBUG)
+    sink = sink_factory()
+    with connect(sink.url, subprotocols=PROTO, open_timeout=10) as ws:
+        subs = _subscribe_all(ws)
+        assert _received(ws, subs, 0.5) is not None
+    time.sleep(0.5)  # the server sees the close and unsubscribes
+    sink.close()
+    failed = [r.getMessage() for r in caplog.records if "Callback failed" in r.getMessage()]
+    assert failed == []
+
+
+def test_latched_topics_go_to_the_new_subscriber_only(sink_factory):
+    """Defect: a new subscriber made every connected client get the latched topics again (with
+    their old log time: the first client's stream stepped back)."""
+    from interop.sinks import Fanout
+
+    sink = sink_factory()
+    out = Fanout([sink])
+    out.publish(Message("/robot_description", "std_msgs/msg/String", {"data": "<robot/>"}, 5))
+    with connect(sink.url, subprotocols=PROTO, open_timeout=10) as a:
+        subs_a = _subscribe_all(a)
+        got_a = _received(a, subs_a, 1.0, sink)
+        assert got_a == [("/robot_description", 5)]  # latched: sent on subscribing
+        out.publish(Message("/ucr/events", "std_msgs/msg/String", {"data": "y"}, 10))
+        with connect(sink.url, subprotocols=PROTO, open_timeout=10) as b:
+            subs_b = _subscribe_all(b, sub_base=500)
+            got_b = _received(b, subs_b, 1.0, sink)
+            got_a = _received(a, subs_a, 0.5, sink)
+        assert ("/robot_description", 5) in got_b and len(got_b) == 1, got_b
+        assert got_a == [("/ucr/events", 10)], got_a  # nothing latched again, no step back
+
+
+_UPGRADE = (
+    "GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+)
+
+
+@pytest.mark.parametrize(
+    "request_text",
+    [
+        "GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUser-Agent: curl/8\r\nAccept: */*\r\n\r\n",
+        _UPGRADE + "Sec-WebSocket-Protocol: bogus\r\n\r\n",
+        _UPGRADE + "Sec-WebSocket-Protocol: \r\n\r\n",
+        "hello, this is not HTTP\r\n\r\n",
+    ],
+    ids=["curl", "bogus-subprotocol", "empty-subprotocol", "not-http"],
+)
+def test_a_malformed_handshake_is_one_line_not_a_traceback(sink_factory, request_text):
+    """Defect: websockets refused these itself and logged a full traceback (InvalidUpgrade,
+    NegotiationError) on the server's terminal."""
+    import subprocess
+    import sys
+
+    from .conftest import REPO
+
+    script = (
+        "import socket, sys, time\n"
+        "from interop.foxglove import FoxgloveSink\n"
+        "s = FoxgloveSink(port=0)\n"
+        "c = socket.create_connection(('127.0.0.1', s.port), timeout=10)\n"
+        f"c.sendall({request_text!r}.format(port=s.port).encode())\n"
+        "print(c.recv(200).split(b'\\r\\n')[0].decode(), flush=True)\n"
+        "c.close(); time.sleep(0.3); s.close()\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    if request_text.startswith("GET"):  # not HTTP: the connection is just closed
+        assert res.stdout.startswith("HTTP/1.1 4"), res.stdout
+    lines = res.stderr.strip().splitlines()
+    assert "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("Foxglove: refused ('127.0.0.1', "), lines

@@ -353,3 +353,117 @@ def test_a_segment_holding_kappa_max_replays_although_it_measures_a_hair_above(t
     _synthetic(far, [{"joints": JOINTS, "waypoints": [[1.0, [[above, 0], [0, 0], [0, 0]]]]}])
     with pytest.raises(RecordingError, match=r"recorded kappa .* outside"):
         commanded_plan(far, robot)
+
+
+def _ucr_run(*argv: str) -> tuple[int, str, str]:
+    import subprocess
+    import sys
+
+    from .conftest import REPO
+
+    res = subprocess.run([sys.executable, "-m", "tools.cli", *argv], cwd=REPO,
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    return res.returncode, res.stdout, res.stderr
+
+
+def _chunked(path, n: int) -> None:
+    """``n`` /joint_states messages 0.1 s apart, each in its own chunk (flush interval 0), as a
+    recording ends up on disk chunk by chunk."""
+    from interop.record import McapSink
+    from interop.sinks import Fanout
+    from interop.topics import RobotTopics
+    from ucrdf.parser import load
+
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    sink = McapSink(path, flush_interval=0.0)
+    out = Fanout([sink])
+    t_ns = 1_700_000_000_000_000_000
+    for i in range(n):
+        js = {"t": 0.1 * i, "names": JOINTS, "kappa": [0.01 * i, 0.0, 0.0], "phi": [0.5, 0, 0]}
+        out.publish(topics.joint_states(js, t_ns + i * 10**8))
+    sink.close()
+
+
+def test_a_damaged_file_is_one_line_not_a_traceback(tmp_path):
+    """Defect: a corrupted compressed chunk (ZstdError) and a file of only the MCAP magic
+    (OSError from a seek in get_summary) crashed `ucr replay` with a traceback."""
+    from mcap.reader import make_reader
+
+    from interop.replay import MAGIC, RecordingError, read_recording
+
+    magic = tmp_path / "magic.mcap"
+    magic.write_bytes(MAGIC)
+    bad = tmp_path / "bad.mcap"
+    _chunked(bad, 20)
+    with open(bad, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[0]
+    data = bytearray(bad.read_bytes())
+    # the chunk record: opcode, length, start, end, size, crc, "zstd", records length, records
+    at = chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
+    data[at : at + 16] = b"\x00" * 16  # the zstd frame's magic and header
+    bad.write_bytes(bytes(data))
+    for f in (magic, bad):
+        with pytest.raises(RecordingError, match="not a readable MCAP file"):
+            list(read_recording(f))
+        for extra in ((), ("--execute", "--robot", str(ROBOT_FILE))):
+            code, _, err = _ucr_run("replay", str(f), "--port", "0", "--rate", "0", *extra)
+            assert code == 1 and "Traceback" not in err, err
+            lines = err.strip().splitlines()
+            assert lines[-1].startswith(f"ucr: {f}: not a readable MCAP file: "), err
+
+
+def test_a_file_cut_short_replays_what_it_holds_and_says_where_it_ends(tmp_path):
+    """Defect: a truncated or killed recording stopped early without a word (178 of 687
+    messages, exit 0), and --execute planned from the part without a note."""
+    from interop.replay import ReadReport, make_plan, play
+    from ucrdf.parser import load
+
+    whole = tmp_path / "whole.mcap"
+    _chunked(whole, 40)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+
+    full = ReadReport()
+    assert play(whole, [], rate=0, report=full) == 40 and full.damage is None
+    assert full.warnings(whole) == []
+    part = ReadReport()
+    n = play(cut, [], rate=0, report=part)
+    assert 5 < n < 40 and part.damage is not None
+    (line,) = part.warnings(cut)
+    assert "ends early" in line and f"read up to {(n - 1) * 0.1:.2f} s" in line, line
+
+    code, _, err = _ucr_run("replay", str(cut), "--port", "0", "--rate", "0")
+    assert code == 0, err
+    assert f"ucr: warning: {cut} ends early" in err and f"{n} messages replayed" in err, err
+    plan = make_plan(cut, load(ROBOT_FILE))
+    assert any("ends early" in note for note in plan.notes), plan.notes
+    code, out, err = _ucr_run("replay", str(cut), "--execute", "--measured", "--robot",
+                              str(ROBOT_FILE))  # fmt: skip
+    assert code == 0 and "note: " in out and "ends early" in out, out + err
+
+
+def test_messages_not_in_cdr_are_reported_as_skipped(tmp_path):
+    """Defect: a channel in another message encoding (json) was ignored in silence: "0
+    messages replayed", and --execute said "no /joint_states messages" although there were 10."""
+    from mcap.writer import Writer
+
+    from interop.replay import ReadReport, RecordingError, make_plan, play
+    from ucrdf.parser import load
+
+    path = tmp_path / "json.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        sid = w.register_schema(name="JointState", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/joint_states", message_encoding="json", schema_id=sid)
+        for i in range(10):
+            w.add_message(cid, log_time=i * 10**8, data=b'{"name": []}', publish_time=i * 10**8)
+        w.finish()
+    report = ReadReport()
+    assert play(path, [], rate=0, report=report) == 0
+    (line,) = report.warnings(path)
+    assert "skipped 10 messages on /joint_states" in line and "'json'" in line, line
+    with pytest.raises(RecordingError, match="skipped 10 messages on /joint_states"):
+        make_plan(path, load(ROBOT_FILE))
+    code, _, err = _ucr_run("replay", str(path), "--port", "0", "--rate", "0")
+    assert code == 0 and "skipped 10 messages on /joint_states" in err, err
