@@ -23,6 +23,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from typing import Any
 
 from host.api import DEFAULT_HOST, DEFAULT_PORT
@@ -31,6 +32,7 @@ from host.api.bridge import BridgeClosed, DaemonBridge, DaemonLink, recv_frame, 
 
 log = logging.getLogger("ucr.api")
 API_NICE = 5  # scheduling priority of the API process relative to the daemon (nice increment)
+TERM_GRACE_S = 3.0  # s the API process waits, after SIGTERM, for the daemon to stop it
 
 
 def _options_json(options: dict[str, Any]) -> dict[str, Any]:
@@ -216,6 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     while not stop.wait(0.5) and not link.closed:
         pass
+    # SIGTERM usually reaches the daemon too (systemd, a terminal's process group): give it the
+    # time to stop the API itself, so it does not take this exit for a crash and restart it
+    deadline = time.monotonic() + TERM_GRACE_S
+    while not link.closed and time.monotonic() < deadline:
+        time.sleep(0.05)
     server.stop()
     link.close()
     return 0
