@@ -42,8 +42,20 @@ def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> Non
         "--ca", help="CA file to verify a wss:// daemon ($UCR_CA)", **({"default": None} | kw)
     )
     p.add_argument(
-        "--timeout", type=float, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
+        "--timeout", type=_seconds, help="reply timeout, s (default 5)", **({"default": 5.0} | kw)
     )
+
+
+def _seconds(text: str) -> float:
+    """A timeout: a finite number of seconds > 0 (0 or less made every call time out at once,
+    reported as "is `ucr daemon` running?")."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
 
 
 def connect_daemon(args: argparse.Namespace) -> Any:
@@ -67,7 +79,7 @@ def connect_daemon(args: argparse.Namespace) -> Any:
     except ApiAuthError as exc:
         raise CliError(exc.message) from None
     except ApiConnectionError as exc:
-        if exc.code == "bad_url":
+        if exc.code in ("bad_url", "tls"):
             raise CliError(exc.message) from None
         raise CliError(f"cannot reach the daemon at {url}: is `ucr daemon` running?") from None
 

@@ -84,5 +84,12 @@ def open_websocket(
         raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
     except InvalidURI as exc:
         raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None
+    except ssl.SSLError as exc:  # reached something, but no TLS agreed: not "is it running?"
+        why = exc.reason or exc.strerror or str(exc)
+        raise ApiConnectionError(
+            f"TLS with the daemon at {url} failed ({why}): a daemon without TLS takes ws://, "
+            "a certificate from another authority needs --ca FILE",
+            code="tls",
+        ) from None
     except (OSError, TimeoutError, WebSocketException) as exc:
         raise ApiConnectionError(f"cannot reach the daemon at {url}: {exc}") from None

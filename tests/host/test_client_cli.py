@@ -206,6 +206,23 @@ def test_trajectory_json_file_and_missing_file(capsys, tmp_path):
     assert rc == 1 and "cannot read" in err
 
 
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
+def test_a_timeout_that_cannot_work_is_a_usage_error(capsys, value):
+    """Review 2026-11-26: --timeout 0 or -1 made the call fail at once, reported as "cannot
+    reach the daemon: is `ucr daemon` running?"."""
+    with pytest.raises(SystemExit) as ei:
+        ucr(["status", "--timeout", value])
+    assert ei.value.code == 2
+    assert "--timeout" in capsys.readouterr().err
+
+
+def test_wss_to_a_daemon_without_tls_says_tls_failed(capsys, url):
+    """Review 2026-11-26: wss:// against a plain ws:// daemon said "is `ucr daemon` running?"."""
+    rc, _, err = run(capsys, "status", "--url", url.replace("ws://", "wss://"))
+    assert rc == 1
+    assert "TLS with the daemon" in err and "takes ws://" in err and "running?" not in err
+
+
 def test_yaml_numbers_with_an_exponent_are_numbers(capsys, tmp_path):
     """Review 2026-11-26: `t: 5e-1` was refused as "expected a number, got string" (PyYAML
     reads YAML 1.1, where an exponent needs a dot); the daemon's config file likewise."""
