@@ -227,6 +227,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
     def body(c: Any) -> int:
         n = 0
+        rc = 0
         sub = c.subscribe(kinds, max_rate=args.rate)
         try:
             for msg in sub:
@@ -235,7 +236,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
                 if args.count is not None and n >= args.count:
                     break
         except KeyboardInterrupt:
-            pass
+            rc = 130  # interrupted, as every command (docs/api.md "Client CLI")
         finally:
             if not c.closed:
                 sub.close()
@@ -243,7 +244,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             say_error(
                 f"watch: {sub.dropped_server + sub.dropped_local} messages dropped (slow output)"
             )
-        return 0
+        return rc
 
     return with_client(args, body)
 

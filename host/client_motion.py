@@ -255,10 +255,16 @@ def cmd_teleop(args: argparse.Namespace) -> int:
             if ev.note:
                 print(f"  {ev.note}", flush=True)
 
+        interrupted = False
         try:
             result = Teleop(c.ffc_input, rate_hz=args.rate, on_event=on_event).run(source)
         except KeyboardInterrupt:
-            result = None
+            result, interrupted = None, True
+            try:  # stop now, not only when the cFFC's deadman runs out
+                c.ffc_input({n: (0.0, 0.0) for n in names})
+                say_error("interrupted: zero input sent, the segments stop where they are")
+            except Exception:  # noqa: BLE001 - the deadman still stops them
+                say_error("interrupted: the cFFC's deadman stops the segments")
         finally:
             source.close()
             if record is not None:
@@ -274,6 +280,8 @@ def cmd_teleop(args: argparse.Namespace) -> int:
                 f"{', '.join(manual)} keeps control: `ucr controllers hand-back` returns it "
                 "to the trajectory controller"
             )
+        if interrupted:
+            return 130
         return 0 if result is None or result.reason in ("quit", "end") else 1
 
     return with_client(args, body)

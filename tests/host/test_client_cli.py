@@ -223,6 +223,38 @@ def test_wss_to_a_daemon_without_tls_says_tls_failed(capsys, url):
     assert "TLS with the daemon" in err and "takes ws://" in err and "running?" not in err
 
 
+def test_ctrl_c_ends_watch_and_teleop_with_130_and_teleop_stops_the_segments(
+    capsys, url, tmp_path, monkeypatch
+):
+    """Review 2026-11-26: Ctrl-C in `ucr watch` and `ucr teleop` exited 0 (docs: 130), and
+    teleop left the segments to the deadman without a word."""
+    import host.client_cli as client_cli
+    import host.teleop as teleop
+
+    def interrupt(msg):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(client_cli, "format_message", interrupt)
+    assert run(capsys, "watch", "--url", url)[0] == 130
+
+    sent: list[dict] = []
+
+    def run_then_interrupt(self, source):
+        self.send({"s1": (0.5, 0.0)})
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(teleop.Teleop, "run", run_then_interrupt)
+    rec = tmp_path / "stick.jsonl"
+    rec.write_text('{"t": 0.0, "rates": {"s1": [0.5, 0.0]}}\n')
+    from host.api.client import Client
+
+    real = Client.ffc_input
+    monkeypatch.setattr(Client, "ffc_input", lambda c, rates: sent.append(rates) or real(c, rates))
+    rc, _, err = run(capsys, "teleop", "--url", url, "--replay", str(rec))
+    assert rc == 130
+    assert sent[-1] == {"s1": (0.0, 0.0)} and "zero input sent" in err
+
+
 def test_yaml_numbers_with_an_exponent_are_numbers(capsys, tmp_path):
     """Review 2026-11-26: `t: 5e-1` was refused as "expected a number, got string" (PyYAML
     reads YAML 1.1, where an exponent needs a dot); the daemon's config file likewise."""
