@@ -46,6 +46,18 @@ def register(subparsers: Any) -> None:
     p.add_argument("segment", nargs="?", help="bendable name (default: every segment)")
     p.set_defaults(func=cmd_clear_fault)
 
+    p = subparsers.add_parser(
+        "goal",
+        help="show a trajectory goal's status, or cancel it (--cancel)",
+        description="Status of GOAL (the id `ucr move/trajectory --no-wait` prints), or of every "
+        "running goal when none is given; --cancel stops it (the robot decelerates and holds).",
+    )
+    add_connection_args(p)
+    p.add_argument("goal", nargs="?", help="goal id (default: every running goal)")
+    p.add_argument("--cancel", action="store_true", help="cancel the goal(s)")
+    p.add_argument("--json", action="store_true", help="print each status as one JSON line")
+    p.set_defaults(func=cmd_goal)
+
     p = subparsers.add_parser("watch", help="print live joint states, transforms or events")
     add_connection_args(p)
     p.add_argument(
@@ -182,6 +194,31 @@ def cmd_clear_fault(args: argparse.Namespace) -> int:
         for name in sent:
             if name in had:
                 print(f"  {name}: was in FAULT {had[name].get('name')}: {had[name].get('text')}")
+        return 0
+
+    return with_client(args, body)
+
+
+def cmd_goal(args: argparse.Namespace) -> int:
+    def body(c: Any) -> int:
+        goals = [args.goal] if args.goal else list(c.status().get("running_goals") or [])
+        if not goals:
+            print("no running goal")
+            return 0
+        for goal in goals:
+            st = c.cancel(goal) if args.cancel else c.trajectory_status(goal)
+            if args.json:
+                print(json.dumps(st))
+                continue
+            line = f"goal {goal}: {st.get('state')}"
+            if st.get("progress") is not None:
+                line += f", {100 * float(st['progress']):.0f} %"
+            if st.get("reason"):
+                line += f" ({st['reason']})"
+            if args.cancel:
+                done = "; canceled: decelerating to rest" if st.get("canceled") else "; not running"
+                line += done
+            print(line)
         return 0
 
     return with_client(args, body)

@@ -4,6 +4,7 @@ disconnect cleanup and malformed requests that must not disturb the control loop
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import socket
@@ -279,3 +280,34 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         assert rc == 1 and "no_such not controlled by the daemon" in err
     finally:
         ensure_jtc(client)
+
+
+def test_cli_goal_shows_and_cancels_a_goal_sent_with_no_wait(rig, client, capsys):
+    """Review 2026-11-26: `--no-wait` printed a goal id that no `ucr` command accepted; from
+    the CLI such a goal could only be stopped by sending another one."""
+    from tools.cli import main as ucr
+
+    _, srv = rig
+    ensure_jtc(client)
+    gid = client.send_trajectory(
+        [{"time_from_start": 20.0, "segments": {"segment_1": {"kappa": 0.3, "phi": 0.0}}}],
+        wait=False,
+    )
+    try:
+        assert ucr(["goal", gid, "--url", srv.url]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith(f"goal {gid}: executing") and "%" in out, out
+        assert ucr(["goal", "--url", srv.url]) == 0  # every running goal
+        assert f"goal {gid}: executing" in capsys.readouterr().out
+        assert ucr(["goal", "--cancel", "--url", srv.url]) == 0
+        assert "canceled: decelerating to rest" in capsys.readouterr().out
+        end = time.monotonic() + 10
+        while not client.trajectory_status(gid)["done"] and time.monotonic() < end:
+            time.sleep(0.1)
+        assert ucr(["goal", "--url", srv.url]) == 0
+        assert capsys.readouterr().out.strip() == "no running goal"
+        assert ucr(["goal", "jtc-nope", "--url", srv.url]) == 1
+        assert "unknown goal id 'jtc-nope'" in capsys.readouterr().err
+    finally:
+        with contextlib.suppress(Exception):
+            client.cancel(gid)
