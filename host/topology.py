@@ -20,6 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from host.positions import label as position_label
+from ucrdf.checks import check
+from ucrdf.errors import UcrdfError
 from ucrdf.model import Robot
 
 REL_TOL = 2e-3  # descriptors carry float32: compare geometry with a relative tolerance
@@ -306,18 +308,50 @@ def write_atomic(path: str | Path, text: str, mode: int = 0o644) -> None:
         raise
 
 
+def keep_wiring(adopted: Robot, original: Robot) -> None:
+    """What a descriptor does not carry, taken from the description the daemon was started
+    with for every segment found under the same name with the same tendon count: its servos
+    (ids, ranges, zero offsets, directions), board and wiring, and the segment-level hardware
+    parameters (watchdog_ms, tick_ms). Without them every adopted segment got servo ids 0, 1, 2
+    and the default watchdog, so flashing from the adopted file broke real hardware."""
+    for name, bend in adopted.bendables.items():
+        old = original.bendables.get(name)
+        act, old_act = bend.actuation, old.actuation if old is not None else None
+        if act is None or old_act is None or old_act.count != act.count:
+            continue
+        act.servos = list(old_act.servos)
+        act.board, act.uarts, act.pwm_pins = (
+            old_act.board,
+            dict(old_act.uarts),
+            dict(old_act.pwm_pins),
+        )
+    old_params = {k: v for c in original.ros2_control for k, v in c.hardware_params.items()}
+    for control in adopted.ros2_control:
+        for key in ("watchdog_ms", "tick_ms"):
+            if key in old_params:
+                control.hardware_params.setdefault(key, old_params[key])
+
+
 def adopt_capped(
     descriptors: list[dict[str, Any]],
     name: str,
     out_path: str | Path,
     envelope: Envelope | None = None,
+    original: Robot | None = None,
 ) -> tuple[Robot, list[str]]:
-    """Compose a robot from the descriptors (``ucrdf.compose``), cap its limits to ``envelope``
-    and write it atomically to ``out_path``; returns the robot and what was capped."""
+    """Compose a robot from the descriptors (``ucrdf.compose``), keep the ``original``
+    description's wiring for the segments it names (:func:`keep_wiring`), cap its limits to
+    ``envelope`` and write it atomically to ``out_path``; returns the robot and what was
+    capped."""
     from ucrdf.compose import robot_from_descriptors  # noqa: PLC0415 - optional until used
     from ucrdf.writer import dumps  # noqa: PLC0415
 
     robot = robot_from_descriptors(descriptors, name)
+    if original is not None:
+        keep_wiring(robot, original)
+        problems = check(robot)
+        if problems:  # the file's wiring does not fit the segment found under that name
+            raise UcrdfError(problems)
     capped = cap_limits(robot, envelope) if envelope is not None else []
     write_atomic(out_path, dumps(robot))
     robot.source = str(out_path)

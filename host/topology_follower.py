@@ -180,7 +180,11 @@ class TopologyFollower:
     def _adopt(self, descs: list[dict], cmp: Comparison) -> None:
         try:
             robot, capped = adopt_capped(
-                descs, self.file_robot.name, self.adopt_path, envelope_from(self.file_robot)
+                descs,
+                self.file_robot.name,
+                self.adopt_path,
+                envelope_from(self.file_robot),
+                original=self.file_robot,
             )
         except Exception as exc:  # noqa: BLE001 - composition failure is a user-facing error
             raise DaemonError(f"--adopt: cannot compose a robot from the chain: {exc}") from None

@@ -177,6 +177,16 @@ def test_mismatch_is_explained_and_adopt_writes_the_chain_as_found(chain, tmp_pa
     adopted = load(out)
     assert list(adopted.bendables) == ["segment_1", "segment_2", "segment_3"]
     assert adopted.bendables["segment_3"].length == pytest.approx(0.316)
+    # review 2026-11-26: what descriptors do not carry came out as defaults (servo ids 0, 1, 2
+    # on every segment, the default watchdog): the file's own wiring is kept where it names
+    # the segment
+    original = load(two)
+    for name in ("segment_1", "segment_2"):
+        got, want = adopted.bendables[name].actuation, original.bendables[name].actuation
+        assert [sv.id for sv in got.servos] == [sv.id for sv in want.servos], name
+        assert got.servos == want.servos
+    hw = adopted.ros2_control[0].hardware_params
+    assert hw.get("watchdog_ms") == original.ros2_control[0].hardware_params.get("watchdog_ms")
 
 
 def test_segment_not_in_the_description_is_reported_and_held(chain):
