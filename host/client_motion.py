@@ -82,7 +82,10 @@ def _send(c: Any, points: list[dict], controller: str | None, no_wait: bool) -> 
 
 
 def cmd_move(args: argparse.Namespace) -> int:
-    if not math.isfinite(args.kappa) or args.kappa < 0:
+    if not math.isfinite(args.kappa):
+        say_error(f"--kappa must be a finite number of 1/m, got {args.kappa}")
+        return 2
+    if args.kappa < 0:
         say_error("--kappa must be >= 0 1/m (bend the other way with --phi + 180)")
         return 2
     if not math.isfinite(args.duration) or args.duration <= 0:

@@ -21,6 +21,7 @@ from typing import Any
 MAX_REQUEST_BYTES = 64 * 1024
 MAX_NAME_LEN = 64
 MAX_POINTS = 10_000
+MAX_TIME_S = 604_800.0  # a waypoint's time_from_start: at most a week (1e15 s broke retiming)
 MAX_SEGMENTS = 64
 MAX_RATE_HZ = 1000.0
 MAX_DEFLECTION = 1.0
@@ -189,7 +190,7 @@ def validate_points(points: Any, field: str = "points") -> list[dict]:
         t_raw = p.get("time_from_start", p.get("t"))
         if t_raw is None or "segments" not in p:
             raise _bad(where, "needs 'time_from_start' (s) and 'segments'")
-        t = _number(t_raw, f"{where}.time_from_start", lo=0.0, lo_open=True)
+        t = _number(t_raw, f"{where}.time_from_start", lo=0.0, lo_open=True, hi=MAX_TIME_S)
         if t <= last_t:
             raise _bad(
                 f"{where}.time_from_start",

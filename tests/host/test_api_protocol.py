@@ -233,6 +233,15 @@ def wait_for(pred, timeout: float = 5.0) -> bool:
             schema.BAD_JSON,
             None,
         ),
+        # a time no trajectory can have: "the rate along the path cannot be computed"
+        (
+            (
+                '{"id": 25, "op": "trajectory.send", "points": [{"t": 1e15, "segments": '
+                '{"s1": {"kappa": 1}}}]}'
+            ),
+            schema.INVALID_PARAMS,
+            25,
+        ),
         # a curvature vector with one component left out was accepted as 0
         (
             (

@@ -255,6 +255,13 @@ def test_ctrl_c_ends_watch_and_teleop_with_130_and_teleop_stops_the_segments(
     assert sent[-1] == {"s1": (0.0, 0.0)} and "zero input sent" in err
 
 
+@pytest.mark.parametrize("value", ["inf", "nan"])
+def test_move_with_a_kappa_that_is_not_a_number_says_so(capsys, value):
+    """Review 2026-11-26: --kappa inf / nan said "must be >= 0"."""
+    rc, _, err = run(capsys, "move", "--segment", "s1", "--kappa", value)
+    assert rc == 2 and "--kappa must be a finite number" in err
+
+
 def test_yaml_numbers_with_an_exponent_are_numbers(capsys, tmp_path):
     """Review 2026-11-26: `t: 5e-1` was refused as "expected a number, got string" (PyYAML
     reads YAML 1.1, where an exponent needs a dot); the daemon's config file likewise."""
