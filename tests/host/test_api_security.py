@@ -372,20 +372,26 @@ _BAD = [
 ]
 
 
-def test_refused_goals_are_audited_and_a_goal_whose_sender_left_is_canceled(stub):
+@pytest.fixture
+def audit_lines():
+    """The audit log's lines while the test runs."""
+    lines: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            lines.append(record.getMessage())
+
+    keep = Keep()
+    logging.getLogger("ucr.audit").addHandler(keep)
+    yield lines
+    logging.getLogger("ucr.audit").removeHandler(keep)
+
+
+def test_refused_goals_are_audited_and_a_goal_whose_sender_left_is_canceled(stub, audit_lines):
     """Review 2026-11-26: a refused trajectory.send left no audit line; and Ctrl-C in
     `ucr trajectory` before the goal was accepted left it running with nobody to watch or
     cancel it (its id never reached the client). Now the refusal is audited with its reason,
     and a goal accepted after its sender left is canceled at once, and audited so."""
-    records: list[logging.LogRecord] = []
-
-    class Keep(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            records.append(record)
-
-    audit = logging.getLogger("ucr.audit")
-    keep = Keep()
-    audit.addHandler(keep)
     canceled: list[str] = []
     build = stub.send_trajectory
 
@@ -411,8 +417,7 @@ def test_refused_goals_are_audited_and_a_goal_whose_sender_left_is_canceled(stub
         assert stub.goals.keys() == {"g1"}
     finally:
         srv.stop()
-        audit.removeHandler(keep)
-    lines = [r.getMessage() for r in records]
+    lines = audit_lines
     refused = [ln for ln in lines if "op=trajectory.send" in ln and "refused" in ln]
     assert len(refused) == 1 and "kappa_max" in refused[0] and "1 waypoint(s)" in refused[0]
     gone = [ln for ln in lines if "goal=g1" in ln]
