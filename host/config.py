@@ -89,7 +89,9 @@ class DaemonConfig:
     """Everything the daemon needs besides the robot description. SI units (s, Hz)."""
 
     port: str | None = None
-    baudrate: int = 921600
+    #: bit/s; None: the U(C)RDF's ``<hardware>`` param ``baudrate``, else 921600
+    #: (:func:`link_baudrate`; the daemon resolves it), as ``port`` falls back to the file's
+    baudrate: int | None = None
     rate_hz: float = 100.0
     #: SCHED_FIFO priority of the control loop and link reader threads; 0: normal scheduling
     #: (host/realtime.py, docs/daemon.md "Real-time scheduling")
@@ -326,3 +328,19 @@ def load_config(path: str | Path | None) -> DaemonConfig:
         where = f"line {mark.line + 1}" if mark is not None else "YAML"
         raise ConfigError(str(p), where, f"invalid YAML: {getattr(exc, 'problem', exc)}") from None
     return parse_config(data, str(p))
+
+
+DEFAULT_BAUDRATE = 921600  # bit/s, the chain's contract (docs/architecture.md)
+
+
+def link_baudrate(cfg: DaemonConfig, robot: Any) -> int:
+    """The chain's bit rate: the configuration's ``baudrate`` when it gives one, else the
+    U(C)RDF's ``<ros2_control><hardware><param name="baudrate">`` (``ucr check`` validated it),
+    else 921600."""
+    if cfg.baudrate is not None:
+        return cfg.baudrate
+    for block in getattr(robot, "ros2_control", []):
+        value = block.hardware_params.get("baudrate")
+        if value is not None:
+            return int(value)
+    return DEFAULT_BAUDRATE

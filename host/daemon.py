@@ -22,6 +22,7 @@ controller update, never while waiting on the bus.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import queue
@@ -35,7 +36,7 @@ from typing import Any
 
 from host import realtime
 from host.arbitration import Arbitrator
-from host.config import DaemonConfig
+from host.config import DaemonConfig, link_baudrate
 from host.controller_manager import ControllerManager
 from host.errors import DaemonError, GoalNotFound, TopologyError
 from host.hwi import ACTIVE, HardwareInterface, robot_state_from
@@ -90,6 +91,9 @@ class Daemon:
             robot = load(robot)
         self.file_robot = robot
         self.cfg = config or DaemonConfig()
+        baud = link_baudrate(self.cfg, robot)
+        if baud != self.cfg.baudrate:
+            self.cfg = dataclasses.replace(self.cfg, baudrate=baud)
         self.port = port or self.cfg.port
         if not self.port:
             raise DaemonError("no chain port given (--port URL or 'port:' in the config)")

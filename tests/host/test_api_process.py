@@ -133,6 +133,58 @@ def test_ucr_daemon_serves_the_api_from_its_own_process(chain, tmp_path):
         time.sleep(0.1)
 
 
+def test_sigterm_to_the_api_process_during_a_slow_daemon_stop_is_not_taken_for_a_crash(caplog):
+    """Review 2026-11-26: systemd and a terminal signal every process of the daemon's group;
+    the API process exited at once, and a daemon that took a moment before stopping its API
+    (`ucr demo`: the printer, the statistics, the view first) logged "API process exited (code
+    0); restarting" as an ERROR during an ordered stop. The API process now gives the daemon
+    time to stop it."""
+    import logging
+
+    from host.api.process import ApiProcess
+
+    class Daemon:  # the facade calls the bridge makes while idle
+        def status(self) -> dict:
+            return {"state": "connected"}
+
+    api = ApiProcess(Daemon(), "127.0.0.1", 0).start()
+    try:
+        with caplog.at_level(logging.INFO, logger="ucr.api"):
+            os.kill(api.pid, signal.SIGTERM)
+            time.sleep(1.5)  # the daemon's own stop work before it stops the API
+            api.stop()
+        assert api.restarts == 0
+        assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+    finally:
+        api.stop()
+
+
+def test_sigterm_to_the_whole_process_group_stops_without_an_api_restart(chain, tmp_path):
+    """Review 2026-11-26: systemd (and a terminal) signal every process of the daemon's group;
+    the API process exited at once, and the daemon logged "API process exited (code 0);
+    restarting" as an ERROR during an ordered stop."""
+    port = _free_port()
+    cfg = tmp_path / "daemon.yaml"
+    cfg.write_text(f"api: {{bind: 127.0.0.1, port: {port}}}\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "daemon", "--robot", str(ROBOT_FILE)]
+        + ["--port", chain.host_port, "--config", str(cfg)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True,
+    )  # fmt: skip
+    try:
+        assert wait_for(lambda: _connected(f"ws://127.0.0.1:{port}"), 30.0, 0.2)
+        os.killpg(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, out
+    assert "segments told to HOLD" in out
+    assert "API process exited" not in out and "ERROR" not in out, out
+
+
 # ------------------------------------------------------------------ issue 12 finding 6
 @pytest.fixture(scope="module")
 def daemon_url(chain, tmp_path_factory):
@@ -234,55 +286,3 @@ def test_ten_thousand_waypoints_through_ucr_trajectory(daemon_url, tmp_path, cap
             assert c.trajectory_status(goal)["points"] == 10_000
         finally:
             c.cancel(goal)
-
-
-def test_sigterm_to_the_api_process_during_a_slow_daemon_stop_is_not_taken_for_a_crash(caplog):
-    """Review 2026-11-26: systemd and a terminal signal every process of the daemon's group;
-    the API process exited at once, and a daemon that took a moment before stopping its API
-    (`ucr demo`: the printer, the statistics, the view first) logged "API process exited (code
-    0); restarting" as an ERROR during an ordered stop. The API process now gives the daemon
-    time to stop it."""
-    import logging
-
-    from host.api.process import ApiProcess
-
-    class Daemon:  # the facade calls the bridge makes while idle
-        def status(self) -> dict:
-            return {"state": "connected"}
-
-    api = ApiProcess(Daemon(), "127.0.0.1", 0).start()
-    try:
-        with caplog.at_level(logging.INFO, logger="ucr.api"):
-            os.kill(api.pid, signal.SIGTERM)
-            time.sleep(1.5)  # the daemon's own stop work before it stops the API
-            api.stop()
-        assert api.restarts == 0
-        assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
-    finally:
-        api.stop()
-
-
-def test_sigterm_to_the_whole_process_group_stops_without_an_api_restart(chain, tmp_path):
-    """Review 2026-11-26: systemd (and a terminal) signal every process of the daemon's group;
-    the API process exited at once, and the daemon logged "API process exited (code 0);
-    restarting" as an ERROR during an ordered stop."""
-    port = _free_port()
-    cfg = tmp_path / "daemon.yaml"
-    cfg.write_text(f"api: {{bind: 127.0.0.1, port: {port}}}\n")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "daemon", "--robot", str(ROBOT_FILE)]
-        + ["--port", chain.host_port, "--config", str(cfg)],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True,
-    )  # fmt: skip
-    try:
-        assert wait_for(lambda: _connected(f"ws://127.0.0.1:{port}"), 30.0, 0.2)
-        os.killpg(proc.pid, signal.SIGTERM)
-        out, _ = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    assert proc.returncode == 0, out
-    assert "segments told to HOLD" in out
-    assert "API process exited" not in out and "ERROR" not in out, out

@@ -17,7 +17,8 @@ from tools.cli import main
 
 def test_defaults_without_a_file():
     cfg = load_config(None)
-    assert cfg.rate_hz == 100.0 and cfg.baudrate == 921600 and cfg.api.bind == "127.0.0.1"
+    assert cfg.rate_hz == 100.0 and cfg.api.bind == "127.0.0.1"
+    assert cfg.baudrate is None  # not given: the U(C)RDF's, else 921600 (link_baudrate)
     assert cfg.active == ["jtc", "jsb", "rsp"] and set(cfg.controllers) == {
         "jtc",
         "ffc",
@@ -196,3 +197,21 @@ def test_daemon_refuses_without_a_port(robot3):
         Daemon(robot3, DaemonConfig())
     with pytest.raises(ConfigError):
         parse_config({"rate_hz": True})
+
+
+def test_the_chain_baudrate_comes_from_the_config_else_from_the_ucrdf(tmp_path):
+    """Review 2026-11-26: the U(C)RDF's <param name="baudrate"> was read by nothing (the port
+    param was). Precedence as for the port: the configuration's baudrate, else the file's."""
+    from host.daemon import Daemon
+    from ucrdf.parser import load
+
+    text = (ROBOT_FILE.parent / "softrobot2.ucrdf").read_text()
+    assert '<param name="baudrate">921600</param>' in text
+    slow = tmp_path / "slow.ucrdf"
+    slow.write_text(text.replace('<param name="baudrate">921600</param>',
+                                 '<param name="baudrate">115200</param>'))  # fmt: skip
+    for cfg, want in ((parse_config(None), 115200), (parse_config({"baudrate": 460800}), 460800)):
+        assert Daemon(load(slow), cfg, port="loop://").cfg.baudrate == want
+    cfg_file = tmp_path / "d.yaml"
+    cfg_file.write_text("rate_hz: 50\n")
+    assert Daemon(load(slow), load_config(cfg_file), port="x").cfg.baudrate == 115200
