@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+from host.positions import label
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -16,7 +18,11 @@ def register(subparsers: Any) -> None:
         "terminal UI (the 'tui' extra) guides you. Ctrl-C or the hold key holds the segment at "
         "once. `persist` stores the calibration on the segment and, with --robot, in the U(C)RDF.",
     )
-    p.add_argument("--segment", required=True, help="segment name (descriptor), position or uid")
+    p.add_argument(
+        "--segment",
+        required=True,
+        help="segment name (descriptor), chain position (counted from 1) or uid",
+    )
     p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
     p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
     p.add_argument("--robot", help="U(C)RDF to write the calibration into (on persist)")
@@ -25,18 +31,28 @@ def register(subparsers: Any) -> None:
 
 
 def find_segment(descs: list[dict], which: str) -> dict:
-    """The descriptor named ``which`` (name, then position, then uid); ValueError if none."""
-    for d in descs:
-        if d.get("name") == which:
-            return d
+    """The descriptor named ``which`` (name, then chain position counted from 1 as everywhere a
+    user sees one, then uid); ValueError if none, or if a name is ambiguous (two segments flashed
+    with the same configuration): the message lists the positions."""
+    named = [d for d in descs if d.get("name") == which]
+    if len(named) > 1:
+        where = ", ".join(f"{label(d.get('position'))} ({d.get('uid')})" for d in named)
+        raise ValueError(
+            f"{len(named)} segments are named {which!r} ({where}): pick one with --segment "
+            "POSITION or UID, and reflash the wrong one with its own configuration (`ucr flash`)"
+        )
+    if named:
+        return named[0]
     if which.isdigit():
         for d in descs:
-            if d.get("position") == int(which):
+            if isinstance(d.get("position"), int) and d["position"] + 1 == int(which):
                 return d
     for d in descs:
         if str(d.get("uid", "")).lower() == which.lower():
             return d
-    names = ", ".join(f"{d.get('position')}: {d.get('name')} ({d.get('uid')})" for d in descs)
+    names = ", ".join(
+        f"{label(d.get('position'))}: {d.get('name')} ({d.get('uid')})" for d in descs
+    )
     raise ValueError(f"no segment {which!r} in the chain ({names or 'none answers'})")
 
 

@@ -1,6 +1,8 @@
 """``ucr doctor``: find what is wrong with a segment chain, in order, each finding with its fix.
 
-Read-only by construction: it sends only DISCOVER, PARAM_GET, HEARTBEAT and CALIBRATE with the
+Read-only by construction: it first listens (and sends one carriage return): a MicroPython REPL
+(a segment's USB port) or a silent port gets no frame, as its bytes (Ctrl-C, Ctrl-D) would stop or
+reset a running firmware; then it sends only DISCOVER, PARAM_GET, HEARTBEAT and CALIBRATE with the
 read action (never SYNC, PARAM_SET, CLEAR_FAULT, HOLD or a calibration change), so nothing moves and
 no setting changes. It lives in host/ because it runs on
 the Raspberry Pi next to the daemon (host/ is what a Pi install has; host/ never imports tools/).
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from dataclasses import asdict
 from typing import Any
 
@@ -74,6 +77,59 @@ def scan_baud(port: str, configured: int) -> Finding:
     )
 
 
+#: What a MicroPython REPL prints (banner, prompts, the firmware's own lines, a traceback).
+REPL_MARKERS = (b">>> ", b"MicroPython v", b"raw REPL; CTRL-B", b"[main] ", b"Traceback (most")
+#: Seconds doctor listens before it sends a frame (a powered chain sends ALIVE every 50 ms).
+LISTEN_S = 0.3
+
+
+def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
+    """Before any frame is sent: what does the port say unasked? A segment's USB/REPL port
+    (MicroPython prompt, banner, the firmware's lines) is a finding: frames would stop or reset
+    its firmware (Ctrl-C, Ctrl-D bytes). A silent port is one too: a powered first segment sends
+    ALIVE unasked, so nothing answers there, and a running firmware's REPL is silent as well. Only
+    a carriage return is sent (a REPL shows its prompt; the chain protocol drops it)."""
+    import serial  # noqa: PLC0415
+
+    try:
+        kwargs = {} if "://" in port else {"exclusive": True}
+        ser = serial.serial_for_url(port, baudrate=baud, timeout=0.05, **kwargs)
+    except (serial.SerialException, OSError, ValueError):
+        return None  # the link open that follows says why
+    seen = b""
+    try:
+        for probe in (b"", b"\r"):
+            if probe:
+                ser.write(probe)
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                seen += ser.read(256)
+            if any(m in seen for m in REPL_MARKERS):
+                return Finding(
+                    "port",
+                    "error",
+                    f"{port} is a segment's REPL port (MicroPython answers there), not the chain "
+                    "port",
+                    "give the chain port (the first segment's upstream UART adapter) with --port; "
+                    "doctor sends nothing more here: frames would stop or reset that segment",
+                )
+            if seen:
+                return None
+    except (serial.SerialException, OSError):
+        return None
+    finally:
+        ser.close()
+    return Finding(
+        "chain",
+        "error",
+        f"no segment answers at {baud} bit/s: the port is silent (a powered first segment sends "
+        "ALIVE unasked every 50 ms)",
+        "check power of the first segment and the TX/RX wiring (crossed); a wrong baud rate "
+        "(--baud) would still show garbled bytes. Doctor sends no frame to a silent port: a "
+        "segment's USB/REPL port running its firmware is silent too, and frames would reset it",
+    )
+
+
 def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = None) -> list[Finding]:
     """All checks in order; stops early where later checks cannot run (no port, no answer)."""
     from host.link import ChainLink, LinkError  # noqa: PLC0415
@@ -82,6 +138,10 @@ def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = Non
     if findings[-1].level == "error":
         return findings
     own = link is None
+    if own:
+        heard = listen(port, baud)
+        if heard is not None:
+            return [*findings, heard]
     try:
         if own:
             link = ChainLink(port, baud)

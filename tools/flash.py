@@ -19,6 +19,9 @@ import errno
 import hashlib
 import json
 import os
+import re
+import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +41,12 @@ PROTOCOL_DIR = REPO / "protocol"
 RAW_BANNER = b"raw REPL; CTRL-B to exit\r\n"
 #: Suffix of a file while it is being uploaded: renamed into place only once all are verified.
 TMP_SUFFIX = ".new"
+#: What the firmware prints once it serves the chain (device/main.py ``run``).
+UP_LINE = re.compile(rb"\[main\] segment \S+ up")
+#: Seconds a reset board gets to print UP_LINE (an emulated segment on a loaded host is slow).
+BOOT_TIMEOUT = 15.0
+#: Seconds an interrupted board gets to answer the raw REPL again before it is given up on.
+RESYNC_TIMEOUT = 3.0
 
 
 class FlashError(RuntimeError):
@@ -128,6 +137,36 @@ class _CountingSerial:
 _LINK_ERRORS = (TransportError, OSError, serial.SerialException)
 
 
+class _Signals:
+    """SIGINT and SIGTERM while the board is being changed (main thread only; elsewhere the
+    handlers cannot be set and nothing changes). ``mode``: "raise" turns either into
+    KeyboardInterrupt (so SIGTERM cleans up like Ctrl-C), "defer" records it for later (a
+    cleanup or the final renames must not be cut short)."""
+
+    def __init__(self) -> None:
+        self.pending = False
+        self._old: dict[int, object] = {}
+        self._mode = "raise"
+
+    def _handler(self, signum: int, frame: object) -> None:
+        if self._mode == "raise":
+            raise KeyboardInterrupt
+        self.pending = True
+
+    def mode(self, mode: str) -> None:
+        self._mode = mode
+
+    def __enter__(self) -> _Signals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)  # type: ignore[arg-type]
+
+
 class Flasher:
     """One flashing session on ``port`` (see module docstring). ``log`` receives progress lines."""
 
@@ -141,6 +180,7 @@ class Flasher:
     ) -> None:
         self.port = port
         self.log = log
+        self.removed: list[str] = []  # *.new files of this or an earlier flash removed
         check_port(port)
         self._TransportError = TransportError
         try:
@@ -156,6 +196,16 @@ class Flasher:
         try:
             self._enter_raw_repl(connect_timeout)
             self.t.serial.timeout = 2.0
+        except KeyboardInterrupt:
+            try:  # Ctrl-C may have stopped main.py: leave any raw REPL, soft-reset to restart it
+                self.t.serial.write(b"\r\x03\x03\r\x02\x04")
+            except _LINK_ERRORS:
+                pass
+            self.close()
+            raise FlashError(
+                "interrupted while entering the board's REPL; nothing was changed (Ctrl-B, "
+                "Ctrl-D sent so its firmware starts again)"
+            ) from None
         except (FlashError, *_LINK_ERRORS) as exc:
             self.close()
             raise FlashError(
@@ -306,33 +356,117 @@ class Flasher:
         self._exec(code)
         for p in stale:
             self.log(f"      removed stale {p}")
+        left = self.remove_uploads()  # what an earlier interrupted flash could not remove
+        for p in self.removed:
+            self.log(f"      removed stale {p} (left by an earlier flash)")
+        if left:
+            raise FlashError(f"cannot remove stale uploads {', '.join(sorted(left))}")
+
+    def resync(self, timeout: float = RESYNC_TIMEOUT) -> None:
+        """Back to an idle raw REPL after an interruption: the board may be half-way through a
+        command (a raw-paste upload, a running script). Ctrl-C ends either, Ctrl-A re-enters."""
+        self.t.in_raw_repl = False
+        self.t.serial.timeout = 0.1
+        try:
+            self._enter_raw_repl(timeout)
+        finally:
+            self.t.serial.timeout = 2.0
+        self.t.in_raw_repl = True
 
     def abort(self, files: list[tuple[str, bytes]], *, reset: bool, info: BoardInfo | None) -> str:
-        """After a failure: remove the temporary uploads, leave the raw REPL, and (``reset``)
-        restart the previous firmware. Best effort; returns what was done, for the message."""
+        """After a failure or an interruption: bring the board back to an idle raw REPL, remove
+        every temporary upload (``*.new``), leave the raw REPL and (``reset``) restart the previous
+        firmware, watching it come up. Returns what was really done, for the message."""
+        try:
+            self.resync()
+        except (FlashError, *_LINK_ERRORS):
+            return (
+                "the board did not answer any more (switched off, unplugged or stuck?): "
+                f"temporary files (*{TMP_SUFFIX}) may be left on it and its firmware is stopped; "
+                "once it answers, run `ucr flash` again (it removes them) or press its reset button"
+            )
         done = []
-        script = "import os\nfor p in %r:\n try:\n  os.remove(p)\n except OSError:\n  pass\n" % [
-            p + TMP_SUFFIX for p, _ in files
-        ]
-        for attempt in (1, 2):  # a link hiccup right after the failure gets a second chance
-            try:
-                if self.t.in_raw_repl:
-                    self._exec(script)
-                    done.append("temporary files removed")
-                break
-            except FlashError as exc:
-                if attempt == 2:
-                    done.append(f"temporary files left ({exc})")
+        try:
+            left = self.remove_uploads()
+            done.append(
+                "temporary files removed"
+                if not left
+                else f"temporary files left: {', '.join(sorted(left))} (a later `ucr flash` "
+                "removes them)"
+            )
+        except FlashError as exc:
+            done.append(
+                f"temporary files (*{TMP_SUFFIX}) may be left ({exc}; a later `ucr flash` "
+                "removes them)"
+            )
         try:
             if reset and info is not None:
                 self.reset(info)
-                done.append("the board was reset to its previous firmware")
+                state, detail = self.watch_boot()
+                done.append(
+                    {
+                        "up": "the board was reset to its previous firmware, which runs again",
+                        "error": "the board was reset but its previous firmware does not start "
+                        f"({detail})",
+                        "closed": "the board was reset to its previous firmware (the port closed "
+                        "during the reset: check it with `ucr doctor`)",
+                        "silent": "the board was reset to its previous firmware (no start-up line "
+                        f"within {BOOT_TIMEOUT:g} s: check it with `ucr doctor`)",
+                    }[state]
+                )
             else:
                 self.leave()
                 done.append("the board is at its REPL with its previous firmware")
-        except _LINK_ERRORS:
-            pass
-        return "; ".join(done) or "the board did not answer any more: reset it by hand"
+        except _LINK_ERRORS as exc:
+            done.append(f"leaving the raw REPL failed ({_why(exc)}): press its reset button")
+        return "; ".join(done)
+
+    def remove_uploads(self) -> set[str]:
+        """Remove every ``*.new`` on the board (this flash's and an earlier failed one's);
+        return those that could not be removed."""
+        code = (
+            "import os\n"
+            "def _w(d):\n"
+            " for e in os.ilistdir(d or '.'):\n"
+            "  p = d + '/' + e[0] if d else e[0]\n"
+            "  if e[1] == 0x4000:\n"
+            "   _w(p)\n"
+            f"  elif p.endswith({TMP_SUFFIX!r}):\n"
+            "   try:\n"
+            "    os.remove(p)\n"
+            "    print('removed', p)\n"
+            "   except OSError:\n"
+            "    print('left', p)\n"
+            "_w('')\n"
+        )
+        left = set()
+        for line in self._exec(code).splitlines():
+            what, _, path = line.strip().partition(" ")
+            if what == "left":
+                left.add(path)
+            elif what == "removed":
+                self.removed.append(path)
+        return left
+
+    def watch_boot(self, timeout: float = BOOT_TIMEOUT) -> tuple[str, str]:
+        """After a reset: read the REPL until the firmware's "up" line or a traceback. Returns
+        ("up", ""), ("error", the traceback's error line), ("closed", why: the port went away,
+        e.g. a native-USB board re-enumerating) or ("silent", "") after ``timeout`` s."""
+        ser = self.t.serial
+        ser.timeout = 0.1
+        end = time.monotonic() + timeout
+        seen = b""
+        try:
+            while time.monotonic() < end:
+                seen += ser.read(256)
+                if UP_LINE.search(seen):
+                    return "up", ""
+                error = _traceback_error(seen)
+                if error:
+                    return "error", error
+        except _LINK_ERRORS as exc:
+            return "closed", _why(exc)
+        return "silent", ""
 
     def reset(self, info: BoardInfo) -> None:
         """Restart the board so it boots the new firmware.
@@ -355,6 +489,17 @@ class Flasher:
     def leave(self) -> None:
         """Back to the friendly REPL without a reset."""
         self.t.exit_raw_repl()
+
+
+def _traceback_error(out: bytes) -> str | None:
+    """The error line of the first complete MicroPython traceback in ``out``, else None."""
+    at = out.find(b"Traceback (most recent call last):")
+    if at < 0:
+        return None
+    for line in out[at:].split(b"\n")[1:-1]:  # complete lines only
+        if line and not line[:1].isspace():
+            return line.strip().decode(errors="replace")
+    return None
 
 
 def _why(exc: BaseException) -> str:
@@ -410,7 +555,7 @@ def flash(
         check_port(port)  # the clearest error first
     firmware_files(device_dir, protocol_dir)  # fail early, before touching the board
     t0 = time.monotonic()
-    with Flasher(port, log=log, connect_timeout=connect_timeout) as fl:
+    with _Signals() as sigs, Flasher(port, log=log, connect_timeout=connect_timeout) as fl:
         info: BoardInfo | None = None
         files: list[tuple[str, bytes]] = []
         try:
@@ -429,19 +574,39 @@ def flash(
             )
             fl.write_files(files)
             fl.verify(files)
+            sigs.mode("defer")  # the renames and the reset run to their end
             fl.commit(files)
-        except (FlashError, KeyboardInterrupt) as exc:
+        except (FlashError, KeyboardInterrupt, *_LINK_ERRORS) as exc:
+            sigs.mode("defer")  # the cleanup is not cut short by a second Ctrl-C
             what = fl.abort(files, reset=reset, info=info)
             if isinstance(exc, KeyboardInterrupt):
                 raise FlashError(f"interrupted; nothing was changed ({what})") from None
-            raise FlashError(f"{exc}; nothing was changed ({what})") from exc
-        except _LINK_ERRORS as exc:
-            what = fl.abort(files, reset=reset, info=info)
-            raise FlashError(f"the link failed: {_why(exc)}; ({what})") from exc
+            if isinstance(exc, FlashError):
+                raise FlashError(f"{exc}; nothing was changed ({what})") from exc
+            raise FlashError(f"the link failed: {_why(exc)}; nothing was changed ({what})") from exc
         try:
             if reset:
                 fl.reset(info)
-                log("board reset: it boots the new firmware")
+                state, detail = fl.watch_boot()
+                if state == "error":
+                    hint = (
+                        " (--source: the board compiles every module on its own heap; flash "
+                        "without --source)"
+                        if not mpy and "MemoryError" in detail
+                        else ""
+                    )
+                    raise FlashError(
+                        f"the new firmware is in place but does not start: {detail}{hint}; see "
+                        "`mpremote connect PORT repl` for its output"
+                    )
+                log(
+                    {
+                        "up": "board reset: it boots the new firmware",
+                        "closed": f"board reset ({detail}): check it with `ucr doctor`",
+                        "silent": f"board reset: no start-up line within {BOOT_TIMEOUT:g} s, "
+                        "check it with `ucr doctor`",
+                    }[state]
+                )
             else:
                 fl.leave()
                 log("not reset (--no-reset): the firmware runs after the next reset")
@@ -451,6 +616,8 @@ def flash(
                 "board's reset button"
             ) from exc
         wire = fl.wire.tx + fl.wire.rx
+    if sigs.pending:
+        log("interrupt received during the final renames and reset: held back until they ended")
     log(
         f"flashed {len(files)} files in {time.monotonic() - t0:.1f} s ({wire} bytes over the "
         f"REPL: at least {wire * 10 / 115200:.1f} s at 115200 baud)"
