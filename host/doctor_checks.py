@@ -361,17 +361,45 @@ def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
     except Exception as exc:  # noqa: BLE001 - shown as a finding, never a traceback
         return [Finding("robot", "error", str(exc), "fix the U(C)RDF (`ucr check` it)")]
     cmp = compare(robot, descs)
+    out = _same_names(descs)
     if cmp.ok:
-        return [Finding("robot", "ok", cmp.text())]
+        return [*out, Finding("robot", "ok", cmp.text())]
+    found = len(descs)
+    for d in cmp.differences:
+        if d.kind == "count" and found < len(cmp.expected):
+            fix = (
+                f"no answer beyond position {found}: check the cable from position {found} to "
+                f"{found + 1} and the power of {cmp.expected[found]} (a segment that does not "
+                "answer cuts the chain there)"
+            )
+        elif d.kind == "count":
+            fix = "add the extra segment(s) to the U(C)RDF, or let `ucr daemon --adopt` write one"
+        else:
+            fix = (
+                "stale flash: reflash the segment from this U(C)RDF "
+                "(`ucr flash --robot ... --segment ...`), "
+                "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)"
+            )
+        out.append(
+            Finding("robot", "error" if d.blocking else "warning", d.message, fix, d.position)
+        )
+    return out
+
+
+def _same_names(descs: list[dict]) -> list[Finding]:
+    """Two segments that call themselves by one name (one flashed with the other's bendable)."""
+    at: dict[str, list[int]] = {}
+    for i, d in enumerate(descs):
+        if isinstance(d.get("name"), str):
+            at.setdefault(d["name"], []).append(i + 1)
     return [
         Finding(
             "robot",
-            "error" if d.blocking else "warning",
-            d.message,
-            "stale flash: reflash the segment from this U(C)RDF "
-            "(`ucr flash --robot ... --segment ...`), "
-            "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)",
-            d.position,
+            "error",
+            f"positions {', '.join(map(str, pos))} all call themselves {name!r}",
+            "each segment needs its own bendable's configuration: reflash the wrong one "
+            "(`ucr flash --robot ... --segment NAME` with the bendable at its position)",
         )
-        for d in cmp.differences
+        for name, pos in at.items()
+        if len(pos) > 1
     ]

@@ -290,3 +290,24 @@ def test_doctor_reports_each_segments_cpu_load_and_a_saturated_board() -> None:
         slow = [f for f in found if f.check == "cpu"]
     assert len(slow) == 1 and slow[0].level in ("warning", "error"), doctor.format_text(found)
     assert "rate_hz" in slow[0].fix
+
+
+def test_doctor_fix_for_a_missing_or_doubled_segment_points_at_the_cause() -> None:
+    """Review 2026-11-26: a segment unplugged (or one flashed with its neighbour's bendable)
+    got the fix "stale flash: reflash the segment"."""
+    from host.doctor_checks import check_robot
+    from host.topology import chain_bendables
+
+    robot_file = REPO / "robots" / "softrobot3.ucrdf"
+    robot = load(robot_file)
+    descs = []
+    for k, name in enumerate(chain_bendables(robot)):
+        cfg = config_for(robot, name)
+        descs.append({**cfg, "name": name, "position": k})
+    missing = check_robot(str(robot_file), descs[:1])
+    cut = [f for f in missing if "missing segment_2, segment_3" in f.message]
+    assert cut and "cable from position 1 to 2" in cut[0].fix and "power of segment_2" in cut[0].fix
+    assert "stale flash" not in cut[0].fix
+    doubled = check_robot(str(robot_file), [descs[0], {**descs[1], "name": "segment_1"}, descs[2]])
+    same = [f for f in doubled if "all call themselves 'segment_1'" in f.message]
+    assert same and same[0].level == "error" and "positions 1, 2" in same[0].message
