@@ -178,6 +178,28 @@ def test_control_commands(echo_chain) -> None:
     assert execute(chain, "frobnicate").startswith("error: unknown command")
     assert execute(chain, "latency 1 0.001").startswith("link 1 latency")
     chain.set_link(0, latency=0.0)
+    # review 2026-11-26: "baud 1 0" meant off, "latency 1 1e9" was taken
+    assert execute(chain, "baud 1 0").startswith("error: baud must be > 0")
+    assert execute(chain, "latency 1 1e9").startswith("error: latency must be within")
+    assert "in flight 0 B" in execute(chain, "status")
+
+
+def test_status_says_when_a_segments_firmware_stopped() -> None:
+    """Review 2026-11-26: a segment whose firmware died at boot (the VM then sits at its REPL)
+    was reported "running"."""
+    from tools.emulator.control import firmware_state
+
+    boot = "MicroPython v1.24\n[main] segment 8918 up, 200 Hz\n"
+    died = (
+        "Traceback (most recent call last):\n  File \"main.py\", line 92, in build\n"
+        "ValueError: board esp32c3 has no UART left\n>>> "
+    )
+    assert firmware_state(boot, 1) == "firmware up"
+    assert firmware_state("", 2) == "firmware starting"
+    assert firmware_state(died, 2) == (
+        "firmware stopped: ValueError: board esp32c3 has no UART left (see 'repl 2')"
+    )
+    assert firmware_state(died + boot, 2) == "firmware up"  # restarted and came up
 
 
 def test_control_positions_count_from_one_like_segment_names(echo_chain) -> None:

@@ -81,3 +81,17 @@ def test_unplugged_pipe_drops_and_counts_including_bytes_in_flight() -> None:
 def test_bad_settings_are_refused(kwargs) -> None:
     with pytest.raises(ValueError):
         Pipe("p").configure(**kwargs)
+
+
+def test_bytes_in_flight_follow_a_latency_change() -> None:
+    """Review 2026-11-26: `latency 1 1e9` then `latency 1 0` left the link dead behind bytes
+    still due in 30 years; now bytes in flight follow the new setting, and a latency beyond a
+    minute is refused."""
+    p = Pipe("x")
+    p.configure(latency_s=50.0)
+    p.feed(b"abc", now=0.0)
+    assert p.due(1.0) == b""
+    p.configure(latency_s=0.0)
+    assert p.due(0.0) == b"abc"
+    with pytest.raises(ValueError, match="latency must be within"):
+        p.configure(latency_s=1e9)

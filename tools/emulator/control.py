@@ -19,7 +19,7 @@ HELP = """commands (k = link/segment position, 1 = the one next to the host):
   unplug k | plug k      pull / plug the cable between segment k and its upstream side
   baud k RATE|off        throttle link k to RATE bit/s (10 bits per byte), or remove the throttle
                          (a byte-time model: the daemon slows its loop to what the link carries)
-  latency k SECONDS      add a fixed delay to link k (both ways)
+  latency k SECONDS      add a fixed delay to link k (both ways, 0..60 s; bytes in flight follow)
   corrupt k RATE         corrupt each byte on link k with probability RATE (0..1)
   restart k              reboot segment k (kill its process; it restarts)
   off k | on k           power segment k off / on
@@ -47,6 +47,19 @@ def _float(word: str, what: str) -> float:
         raise EmulatorError(f"{what} must be a number, got {word!r}") from None
 
 
+def firmware_state(repl: str, position: int) -> str:
+    """What a running segment process's firmware did, from its REPL output: "firmware up" (its
+    `[main] segment … up` line last), "firmware stopped: <error>" (a traceback after it: the
+    VM then sits at the REPL, so the process alone looks alive), or "firmware starting"."""
+    up = repl.rfind("[main] segment")
+    err = repl.rfind("Traceback (most recent call last)")
+    if err > up:
+        lines = [ln.strip() for ln in repl[err:].splitlines()]
+        lines = [ln for ln in lines if ln and not ln.startswith((">>>", "..."))]
+        return f"firmware stopped: {lines[-1][:120]} (see 'repl {position}')"
+    return "firmware up" if up >= 0 else "firmware starting"
+
+
 def status_text(chain: EmulatedChain) -> str:
     st = chain.stats()
     lines = [f"host port: {st['host_port']}" + ("  (host silenced)" if st["host_silenced"] else "")]
@@ -57,10 +70,13 @@ def status_text(chain: EmulatedChain) -> str:
         lines.append(
             f"link {link['index'] + 1}: {'plugged' if link['plugged'] else 'UNPLUGGED'}, {baud}, "
             f"latency {d['latency_s'] * 1000:g} ms, corrupt {d['corrupt_rate']:g}; "
+            f"in flight {d['in_flight'] + u['in_flight']} B; "
             f"down {d['bytes_out']} B (dropped {d['dropped']}, corrupted {d['corrupted']}), "
             f"up {u['bytes_out']} B (dropped {u['dropped']}, corrupted {u['corrupted']})"
         )
         state = "running" if seg["running"] else ("off" if not seg["powered"] else "restarting")
+        if seg["running"]:
+            state += ", " + firmware_state(chain.repl_output(seg["index"]), seg["index"] + 1)
         lines.append(
             f"  segment {seg['index'] + 1}: uid {seg['uid']}, {state}, pid {seg['pid']}, "
             f"restarts {seg['restarts']}, REPL {seg['repl_port']}"
@@ -113,13 +129,15 @@ def execute(chain: EmulatedChain, line: str) -> str:
             chain.plug(k)
             return f"link {u} plugged"
         if cmd == "baud":
-            if args[1].lower() in ("off", "none", "0"):
+            if args[1].lower() in ("off", "none"):
                 chain.set_link(k, baud=None)
                 return f"link {u} unthrottled"
             try:
                 rate = int(args[1])
             except ValueError:
                 return f"error: baud must be an integer or 'off', got {args[1]!r}"
+            if rate <= 0:
+                return f"error: baud must be > 0 bit/s, or 'off' for no throttle, got {rate}"
             chain.set_link(k, baud=rate)
             return f"link {u} throttled to {rate} bit/s"
         if cmd == "latency":

@@ -12,6 +12,8 @@ from collections import deque
 
 #: Bits on the wire per byte of an 8N1 UART frame (start + 8 data + stop).
 BITS_PER_BYTE = 10
+#: The largest latency a link takes (s): beyond it the link is better unplugged.
+MAX_LATENCY_S = 60.0
 #: Throttled bytes are released in chunks lasting at most this long (s), so a long burst arrives
 #: progressively as on a real wire, without one timer per byte.
 CHUNK_S = 0.0005
@@ -58,8 +60,15 @@ class Pipe:
                 raise ValueError(f"baud must be a positive integer or None, got {baud!r}")
             self.baud = baud
         if latency_s is not None:
-            if not latency_s >= 0.0:
-                raise ValueError(f"latency must be >= 0 s, got {latency_s!r}")
+            if not 0.0 <= latency_s <= MAX_LATENCY_S:
+                raise ValueError(
+                    f"latency must be within [0, {MAX_LATENCY_S:g}] s, got {latency_s!r}"
+                )
+            # bytes in flight follow the new setting (else `latency 1 1e9` then `latency 1 0`
+            # left the link dead behind bytes still due in 30 years)
+            shift = float(latency_s) - self.latency_s
+            if shift and self._queue:
+                self._queue = deque((t + shift, d) for t, d in self._queue)
             self.latency_s = float(latency_s)
         if corrupt_rate is not None:
             if not 0.0 <= corrupt_rate <= 1.0:
