@@ -191,7 +191,7 @@ def test_status_says_when_a_segments_firmware_stopped() -> None:
 
     boot = "MicroPython v1.24\n[main] segment 8918 up, 200 Hz\n"
     died = (
-        "Traceback (most recent call last):\n  File \"main.py\", line 92, in build\n"
+        'Traceback (most recent call last):\n  File "main.py", line 92, in build\n'
         "ValueError: board esp32c3 has no UART left\n>>> "
     )
     assert firmware_state(boot, 1) == "firmware up"
