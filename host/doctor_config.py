@@ -54,6 +54,20 @@ def check_config_hash(robot_path: str, descs: list[dict]) -> list[Finding]:
         want = cal.config_hash(segment_config(b))
         if have == want:
             out.append(Finding("config_hash", "ok", f"{b.name}: hash {have:08x}", position=pos))
+        elif d.get("servo_driver") not in (None, b.actuation.driver):
+            # the hash covers the driver: a `--servo-driver` override (an emulator) is not stale
+            out.append(
+                Finding(
+                    "config_hash",
+                    "warning",
+                    f"{b.name}: the segment runs servo driver {d['servo_driver']!r}, the U(C)RDF "
+                    f"says {b.actuation.driver!r} (hash {have:08x} vs {want:08x}; the hash covers "
+                    "the driver)",
+                    "expected after `ucr flash --servo-driver` or on an emulator; else reflash "
+                    "without the override",
+                    pos,
+                )
+            )
         else:
             out.append(
                 Finding(

@@ -311,3 +311,21 @@ def test_doctor_fix_for_a_missing_or_doubled_segment_points_at_the_cause() -> No
     doubled = check_robot(str(robot_file), [descs[0], {**descs[1], "name": "segment_1"}, descs[2]])
     same = [f for f in doubled if "all call themselves 'segment_1'" in f.message]
     assert same and same[0].level == "error" and "positions 1, 2" in same[0].message
+
+
+def test_doctor_names_a_servo_driver_override_instead_of_a_stale_flash() -> None:
+    """Review 2026-11-26: a segment flashed with `--servo-driver emulated` (as docs/flashing.md
+    suggests for an emulator) was reported as a stale flash of geometry or limits."""
+    from host.doctor_config import check_config_hash
+    from protocol import calibration as cal
+    from ucrdf.checks import segment_config
+
+    robot_file = REPO / "robots" / "softrobot3.ucrdf"
+    bend = load(robot_file).bendables["segment_1"]
+    cfg = segment_config(bend)
+    other = "pwm" if cfg.get("servo_driver") != "pwm" else "emulated"
+    flashed = {**cfg, "servo_driver": other}
+    desc = {"position": 0, "servo_driver": other, "config_hash": cal.config_hash(flashed)}
+    (finding,) = check_config_hash(str(robot_file), [desc])
+    assert finding.level == "warning" and f"servo driver {other!r}" in finding.message
+    assert "stale" not in finding.fix
