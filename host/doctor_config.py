@@ -54,8 +54,12 @@ def check_config_hash(robot_path: str, descs: list[dict]) -> list[Finding]:
         want = cal.config_hash(segment_config(b))
         if have == want:
             out.append(Finding("config_hash", "ok", f"{b.name}: hash {have:08x}", position=pos))
-        elif d.get("servo_driver") not in (None, b.actuation.driver):
-            # the hash covers the driver: a `--servo-driver` override (an emulator) is not stale
+        elif (
+            d.get("servo_driver") not in (None, b.actuation.driver)
+            and cal.config_hash({**segment_config(b), "servo_driver": d["servo_driver"]}) == have
+        ):
+            # the driver alone differs (the hash covers it): a `--servo-driver` override (an
+            # emulator) is not a stale flash
             out.append(
                 Finding(
                     "config_hash",

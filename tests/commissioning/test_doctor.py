@@ -329,3 +329,8 @@ def test_doctor_names_a_servo_driver_override_instead_of_a_stale_flash() -> None
     (finding,) = check_config_hash(str(robot_file), [desc])
     assert finding.level == "warning" and f"servo driver {other!r}" in finding.message
     assert "stale" not in finding.fix
+    # the driver and something else differ: still a stale flash
+    stale = {**flashed, "kappa_max": cfg["kappa_max"] / 2}
+    desc = {"position": 0, "servo_driver": other, "config_hash": cal.config_hash(stale)}
+    (finding,) = check_config_hash(str(robot_file), [desc])
+    assert finding.level == "error" and "stale flash" in finding.fix
