@@ -271,6 +271,12 @@ class Flasher:
             raise FlashError(f"the board runs {name}, not MicroPython")
         return BoardInfo(name, platform, int(mpy), version)
 
+    def remove(self, paths: list[str]) -> None:
+        """Delete these files on the board (missing ones are fine)."""
+        self._exec(
+            f"import os\nfor p in {paths!r}:\n try:\n  os.remove(p)\n except OSError:\n  pass\n"
+        )
+
     def listing(self) -> set[str]:
         """Every file path on the board below the current directory."""
         code = (
@@ -536,6 +542,10 @@ def build_files(
     return files
 
 
+#: what ``ucr calibrate`` persists on a segment (device/calib_store.py), which wins at boot
+CALIBRATION_FILES = frozenset({"calibration.json", "calibration.tmp"})
+
+
 def flash(
     port: str,
     config: dict,
@@ -546,8 +556,12 @@ def flash(
     device_dir: Path = DEVICE_DIR,
     protocol_dir: Path = PROTOCOL_DIR,
     connect_timeout: float = 5.0,
+    forget_calibration: bool = False,
 ) -> BoardInfo:
     """Flash firmware + protocol + ``config`` to the board on ``port``; return what it reported.
+    A calibration stored on the board (``calibration.json``, which overrides the configuration's
+    zero offsets and directions at boot) is kept and said so, or removed with
+    ``forget_calibration``.
 
     Raises FlashError with one line on any failure; the board then still has its previous
     firmware (see module docstring)."""
@@ -572,10 +586,21 @@ def flash(
                 protocol_dir=protocol_dir,
                 log=log,
             )
+            stored = CALIBRATION_FILES & fl.listing()
             fl.write_files(files)
             fl.verify(files)
             sigs.mode("defer")  # the renames and the reset run to their end
             fl.commit(files)
+            if stored and forget_calibration:
+                fl.remove(sorted(stored))
+                log("removed the stored calibration: the robot file's zero offsets apply")
+            elif stored:
+                log(
+                    "kept the calibration stored on the board (calibration.json, from `ucr "
+                    "calibrate`): it overrides the robot file's zero offsets and directions; "
+                    "write it into the robot file (`ucr calibrate --robot ...`) or flash with "
+                    "--forget-calibration"
+                )
         except (FlashError, KeyboardInterrupt, *_LINK_ERRORS) as exc:
             sigs.mode("defer")  # the cleanup is not cut short by a second Ctrl-C
             what = fl.abort(files, reset=reset, info=info)

@@ -87,6 +87,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--servo-driver",
         help="override the robot's servo driver (e.g. 'emulated' for an emulated segment)",
     )
+    fl.add_argument(
+        "--forget-calibration",
+        action="store_true",
+        help="remove a calibration stored on the segment (`ucr calibrate` persist): it would "
+        "override the zero offsets and directions flashed from the robot file",
+    )
     fl.set_defaults(func=cmd_flash)
 
 
@@ -133,6 +139,7 @@ def cmd_flash(args: argparse.Namespace) -> int:
             mpy=args.mpy,
             reset=not args.no_reset,
             log=lambda s: print(s, flush=True),
+            forget_calibration=args.forget_calibration,
         )
     except FlashError as exc:
         return _error(str(exc))

@@ -177,3 +177,29 @@ def test_plain_mpremote_soft_resets_into_the_raw_repl_like_a_board(one_segment) 
     assert link.discover(timeout=0.3) == []
     chain.restart(0)
     assert discover_one(link)["position"] == 0
+
+
+def test_a_stored_calibration_is_kept_and_said_or_forgotten_on_request(one_segment) -> None:
+    """Review 2026-11-26: a calibration stored by `ucr calibrate` (calibration.json, which wins
+    over config.json at boot) survived every reflash without a word, so doctor's advice
+    "reflash" never cleared the difference. Now flash says it keeps it, and
+    --forget-calibration removes it."""
+    import json
+
+    from protocol import cal_core
+
+    chain, link = one_segment
+    seg = chain.segment_dir(0)
+    stored = {"version": cal_core.CAL_VERSION,
+              "servos": [{"zero_offset": 0.0, "direction": 1} for _ in range(3)]}  # fmt: skip
+    (seg / "calibration.json").write_text(json.dumps(stored))
+    config = {"name": "calibrated"}
+    lines: list[str] = []
+    flash(chain.repl_port(0), config, log=lines.append)
+    assert any("kept the calibration stored on the board" in ln for ln in lines), lines
+    assert (seg / "calibration.json").is_file()
+    lines.clear()
+    flash(chain.repl_port(0), config, log=lines.append, forget_calibration=True)
+    assert any("removed the stored calibration" in ln for ln in lines), lines
+    assert not (seg / "calibration.json").exists()
+    assert discover_one(link)["name"] == "calibrated"
