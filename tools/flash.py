@@ -279,17 +279,7 @@ class Flasher:
 
     def listing(self) -> set[str]:
         """Every file path on the board below the current directory."""
-        code = (
-            "import os\n"
-            "def _w(d):\n"
-            " for e in os.ilistdir(d or '.'):\n"
-            "  p = d + '/' + e[0] if d else e[0]\n"
-            "  if e[1] == 0x4000:\n"
-            "   _w(p)\n"
-            "  else:\n"
-            "   print(p)\n"
-            "_w('')\n"
-        )
+        code = _WALK + "  else:\n   print(p)\n_w('')\n"
         return set(self._exec(code).split())
 
     def write_files(self, files: list[tuple[str, bytes]]) -> None:
@@ -431,13 +421,7 @@ class Flasher:
         """Remove every ``*.new`` on the board (this flash's and an earlier failed one's);
         return those that could not be removed."""
         code = (
-            "import os\n"
-            "def _w(d):\n"
-            " for e in os.ilistdir(d or '.'):\n"
-            "  p = d + '/' + e[0] if d else e[0]\n"
-            "  if e[1] == 0x4000:\n"
-            "   _w(p)\n"
-            f"  elif p.endswith({TMP_SUFFIX!r}):\n"
+            _WALK + f"  elif p.endswith({TMP_SUFFIX!r}):\n"
             "   try:\n"
             "    os.remove(p)\n"
             "    print('removed', p)\n"
@@ -541,6 +525,17 @@ def build_files(
     files.sort(key=lambda f: Path(f[0]).name in KEEP_SOURCE)
     return files
 
+
+#: Board-side walk of every file below the current directory: ``_w('')`` visits each path ``p``
+#: (directories recursed); a caller appends the ``else``/``elif`` branch for files and the call.
+_WALK = (
+    "import os\n"
+    "def _w(d):\n"
+    " for e in os.ilistdir(d or '.'):\n"
+    "  p = d + '/' + e[0] if d else e[0]\n"
+    "  if e[1] == 0x4000:\n"
+    "   _w(p)\n"
+)
 
 #: what ``ucr calibrate`` persists on a segment (device/calib_store.py), which wins at boot
 CALIBRATION_FILES = frozenset({"calibration.json", "calibration.tmp"})

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from flash_helpers import discover_name
 from mpremote.transport_serial import SerialTransport
 
 from host.link import ChainLink
@@ -26,16 +27,6 @@ ROBOT = REPO / "robots" / "softrobot3.ucrdf"
 pytestmark = pytest.mark.timeout(90)
 
 
-def _discover_name(link: ChainLink, timeout: float = 20.0) -> str:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        descs = link.discover(timeout=0.3)
-        if descs:
-            return descs[0]["name"]
-        time.sleep(0.1)
-    raise AssertionError("segment did not answer DISCOVER")
-
-
 def _snapshot(seg: Path) -> dict[str, str]:
     return {
         str(p.relative_to(seg)): hashlib.sha256(p.read_bytes()).hexdigest()
@@ -48,7 +39,7 @@ def _snapshot(seg: Path) -> dict[str, str]:
 def chain():
     with EmulatedChain(1, config_for=[{"name": "before"}]) as ch:
         link = ChainLink(ch.host_port)
-        assert _discover_name(link) == "before"
+        assert discover_name(link) == "before"
         yield ch, link
         link.close()
 
@@ -68,7 +59,7 @@ def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail, mpy: bool = T
     left = [p for p in seg.rglob("*" + TMP_SUFFIX) if p.is_file()]
     assert not left, message  # uploads cleaned up
     ch.wait_restarts(0, restarts + 1, timeout=20)  # the previous firmware runs again ...
-    assert _discover_name(link) == "before"  # ... and serves the chain
+    assert discover_name(link) == "before"  # ... and serves the chain
     return message
 
 
@@ -145,7 +136,7 @@ def test_an_eio_midway_is_one_line_without_traceback(chain, monkeypatch, capsys)
     assert "input/output error: the port went away" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     ch.wait_restarts(0, restarts + 1, timeout=20)
-    assert _discover_name(link) == "before"
+    assert discover_name(link) == "before"
 
 
 def test_ctrl_c_midway_keeps_the_previous_firmware_running(chain, monkeypatch) -> None:

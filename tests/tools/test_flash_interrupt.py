@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from flash_helpers import discover_name
 
 from host.link import ChainLink
 from tools.emulator import EmulatedChain
@@ -23,21 +24,11 @@ ROBOT = REPO / "robots" / "softrobot3.ucrdf"
 pytestmark = pytest.mark.timeout(120)
 
 
-def _discover_name(link: ChainLink, timeout: float = 20.0) -> str:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        descs = link.discover(timeout=0.3)
-        if descs:
-            return descs[0]["name"]
-        time.sleep(0.1)
-    raise AssertionError("segment did not answer DISCOVER")
-
-
 @pytest.fixture(scope="module")
 def chain():
     with EmulatedChain(1, config_for=[{"name": "before"}]) as ch:
         link = ChainLink(ch.host_port)
-        assert _discover_name(link) == "before"
+        assert discover_name(link) == "before"
         yield ch, link
         link.close()
 
@@ -77,7 +68,7 @@ def _flash_and_signal(port: str, sig: int, after: str, delay: float) -> tuple[in
 def test_a_signal_midway_leaves_the_previous_firmware_running(chain, sig, after, delay) -> None:
     ch, link = chain
     seg = ch.segment_dir(0)
-    name = _discover_name(link)
+    name = discover_name(link)
     restarts = ch.stats()["segments"][0]["restarts"]
     code, err = _flash_and_signal(ch.repl_port(0), sig, after, delay)
     assert code == 2, err
@@ -86,7 +77,7 @@ def test_a_signal_midway_leaves_the_previous_firmware_running(chain, sig, after,
     assert "temporary files removed" in err and "previous firmware" in err, err
     assert not [p for p in seg.rglob("*" + TMP_SUFFIX)], err
     ch.wait_restarts(0, restarts + 1, timeout=20)  # out of the raw REPL: main.py runs again
-    assert _discover_name(link) == name
+    assert discover_name(link) == name
 
 
 def test_ctrl_c_during_the_final_renames_is_held_back_until_they_end(chain) -> None:
@@ -94,12 +85,12 @@ def test_ctrl_c_during_the_final_renames_is_held_back_until_they_end(chain) -> N
     code, err = _flash_and_signal(ch.repl_port(0), signal.SIGINT, "verified", 0.0)
     assert code == 0, err
     assert not [p for p in ch.segment_dir(0).rglob("*" + TMP_SUFFIX)]
-    assert _discover_name(link) == "segment_1"  # the new firmware, complete, runs
+    assert discover_name(link) == "segment_1"  # the new firmware, complete, runs
 
 
 def test_a_board_switched_off_midway_is_not_claimed_reset(chain) -> None:
     ch, link = chain
-    name = _discover_name(link)
+    name = discover_name(link)
     lines: list[str] = []
 
     def log(line: str) -> None:
@@ -117,7 +108,7 @@ def test_a_board_switched_off_midway_is_not_claimed_reset(chain) -> None:
     assert time.monotonic() - t0 < 25, message
     assert "reset to its previous firmware" not in message, message
     assert "did not answer" in message and "ucr flash" in message, message
-    assert _discover_name(link) == name
+    assert discover_name(link) == name
 
 
 def test_a_successful_flash_removes_stale_uploads_of_a_failed_one(chain) -> None:
@@ -131,4 +122,4 @@ def test_a_successful_flash_removes_stale_uploads_of_a_failed_one(chain) -> None
     assert not [p for p in seg.rglob("*" + TMP_SUFFIX)]
     assert any("old_module.mpy.new" in line for line in lines), lines
     ch.wait_restarts(0, restarts + 1, timeout=20)
-    assert _discover_name(link) == "before"
+    assert discover_name(link) == "before"
