@@ -10,6 +10,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from host.positions import label as position_label
+from host.positions import labels as position_labels
 from protocol.constants import VERSION as _PROTOCOL_VERSION
 
 # What this host expects of a segment. The firmware version's major.minor must match (a test
@@ -367,10 +369,11 @@ def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
     found = len(descs)
     for d in cmp.differences:
         if d.kind == "count" and found < len(cmp.expected):
+            last, first_missing = position_label(found - 1), position_label(found)
             fix = (
-                f"no answer beyond position {found}: check the cable from position {found} to "
-                f"{found + 1} and the power of {cmp.expected[found]} (a segment that does not "
-                "answer cuts the chain there)"
+                f"no answer beyond {last}: check the cable from {last} to {first_missing} and "
+                f"the power of {cmp.expected[found]} (a segment that does not answer cuts the "
+                "chain there)"
             )
         elif d.kind == "count":
             fix = "add the extra segment(s) to the U(C)RDF, or let `ucr daemon --adopt` write one"
@@ -391,15 +394,15 @@ def _same_names(descs: list[dict]) -> list[Finding]:
     at: dict[str, list[int]] = {}
     for i, d in enumerate(descs):
         if isinstance(d.get("name"), str):
-            at.setdefault(d["name"], []).append(i + 1)
+            at.setdefault(d["name"], []).append(i)
     return [
         Finding(
             "robot",
             "error",
-            f"positions {', '.join(map(str, pos))} all call themselves {name!r}",
+            f"{position_labels(indices)} all call themselves {name!r}",
             "each segment needs its own bendable's configuration: reflash the wrong one "
             "(`ucr flash --robot ... --segment NAME` with the bendable at its position)",
         )
-        for name, pos in at.items()
-        if len(pos) > 1
+        for name, indices in at.items()
+        if len(indices) > 1
     ]
