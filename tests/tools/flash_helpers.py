@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from host.link import ChainLink
+from tools.emulator import EmulatedChain
 
 
 def discover_name(link: ChainLink, timeout: float = 20.0) -> str:
@@ -16,3 +19,15 @@ def discover_name(link: ChainLink, timeout: float = 20.0) -> str:
             return descs[0]["name"]
         time.sleep(0.1)
     raise AssertionError("segment did not answer DISCOVER")
+
+
+@contextmanager
+def one_segment_named(name: str) -> Iterator[tuple[EmulatedChain, ChainLink]]:
+    """A one-segment emulated chain configured as ``name``, answering, with a link to it."""
+    with EmulatedChain(1, config_for=[{"name": name}]) as ch:
+        link = ChainLink(ch.host_port)
+        assert discover_name(link) == name
+        try:
+            yield ch, link
+        finally:
+            link.close()

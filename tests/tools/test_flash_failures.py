@@ -12,10 +12,9 @@ import time
 from pathlib import Path
 
 import pytest
-from flash_helpers import discover_name
+from flash_helpers import discover_name, one_segment_named
 from mpremote.transport_serial import SerialTransport
 
-from host.link import ChainLink
 from tools import flash as flash_mod
 from tools import mpy as mpy_tools
 from tools.emulator import EmulatedChain
@@ -37,11 +36,8 @@ def _snapshot(seg: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def chain():
-    with EmulatedChain(1, config_for=[{"name": "before"}]) as ch:
-        link = ChainLink(ch.host_port)
-        assert discover_name(link) == "before"
-        yield ch, link
-        link.close()
+    with one_segment_named("before") as ch_link:
+        yield ch_link
 
 
 def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail, mpy: bool = True) -> str:

@@ -12,10 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
-from flash_helpers import discover_name
+from flash_helpers import discover_name, one_segment_named
 
-from host.link import ChainLink
-from tools.emulator import EmulatedChain
 from tools.flash import TMP_SUFFIX, FlashError, flash
 
 REPO = Path(__file__).resolve().parents[2]
@@ -26,11 +24,8 @@ pytestmark = pytest.mark.timeout(120)
 
 @pytest.fixture(scope="module")
 def chain():
-    with EmulatedChain(1, config_for=[{"name": "before"}]) as ch:
-        link = ChainLink(ch.host_port)
-        assert discover_name(link) == "before"
-        yield ch, link
-        link.close()
+    with one_segment_named("before") as ch_link:
+        yield ch_link
 
 
 def _flash_and_signal(port: str, sig: int, after: str, delay: float) -> tuple[int, str]:
