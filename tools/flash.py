@@ -180,7 +180,6 @@ class Flasher:
     ) -> None:
         self.port = port
         self.log = log
-        self.removed: list[str] = []  # *.new files of this or an earlier flash removed
         check_port(port)
         self._TransportError = TransportError
         try:
@@ -322,9 +321,11 @@ class Flasher:
             raise FlashError(f"verification failed (hash differs on the board): {', '.join(bad)}")
         self.log(f"verified {len(files)} files by SHA-256 on the board")
 
-    def commit(self, files: list[tuple[str, bytes]]) -> None:
+    def commit(self, files: list[tuple[str, bytes]]) -> set[str]:
         """Rename every verified upload into place in one script (``main.py`` last, as listed),
-        then remove a stale ``.py``/``.mpy`` twin a new file would be shadowed by or shadow."""
+        then remove a stale ``.py``/``.mpy`` twin a new file would be shadowed by or shadow, and
+        the uploads (``*.new``) an earlier interrupted flash left. Returns the board's listing
+        from before the renames."""
         existing = self.listing()
         names = {p for p, _ in files}
         stale = []
@@ -338,6 +339,9 @@ class Flasher:
             ):
                 stale.append(other)
         finals = [p for p, _ in files]
+        earlier = sorted(
+            p for p in existing if p.endswith(TMP_SUFFIX) and p[: -len(TMP_SUFFIX)] not in names
+        )
         code = (
             f"import os\nT = {TMP_SUFFIX!r}\n"
             f"for p in {finals!r}:\n"
@@ -348,15 +352,21 @@ class Flasher:
             "  os.rename(p + T, p)\n"
             f"for p in {stale!r}:\n"
             " os.remove(p)\n"
+            f"for p in {earlier!r}:\n"
+            " try:\n"
+            "  os.remove(p)\n"
+            " except OSError:\n"
+            "  print('left', p)\n"
         )
-        self._exec(code)
+        left = {ln.split(" ", 1)[1] for ln in self._exec(code).splitlines() if ln[:5] == "left "}
         for p in stale:
             self.log(f"      removed stale {p}")
-        left = self.remove_uploads()  # what an earlier interrupted flash could not remove
-        for p in self.removed:
-            self.log(f"      removed stale {p} (left by an earlier flash)")
+        for p in earlier:
+            if p not in left:
+                self.log(f"      removed stale {p} (left by an earlier flash)")
         if left:
             raise FlashError(f"cannot remove stale uploads {', '.join(sorted(left))}")
+        return existing
 
     def resync(self, timeout: float = RESYNC_TIMEOUT) -> None:
         """Back to an idle raw REPL after an interruption: the board may be half-way through a
@@ -424,19 +434,11 @@ class Flasher:
             _WALK + f"  elif p.endswith({TMP_SUFFIX!r}):\n"
             "   try:\n"
             "    os.remove(p)\n"
-            "    print('removed', p)\n"
             "   except OSError:\n"
             "    print('left', p)\n"
             "_w('')\n"
         )
-        left = set()
-        for line in self._exec(code).splitlines():
-            what, _, path = line.strip().partition(" ")
-            if what == "left":
-                left.add(path)
-            elif what == "removed":
-                self.removed.append(path)
-        return left
+        return {ln.split(" ", 1)[1] for ln in self._exec(code).splitlines() if ln[:5] == "left "}
 
     def watch_boot(self, timeout: float = BOOT_TIMEOUT) -> tuple[str, str]:
         """After a reset: read the REPL until the firmware's "up" line or a traceback. Returns
@@ -581,11 +583,10 @@ def flash(
                 protocol_dir=protocol_dir,
                 log=log,
             )
-            stored = CALIBRATION_FILES & fl.listing()
             fl.write_files(files)
             fl.verify(files)
             sigs.mode("defer")  # the renames and the reset run to their end
-            fl.commit(files)
+            stored = CALIBRATION_FILES & fl.commit(files)
             if stored and forget_calibration:
                 fl.remove(sorted(stored))
                 log("removed the stored calibration: the robot file's zero offsets apply")
