@@ -119,15 +119,9 @@ class FoxgloveSink:
 class _Listener(ServerListener):
     """foxglove-sdk's server listener: it calls every method of
     :class:`foxglove.websocket.ServerListener` that applies (a missing one is logged as
-    ``Callback failed`` at each event). Subscriptions need no action here (latched messages:
-    the guard); the rest cannot happen on a server without capabilities (the protocol's
-    defaults, inherited)."""
-
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        return None
-
-    def on_unsubscribe(self, client: Any, channel: Any) -> None:
-        return None
+    ``Callback failed`` at each event), so all are inherited, each a no-op: subscriptions need
+    no action here (latched messages: the guard), the rest cannot happen on a server without
+    capabilities."""
 
 
 def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
