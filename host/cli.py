@@ -64,10 +64,7 @@ def print_error(msg: str) -> int:
 def resolve_port(arg: str | None, cfg_port: str | None, robot: Any) -> str:
     """Port precedence: --port, config ``port``, the U(C)RDF ``<hardware>`` param ``port``;
     "auto" (or nothing) picks the first USB serial adapter."""
-    hw = {}
-    for block in getattr(robot, "ros2_control", []):
-        hw.update(block.hardware_params)
-    port = arg or cfg_port or hw.get("port")
+    port = arg or cfg_port or robot.hardware_params().get("port")
     if port and port != "auto":
         return str(port)
     from serial.tools import list_ports  # noqa: PLC0415 - only when auto-detecting

@@ -339,8 +339,5 @@ def link_baudrate(cfg: DaemonConfig, robot: Any) -> int:
     else 921600."""
     if cfg.baudrate is not None:
         return cfg.baudrate
-    for block in getattr(robot, "ros2_control", []):
-        value = block.hardware_params.get("baudrate")
-        if value is not None:
-            return int(value)
-    return DEFAULT_BAUDRATE
+    value = robot.hardware_params().get("baudrate")
+    return DEFAULT_BAUDRATE if value is None else int(value)

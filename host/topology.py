@@ -95,11 +95,10 @@ def chain_bendables(robot: Robot) -> list[str]:
 def pinned_uids(robot: Robot) -> dict[str, str]:
     """Bendable -> uid pinned in a ``<hardware>`` param ``<bendable>/uid`` (lower-case hex)."""
     out: dict[str, str] = {}
-    for block in robot.ros2_control:
-        for key, value in block.hardware_params.items():
-            name, _, what = key.rpartition("/")
-            if what == "uid" and name in robot.bendables:
-                out[name] = str(value).strip().lower()
+    for key, value in robot.hardware_params().items():
+        name, _, what = key.rpartition("/")
+        if what == "uid" and name in robot.bendables:
+            out[name] = str(value).strip().lower()
     return out
 
 
@@ -325,7 +324,7 @@ def keep_wiring(adopted: Robot, original: Robot) -> None:
             dict(old_act.uarts),
             dict(old_act.pwm_pins),
         )
-    old_params = {k: v for c in original.ros2_control for k, v in c.hardware_params.items()}
+    old_params = original.hardware_params()
     for control in adopted.ros2_control:
         for key in ("watchdog_ms", "tick_ms"):
             if key in old_params:

@@ -265,6 +265,10 @@ class Robot:
     # verbatim as normalised XML text, in document order.
     extensions: list[str] = field(default_factory=list)
 
+    def hardware_params(self) -> dict[str, str]:
+        """Every ``<ros2_control><hardware><param>`` of the robot (a later block's value wins)."""
+        return {k: v for block in self.ros2_control for k, v in block.hardware_params.items()}
+
     def root_link(self) -> str:
         """The one link that is nobody's child."""
         children = {j.child for j in self.joints.values()} | {
