@@ -46,16 +46,27 @@ def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> Non
     )
 
 
-def _seconds(text: str) -> float:
-    """A timeout: a finite number of seconds > 0 (0 or less made every call time out at once,
-    reported as "is `ucr daemon` running?")."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
-    return value
+def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
+    """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``); an
+    impossible value is a usage error (exit 2) naming the bound."""
+
+    def parse(text: str) -> Any:
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(v) or v < low or (v == low and not low_ok):
+            raise argparse.ArgumentTypeError(
+                f"must be {'>=' if low_ok else '>'} {low:g}{unit}, got {text}"
+            )
+        return v
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
+# a timeout of 0 or less made every call time out at once, reported as "is ucr daemon running?"
+_seconds = number_arg(float, 0.0, False, " s")
 
 
 def connect_daemon(args: argparse.Namespace) -> Any:

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import os
 import sys
 from typing import Any
+
+from host.client_common import number_arg
 
 _NEEDS = {
     "record": ("mcap", "mcap_ros2", "zstandard"),
@@ -70,29 +71,10 @@ def _lower_priority(nice: int) -> None:
             print(f"ucr: priority unchanged ({exc.strerror})", file=sys.stderr)
 
 
-def _number(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
-    """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``); an
-    impossible value is a usage error (exit 2) naming the bound."""
-
-    def parse(text: str) -> Any:
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not math.isfinite(v) or v < low or (v == low and not low_ok):
-            raise argparse.ArgumentTypeError(
-                f"must be {'>=' if low_ok else '>'} {low:g}{unit}, got {text}"
-            )
-        return v
-
-    parse.__name__ = kind.__name__  # argparse names the type in its own messages
-    return parse
-
-
-POSITIVE_S = _number(float, 0.0, False, " s")
-POSITIVE_HZ = _number(float, 0.0, False, " Hz")
-NON_NEGATIVE_S = _number(float, 0.0, True, " s")
-AT_LEAST_ONE = _number(int, 1, True)
+POSITIVE_S = number_arg(float, 0.0, False, " s")
+POSITIVE_HZ = number_arg(float, 0.0, False, " Hz")
+NON_NEGATIVE_S = number_arg(float, 0.0, True, " s")
+AT_LEAST_ONE = number_arg(int, 1, True)
 
 
 def _port(text: str) -> int:
@@ -203,7 +185,7 @@ def register(subparsers: Any) -> None:
         "With --execute: re-run the recorded motion on the robot (dry run unless --go).",
     )  # fmt: skip
     p.add_argument("file", help="MCAP file written by `ucr record`")
-    p.add_argument("--rate", type=_number(float, 0.0, True), default=1.0,
+    p.add_argument("--rate", type=number_arg(float, 0.0, True), default=1.0,
                    help="playback speed, x recorded (1; 0: as fast as possible)")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help=f"server address ({OFF_LOOPBACK})")
     p.add_argument("--port", type=_port, default=8766, help="Foxglove server port (8766)")
