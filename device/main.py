@@ -73,6 +73,13 @@ def build(tick_ms=None):
     gc.collect()
     import config
 
+    gc.collect()
+    # the largest module first, while the heap holds least: compiled from source (`ucr flash
+    # --source`) its parse tree is the boot's peak, and it did not fit once the configuration
+    # was loaded (docs/firmware.md, "Memory")
+    from segment import Segment
+
+    gc.collect()
     names = os.listdir()
     if "calibration.json" in names or "calibration.tmp" in names:  # a stored calibration wins
         import calib_store
@@ -87,9 +94,6 @@ def build(tick_ms=None):
     _intern_calib()
     gc.collect()
     import servos
-
-    gc.collect()
-    from segment import Segment
 
     gc.collect()
     hal = halmod.Hal(cfg.si.get("pins"))

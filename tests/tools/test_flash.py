@@ -203,3 +203,38 @@ def test_a_stored_calibration_is_kept_and_said_or_forgotten_on_request(one_segme
     assert any("removed the stored calibration" in ln for ln in lines), lines
     assert not (seg / "calibration.json").exists()
     assert discover_one(link)["name"] == "calibrated"
+
+
+def test_the_documented_by_hand_deploy_keeps_the_flashed_layout(tmp_path: Path) -> None:
+    """Review 2026-11-26: docs/firmware.md's by-hand copy (`fs cp -r protocol :protocol`) nested
+    the package as protocol/protocol on a board that already had one (mpremote copies *into* an
+    existing directory), so a second deploy left the old protocol running. The documented line,
+    run twice against a flashed emulated segment, must give one protocol/ with the new files."""
+    text = (REPO / "docs" / "firmware.md").read_text()
+    (line,) = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("mpremote connect")]
+    (tmp_path / "config.json").write_text('{"name": "by_hand"}')
+    for name in ("device", "protocol"):
+        (tmp_path / name).symlink_to(REPO / name)
+    mpremote = str(Path(sys.executable).parent / "mpremote")
+    with EmulatedChain(1) as chain:
+        link = ChainLink(chain.host_port)
+        try:
+            discover_one(link)
+            cmd = line.replace("/dev/ttyUSB0", chain.repl_port(0)).replace("mpremote", mpremote, 1)
+            for _ in range(2):
+                proc = subprocess.run(
+                    cmd, shell=True, cwd=tmp_path, capture_output=True, text=True, timeout=120
+                )
+                assert proc.returncode == 0, proc.stderr
+            seg = chain.segment_dir(0)
+            assert not (seg / "protocol" / "protocol").exists()
+            assert (seg / "protocol" / "frame.py").read_bytes() == (
+                REPO / "protocol" / "frame.py"
+            ).read_bytes()
+            chain.restart(0)
+            try:
+                assert discover_one(link)["name"] == "by_hand"
+            except AssertionError:
+                raise AssertionError(chain.repl_output(0)[-3000:]) from None
+        finally:
+            link.close()

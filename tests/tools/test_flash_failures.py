@@ -221,3 +221,16 @@ def test_mpy_falls_back_to_bytecode_or_source_where_the_board_needs_it(
         assert any(p == "protocol/frame.py" for p, _ in files), mpy
         assert not any(p.endswith(".mpy") for p, _ in files)
         assert any("flashing source files" in line for line in logs)
+
+
+def test_firmware_that_does_not_boot_after_the_reset_is_an_error_with_the_reason() -> None:
+    """docs/flashing.md: after the reset flash watches the REPL; a traceback instead of the `up`
+    line is an error that names it. Here a source build on a board with too little heap (144 KB):
+    the MemoryError is reported, with the hint to flash precompiled."""
+    with EmulatedChain(1, heap=144 * 1024) as ch:
+        lines: list[str] = []
+        with pytest.raises(FlashError) as exc:
+            flash(ch.repl_port(0), {"name": "small"}, mpy=False, log=lines.append)
+        text = str(exc.value)
+        assert "the new firmware is in place but does not start" in text, text
+        assert "MemoryError" in text and "flash without --source" in text, text

@@ -92,17 +92,26 @@ def test_a_segment_flashed_as_source_boots_in_the_boards_heap_and_runs_a_cycle()
     """`ucr flash --source` (the fallback where .mpy cannot be used): the segment compiles every
     module on its own heap at boot, the ESP32's heap budget, and still boots, answers DISCOVER
     and turns a SYNC into a STATE. (The firmware tests run the precompiled firmware, as a board
-    does; this is the source path's own test.)"""
+    does; this is the source path's own test.) With a robot's configuration, as `ucr flash`
+    writes it: before main.build compiled segment.py ahead of loading it, the source firmware
+    ran out of heap configured and booted only unconfigured (review 2026-11-26)."""
     import time
 
     from host.link import ChainLink
     from tools.emulator import EmulatedChain
+    from tools.segment_config import config_for
+    from ucrdf.parser import load
 
-    with EmulatedChain(1, mpy=False) as chain, ChainLink(chain.host_port) as link:
+    cfg = config_for(load(str(REPO / "robots" / "softrobot3.ucrdf")), "segment_1")
+    with (
+        EmulatedChain(1, mpy=False, config_for=[cfg]) as chain,
+        ChainLink(chain.host_port) as link,
+    ):
         end = time.monotonic() + 60
         descs: list = []
         while not descs:
-            assert time.monotonic() < end, chain.repl_output(0)
+            out = chain.repl_output(0)
+            assert time.monotonic() < end and "MemoryError" not in out, out[-2000:]
             try:
                 descs = link.discover(timeout=1.0)
             except OSError:
