@@ -14,6 +14,7 @@ position through the one motion path (MC limits and slew, SC servo speed), whate
 import os
 
 import calib_store as store
+from mechanism import RANGE_TOL
 
 from protocol import cal_core as cal
 from protocol import cbor
@@ -65,15 +66,15 @@ def apply(seg, zeros, dirs):
         cfg.direction[i] = d
         mc.zero[i] = z
         mc.dir[i] = d
-        seg.range_lo[i] = z + cfg.min_angle[i] - 500  # segment._RANGE_TOL
-        seg.range_hi[i] = z + cfg.max_angle[i] + 500
+        seg.range_lo[i] = z + cfg.min_angle[i] - RANGE_TOL
+        seg.range_hi[i] = z + cfg.max_angle[i] + RANGE_TOL
         s = cfg.si["servos"][i]
         s["zero_offset"] = z / 10000.0
         s["direction"] = d
     seg.cfg_hash = None
     cfg.hash = None  # recomputed for the new calibration (params._config_hash)
     seg.mc.hold_here(seg.bus.pos)
-    seg.sc.reset(seg.bus.pos)
+    seg.sc.reset(seg.mc.servo_target)
 
 
 def _same_as_file(seg):

@@ -166,6 +166,12 @@ class Config:
                 "watchdog_ms %r is shorter than two ticks (tick_ms %d): the tick checks it"
                 % (cfg["watchdog_ms"], tk)
             )
+        if cfg["servo_speed"] * 10.0 * tk < 1.0:
+            raise ValueError(
+                "servo_speed %r rad/s is below one step (1e-4 rad) per tick of %d ms: the servo "
+                "commands could not move that slowly (at least %.3g rad/s)"
+                % (cfg["servo_speed"], tk, 0.1 / tk)
+            )
         servos = cfg["servos"]
         if servos is None:
             servos = [{"id": i} for i in range(len(ang))]

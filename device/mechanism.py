@@ -33,6 +33,8 @@ CLAMP_SERVO = const(4)
 _PHI_HOLD_EPS = const(10)  # 1e-3 1/m: below this measured kappa, phi keeps its last value
 _RATE_WINDOW_MS = const(100)  # longest setpoint interval credited to the rate check
 _MAX_DL_UM = const(1 << 23)  # largest tendon length change the fixed-point scheme allows
+_KAPPA_WIRE = const(1 << 23)  # 1e-4 1/m: STATE's kappa is an int24 (docs/protocol.md)
+RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
 _MEAS_SLACK = const(10000)  # 1 rad: how far outside its range a measured joint angle is used
 
 
@@ -100,11 +102,13 @@ class Mechanism:
         reach = max(max(-self.mlo[i], self.mhi[i]) for i in range(n))  # 1e-4 rad
         dl_um = reach * 100.0 * r
         k_worst = dl_um * max(sum(abs(c) for c in kx), sum(abs(c) for c in ky))
-        if dl_um >= 1 << 23 or k_worst >= 1 << 29:
+        # |(sx, sy)| <= sqrt(2) * k_worst: the measured curvature must fit STATE's int24 (what
+        # the host is told; it wrapped, sign and all, beyond it) and fxp.mulq's input (< 2**24)
+        if dl_um >= 1 << 23 or k_worst * 1.4143 >= _KAPPA_WIRE:
             raise ValueError(
                 "servo travel (+-%.4g rad) too large for this geometry: the measured curvature "
-                "could reach %.4g 1/m, beyond the fixed-point range"
-                % (reach * 1e-4, k_worst * 1e-4)
+                "could reach %.4g 1/m, beyond what STATE reports (%.4g 1/m)"
+                % (reach * 1e-4, k_worst * 1.4143e-4, _KAPPA_WIRE * 1e-4)
             )
         # state (all ints / preallocated arrays)
         self.tx = 0  # target curvature vector after kappa clamp (1e-4 1/m)
@@ -121,8 +125,17 @@ class Mechanism:
         self.phi = 0
 
     def set_rate_max(self, rate):
-        """kappa_rate_max in 1e-4 1/m per s: the slew step per tick and the setpoint rate check."""
-        self.step = max(1, (rate * self.tick_ms + 500) // 1000)
+        """kappa_rate_max in 1e-4 1/m per s: the slew step per tick and the setpoint rate check.
+
+        The step is rate * tick in 1e-4 1/m: its whole part every tick, and the fraction (in
+        thousandths) carried from tick to tick, so the slew never runs faster than the rate,
+        however small (rounding it to whole units made 0.03 1/m/s slew at 0.04 and the config's
+        0.001 at 0.02). ``step`` (rounded up) is the setpoint rate check's one-tick allowance."""
+        per_tick = rate * self.tick_ms  # 1e-7 1/m: thousandths of a unit
+        self.step_whole = per_tick // 1000
+        self.step_frac = per_tick % 1000
+        self.step_acc = 0
+        self.step = self.step_whole + (1 if self.step_frac else 0)
         # rate check of setpoints: 1.25 * rate per ms in Q4 (1e-4 1/m / 16 per ms); with
         # dt <= 100 ms the product stays far below 2**30 for any accepted kappa_rate_max
         self.rate_q4 = (rate * 16 * 5) // 4000
@@ -191,11 +204,16 @@ class Mechanism:
         flags = 0
         dx = self.tx - self.cx
         dy = self.ty - self.cy
-        st = self.step
+        st = self.step_whole  # this tick's step: the whole part plus the carried fraction
+        acc = self.step_acc + self.step_frac
+        if acc >= 1000:
+            acc -= 1000
+            st += 1
         h = st >> 1
         if -h <= dx <= h and -h <= dy <= h:
             self.cx = self.tx
             self.cy = self.ty
+            acc = 0  # at the target: nothing carried into the next move
         else:
             psi = atan2_e4(dy, dx)
             c = cos_q20(psi)
@@ -204,11 +222,13 @@ class Mechanism:
             if mag <= st:
                 self.cx = self.tx
                 self.cy = self.ty
+                acc = 0
             else:
                 self.cx += mulq(st, c, 20)
                 self.cy += mulq(st, s, 20)
                 if self.rate_excess:
                     flags = CLAMP_RATE
+        self.step_acc = acc
         if self.cx == self.tx and self.cy == self.ty:
             self.rate_excess = False
         return flags | self._servo_targets()
@@ -274,13 +294,28 @@ class Mechanism:
         self.phi = phi
 
     def hold_here(self, positions):
-        """Stop where the mechanism is: targets := measured servo positions and curvature."""
+        """Stop where the mechanism is: targets := measured servo positions and curvature.
+
+        A servo read further outside its range [zero + min, zero + max] than ``RANGE_TOL`` (the
+        segment calls that a fault: a servo pushed away, or one bad reply that passed its
+        checksum) keeps its last target instead, clamped to the range: holding at the reading
+        would command the servo there in one step (review 2026-11-26)."""
         self.measure(positions)
         self.tx = self.cx = self.mx
         self.ty = self.cy = self.my
         self.rate_excess = False
+        self.step_acc = 0
         for i in range(self.n):
-            self.servo_target[i] = positions[i]
+            lo = self.zero[i] + self.amin[i]
+            hi = self.zero[i] + self.amax[i]
+            p = positions[i]
+            if p < lo - RANGE_TOL or p > hi + RANGE_TOL:
+                p = self.servo_target[i]
+                if p < lo:
+                    p = lo
+                elif p > hi:
+                    p = hi
+            self.servo_target[i] = p
 
 
 # The per-servo loops in machine code where fxp uses fxp_fast (a native emitter): mech_fast.py,

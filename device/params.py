@@ -393,6 +393,10 @@ def set_param(self, pid, v):
     if pid == _P_WATCHDOG_MS:
         if not num or not 10 <= v <= 60000 or int(v) != v:  # range first: int(inf) raises
             raise ValueError("must be an int 10..60000 (ms)")
+        if v < 2 * self.tick_ms:  # the rule config.json has (config.Config)
+            raise ValueError(
+                "must be at least two ticks (%d ms): the tick checks it" % (2 * self.tick_ms)
+            )
         self.watchdog_ms = int(v)
     elif pid == _P_KAPPA_MAX:
         top = float(self.cfg.si["kappa_max"])

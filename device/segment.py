@@ -33,7 +33,7 @@ import params  # noqa: E402
 
 gc.collect()
 import sc as scmod  # noqa: E402
-from mechanism import CLAMP_SERVO, Mechanism  # noqa: E402
+from mechanism import CLAMP_SERVO, RANGE_TOL, Mechanism  # noqa: E402
 from servos import FAULT_NONE, FAULT_RANGE, FAULT_STALL  # noqa: E402
 
 gc.collect()
@@ -100,7 +100,6 @@ _CLAMP_EVENT_MS = const(100)  # LIMIT_CLAMPED at most once per 100 ms
 _STALL_TOL = const(500)  # 0.05 rad: a servo this far from its command ...
 _STALL_MOVE = const(50)  # ... that moved less than 0.005 rad ...
 _STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
-_RANGE_TOL = const(500)  # 0.05 rad: a servo measured this far outside its range is faulty
 _EVQ = const(16)  # event queue length
 _FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
@@ -193,10 +192,10 @@ class Segment:
         self.fault_len = 0
         # a servo measured outside [zero + min - tol, zero + max + tol] is faulty (FAULT_RANGE)
         self.range_lo = array(
-            "i", [cfg.zero[i] + cfg.min_angle[i] - _RANGE_TOL for i in range(cfg.n)]
+            "i", [cfg.zero[i] + cfg.min_angle[i] - RANGE_TOL for i in range(cfg.n)]
         )
         self.range_hi = array(
-            "i", [cfg.zero[i] + cfg.max_angle[i] + _RANGE_TOL for i in range(cfg.n)]
+            "i", [cfg.zero[i] + cfg.max_angle[i] + RANGE_TOL for i in range(cfg.n)]
         )
         self.position = 0
         now = hal.ticks_ms()
@@ -523,10 +522,13 @@ class Segment:
         if self.fault_code:
             return False  # FAULT is left only by CLEAR_FAULT
         bus = self.bus
+        pos = bus.pos
         for i in range(self.n):
             f = bus.fault[i]
             if f != FAULT_NONE and f != FAULT_STALL:
                 return False  # the driver still reports the fault: stay in hold
+            if bus.known and (pos[i] < self.range_lo[i] or pos[i] > self.range_hi[i]):
+                return False  # still out of range: accepted only once it is back inside
         self.fault_bits = 0
         for i in range(self.n):
             self.prev_fault[i] = 0
@@ -562,7 +564,7 @@ class Segment:
         self.moving = True
         pos = self.bus.pos
         self.mc.hold_here(pos)
-        self.sc.reset(pos)
+        self.sc.reset(self.mc.servo_target)
         for i in range(self.n):
             self.stall_ref[i] = pos[i]
             self.stall_t[i] = self.now
@@ -570,9 +572,8 @@ class Segment:
     def _stop_moving(self):
         self.moving = False
         bus = self.bus
-        pos = bus.pos
-        self.mc.hold_here(pos)
-        self.sc.reset(pos)
+        self.mc.hold_here(bus.pos)
+        self.sc.reset(self.mc.servo_target)
         if bus.enabled:
             bus.command(self.mc.servo_target, self.now)  # stop now, not at the next tick
 

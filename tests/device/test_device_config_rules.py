@@ -202,3 +202,37 @@ def test_ucr_check_and_flash_refuse_what_the_firmware_cannot_run_with_path_and_l
     out = res.stdout + res.stderr
     assert res.returncode != 0 and "firmware would refuse" in out and "Traceback" not in out
     assert f"{path}:" in out
+
+
+def test_rules_the_config_and_param_set_share_and_what_state_can_report(vm):
+    """Review 2026-11-26, three holes in "one rule for what a segment can be":
+    - PARAM_SET watchdog_ms took 10 ms on a 50 ms tick, which config.json refuses (< two ticks);
+    - servo_speed 0.01 rad/s is below one 1e-4 rad step per tick: the SC moved at one step
+      anyway (2x the configured speed at 5 ms, 10x at 1 ms);
+    - a 15 mm segment with a 1 mm tendon radius and +-pi servos could measure 5000 1/m, which
+      STATE's int24 (+-838 1/m) wrapped, sign and all (1111 1/m went out as -566)."""
+    pset = M.encode_param_set(3, 0, 0, 10).hex()
+    r = vm(
+        f"""
+import config, mechanism
+out = []
+for c in ({{'servo_speed': 0.01}}, {{'length': 0.015, 'tendon_radius': 0.001, 'spool_radius': 0.01,
+           'kappa_max': 50.0}}):
+    try:
+        mechanism.Mechanism(config.Config(c), 5)  # what config.load checks
+        out.append(None)
+    except ValueError as e:
+        out.append(str(e))
+R['cfg'] = out
+hal, seg = vmkit.make({{'tick_ms': 50, 'watchdog_ms': 200}}, tick_ms=50)
+hal.up.feed(bytes.fromhex('{pset}'))
+seg.poll()
+R['wd'] = [seg.watchdog_ms, vmkit.hexs(hal.up.take())]
+"""
+    )
+    speed, geometry = r["cfg"]
+    assert speed and "servo_speed" in speed and "one step" in speed, speed
+    assert geometry and "beyond what STATE reports" in geometry, geometry
+    wd, out = r["wd"]
+    errs = [m for m in decode(out) if m["type"] == "ERROR"]
+    assert wd == 200 and errs and "two ticks" in errs[0]["text"], errs

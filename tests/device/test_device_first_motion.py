@@ -202,3 +202,29 @@ R['s'] = [list(seg.bus.true_pos), seg.bus.enabled, seg.status(), list(seg.prev_f
     assert status & 0x05 == 0x05 and faults[0] == 5  # SERVO_FAULT + HOLD, out_of_range
     ev = [m for m in decode(out) if m["type"] == "EVENT" and m["name"] == "SERVO_FAULT"]
     assert [e["detail"] for e in ev] == [0]
+
+
+def test_a_resume_is_refused_while_a_servo_is_still_out_of_range(vm):
+    """Review 2026-11-26: a SYNC with resume was "accepted" while servo 0 still sat outside its
+    range: hold and the fault bits cleared, the STATE answering it said all was well, and the
+    next tick raised a fresh SERVO_FAULT, on every resume. Now it stays in hold and says so."""
+    cfg = {"watchdog_ms": 60000, "emulated_start": [1.0, 0.0, 0.0],
+           "servos": [{"min_angle": -0.5, "max_angle": 0.5}] * 3}  # fmt: skip
+    resume = M.encode_sync(1, 1, [(1.0, 0.0)], resume=True).hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({cfg!r})
+vmkit.run(hal, seg, 100)
+hal.up.discard()
+hal.up.feed(bytes.fromhex('{resume}'))
+seg.poll()
+R['reply'] = vmkit.hexs(hal.up.take())
+vmkit.run(hal, seg, 200)
+R['later'] = vmkit.hexs(hal.up.take())
+R['s'] = [seg.hold, seg.fault_bits, seg.moving, seg.bus.enabled]
+"""
+    )
+    (state,) = [m for m in decode(r["reply"]) if m["type"] == "STATE"]
+    assert {"HOLD", "SERVO_FAULT"} <= set(state["status"]), state
+    assert r["s"] == [True, 1, False, False]
+    assert not [m for m in decode(r["later"]) if m["type"] == "EVENT"]  # no fault re-raised

@@ -289,3 +289,91 @@ for run in R['runs']:
             prev = cmd
         assert limit == 300  # 6 rad/s * 5 ms = 0.03 rad = 300 units
         assert cmds[-1] != start  # and it does move on towards the commanded pose
+
+
+def test_a_bad_position_reply_never_becomes_a_hold_target(vm):
+    """Review 2026-11-26: one checksummed Feetech reply of 4000 steps (~ +2.98 rad; the range is
+    +-0.5 rad, goals <= 2374) made the segment hold and then write goal 4000 to that servo every
+    tick: hold_here copied the reading into the targets. Now a reading that far out keeps the
+    servo's last target, inside the range."""
+    servo = {"min_angle": -0.5, "max_angle": 0.5}
+    cfg = {"servo_driver": "feetech_sts", "watchdog_ms": 60000,
+           "servos": [dict(servo, id=i) for i in (11, 12, 13)]}  # fmt: skip
+    sync = M.encode_sync(1, 1, [(2.0, 0.3)]).hex()
+    r = vm(
+        f"""
+import config, servos, vmfakes
+from segment import Segment
+fake = vmfakes.FakeFeetech([11, 12, 13])
+hal = vmfakes.BusHal(fake)
+cfg = config.Config({cfg!r})
+bus = servos.make('feetech_sts', cfg, hal)
+seg = Segment(hal, cfg, bus, 5)
+goals = []
+glitch = [False]
+class Spy:
+    def write(self, buf, n=-1):
+        if buf[4] == 0x02 and buf[2] == 11 and glitch[0]:  # the read of servo 11
+            glitch[0] = False
+            keep = fake.pos[11]
+            fake.pos[11] = 4000
+            r = fake.write(buf, n)
+            fake.pos[11] = keep
+            return r
+        if buf[4] == 0x83:  # SYNC WRITE of the goals
+            goals.append(buf[8] | (buf[9] << 8))
+        return fake.write(buf, n)
+    def readinto(self, b):
+        return fake.readinto(b)
+bus.uart = Spy()
+for _ in range(10):
+    hal.up.feed(bytes.fromhex('{sync}'))
+    vmkit.run(hal, seg, 20)
+hal.up.discard()
+R['moving'] = seg.moving
+n = len(goals)
+glitch[0] = True
+vmkit.run(hal, seg, 40)
+R['after'] = goals[n:]
+R['hold'] = seg.hold
+R['events'] = vmkit.hexs(hal.up.take())
+"""
+    )
+    assert r["moving"] and r["hold"]
+    assert "SERVO_FAULT" in _events(decode(r["events"]))
+    limit = 2048 + 0.5 * 4096 / (2 * math.pi)
+    assert r["after"] and max(r["after"]) <= limit + 1, r["after"]
+
+
+def test_the_curvature_slews_no_faster_than_a_rate_below_one_unit_per_tick(vm):
+    """Review 2026-11-26: the slew step was rate * tick rounded to whole 1e-4 1/m units, at least
+    one: 0.03 1/m/s slewed at 0.04, a PARAM_SET of 0.01 at 0.02, the config's minimum 0.001 at
+    0.02. The fraction is now carried from tick to tick."""
+    cases = ((1.0, 0.03, 5), (1.0, 0.01, 5), (0.001, None, 5), (1.0, 0.075, 2))
+    for cfg_rate, set_rate, tick in cases:
+        cfg = {"watchdog_ms": 60000, "kappa_rate_max": cfg_rate, "tick_ms": tick}
+        pset = M.encode_param_set(3, 0, 2, set_rate).hex() if set_rate else ""
+        sync = M.encode_sync(1, 1, [(3.0, 0.0)]).hex()
+        hb = M.encode_heartbeat(2, 2).hex()
+        r = vm(
+            f"""
+hal, seg = vmkit.make({cfg!r}, tick_ms={tick})
+if '{pset}':
+    hal.up.feed(bytes.fromhex('{pset}'))
+vmkit.run(hal, seg, 20)
+hal.up.feed(bytes.fromhex('{sync}'))
+vmkit.run(hal, seg, {tick})
+c0 = seg.mc.cx
+t0 = hal.t
+for _ in range(20):
+    hal.up.feed(bytes.fromhex('{hb}'))
+    vmkit.run(hal, seg, 100)
+    hal.up.discard()
+R['d'] = seg.mc.cx - c0
+R['ms'] = hal.t - t0
+R['rate'] = seg.rate_max_si
+"""
+        )
+        actual = r["d"] * 1e-4 / (r["ms"] / 1000.0)
+        assert actual <= r["rate"] * 1.001, (cfg_rate, set_rate, tick, actual)
+        assert actual >= r["rate"] * 0.95, (cfg_rate, set_rate, tick, actual)  # not stuck
