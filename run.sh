@@ -54,9 +54,18 @@ ensure_venv() {
         echo "[setup] error: ucr needs Python >= 3.11; $PY is $("$PY" -V 2>&1)" >&2
         exit 1
     fi
+    if [ -x "$VENV/bin/python" ] && ! "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
+        # a venv left half-made (e.g. python3-venv was missing): it has a python but no pip
+        echo "[setup] $VENV has no pip (an earlier creation failed): creating it again" >&2
+        rm -rf "$VENV"
+    fi
     if [ ! -x "$VENV/bin/python" ]; then
         echo "[setup] creating virtual environment in $VENV" >&2
-        "$PY" -m venv "$VENV"
+        if ! "$PY" -m venv "$VENV"; then
+            rm -rf "$VENV"
+            echo "[setup] error: cannot create $VENV; on Debian/Raspberry Pi OS: sudo apt install python3-venv" >&2
+            exit 1
+        fi
     fi
     if [ "${UCR_VENV_SYSTEM_SITE:-0}" = 1 ]; then
         # see the system's packages (e.g. Debian's python3-evdev) behind the pinned ones

@@ -33,7 +33,8 @@ def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> Non
     )
     p.add_argument(
         "--token-file",
-        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN})",
+        help=f"file (mode 0600) holding the API token; without it, ${ENV_TOKEN} holds the "
+        "token itself",
         **({"default": None} | kw),
     )
     # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.

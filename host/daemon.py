@@ -97,7 +97,7 @@ class Daemon:
         self.port = port or self.cfg.port
         if not self.port:
             raise DaemonError("no chain port given (--port URL or 'port:' in the config)")
-        self.rate_hz = float(rate_hz or self.cfg.rate_hz)
+        self.rate_hz = float(self.cfg.rate_hz if rate_hz is None else rate_hz)
         if not 1.0 <= self.rate_hz <= 2000.0:
             raise DaemonError(f"loop rate {self.rate_hz} Hz outside 1..2000 Hz")
         prio = self.cfg.realtime_priority if realtime_priority is None else realtime_priority

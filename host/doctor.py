@@ -31,6 +31,7 @@ from host.doctor_checks import (  # noqa: F401 - re-exported: the names tests an
     check_timing,
 )
 from host.doctor_config import check_board, check_config_hash
+from host.positions import label
 from host.serialport import access_problem
 
 #: bit/s tried, in order, when the chain is silent at the configured rate
@@ -198,7 +199,7 @@ def format_text(findings: list[Finding]) -> str:
     mark = {"ok": "ok  ", "warning": "WARN", "error": "FAIL"}
     lines = []
     for f in findings:
-        where = f"seg {f.position} " if f.position is not None else ""
+        where = f"{label(f.position)} " if f.position is not None else ""
         lines.append(f"[{mark[f.level]}] {where}{f.check}: {f.message}")
         if f.fix and f.level != "ok":
             lines.append(f"       fix: {f.fix}")

@@ -12,6 +12,7 @@ import errno
 import grp
 import os
 import pwd
+import re
 import stat
 from pathlib import Path
 
@@ -45,6 +46,7 @@ def holders(path: str, proc: Path = Path("/proc")) -> list[tuple[int, str]]:
         target = os.path.realpath(path)
     except OSError:
         return []
+    pts = re.fullmatch(r"/dev/pts/(\d+)", target)
     found = []
     me = os.getpid()
     for entry in proc.iterdir() if proc.is_dir() else []:
@@ -54,14 +56,25 @@ def holders(path: str, proc: Path = Path("/proc")) -> list[tuple[int, str]]:
             fds = list((entry / "fd").iterdir())
         except OSError:
             continue
+        holds = master = False
         for fd in fds:
             try:
-                if os.readlink(fd) == target:
-                    comm = (entry / "comm").read_text().strip()
-                    found.append((int(entry.name), comm))
-                    break
+                link = os.readlink(fd)
+                if link == target:
+                    holds = True
+                elif pts and link in ("/dev/ptmx", "/dev/pts/ptmx"):
+                    info = (entry / "fdinfo" / fd.name).read_text()
+                    master = master or f"tty-index:\t{pts.group(1)}\n" in info + "\n"
             except OSError:
                 continue
+        # the process with the pty's master is its other end (`ucr emulate`: the emulated
+        # segment, as a board is a USB port's), not a program competing for the port
+        if holds and not master:
+            try:
+                comm = (entry / "comm").read_text().strip()
+            except OSError:
+                continue
+            found.append((int(entry.name), comm))
     return sorted(found)
 
 

@@ -197,7 +197,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
         try:
             if not args.no_api:
                 try:
-                    api = start_api(daemon, "127.0.0.1", args.api_port, None)
+                    api = start_api(
+                        daemon,
+                        "127.0.0.1",
+                        args.api_port,
+                        None,
+                        log_level="warning" if args.quiet_log else "info",
+                    )
                     if api is not None:
                         print(f"API on {api.url} (try `ucr status --url {api.url}`)", flush=True)
                 except Exception as exc:  # noqa: BLE001 - the demo runs without API

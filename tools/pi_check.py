@@ -291,6 +291,21 @@ def snapshot_source(root: Path) -> str:
 
 
 # ----------------------------------------------------------------------------- the unit
+def systemd_seconds(value: str) -> float:
+    """A systemd time span ("10", "10s", "1min 30s", "500ms", "infinity") in seconds."""
+    units = {"us": 1e-6, "ms": 1e-3, "s": 1.0, "sec": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
+    text = value.strip()
+    if text == "infinity":
+        return float("inf")
+    total = 0.0
+    for part in re.findall(r"(\d+(?:\.\d+)?)\s*([a-z]*)", text):
+        num, unit = part
+        if unit not in units and unit != "":
+            raise Failed(f"cannot read the systemd time span {value!r}")
+        total += float(num) * units.get(unit, 1.0)
+    return total
+
+
 def unit_service() -> dict[str, list[str]]:
     """The [Service] section of host/ucr-daemon.service: key -> values in order."""
     section, out = None, {}
@@ -477,7 +492,8 @@ def run_check(keep: bool) -> None:
 
 class _Service:
     """The daemon process as systemd keeps it: started again after a failure exit
-    (Restart=on-failure, RestartSec), up to a bound; stopped with SIGTERM, SIGKILL after 60 s."""
+    (Restart=on-failure, RestartSec), up to a bound; stopped with SIGTERM, SIGKILL after the
+    unit's TimeoutStopSec (a daemon slower than that would be killed before it says HOLD)."""
 
     MAX_RESTARTS = 5
 
@@ -485,7 +501,8 @@ class _Service:
         self._argv = ["chroot", str(root), *cmd]
         self._log = log_file
         self._restart = svc.get("Restart", ["no"])[-1] == "on-failure"
-        self._delay_s = float(svc.get("RestartSec", ["0.1"])[-1])
+        self._delay_s = systemd_seconds(svc.get("RestartSec", ["0.1"])[-1])
+        self.stop_timeout_s = systemd_seconds(svc.get("TimeoutStopSec", ["90"])[-1])
         self.restarts = 0
         self.proc = self._spawn()
 
@@ -510,13 +527,15 @@ class _Service:
         self.proc = self._spawn()
 
     def stop(self) -> None:
-        """SIGTERM, as systemctl stop sends it (then SIGKILL after 60 s, as TimeoutStopSec)."""
+        """SIGTERM, as systemctl stop sends it, then SIGKILL after TimeoutStopSec, as systemd."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
         try:
-            self.proc.wait(timeout=60)
+            self.proc.wait(
+                timeout=None if self.stop_timeout_s == float("inf") else self.stop_timeout_s
+            )
         except subprocess.TimeoutExpired:
-            log("no exit 60 s after SIGTERM: killed")
+            log(f"no exit {self.stop_timeout_s:g} s after SIGTERM (TimeoutStopSec): killed")
             self.proc.kill()
             self.proc.wait()
 

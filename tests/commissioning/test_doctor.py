@@ -335,3 +335,10 @@ def test_doctor_names_a_servo_driver_override_instead_of_a_stale_flash() -> None
     desc = {"position": 0, "servo_driver": other, "config_hash": cal.config_hash(stale)}
     (finding,) = check_config_hash(str(robot_file), [desc])
     assert finding.level == "error" and "stale flash" in finding.fix
+
+
+def test_the_text_report_counts_positions_from_one_like_the_rest_of_the_cli() -> None:
+    """Review 2026-11-26: `ucr doctor` printed "seg 0" for segment_1 while `ucr emulate`, the
+    daemon's messages and docs/daemon.md count positions from 1."""
+    text = doctor.format_text([doctor.Finding("firmware", "ok", "firmware 0.1.0", position=0)])
+    assert text.splitlines()[0] == "[ok  ] position 1 firmware: firmware 0.1.0"

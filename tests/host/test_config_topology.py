@@ -215,3 +215,13 @@ def test_the_chain_baudrate_comes_from_the_config_else_from_the_ucrdf(tmp_path):
     cfg_file = tmp_path / "d.yaml"
     cfg_file.write_text("rate_hz: 50\n")
     assert Daemon(load(slow), load_config(cfg_file), port="x").cfg.baudrate == 115200
+
+
+def test_a_rate_of_zero_is_refused_not_replaced_by_the_configs(robot3):
+    """Review 2026-11-26: `ucr daemon --rate 0` ran at the config's 100 Hz without a word
+    (`rate_hz or cfg.rate_hz`), while --rate 0.5 was refused."""
+    from host.daemon import Daemon, DaemonError
+
+    for rate in (0.0, 0.5):
+        with pytest.raises(DaemonError, match="outside 1..2000 Hz"):
+            Daemon(robot3, DaemonConfig(), port="loop://", rate_hz=rate)

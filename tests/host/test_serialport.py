@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -73,6 +74,39 @@ def test_busy_port_names_the_process_that_holds_it(pty_port) -> None:
     finally:
         holder.stdin.close()
         holder.wait(timeout=30)
+
+
+def test_the_ptys_other_end_is_not_named_as_a_competing_holder() -> None:
+    """Review 2026-11-26: with `ucr emulate` and one daemon, a second daemon was told the port
+    is "held by PID <emulate> (ucr), PID <daemon> (ucr)": the emulator keeps its pty's slave
+    open, but it is the device end (it has the master), not a competitor."""
+    script = textwrap.dedent(
+        """
+        import os, sys
+        master, slave = os.openpty()  # the emulated device: both ends, as tools/emulator does
+        print(os.ttyname(slave), flush=True)
+        sys.stdin.read()
+        """
+    )
+    device = subprocess.Popen(
+        [sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    user = None
+    try:
+        path = device.stdout.readline().strip()
+        user = subprocess.Popen(
+            [sys.executable, "-c", f"import sys; f = open({path!r}, 'rb', 0); sys.stdin.read()"],
+            stdin=subprocess.PIPE,
+        )
+        end = time.monotonic() + 10
+        while user.pid not in [p for p, _ in holders(path)] and time.monotonic() < end:
+            time.sleep(0.05)
+        assert [p for p, _ in holders(path)] == [user.pid]
+    finally:
+        for proc in (user, device):
+            if proc is not None:
+                proc.stdin.close()
+                proc.wait(timeout=30)
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="needs root to open the port as another user")

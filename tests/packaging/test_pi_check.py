@@ -45,6 +45,30 @@ def test_the_daemon_starts_as_the_unit_says() -> None:
     assert cmd.index("prlimit") < cmd.index("setpriv")
 
 
+def test_the_stop_kills_after_the_units_timeout_stop_sec(monkeypatch, tmp_path) -> None:
+    """Review 2026-11-26: the check waited 60 s after SIGTERM where the unit says
+    TimeoutStopSec=10, so a stop taking 10-60 s passed here and is a SIGKILL (no HOLD) under
+    systemd. The check now reads the unit's value."""
+    svc = pi_check.unit_service()
+    assert pi_check.systemd_seconds(svc["TimeoutStopSec"][-1]) == 10.0
+    assert pi_check.systemd_seconds("1min 30s") == 90.0
+    assert pi_check.systemd_seconds("500ms") == 0.5
+
+    # a daemon that ignores SIGTERM is killed after the unit's timeout, not left running
+    def stubborn(_self) -> subprocess.Popen:
+        proc = subprocess.Popen(
+            ["sh", "-c", "trap '' TERM; echo ready; exec sleep 60"], stdout=subprocess.PIPE
+        )
+        assert proc.stdout.readline() == b"ready\n"  # SIGTERM ignored from here on
+        return proc
+
+    monkeypatch.setattr(pi_check._Service, "_spawn", stubborn)
+    with open(tmp_path / "log", "w") as log_file:
+        service = pi_check._Service(tmp_path, [], log_file, {"TimeoutStopSec": ["0.5"]})
+        service.stop()
+    assert service.proc.returncode == -9
+
+
 @pytest.mark.timeout(1900)
 def test_documented_install_runs_the_daemon_on_arm64_debian() -> None:
     if os.environ.get("UCR_PI_CHECK") == "0":

@@ -115,3 +115,40 @@ def test_unit_allows_only_serial_devices_and_bounds_resources() -> None:
     assert any(v.startswith("@system-service") for v in svc["SystemCallFilter"])
     for key in ("MemoryMax", "TasksMax", "LimitNOFILE"):
         assert svc.get(key), f"no {key}"
+
+
+def _group(name: str) -> set[str]:
+    """The system calls of a systemd syscall group (``@resources``), or the name itself."""
+    if not name.startswith("@"):
+        return {name}
+    out = subprocess.run(
+        ["systemd-analyze", "syscall-filter", "--no-pager", name],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).stdout
+    calls: set[str] = set()
+    for line in out.splitlines()[1:]:
+        line = line.strip()
+        if line and not line.startswith("#"):
+            calls |= _group(line)
+    return calls
+
+
+def test_the_syscall_filter_lets_the_daemon_set_its_priorities() -> None:
+    """Review 2026-11-26: ``~@resources`` took setpriority away, so the API process's
+    ``os.nice(5)`` failed with EPERM (host/api/process.py suppresses it) and it kept the loop's
+    Nice=-5. The filter lines are applied as systemd does: the first allows, ``~`` removes,
+    later lines add back."""
+    allowed: set[str] = set()
+    for value in service_section()["SystemCallFilter"]:
+        names = value.split()
+        if names[0].startswith("~"):
+            names[0] = names[0][1:]
+            for n in names:
+                allowed -= _group(n)
+        else:
+            for n in names:
+                allowed |= _group(n)
+    need = {"setpriority", "sched_setscheduler", "sched_getscheduler", "sched_getparam"}
+    assert need <= allowed, need - allowed

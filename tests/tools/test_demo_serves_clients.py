@@ -106,3 +106,6 @@ def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> N
             proc.kill()
             out, _ = proc.communicate()
     assert proc.returncode == 0, "".join(lines) + out
+    # --quiet-log: only warnings, from the API process too (review 2026-11-26: it logged INFO)
+    info = [ln for ln in ("".join(lines) + out).splitlines() if re.search(r"\bINFO\b", ln)]
+    assert not info, info
