@@ -4,6 +4,10 @@ and publishes every topic of :mod:`interop.topics` to a :class:`~interop.sinks.F
 
 Runs in the recorder's or the Foxglove server's own process: the daemon never waits for it (a
 slow feed loses stream messages in the daemon's per-client outbox, counted, never a cycle).
+
+A long-running client that outlives the daemon (``ucr zenoh``) keeps a :class:`DaemonLink` and
+connects again with :func:`reconnect`, with the back-off of ``ucr view``'s live source
+(:data:`view.source.RECONNECT_FIRST_S` doubling up to :data:`view.source.RECONNECT_MAX_S`).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from interop.sinks import Fanout
 from interop.topics import CommandedGoals, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
+from view.source import RECONNECT_FACTOR, RECONNECT_FIRST_S, RECONNECT_MAX_S
 
 
 class FeedError(RuntimeError):
@@ -40,6 +45,66 @@ def robot_for(client: Any, robot_path: str | None) -> tuple[Any, str]:
         return load(p), text
     except UcrdfError as exc:
         raise FeedError(str(exc)) from None
+
+
+class DaemonLink:
+    """The daemon's API client of the moment: attribute access goes to :attr:`client`, which a
+    reconnect replaces (what ``ucr view`` hands its controls), so the parts holding the link
+    always call the current connection. ``connected`` and ``why`` say whether the daemon is
+    there and, when not, why and what is being done about it."""
+
+    def __init__(self, client: Any) -> None:
+        self.client = client
+        self.connected = True
+        self.why = ""
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "client":  # not set yet: no recursion through __getattr__
+            raise AttributeError(name)
+        return getattr(self.client, name)
+
+    def lost(self, why: str) -> None:
+        """The connection broke (``why``): close it; calls fail at once until :meth:`replace`."""
+        self.connected, self.why = False, why
+        try:
+            self.client.close()
+        except Exception:  # noqa: BLE001, S110 - closing a broken connection
+            pass
+
+    def replace(self, client: Any) -> None:
+        """Connected again."""
+        self.client, self.connected, self.why = client, True, ""
+
+    def close(self) -> None:
+        self.client.close()
+
+
+def reconnect(
+    connect: Callable[[], Any],
+    stop: threading.Event,
+    on_retry: Callable[[str, int, float], None],
+    tick: Callable[[], None] | None = None,
+    tick_s: float = 1.0,
+) -> Any:
+    """``connect()`` again and again with ``ucr view``'s back-off (first wait
+    :data:`~view.source.RECONNECT_FIRST_S`, × :data:`~view.source.RECONNECT_FACTOR` after each
+    failure, at most :data:`~view.source.RECONNECT_MAX_S`) until it returns, which is returned;
+    None once ``stop`` is set. ``on_retry(why, attempt, next_wait_s)`` after each failure;
+    ``tick()`` every ``tick_s`` while waiting (to keep saying that the daemon is away)."""
+    delay, attempt = RECONNECT_FIRST_S, 0
+    while True:
+        end = time.monotonic() + delay
+        while (left := end - time.monotonic()) > 0:
+            if stop.wait(min(left, tick_s)):
+                return None
+            if tick is not None:
+                tick()
+        attempt += 1
+        try:
+            return connect()
+        except Exception as exc:  # noqa: BLE001 - any failure: said, retried
+            delay = min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S)
+            on_retry(str(exc) or type(exc).__name__, attempt, delay)
 
 
 class LiveFeed:

@@ -7,13 +7,15 @@ it): three services and two topics under ``<action>/_action/``:
   refused (``accepted: false``, reason on ``/rosout``) when the message is malformed, has
   multi-DOF points, or the daemon refuses (beyond ``kappa_max``, manual control, …).
 - ``get_result`` (``…_GetResult``): answered when the goal ends: SUCCEEDED (``error_code``
-  SUCCESSFUL), CANCELED, or ABORTED with the daemon's reason in ``error_string`` and
-  ``error_code`` PATH_TOLERANCE_VIOLATED / GOAL_TOLERANCE_VIOLATED for a tolerance abort (the
-  daemon's ``abort.cause``),
-  INVALID_GOAL otherwise (replaced, manual takeover, topology change: what the JTC reports for a
-  preempted goal). An unknown goal id: status UNKNOWN at once.
-- ``cancel_goal`` (``action_msgs/srv/CancelGoal``): by goal id, all goals (zero id and stamp),
-  or all accepted at or before a stamp (zero id); through ``trajectory.cancel``.
+  SUCCESSFUL); CANCELED for a goal canceled, or replaced by a newer goal (INVALID_GOAL and the
+  daemon's reason: what ros2_control's JTC reports for a goal preempted by a new one); ABORTED
+  with the daemon's reason in ``error_string`` and ``error_code`` PATH_TOLERANCE_VIOLATED /
+  GOAL_TOLERANCE_VIOLATED for a tolerance abort (the daemon's ``abort.cause``), INVALID_GOAL
+  otherwise (manual takeover, topology change, link loss). An unknown goal id: status UNKNOWN
+  at once.
+- ``cancel_goal`` (``action_msgs/srv/CancelGoal``) as action_msgs defines it: a goal id alone
+  cancels that goal; a zero id and zero stamp all goals; a stamp all goals accepted at or before
+  it, and with a goal id that goal too; through ``trajectory.cancel``.
 - ``status`` (``action_msgs/msg/GoalStatusArray``, transient local, depth 1) on every change;
   ``feedback`` (``…_FeedbackMessage``) at ≤ 10 Hz while a goal runs: ``actual`` positions of the
   goal's joints and the time since it started (``desired`` and ``error`` left empty: the daemon
@@ -21,6 +23,11 @@ it): three services and two topics under ``<action>/_action/``:
 
 Tolerances and ``goal_time_tolerance`` of the goal are not used: the daemon's own limits and
 tolerances apply (docs/ros2.md). Served only with ``--enable-commands``.
+
+A request the services refuse before it is read (too large, not decodable, too many waiting; see
+:class:`~interop.zenoh.node.RmwService`) still gets a response of its type: ``send_goal`` not
+accepted, ``get_result`` status UNKNOWN with the reason, ``cancel_goal`` ERROR_REJECTED; the
+reason goes to ``/rosout``.
 """
 
 from __future__ import annotations
@@ -35,7 +42,14 @@ from interop import ros2
 from interop.ros2 import actions, services
 from interop.ros2.type_hash import action_type_hash, service_type_hash, type_hash
 from interop.zenoh import rmw
-from interop.zenoh.commands import CommandError, to_waypoints
+from interop.zenoh.commands import (
+    ENVELOPE_BYTES,
+    CommandError,
+    SentGoals,
+    daemon_said,
+    max_trajectory_bytes,
+    to_waypoints,
+)
 
 ACTION = "control_msgs/action/FollowJointTrajectory"
 CANCEL = "action_msgs/srv/CancelGoal"
@@ -71,6 +85,10 @@ def result_of(state: str, reason: str, cause: str = "") -> tuple[int, int, str]:
     if state == "canceled":
         return CANCELED, SUCCESSFUL, reason or "canceled"
     text = reason or state
+    if cause == "replaced" and text.startswith("replaced by"):
+        # a newer goal preempted it: the JTC's preempt_active_goal() sets such a goal CANCELED
+        # with INVALID_GOAL ("Current goal cancelled due to new incoming action.")
+        return CANCELED, INVALID_GOAL, text
     if cause == "path_tolerance":
         return ABORTED, PATH_TOLERANCE_VIOLATED, text
     if cause == "goal_tolerance":
@@ -94,18 +112,30 @@ class FollowJointTrajectoryServer:
         controller: str,
         report: Callable[[int, str], None],
         period_s: float = 0.1,
+        sent: SentGoals | None = None,
     ) -> None:
         self.client = client
         self.bendables = list(bendables)
         self.controller = controller
         self.report = report
         self.period_s = period_s
+        self.sent = sent if sent is not None else SentGoals()
+        self._notes: list[str] = []  # refusals of the services, reported by the tracker thread
         self.name = f"{controller}/follow_joint_trajectory"
         self.goals: dict[bytes, Goal] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         base = actions.full_name(ACTION)
         prefix = f"{self.name}/_action"
+
+        def refused(response: Callable[[str], dict]) -> Callable[[str], dict]:
+            def refusal(why: str) -> dict:
+                with self._lock:
+                    if len(self._notes) < 8:  # a flood of them is not a flood of log lines
+                        self._notes.append(why)
+                return response(why)
+
+            return refusal
 
         def srv(part: str, suffix: str, handler: Any, **kw: Any) -> Any:
             codecs = (
@@ -121,13 +151,32 @@ class FollowJointTrajectoryServer:
                 **kw,
             )
 
-        self.send_goal = srv("SendGoal", "send_goal", self._send_goal)
-        self.get_result = srv("GetResult", "get_result", self._get_result, deferred=True)
+        self.send_goal = srv(
+            "SendGoal",
+            "send_goal",
+            self._send_goal,
+            refusal=refused(lambda why: {"accepted": False, "stamp": _stamp(time.time_ns())}),
+            # the largest goal the daemon could take, as for the JointTrajectory topic
+            max_request_bytes=max_trajectory_bytes(len(self.bendables)) + ENVELOPE_BYTES,
+        )
+        self.get_result = srv(
+            "GetResult",
+            "get_result",
+            self._get_result,
+            deferred=True,
+            refusal=refused(
+                lambda why: {
+                    "status": UNKNOWN,
+                    "result": {"error_code": INVALID_GOAL, "error_string": why},
+                }
+            ),
+        )
         self.cancel_goal = node.service(
             f"{prefix}/cancel_goal",
             CANCEL,
             self._cancel_goal,
             type_hash_=service_type_hash(CANCEL),
+            refusal=refused(lambda why: {"return_code": ERROR_REJECTED, "goals_canceling": []}),
         )
         self._cancel_codecs = services.codecs(CANCEL)
         self.feedback = node.publisher(
@@ -168,11 +217,10 @@ class FollowJointTrajectoryServer:
             self.report(40, f"FollowJointTrajectory goal refused: {exc}")
             return refuse
         except ApiError as exc:
-            self.report(
-                40, f"FollowJointTrajectory goal refused by the daemon ({exc.code}): {exc.message}"
-            )
+            self.report(40, f"FollowJointTrajectory goal refused{daemon_said(exc)}")
             return refuse
         g = Goal(uuid, str(daemon_id), list(goal.trajectory.joint_names), now)
+        self.sent.note(g.daemon_id, "action")
         with self._lock:
             self.goals[uuid] = g
             self._forget_old()
@@ -206,18 +254,20 @@ class FollowJointTrajectoryServer:
         uuid = bytes(info.goal_id.uuid)
         stamp_ns = info.stamp.sec * 1_000_000_000 + info.stamp.nanosec
         with self._lock:
-            if any(uuid):
+            if any(uuid) and not stamp_ns:  # that goal only
                 g = self.goals.get(uuid)
                 if g is None:
                     return {"return_code": ERROR_UNKNOWN_GOAL_ID, "goals_canceling": []}
                 if g.status in TERMINAL:
                     return {"return_code": ERROR_GOAL_TERMINATED, "goals_canceling": []}
                 chosen = [g]
-            else:
+            else:  # all; or all accepted at or before the stamp, and the goal id's one if given
+                every = not any(uuid) and not stamp_ns
                 chosen = [
                     g
                     for g in self.goals.values()
-                    if g.status not in TERMINAL and (not stamp_ns or g.accepted_ns <= stamp_ns)
+                    if g.status in (ACCEPTED, EXECUTING)  # cancelable, as rcl_action says
+                    and (every or g.accepted_ns <= stamp_ns or g.uuid == uuid)
                 ]
         canceling = []
         for g in chosen:
@@ -225,7 +275,7 @@ class FollowJointTrajectoryServer:
                 self.client.cancel(g.daemon_id)
             except ApiError as exc:
                 if exc.code != "not_found":
-                    self.report(40, f"cancel of {g.daemon_id} refused ({exc.code}): {exc.message}")
+                    self.report(40, f"cancel of {g.daemon_id} refused{daemon_said(exc)}")
                     continue
             with self._lock:
                 if g.status not in TERMINAL:
@@ -242,11 +292,14 @@ class FollowJointTrajectoryServer:
             del self.goals[u]
 
     def _track(self) -> None:
-        from host.api.client import ApiError  # noqa: PLC0415
+        from host.api.client import ApiConnectionError, ApiError, ApiTimeoutError  # noqa: PLC0415
 
         while not self._stop.wait(self.period_s):
             with self._lock:
                 live = [g for g in self.goals.values() if g.status not in TERMINAL]
+                notes, self._notes = self._notes, []
+            for why in notes:
+                self.report(40, f"FollowJointTrajectory request refused: {why}")
             if not live:
                 continue
             changed = False
@@ -257,8 +310,12 @@ class FollowJointTrajectoryServer:
             for g in live:
                 try:
                     st = self.client.trajectory_status(g.daemon_id)
+                except (ApiConnectionError, ApiTimeoutError):
+                    continue  # the daemon is away or slow: asked again in the next round
                 except ApiError as exc:
-                    st = {"state": "aborted", "reason": f"daemon: {exc.code}", "done": True}
+                    known = "no longer knows" if exc.code == "not_found" else "gave no status of"
+                    why = f"the daemon {known} goal {g.daemon_id} ({exc.code}: {exc.message})"
+                    st = {"state": "aborted", "reason": why, "done": True}
                 state = str(st.get("state", ""))
                 if st.get("done") or state in ("succeeded", "aborted", "canceled"):
                     cause = str((st.get("abort") or {}).get("cause") or "")

@@ -5,6 +5,10 @@ A client of the daemon's API in its own process (like ``ucr record``):
 :mod:`interop.topics`, :class:`ZenohSink` publishes them under the robot's namespace. With
 ``--enable-commands`` a subscription on ``<controller>/joint_trajectory`` feeds
 :class:`~interop.zenoh.commands.TrajectoryCommands`.
+
+The bridge outlives the daemon: when the API connection breaks, the node stays in the ROS graph,
+says on ``ucr/status`` and ``/ucr/segments`` that the daemon is away, and connects again with
+``ucr view``'s back-off (:func:`_serve`).
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -100,22 +105,37 @@ def log_message(level: int, text: str, name: str) -> Message:
     return Message("/rosout", TOPICS["/rosout"], msg, t)
 
 
+def daemon_away(bendables: list[str], why: str, t_ns: int) -> Message:
+    """/ucr/segments while the daemon is not connected: every segment STALE, saying why."""
+    text = f"daemon not connected: {why}"
+    status = [
+        {"level": 3, "name": f"ucr/{name}", "message": text, "hardware_id": "",
+         "values": [{"key": "daemon", "value": "disconnected"}]}
+        for name in bendables
+    ]  # fmt: skip
+    stamp = {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
+    msg = {"header": {"stamp": stamp, "frame_id": ""}, "status": status}
+    return Message("/ucr/segments", TOPICS["/ucr/segments"], msg, t_ns)
+
+
 def run(args: Any) -> int:
-    """The ``ucr zenoh`` command (dependencies already checked)."""
+    """The ``ucr zenoh`` command (dependencies and the domain id already checked)."""
     import zenoh  # noqa: PLC0415
 
     from host.api.client import ApiError  # noqa: PLC0415
     from host.client_common import CliError, connect_daemon  # noqa: PLC0415
-    from interop.live import FeedError, LiveFeed, robot_for  # noqa: PLC0415
+    from interop.live import DaemonLink, FeedError, robot_for  # noqa: PLC0415
     from interop.topics import RobotTopics  # noqa: PLC0415
     from interop.zenoh import config  # noqa: PLC0415
     from interop.zenoh.action import FollowJointTrajectoryServer  # noqa: PLC0415
-    from interop.zenoh.commands import TRAJECTORY_TYPE, TrajectoryCommands  # noqa: PLC0415
+    from interop.zenoh.commands import TRAJECTORY_TYPE, SentGoals, TrajectoryCommands  # noqa: PLC0415
     from interop.zenoh.robot_services import (  # noqa: PLC0415
         STATUS,
         STOP,
         TRIGGER,
         RobotServices,
+        status_refused,
+        stop_refused,
     )
 
     stop = threading.Event()
@@ -138,15 +158,15 @@ def run(args: Any) -> int:
         print(f"ucr: {exc}", file=sys.stderr)
         return 2
     try:
-        client = connect_daemon(args)
+        link = DaemonLink(connect_daemon(args))
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     session = node = commands = fjt = None
     try:
-        robot, text = robot_for(client, args.robot)
+        robot, robot_text = robot_for(link, args.robot)
         namespace = rmw.check_namespace(args.namespace or rmw.namespace_for(robot.name))
-        topics = RobotTopics(robot, text, args.subdivisions)
+        topics = RobotTopics(robot, robot_text, args.subdivisions)
         try:
             session = zenoh.open(conf)
         except Exception as exc:  # noqa: BLE001 - zenoh.ZError: no router in client mode, bad TLS
@@ -162,17 +182,19 @@ def run(args: Any) -> int:
         notes: list[str] = []
         log_name = "ucr.commands"  # NamedFanout adds the namespace
 
-        def report(level: int, text: str) -> None:
+        def report(level: int, text: str, name: str = log_name) -> None:
             print(f"ucr zenoh: {text}", file=sys.stderr, flush=True)
-            fanout.publish(log_message(level, text, log_name))
+            fanout.publish(log_message(level, text, name))
 
-        handlers = RobotServices(client, report)
-        srvs = [node.service(STATUS, TRIGGER, handlers.status)]
+        handlers = RobotServices(link, report)
+        srvs = [node.service(STATUS, TRIGGER, handlers.status, refusal=status_refused)]
         if args.enable_commands:
-            srvs.append(node.service(STOP, TRIGGER, handlers.stop))
+            srvs.append(node.service(STOP, TRIGGER, handlers.stop, refusal=stop_refused))
+            sent = SentGoals()  # what an empty JointTrajectory stops: topic's or action's goal
             fjt = FollowJointTrajectoryServer(
-                node, client, list(robot.bendables), controller=args.controller, report=report
-            )
+                node, link, list(robot.bendables), controller=args.controller, report=report,
+                sent=sent,
+            )  # fmt: skip
             srvs += [fjt.send_goal, fjt.get_result, fjt.cancel_goal]
             if args.distro != "jazzy":
                 notes.append(
@@ -182,7 +204,7 @@ def run(args: Any) -> int:
                 )
 
             commands = TrajectoryCommands(
-                client, list(robot.bendables), controller=args.controller, report=report
+                link, list(robot.bendables), controller=args.controller, report=report, sent=sent
             )
             sub = node.subscription(
                 f"{args.controller}/joint_trajectory", TRAJECTORY_TYPE, commands.on_message
@@ -206,9 +228,37 @@ def run(args: Any) -> int:
         )
         for note in notes:
             print(note, file=sys.stderr, flush=True)
-        feed = LiveFeed(client, topics, fanout, viz_rate=args.viz_rate)
-        feed.run(stop, duration=args.duration)
-        return 0
+        if args.duration is not None:
+            timer = threading.Timer(args.duration, stop.set)
+            timer.daemon = True
+            timer.start()
+
+        def reopen() -> tuple[Any, Any, str]:
+            """A new connection and the robot the daemon runs now."""
+            try:
+                client = connect_daemon(args)
+            except CliError as exc:
+                raise ConnectionError(str(exc)) from None
+            try:
+                return (client, *robot_for(client, args.robot))
+            except BaseException:
+                client.close()
+                raise
+
+        def robot_changed(new_robot: Any, new_text: str) -> None:
+            nonlocal topics
+            topics = RobotTopics(new_robot, new_text, args.subdivisions)
+            for part in (commands, fjt):
+                if part is not None:
+                    part.bendables = list(new_robot.bendables)
+            said = f"the daemon now runs robot {new_robot.name!r}: description and joints updated"
+            if args.namespace is None and rmw.namespace_for(new_robot.name) != namespace:
+                said += f"; the node keeps its namespace {namespace} (restart ucr zenoh to move it)"
+            report(30, said, "ucr.bridge")
+
+        return _serve(
+            link, lambda: topics, fanout, stop, args, report, reopen, robot_changed, robot_text
+        )
     except FeedError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
@@ -224,4 +274,54 @@ def run(args: Any) -> int:
             node.close()
         if session is not None:
             session.close()
-        client.close()
+        link.close()
+
+
+def _serve(
+    link: Any,
+    topics: Callable[[], Any],
+    fanout: NamedFanout,
+    stop: threading.Event,
+    args: Any,
+    report: Callable[..., None],
+    reopen: Callable[[], tuple[Any, Any, str]],
+    robot_changed: Callable[[Any, str], None],
+    robot_text: str,
+) -> int:
+    """Feed the node until ``stop``. When the daemon goes away the node stays in the ROS graph
+    (its services answer that the daemon is away, ``/ucr/segments`` says so every second) and the
+    bridge connects again with ``ucr view``'s back-off (:func:`interop.live.reconnect`)."""
+    from host.api.client import ApiConnectionError, ApiTimeoutError  # noqa: PLC0415
+    from interop.live import LiveFeed, reconnect  # noqa: PLC0415
+
+    while not stop.is_set():
+        feed = LiveFeed(link.client, topics(), fanout, viz_rate=args.viz_rate)
+        try:
+            feed.run(stop)
+            return 0
+        except (ApiConnectionError, ApiTimeoutError, StopIteration, ConnectionError) as exc:
+            why = str(exc) or "the connection closed"
+        if stop.is_set():
+            break
+        link.lost(f"{why} — reconnecting")
+        report(30, f"lost the daemon ({why}); the node stays up, reconnecting", "ucr.bridge")
+
+        def away() -> None:
+            fanout.publish(daemon_away(topics().bendables, link.why, time.time_ns()))
+
+        def retry(reason: str, attempt: int, next_s: float) -> None:
+            link.why = f"{reason} — reconnecting (attempt {attempt}, next in {next_s:.1f} s)"
+            if attempt <= 3 or attempt % 12 == 0:  # about once a minute after the first ones
+                report(30, f"daemon still away: {link.why}", "ucr.bridge")
+
+        away()
+        back = reconnect(reopen, stop, retry, tick=away)
+        if back is None:
+            break
+        client, new_robot, new_text = back
+        link.replace(client)
+        if new_text != robot_text:
+            robot_text = new_text
+            robot_changed(new_robot, new_text)
+        report(20, f"reconnected to the daemon at {client.url}", "ucr.bridge")
+    return 0

@@ -37,7 +37,32 @@ def _guard(fn: Any) -> Any:
     return run
 
 
+def domain_id(text: str) -> int:
+    """An argparse ``type``: a ROS 2 domain id (0..232); anything else is a usage error."""
+    from interop.zenoh.rmw import DOMAIN_ID_MAX  # noqa: PLC0415 - no zenoh import there
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= DOMAIN_ID_MAX:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a ROS 2 domain id (an integer 0..{DOMAIN_ID_MAX})"
+        )
+    return value
+
+
 def _bridge(args: argparse.Namespace) -> int:
+    if args.domain_id is None:  # read here: a bad $ROS_DOMAIN_ID concerns `ucr zenoh` only
+        env = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        try:
+            args.domain_id = domain_id(env) if env else 0
+        except argparse.ArgumentTypeError as exc:
+            print(
+                f"ucr: $ROS_DOMAIN_ID: {exc}; set it to one, unset it, or pass --domain-id",
+                file=sys.stderr,
+            )
+            return 2
     from interop.zenoh.bridge import run  # noqa: PLC0415 - after the dependency check
 
     return run(args)
@@ -81,7 +106,7 @@ def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
 
 
 def register(subparsers: Any) -> None:
-    from host.client_common import add_connection_args  # noqa: PLC0415 - fast `ucr --help`
+    from host.client_common import add_connection_args, number_arg  # noqa: PLC0415 - fast --help
     from interop.zenoh.bridge import DISTROS  # noqa: PLC0415 - no zenoh import there
 
     p = subparsers.add_parser(
@@ -98,9 +123,9 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--domain-id",
-        type=int,
-        default=int(os.environ.get("ROS_DOMAIN_ID") or 0),
-        help="ROS domain id (default $ROS_DOMAIN_ID or 0)",
+        type=domain_id,
+        default=None,  # $ROS_DOMAIN_ID, read when `ucr zenoh` runs (_bridge)
+        help="ROS domain id, 0..232 (default $ROS_DOMAIN_ID or 0)",
     )
     p.add_argument(
         "--distro",
@@ -132,9 +157,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--duration", type=float, default=None, help="stop after this many s")
     p.add_argument(
         "--subdivisions",
-        type=int,
+        type=number_arg(int, 1, True),
         default=10,
-        help="pseudo-rigid links per bendable in /robot_description and /tf (10)",
+        help="pseudo-rigid links per bendable in /robot_description and /tf, >= 1 (10)",
     )
     p.add_argument(
         "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"

@@ -3,9 +3,16 @@ publisher or subscription a Zenoh publisher/subscriber on the topic's key expres
 liveliness token (so ``ros2 topic list`` and ``ros2 node info`` show it). Messages are CDR bytes
 encoded by :mod:`interop.ros2`; each publication carries rmw_zenoh's attachment.
 
-TRANSIENT_LOCAL publishers are Zenoh advanced publishers with a cache of ``depth`` samples and
-publisher detection, as rmw_zenoh declares them, so a late-joining ROS 2 subscription (an
-advanced subscriber querying history) still receives /robot_description.
+TRANSIENT_LOCAL publishers are Zenoh advanced publishers with a cache of ``depth`` samples,
+publisher detection and sporadic sample-miss heartbeats, as rmw_zenoh declares them, so a
+late-joining ROS 2 subscription (an advanced subscriber querying history) still receives
+/robot_description, and one that missed a sample learns it from the next heartbeat.
+
+A service answers every request it can match with a response of its own type: a request it
+refuses (too large, not decodable, too many waiting, a handler failure) gets the service's
+"refused" response (``refusal``), because rmw_zenoh's client only logs an error reply and its
+caller would wait forever. Only a request without a valid rmw_zenoh attachment, whose reply no
+rmw_zenoh client could match to its call, is answered with a Zenoh error reply.
 """
 
 from __future__ import annotations
@@ -23,8 +30,13 @@ from interop.zenoh import rmw
 
 Callback = Callable[[bytes, "rmw.Attachment | None"], None]
 Handler = Callable[[Any], dict]
-MAX_REQUEST_BYTES = 64 * 1024  # a service request's CDR; larger ones are refused unread
+Refusal = Callable[[str], dict]  # reason -> the service's response saying "refused"
+MAX_REQUEST_BYTES = 64 * 1024  # a service request's CDR (default); larger ones are refused unread
 MAX_DEFERRED = 64  # requests of a deferred service waiting for their answer (get_result)
+# rmw_zenoh_cpp (src/detail/rmw_publisher_data.cpp): a RELIABLE + TRANSIENT_LOCAL publisher
+# sends a sporadic sample-miss heartbeat every SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD = 500 ms
+# (sent only when something was published since the last one)
+MISS_HEARTBEAT_S = 0.5
 
 
 class RmwPublisher:
@@ -46,12 +58,17 @@ class RmwPublisher:
         self._seq = 0
         self._lock = threading.Lock()
         if qos.transient_local:
+            reliable = qos.reliability == rmw.RELIABLE
             self._pub = zenoh.ext.declare_advanced_publisher(
                 node.session,
                 self.key,
                 cache=zenoh.ext.CacheConfig(max_samples=qos.depth),
                 publisher_detection=True,
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(),
+                sample_miss_detection=(
+                    zenoh.ext.MissDetectionConfig(sporadic_heartbeat=MISS_HEARTBEAT_S)
+                    if reliable
+                    else None
+                ),
             )
         else:
             self._pub = node.session.declare_publisher(
@@ -134,9 +151,16 @@ class RmwService:
     A request must carry rmw_zenoh's attachment (sequence number, client GID); the reply carries
     the same sequence number and GID with its own time stamp, so the client matches it.
     ``handler(request)`` runs on one worker thread (it may call the daemon; Zenoh's threads never
-    wait) and returns the response as a dict; at most ``qos.depth`` requests wait, more are
-    answered with an error at once. A request that is too large, has no valid attachment or is
-    not decodable CDR is answered with an error and never reaches the handler."""
+    wait) and returns the response as a dict; at most ``qos.depth`` requests wait.
+
+    Refused, never reaching the handler: a request over ``max_request_bytes``, one that is not
+    decodable CDR, one beyond the queue ("busy"); and a request whose handler failed. Each gets
+    ``refusal(reason)``, a normal response of the service's type saying so (Trigger: success
+    false and the reason; SendGoal: not accepted; CancelGoal: ERROR_REJECTED), because
+    rmw_zenoh's client only logs an error reply and leaves its caller waiting. A request without
+    a valid attachment (no sequence number and GID to echo: no rmw_zenoh client sent it, none
+    could match a reply) and every refusal of a service without ``refusal`` are answered with a
+    Zenoh error reply (``reply_err``) carrying the reason."""
 
     def __init__(
         self,
@@ -149,6 +173,8 @@ class RmwService:
         deferred: bool = False,
         type_hash_: str = "",
         codecs: tuple[Any, Any] | None = None,
+        refusal: Refusal | None = None,
+        max_request_bytes: int = MAX_REQUEST_BYTES,
     ) -> None:
         self.fqn = rmw.fully_qualified(node.id.namespace, name)
         self.srvtype = srvtype if codecs else services.full_name(srvtype)
@@ -157,6 +183,8 @@ class RmwService:
         self.entity_id = node.next_entity_id()
         self.handler = handler
         self.deferred = deferred
+        self.refusal = refusal
+        self.max_request_bytes = max_request_bytes
         self._pending = threading.BoundedSemaphore(MAX_DEFERRED)
         self._req, self._resp = codecs or services.codecs(self.srvtype)
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=max(1, qos.depth))
@@ -179,18 +207,33 @@ class RmwService:
             if query.attachment is None:
                 raise ValueError("no rmw_zenoh attachment (sequence number, client GID)")
             att = rmw.Attachment.decode(query.attachment.to_bytes())
-            data = query.payload.to_bytes() if query.payload is not None else b""
-            if len(data) > MAX_REQUEST_BYTES:
-                raise ValueError(f"request of {len(data)} bytes (at most {MAX_REQUEST_BYTES})")
-            self._queue.put_nowait((query, att, data))
-        except queue.Full:
-            self._error(query, "busy: too many requests waiting")
-            _finish(query)
         except Exception as exc:  # noqa: BLE001 - any byte from the network is untrusted
             self._error(query, f"bad request: {exc}")
             _finish(query)
+            return
+        try:
+            data = query.payload.to_bytes() if query.payload is not None else b""
+            if len(data) > self.max_request_bytes:
+                self._refuse(
+                    query,
+                    att,
+                    f"request of {len(data)} bytes refused unread (at most "
+                    f"{self.max_request_bytes} bytes)",
+                )
+                _finish(query)
+                return
+            self._queue.put_nowait((query, att, data))
+        except queue.Full:
+            self._refuse(query, att, "busy: too many requests waiting, try again")
+            _finish(query)
+        except Exception as exc:  # noqa: BLE001 - any byte from the network is untrusted
+            self._refuse(query, att, f"bad request: {exc}")
+            _finish(query)
 
     def _error(self, query: Any, text: str) -> None:
+        """A Zenoh error reply (rmw_zenoh's client only logs it): for a request without a valid
+        attachment, which no rmw_zenoh client could match a reply to, and for every refusal of a
+        service without ``refusal``."""
         import zenoh  # noqa: PLC0415
 
         self.refused += 1
@@ -198,6 +241,19 @@ class RmwService:
             query.reply_err(zenoh.ZBytes(f"{self.fqn}: {text}".encode()))
         except Exception:  # noqa: BLE001, S110 - the client may be gone
             pass
+
+    def _refuse(self, query: Any, att: rmw.Attachment, text: str) -> None:
+        """Answer with the service's own "refused" response (an error reply without one)."""
+        if self.refusal is None:
+            self._error(query, text)
+            return
+        try:
+            payload = self._resp.encode(self.refusal(f"{self.fqn}: {text}"))
+        except Exception as exc:  # noqa: BLE001 - a refusal that cannot be encoded
+            self._error(query, f"{text} (and no response: {type(exc).__name__})")
+            return
+        self.refused += 1
+        self._reply(query, att, payload, refusal=True)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -220,21 +276,23 @@ class RmwService:
         try:
             request = self._req.decode(data)
         except Exception as exc:  # noqa: BLE001 - untrusted bytes
-            self._error(query, f"request is not decodable CDR ({type(exc).__name__})")
+            self._refuse(query, att, f"request is not decodable CDR ({type(exc).__name__})")
             return
         try:
             payload = self._resp.encode(self.handler(request))
         except Exception as exc:  # noqa: BLE001 - a handler bug must not kill the server
             print(f"ucr zenoh: service {self.fqn} failed: {exc!r}", file=sys.stderr, flush=True)
-            self._error(query, f"failed: {type(exc).__name__}")
+            self._refuse(query, att, f"failed: {type(exc).__name__}")
             return
         self._reply(query, att, payload)
 
-    def _reply(self, query: Any, att: rmw.Attachment, payload: bytes) -> None:
+    def _reply(
+        self, query: Any, att: rmw.Attachment, payload: bytes, *, refusal: bool = False
+    ) -> None:
         reply_att = rmw.Attachment(att.sequence, time.time_ns(), att.gid)
         try:
             query.reply(self.key, payload, attachment=reply_att.encode())
-            self.answered += 1
+            self.answered += not refusal
         except Exception:  # noqa: BLE001, S110 - the client may be gone
             pass
 
@@ -244,11 +302,11 @@ class RmwService:
         try:
             request = self._req.decode(data)
         except Exception as exc:  # noqa: BLE001 - untrusted bytes
-            self._error(query, f"request is not decodable CDR ({type(exc).__name__})")
+            self._refuse(query, att, f"request is not decodable CDR ({type(exc).__name__})")
             _finish(query)
             return
         if not self._pending.acquire(blocking=False):
-            self._error(query, "busy: too many requests waiting for their answer")
+            self._refuse(query, att, "busy: too many requests waiting for their answer")
             _finish(query)
             return
         held = [query]
@@ -260,7 +318,7 @@ class RmwService:
             try:
                 self._reply(q, att, self._resp.encode(response))
             except Exception as exc:  # noqa: BLE001
-                self._error(q, f"failed: {type(exc).__name__}")
+                self._refuse(q, att, f"failed: {type(exc).__name__}")
             finally:
                 _finish(q)
                 self._pending.release()
@@ -270,7 +328,7 @@ class RmwService:
         except Exception as exc:  # noqa: BLE001 - a handler bug must not kill the server
             print(f"ucr zenoh: service {self.fqn} failed: {exc!r}", file=sys.stderr, flush=True)
             if held:
-                self._error(held[0], f"failed: {type(exc).__name__}")
+                self._refuse(held[0], att, f"failed: {type(exc).__name__}")
                 respond_err = held.pop()
                 _finish(respond_err)
                 self._pending.release()

@@ -481,6 +481,128 @@ def test_follow_joint_trajectory_cancel_goal(action_client, client):
     straighten(client)
 
 
+def _put_empty_trajectory(session) -> None:
+    """Publish an empty trajectory_msgs/JointTrajectory on the bridge's command topic, as a ROS 2
+    node does (with rmw_zenoh's attachment)."""
+    from interop import ros2
+    from interop.ros2.type_hash import type_hash
+    from interop.zenoh import rmw
+
+    jt = "trajectory_msgs/msg/JointTrajectory"
+    key = rmw.topic_key(0, f"{NS}/jtc/joint_trajectory", jt, type_hash(jt))
+    att = rmw.Attachment(1, time.time_ns(), os.urandom(16)).encode()
+    session.put(key, ros2.codec(jt).encode({"joint_names": [], "points": []}), attachment=att)
+
+
+def test_a_replaced_action_goal_ends_canceled_and_an_empty_trajectory_stops_the_newer_one(
+    action_client, client
+):
+    """A goal preempted by a newer one ends CANCELED with INVALID_GOAL, as in ros2_control's JTC
+    (it was ABORTED); an empty JointTrajectory on the topic stops the running *action* goal
+    (it only cancelled the bridge's last topic goal)."""
+    straighten(client)
+    joints = ["segment_1/kappa", "segment_1/phi"]
+    res = None
+    for _ in range(4):  # a link loss on a loaded machine aborts a goal first: again
+        first, second = os.urandom(16), os.urandom(16)
+        assert action_client.send_goal(first, joints, [(40, [3.0, 0.0])])
+        assert wait_for(lambda: client.status()["running_goals"], 20)
+        assert action_client.send_goal(second, joints, [(40, [0.5, 0.0])])
+        res = action_client.call("get_result", {"goal_id": {"uuid": list(first)}})
+        if res.status == 5 and wait_for(lambda: client.status()["running_goals"], 20):
+            break
+    assert (res.status, res.result.error_code) == (5, -1), res  # CANCELED, INVALID_GOAL
+    assert "replaced by goal" in res.result.error_string
+    [running] = client.status()["running_goals"]
+    for _ in range(5):  # the topic's subscription may take a moment to be routed here
+        _put_empty_trajectory(action_client.session)
+        if wait_for(lambda: client.trajectory_status(running)["done"], 5):
+            break
+    assert client.trajectory_status(running)["state"] == "canceled"
+    res = action_client.call("get_result", {"goal_id": {"uuid": list(second)}}, timeout=30)
+    assert res.status == 5 and res.result.error_code == 0, res  # CANCELED by the stop
+    straighten(client)
+
+
+def trigger(session, service: str) -> tuple[bool, str] | None:
+    """Call a std_srvs/srv/Trigger of the bridge as rmw_zenoh's client does: (success, message),
+    or None without an answer."""
+    from interop.ros2 import services
+    from interop.ros2.type_hash import service_type_hash
+    from interop.zenoh import rmw
+
+    srv = "std_srvs/srv/Trigger"
+    req, resp = services.codecs(srv)
+    key = rmw.topic_key(0, service, srv, service_type_hash(srv))
+    att = rmw.Attachment(1, time.time_ns(), os.urandom(16)).encode()
+    for reply in session.get(key, payload=req.encode({}), attachment=att, timeout=10.0):
+        if reply.ok is not None:
+            back = resp.decode(reply.ok.payload.to_bytes())
+            return bool(back.success), str(back.message)
+    return None
+
+
+def test_the_bridge_stays_in_the_graph_while_the_daemon_is_away_and_feeds_again(rig, router):
+    """Defect: when the daemon stopped, `ucr zenoh` exited for good. Now its node stays up,
+    `ucr/status` says the daemon is away (and `ucr/segments` STALE), and once the API is back
+    at its URL the bridge connects again and /joint_states flows."""
+    import zenoh
+
+    from host.api.server import ApiServer
+    from interop.ros2.type_hash import type_hash
+    from interop.zenoh import rmw
+
+    port = free_port()
+    api = ApiServer(rig.daemon, "127.0.0.1", port).start()
+    proc, _ = start_bridge(f"ws://127.0.0.1:{port}", router, "--namespace", "/away")
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/{router}"]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    js = "sensor_msgs/msg/JointState"
+    samples: list[int] = []
+    sub = session.declare_subscriber(
+        rmw.topic_key(0, "/away/joint_states", js, type_hash(js)), lambda s: samples.append(1)
+    )
+    diag = "diagnostic_msgs/msg/DiagnosticArray"
+    stale: list[bytes] = []
+    sub2 = session.declare_subscriber(
+        rmw.topic_key(0, "/away/ucr/segments", diag, type_hash(diag)),
+        lambda s: stale.append(s.payload.to_bytes()) if b"daemon not connected" in
+        s.payload.to_bytes() else None,
+    )  # fmt: skip
+    said: dict = {}
+
+    def daemon_is(what: str) -> bool:
+        got = trigger(session, "/away/ucr/status")
+        said["status"] = got
+        daemon = json.loads(got[1]).get("daemon", "") if got is not None else ""
+        return daemon == "connected" if what == "connected" else "reconnecting" in daemon
+
+    try:
+        assert wait_for(lambda: daemon_is("connected"), 30, 0.5), said
+        assert wait_for(lambda: len(samples) > 5, 30)
+        api.stop()
+        assert wait_for(lambda: daemon_is("away"), 30, 0.5), said
+        assert said["status"][0] is False
+        assert wait_for(lambda: stale, 10)
+        assert proc.poll() is None
+        api = ApiServer(rig.daemon, "127.0.0.1", port).start()
+        assert wait_for(lambda: daemon_is("connected"), 30, 0.5), said
+        n = len(samples)
+        assert wait_for(lambda: len(samples) > n + 5, 30)
+    finally:
+        sub.undeclare()
+        sub2.undeclare()
+        session.close()
+        code, _, err = stop(proc) if proc.poll() is None else (proc.returncode, "", "")
+        api.stop()
+    assert code == 0, err
+    assert "lost the daemon" in err and "reconnected to the daemon" in err, err
+
+
 def test_sdk_subscriber_decodes_joint_states_of_the_emulated_robot(bridge, router, msgdir, client):
     goal = {"segment_2": {"kappa": 1.5, "phi": 0.7}}
     move(client, goal)
