@@ -41,6 +41,19 @@ ADVICE = {
 }
 
 
+def install_command(extra: str) -> str:
+    """How to add ``extra`` to this installation. ucr is not on PyPI: a ``pip install
+    'ucr[...]'`` there fetches an unrelated project of that name, so the advice names the
+    checkout this code runs from, else the wheel or checkout it came from."""
+    src = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if os.path.isfile(os.path.join(src, "pyproject.toml")):
+        return f"pip install -e '{src}[{extra}]', or ./run.sh setup in {src}"
+    return (
+        f"pip install '<the ucr wheel or checkout this came from>[{extra}]' (not 'ucr[{extra}]': "
+        "the 'ucr' on PyPI is another project)"
+    )
+
+
 class MissingPart(RuntimeError):
     """An optional part is not installed; ``str()`` is one line saying what to install."""
 
@@ -49,7 +62,7 @@ class MissingPart(RuntimeError):
         advice = ADVICE.get(extra)
         super().__init__(
             f"{PURPOSE.get(extra, extra)} needs {what}: install the '{extra}' extra "
-            f"(pip install -e '.[{extra}]')" + (f"; {advice}" if advice else "")
+            f"({install_command(extra)})" + (f"; {advice}" if advice else "")
         )
 
 

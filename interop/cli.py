@@ -13,6 +13,7 @@ import sys
 from typing import Any
 
 from host.client_common import number_arg
+from host.extras import install_command
 
 _NEEDS = {
     "record": ("mcap", "mcap_ros2", "zstandard"),
@@ -41,7 +42,7 @@ def _guard(command: str, fn: Any, parser: argparse.ArgumentParser | None = None)
             mod = missing_dependency("foxglove")
         if mod:
             print(f"ucr: `ucr {command}` needs the optional recording dependencies (module "
-                  f"{mod!r} is missing): pip install 'ucr[record]'", file=sys.stderr)  # fmt: skip
+                  f"{mod!r} is missing): {install_command('record')}", file=sys.stderr)  # fmt: skip
             return 1
         _lower_priority(getattr(args, "nice", 0))
         return int(fn(args) or 0)

@@ -171,6 +171,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ucrdf.parser import load  # noqa: PLC0415
 
     setup_logging("WARNING" if args.quiet_log else "INFO")
+    if not DEMO_ROBOT.is_file():
+        return print_error(
+            f"demo: its robot {DEMO_ROBOT} is not here: the demo runs from a source checkout "
+            "(./run.sh demo in the repository); an installed wheel does not carry robots/"
+        )
     robot = load(DEMO_ROBOT)
     names = list(robot.bendables)
     stop = threading.Event()

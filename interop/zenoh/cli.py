@@ -10,6 +10,8 @@ import os
 import sys
 from typing import Any
 
+from host.extras import install_command
+
 NEEDS = ("zenoh", "mcap_ros2", "rosbags")
 
 
@@ -28,7 +30,7 @@ def _guard(fn: Any) -> Any:
         if mod:
             print(
                 f"ucr: `ucr {args.command}` needs the optional ROS 2 dependencies (module "
-                f"{mod!r} is missing): pip install 'ucr[ros2]'",
+                f"{mod!r} is missing): {install_command('ros2')}",
                 file=sys.stderr,
             )
             return 1

@@ -31,7 +31,8 @@ def test_missing_optional_dependency_is_one_line(mod, argv):
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert res.returncode == 1
     lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and "pip install 'ucr[record]'" in lines[0] and repr(mod) in lines[0]
+    assert len(lines) == 1 and repr(mod) in lines[0], lines
+    assert "pip install -e '" in lines[0] and "[record]'" in lines[0], lines  # not PyPI's 'ucr'
 
 
 def _ucr(*argv: str) -> subprocess.CompletedProcess:

@@ -219,5 +219,5 @@ def test_missing_ros2_dependencies_give_one_line(monkeypatch, capsys):
     monkeypatch.setattr(cli, "NEEDS", ("ucr_no_such_module_xyz",))
     rc = cli._guard(lambda a: 0)(SimpleNamespace(command="zenoh"))
     err = capsys.readouterr().err
-    assert rc == 1 and err.count("\n") == 1 and "pip install 'ucr[ros2]'" in err
+    assert rc == 1 and err.count("\n") == 1 and "pip install -e '" in err and "[ros2]'" in err
     assert "Traceback" not in err and sys.modules.get("ucr_no_such_module_xyz") is None

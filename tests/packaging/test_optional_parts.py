@@ -108,3 +108,29 @@ def test_require_names_the_extra_but_lets_a_broken_package_fail_loudly(tmp_path,
     with pytest.raises(ModuleNotFoundError) as info:
         require("ucr_broken_pkg_xyz", extra="gamepad")
     assert not isinstance(info.value, MissingPart)
+
+
+def test_the_demo_outside_a_checkout_says_so_in_one_line(monkeypatch, tmp_path, capsys) -> None:
+    """Review 2026-11-26: `ucr demo` from an installed wheel (no robots/ beside the packages)
+    ended in a UcrdfError traceback."""
+    import argparse
+
+    from tools import demo
+
+    monkeypatch.setattr(demo, "DEMO_ROBOT", tmp_path / "robots" / "softrobot3.ucrdf")
+    args = argparse.Namespace(quiet_log=True)
+    assert demo.cmd_demo(args) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "source checkout" in err, err
+
+
+def test_install_advice_never_points_at_pypis_unrelated_ucr(monkeypatch) -> None:
+    """Review 2026-11-26: the hints said `pip install 'ucr[record]'`, which installs another
+    project called ucr from PyPI (with PyMuPDF, hydra-core, numpy<1.20 ...)."""
+    from host import extras
+
+    here = extras.install_command("record")
+    assert here.startswith(f"pip install -e '{REPO}[record]'"), here
+    monkeypatch.setattr(extras.os.path, "isfile", lambda _p: False)  # an installed wheel
+    wheel = extras.install_command("record")
+    assert "'ucr[record]'" not in wheel.split("(not")[0] and "another project" in wheel, wheel
