@@ -1,6 +1,6 @@
 """``ucr record``, ``ucr replay``, ``ucr foxglove``: the robot's data in ROS 2 / Foxglove tools.
 
-Heavy imports (mcap, foxglove-sdk) happen inside the commands; without the optional ``record``
+Heavy imports (mcap, mcap-ros2-support) happen inside the commands; without the optional ``record``
 dependencies each command says so in one line (no traceback).
 """
 
@@ -17,8 +17,8 @@ from host.extras import install_command
 
 _NEEDS = {
     "record": ("mcap", "mcap_ros2", "zstandard"),
-    "replay": ("mcap", "mcap_ros2", "zstandard", "foxglove"),
-    "foxglove": ("mcap_ros2", "foxglove"),
+    "replay": ("mcap", "mcap_ros2", "zstandard"),
+    "foxglove": ("mcap_ros2",),
 }
 
 
@@ -38,8 +38,6 @@ def _guard(command: str, fn: Any, parser: argparse.ArgumentParser | None = None)
         if usage and parser is not None:
             parser.error(usage)  # exit 2, as argparse's own checks
         mod = missing_dependency(command)
-        if command == "record" and getattr(args, "foxglove_port", None) is not None and not mod:
-            mod = missing_dependency("foxglove")
         if mod:
             print(f"ucr: `ucr {command}` needs the optional recording dependencies (module "
                   f"{mod!r} is missing): {install_command('record')}", file=sys.stderr)  # fmt: skip
@@ -230,7 +228,8 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
         description="Serve the same topics as `ucr record` live on the Foxglove WebSocket "
-        "protocol (foxglove-sdk), read-only. Loopback by default; any other address needs "
+        "protocol (its read-only part, served by ucr itself: docs/recording.md). Loopback by "
+        "default; any other address needs "
         "--serve-token-file and --insecure (docs/recording.md, security).",
     )  # fmt: skip
     p.add_argument("--host", default="127.0.0.1",

@@ -1,11 +1,11 @@
-"""``ucr foxglove``: the live robot on the Foxglove WebSocket protocol (foxglove-sdk's server), with
-the same topics, schemas and CDR bytes as a recording, for Foxglove and Lichtblick.
+"""``ucr foxglove``: the live robot on the Foxglove WebSocket protocol, with the same topics,
+schemas and CDR bytes as a recording, for Foxglove and Lichtblick.
 
 Read-only: the server advertises no capability (no client publishing, services, parameters or
-playback control), so a connected client can only watch. foxglove-sdk cannot check a token,
-``Origin`` or ``Host``, so its server listens on a private loopback port and
-:class:`~interop.guard.FoxgloveGuard` takes the public address and checks every handshake with the
-API's token rule (docs/recording.md, security).
+playback control), so a connected client can only watch. The server is
+:class:`~interop.guard.FoxgloveGuard`: one listener that checks every handshake with the API's
+token rule, ``Origin`` and ``Host`` checks and speaks the protocol itself
+(:mod:`interop.foxglove_protocol`); no other server runs behind it (docs/recording.md, security).
 """
 
 from __future__ import annotations
@@ -16,13 +16,9 @@ import sys
 import threading
 from typing import Any
 
-import foxglove
-from foxglove.websocket import ServerListener
-
 from host.api.auth import AuthConfigError, read_token_file
 from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
-from interop import ros2
 from interop.guard import FoxgloveGuard, GuardError
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
@@ -33,12 +29,9 @@ FoxgloveBindError = GuardError  # a refused address or token
 
 
 class FoxgloveSink:
-    """A foxglove-sdk WebSocket server in its own context; one channel per topic, created when
-    the topic first appears. Latched topics (/robot_description, /tf_static, the U(C)RDF) are
-    sent again to each new subscriber of theirs, and to it only: foxglove-sdk's Python binding
-    cannot address one client (its ``Client`` carries no sink id), so the guard in front of the
-    server sends the kept message on the subscribing connection itself
-    (:class:`~interop.guard.FoxgloveGuard`, ``latched``)."""
+    """The Foxglove server as a sink: one channel per topic, advertised when the topic first
+    appears. Latched topics (/robot_description, /tf_static, the U(C)RDF) are sent again to each
+    new subscriber of theirs, and to it only."""
 
     def __init__(
         self,
@@ -50,26 +43,9 @@ class FoxgloveSink:
         insecure: bool = False,
     ) -> None:
         self.guard = FoxgloveGuard(
-            "ws://127.0.0.1:0", host, port, token, allowed_origins, insecure=insecure,
-            latched=self.latched,
-        )  # fmt: skip
-        self._fg = foxglove
-        self._ctx = foxglove.Context()
-        self._channels: dict[str, Any] = {}
-        self._latched: dict[str, tuple[bytes, int]] = {}
-        self._lock = threading.Lock()
+            host, port, token, allowed_origins, insecure=insecure, name=name, latched=LATCHED,
+        ).start()  # fmt: skip
         self._closed = False
-        self._listener = _Listener()
-        self.server = foxglove.start_server(
-            name=name, host="127.0.0.1", port=0, capabilities=[], server_listener=self._listener,
-            supported_encodings=[ros2.MESSAGE_ENCODING], context=self._ctx,
-        )  # fmt: skip
-        self.guard.upstream = f"ws://127.0.0.1:{self.server.port}"
-        try:
-            self.guard.start()
-        except BaseException:
-            self.server.stop()
-            raise
         self.port = self.guard.port
         self.host = host
 
@@ -79,49 +55,19 @@ class FoxgloveSink:
 
     def latched(self, topic: str) -> tuple[bytes, int] | None:
         """The last message (CDR bytes, log time ns) of a latched topic, else None."""
-        with self._lock:
-            return self._latched.get(topic)
-
-    def _channel(self, topic: str, typename: str, schema: str) -> Any:
-        ch = self._channels.get(topic)
-        if ch is None:
-            fg = self._fg
-            ch = fg.Channel(
-                topic,
-                message_encoding=ros2.MESSAGE_ENCODING,
-                schema=fg.Schema(name=typename, encoding=ros2.SCHEMA_ENCODING,
-                                 data=schema.encode()),
-                context=self._ctx,
-            )  # fmt: skip
-            self._channels[topic] = ch
-        return ch
+        return self.guard.latched(topic)
 
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
-        ch = self._channel(topic, typename, schema)
-        if topic in LATCHED:
-            with self._lock:
-                self._latched[topic] = (data, t_ns)
-        ch.log(data, log_time=t_ns)
+        self.guard.write(topic, typename, schema, data, t_ns)
 
     def tick(self) -> None:
-        """Nothing to do: the guard re-sends latched messages as clients subscribe."""
+        """Nothing to do: latched messages go out as clients subscribe."""
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
         self.guard.stop()
-        for ch in self._channels.values():
-            ch.close()
-        self.server.stop()
-
-
-class _Listener(ServerListener):
-    """foxglove-sdk's server listener: it calls every method of
-    :class:`foxglove.websocket.ServerListener` that applies (a missing one is logged as
-    ``Callback failed`` at each event), so all are inherited, each a no-op: subscriptions need
-    no action here (latched messages: the guard), the rest cannot happen on a server without
-    capabilities."""
 
 
 def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:

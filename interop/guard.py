@@ -1,8 +1,8 @@
-"""The door in front of the Foxglove server: foxglove-sdk's server cannot check a token, an
-``Origin`` or a ``Host`` header, so it listens on a private loopback port and this small
-WebSocket proxy (``websockets``) takes the public address and checks every opening handshake
+"""The Foxglove server and its door: a read-only Foxglove WebSocket server
+(:mod:`interop.foxglove_protocol`, served with ``websockets``) that checks every opening handshake
 with the same rules as the daemon's API (one implementation: :mod:`host.api.guard` for Origin,
-Host and path, :mod:`host.api.auth` for tokens and the bind policy):
+Host and path, :mod:`host.api.auth` for tokens, the failed-token back-off and the bind policy).
+It is the only listener: no other server runs behind it, so nothing bypasses the checks.
 
 - ``Origin``: refused (403) unless absent (desktop apps, scripts) or listed (``allowed_origins``,
   e.g. ``https://app.foxglove.dev``): a web page in a local browser cannot read the robot;
@@ -10,12 +10,20 @@ Host and path, :mod:`host.api.auth` for tokens and the bind policy):
 - token: required for any non-loopback bind (which also needs TLS or ``insecure``), and when
   given, required on loopback too; at least 16 characters; presented as
   ``Authorization: Bearer <token>`` or, for viewers that cannot set headers, a ``?token=`` query
-  parameter; compared in constant time.
+  parameter; compared in constant time; wrong tokens meet the API's back-off
+  (:class:`host.api.auth.Backoff`, in the API's order): after a few failures a wrong token gets
+  429 (``Retry-After``), while a valid one always gets in.
 
-Frames are forwarded unchanged both ways (the Foxglove protocol is the server's business), with
-one addition: when a client subscribes to a latched topic (``latched``), the guard sends that
-client the topic's kept message on its subscription, so a new subscriber gets it and the other
-clients do not get it again.
+Limits: at most :data:`MAX_CONNECTIONS` TCP connections (handshaking or open;
+:data:`MAX_PER_PEER` per non-loopback address), refused beyond that before any work; a client
+frame above :data:`MAX_CLIENT_FRAME` closes the connection (1009) before it is read; per client
+at most :data:`DATA_BACKLOG` messages / :data:`DATA_BACKLOG_BYTES` wait to be sent (the oldest
+are dropped, counted), and a client that leaves :data:`CONTROL_BACKLOG` replies unread is closed.
+Every client message is answered per the protocol: a malformed or unsupported one with a
+``status`` message (counted, logged once per connection), never an exception.
+
+Latched topics (``latched``): the last message is kept and sent to each new subscriber of the
+topic, on its subscription, and to it only.
 
 A malformed handshake (no WebSocket upgrade, e.g. ``curl``; no or a foreign subprotocol; not HTTP)
 is refused by ``websockets`` itself; it is logged as one line (``Foxglove: refused ADDR: why``)
@@ -25,47 +33,128 @@ like the guard's own refusals, not as a traceback.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
-import struct
+import math
 import sys
 import threading
-from collections.abc import Callable
+import time
+from collections import deque
+from collections.abc import Iterable
 from http import HTTPStatus
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from websockets.asyncio.client import connect
 from websockets.asyncio.server import ServerConnection, serve
-from websockets.exceptions import ConnectionClosed, WebSocketException
+from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from host.api.auth import AuthConfigError, Token, check_bind, check_token_text, find_token
-from host.api.guard import GuardConfigError, WebGuard
+from host.api.auth import (
+    AuthConfigError,
+    Backoff,
+    Token,
+    check_bind,
+    check_token_text,
+    find_token,
+)
+from host.api.guard import GuardConfigError, WebGuard, is_loopback
+from interop import foxglove_protocol as P
+from interop import ros2
 
 log = logging.getLogger(__name__)
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # the same protocol, two names
-MESSAGE_DATA = 0x01  # the protocol's binary opcode: u32 subscription id, u64 log time, payload
-Latched = Callable[[str], "tuple[bytes, int] | None"]  # topic -> (data, log time ns) or None
+SUBPROTOCOLS = P.SUBPROTOCOLS
+
+MAX_CONNECTIONS = 32  # TCP connections, handshaking or open (a few viewers is the use)
+MAX_PER_PEER = 8  # per non-loopback address (loopback peers count only in the total)
+MAX_CLIENT_FRAME = 64 * 1024  # a client sends subscribe/unsubscribe: small JSON (the API's 64 KiB)
+DATA_BACKLOG = 1024  # messages queued per client (foxglove-sdk's default); oldest dropped
+DATA_BACKLOG_BYTES = 4 * 1024 * 1024  # bytes queued per client (the API's outbox)
+CONTROL_BACKLOG = 256  # replies/advertisements queued per client; a client this far behind: closed
+OPEN_TIMEOUT_S = 5.0  # opening handshake
+AUTH_HOLD_S = 1.0  # during a token back-off, each attempt waits this before its check (the API's)
+ENCODINGS = [ros2.MESSAGE_ENCODING]  # ROS 2 CDR; schemas are ros2msg text
 
 
 class GuardError(ValueError):
     """A refused configuration (non-loopback without token or TLS, bad token, bad origin)."""
 
 
+class _Client:
+    """One accepted connection: its subscriptions and what waits to be sent to it (guarded by
+    the server's lock; the writer task drains it)."""
+
+    def __init__(self, ws: ServerConnection, loop: asyncio.AbstractEventLoop) -> None:
+        self.ws = ws
+        self.loop = loop
+        self.subs: dict[int, int] = {}  # subscription id -> channel id
+        self.by_channel: dict[int, int] = {}  # channel id -> subscription id
+        self.control: deque[str] = deque()
+        self.data: deque[tuple[int, int, bytes]] = deque()  # (subscription id, log time, CDR)
+        self.data_bytes = 0
+        self.dropped = 0
+        self.invalid = 0
+        self.overflow = False
+        self.wake = asyncio.Event()
+        self._wake_pending = False
+
+    def _notify(self) -> None:
+        if not self._wake_pending:
+            self._wake_pending = True
+            try:
+                self.loop.call_soon_threadsafe(self.wake.set)
+            except RuntimeError:  # the loop is closed: the server stopped
+                pass
+
+    def push_control(self, text: str) -> None:
+        if len(self.control) >= CONTROL_BACKLOG:
+            self.overflow = True
+        else:
+            self.control.append(text)
+        self._notify()
+
+    def push_data(self, sub_id: int, t_ns: int, data: bytes) -> int:
+        """Queue a message; returns how many old ones were dropped to make room."""
+        self.data.append((sub_id, t_ns, data))
+        self.data_bytes += len(data)
+        dropped = 0
+        while len(self.data) > 1 and (
+            len(self.data) > DATA_BACKLOG or self.data_bytes > DATA_BACKLOG_BYTES
+        ):
+            self.data_bytes -= len(self.data.popleft()[2])
+            dropped += 1
+        self.dropped += dropped
+        self._notify()
+        return dropped
+
+    def pop(self) -> str | bytes | bool | None:
+        """The next frame to send, True to close (too far behind), None when idle."""
+        if self.overflow:
+            return True
+        if self.control:
+            return self.control.popleft()
+        if self.data:
+            sub_id, t_ns, data = self.data.popleft()
+            self.data_bytes -= len(data)
+            return P.message_data(sub_id, t_ns, data)
+        self._wake_pending = False
+        return None
+
+
 class FoxgloveGuard:
-    """Checks handshakes on ``host:port`` and forwards accepted connections to ``upstream``
-    (the foxglove-sdk server on loopback). Runs its own event loop in a thread."""
+    """A read-only Foxglove WebSocket server on ``host:port`` that checks every handshake; runs
+    its own event loop in a thread. :meth:`write` (any thread) publishes a message."""
 
     def __init__(
         self,
-        upstream: str,
         host: str,
         port: int,
         token: str | None = None,
         allowed_origins: tuple[str, ...] | list[str] = (),
         insecure: bool = False,
-        latched: Latched | None = None,
+        *,
+        name: str = "ucr",
+        latched: Iterable[str] = (),
+        backoff: Backoff | None = None,
+        auth_hold_s: float = AUTH_HOLD_S,
     ) -> None:
         try:
             tokens = (
@@ -73,23 +162,35 @@ class FoxgloveGuard:
                 if token is not None
                 else ()
             )
-            check_bind(host, tokens, tls=False, insecure=insecure)
             self.web = WebGuard.build(bind=host, port=port, origins=allowed_origins, path="/")
         except (AuthConfigError, GuardConfigError) as exc:
-            msg = (
-                str(exc)
-                .replace("api.tokens", "--serve-token-file")
-                .replace("api.tls (cert, key), or set api.insecure: true", "--insecure")
-            )
-            raise GuardError(f"Foxglove server: {msg}") from None
-        self.upstream = upstream
-        self.latched = latched
+            raise GuardError(f"Foxglove server: {exc}") from None
+        try:
+            check_bind(host, tokens, tls=False, insecure=insecure)  # the API's policy
+        except AuthConfigError:  # its advice names the API's settings: ours are options
+            raise GuardError(_bind_refusal(host, bool(tokens))) from None
+        self.name = name
+        self.latched_topics = frozenset(latched)
         self.host = host
         self.requested_port = port
         self.tokens = tokens
         self.port: int | None = None
-        self.refused = 0
-        self.connections = 0
+        self.refused = 0  # handshakes refused (guard rules, token, back-off, malformed)
+        self.refused_connections = 0  # TCP connections over the caps
+        self.connections = 0  # accepted WebSocket connections, ever
+        self.invalid_messages = 0  # client messages answered with a status; frames too big
+        self.dropped = 0  # data messages dropped for slow clients
+        self.backoff = backoff if backoff is not None else Backoff()
+        self.auth_hold_s = auth_hold_s
+        self._tcp_total = 0
+        self._tcp_by_ip: dict[str, int] = {}
+        self._at_cap = False
+        self._session = str(time.time_ns())
+        self._lock = threading.Lock()  # channels, kept messages, clients and their queues
+        self._channels: dict[str, P.ChannelInfo] = {}
+        self._channel_ids: dict[int, P.ChannelInfo] = {}
+        self._kept: dict[str, tuple[bytes, int]] = {}
+        self._clients: set[_Client] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
@@ -116,6 +217,33 @@ class FoxgloveGuard:
         if self._thread.is_alive():
             self._thread.join(5)
 
+    # -- data (any thread) ---------------------------------------------------------------------
+    def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
+        """Publish one encoded message: advertise its topic the first time, keep it if latched,
+        queue it for every client subscribed to the topic."""
+        t_ns = min(max(int(t_ns), 0), P.U64_MAX)
+        with self._lock:
+            ch = self._channels.get(topic)
+            if ch is None:
+                ch = P.ChannelInfo(len(self._channels) + 1, topic, ros2.MESSAGE_ENCODING,
+                                   typename, ros2.SCHEMA_ENCODING, schema)  # fmt: skip
+                self._channels[topic] = ch
+                self._channel_ids[ch.id] = ch
+                text = P.advertise([ch])
+                for c in self._clients:
+                    c.push_control(text)
+            if topic in self.latched_topics:
+                self._kept[topic] = (data, t_ns)
+            for c in self._clients:
+                sub_id = c.by_channel.get(ch.id)
+                if sub_id is not None:
+                    self.dropped += c.push_data(sub_id, t_ns, data)
+
+    def latched(self, topic: str) -> tuple[bytes, int] | None:
+        """The last message (CDR bytes, log time ns) of a latched topic, else None."""
+        with self._lock:
+            return self._kept.get(topic)
+
     # -- server --------------------------------------------------------------------------------
     def _run(self) -> None:
         try:
@@ -129,9 +257,10 @@ class FoxgloveGuard:
         self._stop = asyncio.Event()
         async with serve(
             self._handle, self.host, self.requested_port, subprotocols=SUBPROTOCOLS,
-            process_request=self._authorize, max_size=None, compression=None,
-            ping_interval=20, ping_timeout=20, server_header="ucr-foxglove",
-            logger=_HandshakeLog(self),
+            process_request=self._authorize, create_connection=self._connection_class(),
+            max_size=MAX_CLIENT_FRAME, max_queue=4, compression=None,
+            open_timeout=OPEN_TIMEOUT_S, ping_interval=20, ping_timeout=20,
+            server_header="ucr-foxglove", logger=_HandshakeLog(self),
         ) as server:  # fmt: skip
             self.port = next(iter(server.sockets)).getsockname()[1]
             self.web = self.web.with_port(self.port)
@@ -140,89 +269,199 @@ class FoxgloveGuard:
             server.close(close_connections=True)
             await server.wait_closed()
 
+    def _connection_class(self) -> type[ServerConnection]:
+        """ServerConnection that refuses TCP connections above the caps before any work (as the
+        API's server does)."""
+        guard = self
+
+        class _Capped(ServerConnection):
+            _ucr_ip: str | None = None
+
+            def connection_made(self, transport: asyncio.BaseTransport) -> None:
+                ip = _peer_ip(transport.get_extra_info("peername"))
+                per_peer = guard._tcp_by_ip.get(ip, 0)
+                over_peer = per_peer >= MAX_PER_PEER and not is_loopback(ip)
+                if guard._tcp_total >= MAX_CONNECTIONS or over_peer:
+                    guard.refused_connections += 1
+                    if not guard._at_cap:  # one line per episode, not one per connection
+                        guard._at_cap = True
+                        log.warning("Foxglove: refusing connections from %s: at most %d "
+                                    "(%d per address)", ip, MAX_CONNECTIONS,
+                                    MAX_PER_PEER)  # fmt: skip
+                    transport.abort()
+                    return
+                self._ucr_ip = ip
+                guard._tcp_total += 1
+                guard._tcp_by_ip[ip] = per_peer + 1
+                super().connection_made(transport)
+
+            def connection_lost(self, exc: Exception | None) -> None:
+                ip = self._ucr_ip
+                if ip is None:
+                    return  # refused in connection_made: nothing was set up
+                self._ucr_ip = None
+                guard._tcp_total -= 1
+                guard._at_cap = False
+                left = guard._tcp_by_ip.get(ip, 1) - 1
+                if left > 0:
+                    guard._tcp_by_ip[ip] = left
+                else:
+                    guard._tcp_by_ip.pop(ip, None)
+                super().connection_lost(exc)
+
+        return _Capped
+
     def _refuse(self, conn: ServerConnection, status: HTTPStatus, why: str) -> Response:
         self.refused += 1
         log.warning("Foxglove: refused %s: %s", conn.remote_address, why)
         return conn.respond(status, why + "\n")
 
-    def _authorize(self, conn: ServerConnection, request: Request) -> Response | None:
+    async def _authorize(self, conn: ServerConnection, request: Request) -> Response | None:
+        """Guard (Origin, Host, path), then the token, in the API's order
+        (``host.api.server.ApiServer._authorize``) with its back-off (:class:`Backoff`): a valid
+        token always gets in; while the back-off is on for this address, every attempt first
+        waits ``auth_hold_s`` (valid ones too: an early answer would tell a guesser it was
+        wrong), and a wrong token gets 429 without being counted again."""
         parts = urlsplit(request.path)
         refusal = self.web.check(parts.path, request.headers)
         if refusal is not None:
             return self._refuse(conn, HTTPStatus(refusal.status), refusal.reason)
-        if self.tokens:
-            header = request.headers.get("Authorization", "")
-            if not header.lower().startswith("bearer "):
-                given = (parse_qs(parts.query).get("token") or [""])[0]
-                header = f"Bearer {given}"
-            if find_token(self.tokens, header) is None:
-                return self._refuse(conn, HTTPStatus.UNAUTHORIZED, "missing or wrong token")
-        return None
+        if not self.tokens:
+            return None
+        ip = _peer_ip(conn.remote_address)
+        if self.backoff.blocked_for(ip) > 0 and self.auth_hold_s > 0:
+            await asyncio.sleep(self.auth_hold_s)
+        header = request.headers.get("Authorization", "")
+        if not header.lower().startswith("bearer "):
+            given = (parse_qs(parts.query).get("token") or [""])[0]
+            header = f"Bearer {given}"
+        if find_token(self.tokens, header) is not None:
+            return None
+        wait = self.backoff.blocked_for(ip)
+        if wait > 0:  # counted, not logged (as the API)
+            self.refused += 1
+            why = f"missing or wrong token; too many failed attempts: retry in {wait:.0f} s\n"
+            response = conn.respond(HTTPStatus.TOO_MANY_REQUESTS, why)
+            response.headers["Retry-After"] = str(math.ceil(wait))
+            return response
+        backoff = self.backoff.failed(ip)
+        return self._refuse(conn, HTTPStatus.UNAUTHORIZED, "missing or wrong token"
+                            + (f" (back-off {backoff:.0f} s)" if backoff else ""))  # fmt: skip
 
     async def _handle(self, ws: ServerConnection) -> None:
         self.connections += 1
-        channels: dict[int, str] = {}  # the server's channel ids on this connection -> topic
+        client = _Client(ws, asyncio.get_running_loop())
+        with self._lock:
+            client.push_control(P.server_info(self.name, self._session, ENCODINGS))
+            if self._channels:
+                client.push_control(P.advertise(list(self._channels.values())))
+            self._clients.add(client)
+        writer = asyncio.create_task(self._writer(client))
         try:
-            async with connect(self.upstream, subprotocols=[SUBPROTOCOLS[0]], max_size=None,
-                               compression=None, open_timeout=5) as up:  # fmt: skip
-                subscribed = lambda m: self._from_client(m, ws, channels)  # noqa: E731
-                advertised = lambda m: _from_server(m, channels)  # noqa: E731
-                pumps = [asyncio.create_task(_pump(ws, up, subscribed)),
-                         asyncio.create_task(_pump(up, ws, advertised))]  # fmt: skip
-                _, pending = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
-                for p in pending:
-                    p.cancel()
-        except (ConnectionClosed, WebSocketException, OSError, TimeoutError) as exc:
-            log.info("Foxglove: connection ended: %s", exc)
+            async for msg in ws:
+                self._on_message(client, msg)
+        except ConnectionClosed as exc:
+            if exc.sent is not None and exc.sent.code == 1009:  # websockets: frame too big
+                self.invalid_messages += 1
+                log.warning("Foxglove: closed %s: a frame above %d bytes", ws.remote_address,
+                            MAX_CLIENT_FRAME)  # fmt: skip
+        finally:
+            with self._lock:
+                self._clients.discard(client)
+            writer.cancel()
+            try:
+                await writer
+            except (asyncio.CancelledError, ConnectionClosed):
+                pass
+            if client.invalid > 1:
+                log.info("Foxglove: %s sent %d invalid messages", ws.remote_address,
+                         client.invalid)  # fmt: skip
+            if client.dropped:
+                log.info("Foxglove: %d messages dropped for slow client %s", client.dropped,
+                         ws.remote_address)  # fmt: skip
 
-    async def _from_client(self, msg: Any, ws: ServerConnection, channels: dict[int, str]) -> None:
-        """After a client's ``subscribe`` went to the server: the kept message of each latched
-        topic it subscribed to, on its subscription id, to this client only."""
-        if self.latched is None or not isinstance(msg, str):
-            return
-        for sub_id, channel_id in _subscriptions(msg):
-            kept = self.latched(channels.get(channel_id, ""))
-            if kept is not None:
-                data, t_ns = kept
-                await ws.send(struct.pack("<BIQ", MESSAGE_DATA, sub_id, t_ns) + data)
+    async def _writer(self, client: _Client) -> None:
+        """Send what is queued for this client, in order (control messages first)."""
+        while True:
+            client.wake.clear()
+            with self._lock:
+                item = client.pop()
+            if item is None:
+                await client.wake.wait()
+            elif item is True:
+                log.warning("Foxglove: closing %s: %d replies unread", client.ws.remote_address,
+                            CONTROL_BACKLOG)  # fmt: skip
+                await client.ws.close(1008, "too many unread messages")
+                return
+            else:
+                await client.ws.send(item)
+
+    def _on_message(self, client: _Client, msg: str | bytes) -> None:
+        """Act on one client message; anything else is answered with a status message."""
+        req = P.parse_client(msg)
+        with self._lock:
+            if isinstance(req, P.Subscribe):
+                problems = self._subscribe(client, req.subscriptions)
+            elif isinstance(req, P.Unsubscribe):
+                problems = self._unsubscribe(client, req.ids)
+            else:
+                problems = [req]
+            if problems:
+                first = problems[0]
+                more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+                client.push_control(P.status(first.level, first.message + more))
+        if problems:
+            client.invalid += 1
+            self.invalid_messages += 1
+            if client.invalid == 1:  # one line per connection; the count when it ends
+                log.warning("Foxglove: %s: %s", client.ws.remote_address, problems[0].message)
+
+    def _subscribe(self, client: _Client, subs: tuple[tuple[int, int], ...]) -> list[P.Invalid]:
+        problems = []
+        for sub_id, channel_id in subs:
+            ch = self._channel_ids.get(channel_id)
+            if ch is None:
+                problems.append(P.Invalid(P.ERROR, f"Unknown channel ID: {channel_id}"))
+            elif sub_id in client.subs:
+                problems.append(P.Invalid(P.ERROR, f"Subscription ID {sub_id} is in use"))
+            elif channel_id in client.by_channel:
+                problems.append(P.Invalid(P.WARNING, f"Client is already subscribed to channel: "
+                                          f"{channel_id}; ignoring subscription"))  # fmt: skip
+            else:
+                client.subs[sub_id] = channel_id
+                client.by_channel[channel_id] = sub_id
+                kept = self._kept.get(ch.topic)
+                if kept is not None:  # latched: to this new subscriber only
+                    self.dropped += client.push_data(sub_id, kept[1], kept[0])
+        return problems
+
+    def _unsubscribe(self, client: _Client, ids: tuple[int, ...]) -> list[P.Invalid]:
+        problems = []
+        for sub_id in ids:
+            channel_id = client.subs.pop(sub_id, None)
+            if channel_id is None:
+                problems.append(P.Invalid(P.WARNING, f"Unknown subscription ID: {sub_id}"))
+            else:
+                client.by_channel.pop(channel_id, None)
+        return problems
 
 
-def _subscriptions(text: str) -> list[tuple[int, int]]:
-    """(subscription id, channel id) of a client's ``subscribe`` message, else []."""
+def _bind_refusal(host: str, has_token: bool) -> str:
+    """Why a non-loopback address is refused, with the options that change it."""
+    where = f"Foxglove server: refusing to listen on {host or 'all interfaces'}"
+    if not has_token:
+        return (f"{where} without a token: other machines could read the robot. Give "
+                "--serve-token-file FILE (`ucr token FILE`, mode 0600) or $UCR_FOXGLOVE_TOKEN, "
+                "or bind 127.0.0.1.")  # fmt: skip
+    return (f"{where} without TLS: the token would cross the network in clear. Add --insecure "
+            "on a trusted network, or bind 127.0.0.1 and use an SSH tunnel.")  # fmt: skip
+
+
+def _peer_ip(addr: Any) -> str:
     try:
-        msg = json.loads(text)
-        if msg.get("op") != "subscribe":
-            return []
-        return [(int(s["id"]), int(s["channelId"])) for s in msg.get("subscriptions") or ()]
-    except (ValueError, TypeError, KeyError, AttributeError):
-        return []  # not ours to judge: the server answers it
-
-
-async def _from_server(msg: Any, channels: dict[int, str]) -> None:
-    """Keep the channel ids the server advertises on this connection (topic names)."""
-    if not isinstance(msg, str) or '"advertise"' not in msg and '"unadvertise"' not in msg:
-        return
-    try:
-        m = json.loads(msg)
-        if m.get("op") == "advertise":
-            channels.update({int(c["id"]): str(c["topic"]) for c in m.get("channels") or ()})
-        elif m.get("op") == "unadvertise":
-            for cid in m.get("channelIds") or ():
-                channels.pop(int(cid), None)
-    except (ValueError, TypeError, KeyError, AttributeError):
-        pass
-
-
-async def _pump(src: Any, dst: Any, after: Callable[[Any], Any] | None = None) -> None:
-    try:
-        async for msg in src:
-            await dst.send(msg)
-            if after is not None:
-                await after(msg)
-    except ConnectionClosed:
-        pass
-    finally:
-        await dst.close()
+        return str(addr[0])
+    except Exception:  # noqa: BLE001 - unknown transports share one bucket
+        return "?"
 
 
 def _why(exc: BaseException | None) -> str:

@@ -22,7 +22,7 @@ sys.exit(main({argv!r}))
     ("mod", "argv"),
     [
         ("mcap", ["record", "-o", "x.mcap"]),
-        ("foxglove", ["foxglove"]),
+        ("mcap_ros2", ["foxglove"]),  # the server is ucr's own (interop/guard.py): no SDK
         ("mcap_ros2", ["replay", "x.mcap"]),
     ],
 )

@@ -168,9 +168,10 @@ def _received(ws, subs: dict[int, str], seconds: float, sink=None) -> list[tuple
     return got
 
 
-def test_a_client_leaving_is_clean_for_the_sdk(sink_factory, caplog):
-    """Defect: foxglove-sdk calls on_unsubscribe when a client leaves; the listener lacked it
-    ("Callback failed: AttributeError ... 'on_unsubscribe'", once per channel)."""
+def test_a_client_leaving_is_clean(sink_factory, caplog):
+    """Defect (with foxglove-sdk's server, before the door spoke the protocol itself): a client
+    leaving logged "Callback failed: AttributeError ... 'on_unsubscribe'" once per channel.
+    A client that subscribed and left still leaves no error or exception in the log."""
     import logging
     import time
 
@@ -181,7 +182,7 @@ def test_a_client_leaving_is_clean_for_the_sdk(sink_factory, caplog):
         assert _received(ws, subs, 0.5) is not None
     time.sleep(0.5)  # the server sees the close and unsubscribes
     sink.close()
-    failed = [r.getMessage() for r in caplog.records if "Callback failed" in r.getMessage()]
+    failed = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR or r.exc_info]
     assert failed == []
 
 
