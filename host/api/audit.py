@@ -5,11 +5,17 @@ when the set of deflected sticks changes, manual takeover, controller switch and
 zero command sent for a client that vanished): peer, token label, scope, op, goal id, summary.
 The logger has its own handler on stderr (journald under systemd) and does not propagate, so it
 stays on when the rest of the logging is turned down (``--log-level warning``).
+
+One record is one line, whatever a client sends: a field is written as it is only when it is a
+plain word (letters, digits, ``._:@/+-``), else as a Python literal (``'x\\n…'``); callers
+write the values a client chose into the summary with ``!r``, and any character that is not
+printable left in the summary (a line break in a daemon message quoting a request) is escaped.
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import sys
 from typing import Any
 
@@ -42,8 +48,28 @@ def audit_logger() -> logging.Logger:
     return _audit
 
 
+_PLAIN = re.compile(r"[A-Za-z0-9_.:@/+\-]{1,128}")
+
+
+def audit_field(value: Any) -> str:
+    """A field's value as written: a plain word as it is, anything else as a Python literal."""
+    if value is None or isinstance(value, bool | int):
+        return str(value)
+    text = str(value)
+    return text if _PLAIN.fullmatch(text) else repr(text)
+
+
+def _one_line(text: str) -> str:
+    """``text`` with every character that is not printable escaped (``\\n``, ``\\u2028``)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def audit_log(peer: str, who: str, scope: str, op: str, goal: Any, summary: str) -> None:
-    """One audit record (fields as ``key=value``, the summary last)."""
+    """One audit record, one line (fields as ``key=value``, the summary last)."""
     audit_logger().info(
-        "peer=%s token=%s scope=%s op=%s goal=%s %s", peer, who, scope, op, goal, summary[:500]
+        "peer=%s token=%s scope=%s op=%s goal=%s %s",
+        *(audit_field(v) for v in (peer, who, scope, op, goal)),
+        _one_line(summary)[:500],
     )

@@ -1,4 +1,5 @@
-"""API access: bearer tokens with scopes, token files, bind/TLS policy and per-peer back-off.
+"""API access: bearer tokens with scopes, token files, bind/TLS policy and the back-off that
+slows token guessing.
 
 Scopes: ``read`` may look (status, topology, loop stats, controller list, goal status,
 subscriptions); ``control`` may also move the robot and change controllers. Tokens are at least
@@ -62,19 +63,40 @@ def check_token_text(token: str, where: str) -> str:
     return token
 
 
+def _user_name(uid: int) -> str:
+    try:
+        import pwd  # noqa: PLC0415 - POSIX only
+
+        return pwd.getpwuid(uid).pw_name
+    except (ImportError, KeyError, OSError):
+        return str(uid)
+
+
 def check_private(path: Path, what: str) -> None:
-    """Refuse a file others may read or write (mode must be 0600 or stricter, owned by us)."""
+    """Refuse a file others may read or write (mode must be 0600 or stricter, owned by us).
+
+    The message says what to run: ``chmod 600``, and ``chown`` to the user reading it when the
+    file belongs to someone else (a file made with ``sudo`` belongs to root, but the daemon
+    runs as ``ucr``)."""
     try:
         st = path.stat()
     except OSError as exc:
         raise AuthConfigError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+    me = os.geteuid() if hasattr(os, "geteuid") else st.st_uid
+    chown = ""
+    if st.st_uid != me:
+        chown = f"sudo chown {_user_name(me)} {path} && "
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise AuthConfigError(
             f"{path}: {what} is readable by others (mode {stat.S_IMODE(st.st_mode):04o}); "
-            f"run: chmod 600 {path}"
+            f"run: {chown}{'sudo ' if chown else ''}chmod 600 {path}"
         )
-    if hasattr(os, "geteuid") and st.st_uid != os.geteuid():
-        raise AuthConfigError(f"{path}: {what} belongs to another user")
+    if chown:
+        raise AuthConfigError(
+            f"{path}: {what} belongs to {_user_name(st.st_uid)}, not to {_user_name(me)} who "
+            f"reads it (a secret must be the reader's own file, mode 0600); run: "
+            f"{chown}sudo chmod 600 {path}"
+        )
 
 
 def read_token_file(path: str | Path) -> str:
@@ -130,39 +152,64 @@ def find_token(tokens: tuple[Token, ...], header: str) -> Token | None:
 
 
 class Backoff:
-    """Per-peer (IP address) back-off after authentication failures.
+    """Back-off after authentication failures, per source (IP address) and for all together.
 
-    After :attr:`free` failures a peer is refused for ``base_s * 2**(n - free)`` seconds (at most
-    ``max_s``) before its credentials are even looked at; a success forgets the peer. Bounded
-    memory: at most ``max_peers`` peers are remembered (the oldest are forgotten).
+    It slows guessing without ever locking out a valid token: the server looks at the token
+    first, and a valid one is let in whatever the back-off (every local process shares
+    127.0.0.1, so keying a refusal on the address alone let any of them lock out the rest).
+    Only a *wrong* token meets the back-off: after :attr:`free` failures from one source, or
+    :attr:`global_free` from all sources together (many addresses), the next failures are
+    refused for ``base_s * 2**(n - free)`` seconds (at most ``max_s``), answered late (the
+    server holds the refusal) and without being counted again. Failures are forgotten
+    ``forget_s`` after the last one; a success forgets nothing (the guesser may share the
+    address). Bounded memory: at most ``max_peers`` sources are remembered (the oldest go).
     """
 
+    GLOBAL = "*"  # the key of all sources together
+
     def __init__(
-        self, *, free: int = 3, base_s: float = 1.0, max_s: float = 60.0, max_peers: int = 4096
+        self,
+        *,
+        free: int = 3,
+        global_free: int = 30,
+        base_s: float = 1.0,
+        max_s: float = 60.0,
+        forget_s: float = 600.0,
+        max_peers: int = 4096,
     ) -> None:
         self.free = free
+        self.global_free = global_free
         self.base_s = base_s
         self.max_s = max_s
+        self.forget_s = forget_s
         self.max_peers = max_peers
-        self._peers: OrderedDict[str, tuple[int, float]] = OrderedDict()  # failures, until
+        self._peers: OrderedDict[str, tuple[int, float, float]] = OrderedDict()  # n, last, until
+
+    def _entry(self, key: str, now: float) -> tuple[int, float, float]:
+        entry = self._peers.get(key)
+        if entry is None or now - entry[1] > self.forget_s:
+            return (0, now, 0.0)
+        return entry
 
     def blocked_for(self, peer: str, now: float | None = None) -> float:
-        """Seconds this peer must still wait (0 = may try)."""
-        entry = self._peers.get(peer)
-        if entry is None:
-            return 0.0
+        """Seconds a wrong token from ``peer`` is still refused without counting (0 = counts)."""
         now = time.monotonic() if now is None else now
-        return max(0.0, entry[1] - now)
+        return max(0.0, self._entry(peer, now)[2] - now, self._entry(self.GLOBAL, now)[2] - now)
 
     def failed(self, peer: str, now: float | None = None) -> float:
-        """Record a failure; returns the back-off now in force (s)."""
+        """Count a failure of ``peer`` (and of all sources); the back-off now in force (s)."""
         now = time.monotonic() if now is None else now
-        n = self._peers.pop(peer, (0, 0.0))[0] + 1
-        wait = 0.0 if n < self.free else min(self.max_s, self.base_s * 2 ** (n - self.free))
-        self._peers[peer] = (n, now + wait)
+        wait = 0.0
+        for key, free in ((peer, self.free), (self.GLOBAL, self.global_free)):
+            n = self._entry(key, now)[0] + 1
+            this = 0.0 if n < free else min(self.max_s, self.base_s * 2 ** (n - free))
+            self._peers.pop(key, None)
+            self._peers[key] = (n, now, now + this)
+            wait = max(wait, this)
         while len(self._peers) > self.max_peers:
-            self._peers.popitem(last=False)
+            oldest = next(iter(self._peers))
+            if oldest == self.GLOBAL:
+                self._peers.move_to_end(oldest)
+                oldest = next(iter(self._peers))
+            del self._peers[oldest]
         return wait
-
-    def succeeded(self, peer: str) -> None:
-        self._peers.pop(peer, None)

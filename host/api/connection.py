@@ -3,9 +3,19 @@
 - :class:`Outboxes`: fan-out and the outboxes. Each published message arrives encoded once and is
   fanned out by kind to the subscribers' outboxes, bounded in messages and bytes (per client and
   in total); trajectory progress goes first.
-- :class:`Connections`: one loop per client connection. Requests are paced by a budget weighted
-  by their bytes and the work they cause (``_OP_WORK``) and answered by the request side
-  (:class:`host.api.dispatch.Dispatcher`); a janitor closes clients that stopped reading.
+- :class:`Connections`: one loop per client connection. Requests are parsed, charged by their
+  bytes and the work their op causes (``_OP_WORK``, looked up by the parsed op) and answered by
+  the request side (:class:`host.api.dispatch.Dispatcher`); a janitor closes clients that
+  stopped reading.
+
+The request budget has two levels. Each connection has its own bucket: a client above it is read
+later (TCP back-pressure), which delays that client alone. All clients together have the global
+bucket, shared fairly: while it has room anyone may use it; once it is empty, each token (each
+connection when no token is configured) may go on at an equal share of the global rate, and a
+request above its token's share is refused at once with ``rate_limited`` (nobody waits for
+another client's cost). The global bucket stays within one burst of debt. A control token's
+requests that stop motion (``trajectory.cancel``, a switch that only stops, an all-zero
+``ffc.input``) are never refused for budget.
 
 Each gets what it needs at construction (options, the shared counters, callables); neither reads
 the server's fields.
@@ -28,7 +38,7 @@ from websockets.exceptions import ConnectionClosed
 from host.api import schema as S
 from host.api.audit import audit_log
 from host.api.auth import CONTROL
-from host.api.session import _Session, _Subscription
+from host.api.session import _Request, _Session, _Subscription
 
 log = logging.getLogger("ucr.api")
 
@@ -46,10 +56,41 @@ _OP_WORK = {
 }
 
 
+def _stops_motion(op: str, params: dict) -> bool:
+    """Whether a request only stops motion (never refused for budget when a control token's)."""
+    if op == "trajectory.cancel":
+        return True
+    if op == "controllers.switch":
+        return not params["start"]
+    if op == "ffc.input":
+        return not any(x or y for x, y in params["rates"].values())
+    return False
+
+
+def _frame_bytes(frame: str | bytes) -> int:
+    """The size of a frame in bytes (as it came on the wire, uncompressed)."""
+    if isinstance(frame, str) and not frame.isascii():
+        return len(frame.encode("utf-8", "surrogatepass"))
+    return len(frame)
+
+
+class _Share:
+    """One token's share of the global request budget (a bucket; see the module docstring)."""
+
+    __slots__ = ("sessions", "t_refill", "tokens")
+
+    def __init__(self, tokens: float) -> None:
+        self.sessions = 0
+        self.tokens = tokens
+        self.t_refill = time.monotonic()
+
+
 class Requests(Protocol):
     """What a connection needs from the request side."""
 
-    async def serve_frame(self, session: _Session, frame: str | bytes) -> dict | str: ...
+    def parse(self, session: _Session, frame: str | bytes) -> _Request | dict: ...
+
+    async def serve(self, session: _Session, request: _Request) -> dict | str: ...
 
     def end_upload(self, session: _Session) -> None: ...
 
@@ -178,8 +219,12 @@ class Connections:
         self.sessions: set[_Session] = set()
         self.max_request_rate = opts.max_request_rate
         self.request_burst = max(1.0, opts.max_request_rate / 5)
-        self._global_tokens = opts.global_request_rate / 5
+        self.global_burst = max(1.0, opts.global_request_rate / 5)
+        self._global_tokens = self.global_burst  # never below -global_burst
         self._global_refill = time.monotonic()
+        self._shares: dict[Any, _Share] = {}  # by token (by session when anonymous)
+        # the dearest request that parses: 1 + its KiB + the dearest op
+        self.max_request_cost = 1.0 + opts.max_request_bytes / 1024.0 + max(_OP_WORK.values())
         self.bytes_in = 0  # request bytes read from all clients (the janitor's memory rule)
 
     async def handle(self, ws: ServerConnection) -> None:
@@ -187,16 +232,33 @@ class Connections:
         token = getattr(ws, "ucr_token", None)
         session = _Session(ws, token, CONTROL)
         session.tokens = self.request_burst
+        key = token if token is not None else session
+        share = self._shares.get(key)
+        if share is None:
+            share = self._shares[key] = _Share(self._share_burst(len(self._shares) + 1))
+        share.sessions += 1
+        session.share = share
         self.sessions.add(session)
         self.counters["connections"] += 1
         log.info("API: client %s connected (%s, %s)", session.peer, session.who, session.scope)
         sender = asyncio.create_task(self._sender(session))
+        account = getattr(ws, "ucr_account", None)  # the server's count of held request bytes
         try:
             async for frame in ws:
-                await self._throttle(session, frame)
-                reply = await self._requests.serve_frame(session, frame)
-                text = reply if isinstance(reply, str) else self._encode_reply(reply)
-                await ws.send(text)
+                # A connection closed for holding too much input is not answered; any other
+                # (a client that sent a cancel and closed at once) still has its requests run.
+                if getattr(ws, "ucr_shed", False):
+                    break
+                if account is not None:
+                    ws.ucr_handling = len(frame)
+                    account()
+                reply = await self._answer(session, frame)
+                if getattr(ws, "ucr_shed", False):
+                    break
+                await ws.send(reply)
+                if account is not None:
+                    ws.ucr_handling = 0
+                    account()
         except ConnectionClosed:
             pass
         finally:
@@ -204,9 +266,43 @@ class Connections:
             session.wakeup.set()
             sender.cancel()
             self.sessions.discard(session)
+            share.sessions -= 1
+            if share.sessions <= 0:
+                self._shares.pop(key, None)
             self._outboxes.drop(session)
             await self._cleanup(session)
             log.info("API: client %s gone", session.peer)
+
+    async def _answer(self, session: _Session, frame: str | bytes) -> str:
+        """The reply to one frame: parsed, charged (bytes + the parsed op's work), then served
+        or refused with ``rate_limited`` when its token's share of the global budget is used up.
+        """
+        request = self._requests.parse(session, frame)
+        cost = 1.0 + _frame_bytes(frame) / 1024.0
+        self.bytes_in += len(frame)
+        if isinstance(request, dict):  # an error reply: already made, so answered (and charged)
+            await self._pace(session, cost)
+            self._admit(session, cost, must=True)
+            return self._encode_reply(request)
+        cost += _OP_WORK.get(request.op, 0)
+        await self._pace(session, cost)
+        must = session.scope == CONTROL and _stops_motion(request.op, request.params)
+        retry = self._admit(session, cost, must=must)
+        if retry > 0:
+            session.rate_limited += 1
+            self.counters["rate_limited"] += 1
+            self.counters["errors"] += 1
+            return self._encode_reply(
+                S.error_reply(
+                    request.rid,
+                    S.RATE_LIMITED,
+                    f"rate limited: the share of the server's request budget of this token "
+                    f"({session.who}) is used up while other clients are busy; retry in "
+                    f"{retry:.2f} s",
+                )
+            )
+        reply = await self._requests.serve(session, request)
+        return reply if isinstance(reply, str) else self._encode_reply(reply)
 
     @staticmethod
     def _encode_reply(reply: dict) -> str:
@@ -220,43 +316,61 @@ class Connections:
                 )
             )
 
-    async def _throttle(self, session: _Session, frame: str | bytes) -> None:
-        """Pace a client by a budget weighted by bytes and by work: reading its next request
-        later (TCP back-pressure) instead of refusing it, so one client cannot load the daemon.
-        A second, global budget bounds all clients together."""
-        cost = 1.0 + len(frame) / 1024.0
-        self.bytes_in += len(frame)
-        if isinstance(frame, str) and len(frame) < 4096:
-            op_at = frame.find('"op"')
-            if op_at >= 0:
-                for op, work in _OP_WORK.items():
-                    if f'"{op}"' in frame[op_at : op_at + 40]:
-                        cost += work
-                        break
-        now = time.monotonic()
+    async def _pace(self, session: _Session, cost: float) -> None:
+        """The connection's own bucket: a client above it is read later (TCP back-pressure),
+        which delays that client alone. Waits exactly until the bucket holds ``cost`` (a frame
+        dearer than the burst waits for its whole cost), so it never goes into debt."""
         rate = self.max_request_rate
+        now = time.monotonic()
         session.tokens = min(self.request_burst, session.tokens + (now - session.t_refill) * rate)
         session.t_refill = now
-        grate = self.opts.global_request_rate
-        self._global_tokens = min(
-            grate / 5, self._global_tokens + (now - self._global_refill) * grate
-        )
-        self._global_refill = now
-        wait = max(
-            (cost - session.tokens) / rate if session.tokens < cost else 0.0,
-            (cost - self._global_tokens) / grate if self._global_tokens < cost else 0.0,
-        )
-        if wait > 0:
+        if session.tokens < cost:
             session.throttled += 1
             self.counters["throttled"] += 1
-            await asyncio.sleep(min(wait, 10.0))
-            now = time.monotonic()
-            session.tokens = min(
-                self.request_burst, session.tokens + (now - session.t_refill) * rate
-            )
-            session.t_refill = now
+            gone = getattr(session.ws, "connection_lost_waiter", None)
+            if isinstance(gone, asyncio.Future):  # a client that goes is not waited for
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(asyncio.shield(gone), (cost - session.tokens) / rate)
+            else:
+                await asyncio.sleep((cost - session.tokens) / rate)
+            session.tokens = cost
+            session.t_refill = time.monotonic()
         session.tokens -= cost
-        self._global_tokens -= cost
+
+    def _share_burst(self, shares: int) -> float:
+        """A share's burst: its part of the global burst, but at least the dearest request that
+        parses (so any request fits in a share, however many tokens are connected)."""
+        return max(self.max_request_cost, self.global_burst / max(1, shares))
+
+    def _admit(self, session: _Session, cost: float, *, must: bool = False) -> float:
+        """Charge ``cost`` to the global budget; 0.0 if admitted, else the seconds until the
+        session's token could afford it (the request is then refused, nothing charged).
+
+        While the global bucket holds ``cost`` anyone takes from it. Otherwise the token's share
+        (the global rate divided by the tokens connected) decides; ``must`` (a stop, or an
+        error reply already made) is admitted regardless. What a share admits is charged to the
+        global bucket too, which never goes below minus one burst."""
+        now = time.monotonic()
+        grate = self.opts.global_request_rate
+        self._global_tokens = min(
+            self.global_burst, self._global_tokens + (now - self._global_refill) * grate
+        )
+        self._global_refill = now
+        if self._global_tokens >= cost:
+            self._global_tokens -= cost
+            return 0.0
+        share = session.share
+        if share is None:  # a session not served by handle() (tests): a share of its own
+            share = session.share = _Share(self._share_burst(1))
+        n = max(1, len(self._shares))
+        rate, burst = grate / n, self._share_burst(n)
+        share.tokens = min(burst, share.tokens + (now - share.t_refill) * rate)
+        share.t_refill = now
+        if share.tokens < cost and not must:
+            return (cost - share.tokens) / rate
+        share.tokens = max(share.tokens - cost, -burst)
+        self._global_tokens = max(self._global_tokens - cost, -self.global_burst)
+        return 0.0
 
     async def _sender(self, session: _Session) -> None:
         """Send pushes in order: trajectory progress first, then stream messages."""

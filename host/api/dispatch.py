@@ -1,10 +1,12 @@
-"""The API server's request side (:class:`Dispatcher`): parsing, scope check, dispatch to the
-daemon, uploads, goal progress.
+"""The API server's request side (:class:`Dispatcher`): parsing and scope check
+(:meth:`Dispatcher.parse`, so the connection can charge a request by its parsed op before it is
+served), dispatch to the daemon (:meth:`Dispatcher.serve`), uploads, goal progress.
 
 A part the server composes: it gets the options, the shared counters, the outboxes (subscriptions,
 progress pushes) and callables to reach the daemon (``call``, ``status_text``) and to list the
 connected sessions. ``status`` is answered from the latest snapshot the daemon sent, without a
-round trip; ops that move the robot or switch controllers are written to ``ucr.audit``.
+round trip; ops that move the robot or switch controllers are written to ``ucr.audit``, every
+value a client chose written as a Python literal (``repr``), so no request can add a line.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from host.api.audit import audit_log
 from host.api.auth import CONTROL, READ_OPS
 from host.api.bridge import BridgeClosed, RemoteError
 from host.api.connection import Outboxes
-from host.api.session import _Session, _Subscription, _Upload
+from host.api.session import _Request, _Session, _Subscription, _Upload
 
 log = logging.getLogger("ucr.api")
 
@@ -91,6 +93,12 @@ class Dispatcher:
 
     # ------------------------------------------------------------------ requests
     async def serve_frame(self, session: _Session, frame: str | bytes) -> dict | str:
+        """Parse and serve one frame (no budget: the connection's loop charges between)."""
+        request = self.parse(session, frame)
+        return request if isinstance(request, dict) else await self.serve(session, request)
+
+    def parse(self, session: _Session, frame: str | bytes) -> _Request | dict:
+        """The parsed request, or the error reply (bad frame, unknown op, wrong scope)."""
         self.counters["requests"] += 1
         try:
             rid, op, params = S.parse_request(frame, self.opts.max_request_bytes)
@@ -103,6 +111,11 @@ class Dispatcher:
             return S.error_reply(
                 rid, S.FORBIDDEN, f"{op!r} needs a token with the control scope (this one: read)"
             )
+        return _Request(rid, op, params)
+
+    async def serve(self, session: _Session, request: _Request) -> dict | str:
+        """Run a parsed request; the reply (an error reply for any failure)."""
+        rid, op, params = request
         try:
             result = await self._dispatch(session, op, params)
         except S.RequestError as exc:
@@ -135,13 +148,14 @@ class Dispatcher:
         if op == "controllers.list":
             return await call("controllers")
         if op == "controllers.switch":
-            self._audit(session, op, None, f"start {p['start']} stop {p['stop']}")
+            self._audit(session, op, None, f"start {p['start']!r} stop {p['stop']!r}")
             return await call("switch_controllers", p["start"], p["stop"])
         if op == "controllers.hand_back":
-            self._audit(session, op, None, f"manual {p['manual']}")
+            self._audit(session, op, None, f"manual {p['manual']!r}")
             return await call("hand_back", p["manual"])
         if op == "faults.clear":
-            self._audit(session, op, None, f"clear fault on {p['segment'] or 'every segment'}")
+            where = "every segment" if p["segment"] is None else repr(p["segment"])
+            self._audit(session, op, None, f"clear fault on {where}")
             return await call("clear_fault", p["segment"])
         if op == "trajectory.upload":
             return self._upload(session, p)
@@ -215,9 +229,10 @@ class Dispatcher:
         if not points:
             raise S.RequestError(S.INVALID_PARAMS, "points: needs at least one waypoint")
         t_end = points[-1]["time_from_start"]
+        names = sorted({n for pt in points for n in pt["segments"]})
         summary = (
-            f"{len(points)} waypoint(s) over {t_end:g} s, segments "
-            f"{sorted({n for pt in points for n in pt['segments']})}, controller {p['controller']}"
+            f"{len(points)} waypoint(s) over {t_end:g} s, segments {names}, "
+            f"controller {p['controller']!r}"
         )
         try:
             goal = await self._call("send_trajectory", points, p["controller"])

@@ -38,6 +38,7 @@ REJECTED = "rejected"  # the daemon refused (e.g. controller conflict, not activ
 UNAVAILABLE = "unavailable"  # the daemon cannot act now (chain lost, rebuilding, stopping)
 INTERNAL = "internal"  # unexpected failure inside the daemon (logged on the server)
 FORBIDDEN = "forbidden"  # the connection's token lacks the scope this op needs
+RATE_LIMITED = "rate_limited"  # the token's share of the server's request budget is used up
 ERROR_CODES = (
     BAD_JSON,
     TOO_LARGE,
@@ -49,6 +50,7 @@ ERROR_CODES = (
     UNAVAILABLE,
     INTERNAL,
     FORBIDDEN,
+    RATE_LIMITED,
 )
 
 # Subscription kinds on the API; the daemon publishes "event" for what the API calls "events".

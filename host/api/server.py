@@ -6,16 +6,26 @@ tests and embedding) or in a process of its own (:mod:`host.api.process`, what `
 does, so that client load never competes with the control loop for the interpreter lock).
 
 Bounded by design: connections are capped (total and per peer) before any handshake work;
-subscriptions per connection are capped; each published message arrives encoded once and is fanned
-out by kind to the subscribers' outboxes, bounded in messages and bytes (per client and in total);
-a client that stops reading is closed; requests are paced by a budget weighted by their bytes and
-the work they cause. ``status`` is answered from the latest snapshot the daemon sent (at most
-``status_period`` old, refreshed after every state-changing op), without a round trip.
+what all connections hold of their clients' requests (frames read ahead, a frame being read, the
+request being answered) is counted and capped in total (``inbound_bytes``: above it the connection
+holding the most is closed), and frames are not compressed (permessage-deflate off: a 1 KiB
+compressed frame used to become 1 MiB in the server); subscriptions per connection are capped;
+each published message arrives encoded once and is fanned out by kind to the subscribers'
+outboxes, bounded in messages and bytes (per client and in total); a client that stops reading is
+closed; requests are paced by a budget weighted by their bytes and the work they cause, shared
+fairly between tokens (``host.api.connection``). ``status`` is answered from the latest snapshot
+the daemon sent (at most ``status_period`` old, refreshed after every state-changing op), without
+a round trip.
 
 Security: every handshake passes the browser guard (``host.api.guard``: Origin, Host, path), then
-the bearer token check with per-peer back-off (``host.api.auth``). Tokens carry a scope (read or
-control); ops that move the robot or switch controllers need control and are written to the
-``ucr.audit`` logger. Off loopback, TLS (``wss``) and a token are required.
+the bearer token check (``host.api.auth``): a valid token always gets in; wrong ones meet a
+back-off per source and for all sources together. Tokens carry a scope (read or control); ops
+that move the robot or switch controllers need control and are written to the ``ucr.audit``
+logger. Off loopback, TLS (``wss``) and a token are required.
+
+One piece: besides the lifecycle, the server owns the TCP caps, the cap on the request bytes
+connections hold and the handshake; the first two live in one connection class, all three keep
+their counts in the server, so they stay together here.
 """
 
 from __future__ import annotations
@@ -33,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.frames import CloseCode
 from websockets.http11 import Request, Response
 
 from host.api import DEFAULT_HOST, DEFAULT_PORT
@@ -105,10 +116,13 @@ class ServerOptions:
     max_connections: int = 256  # TCP connections, handshaking or open
     max_per_peer: int = 32  # per remote address (loopback peers count only in the total)
     max_subscriptions: int = 16  # per connection
+    max_queue: int = 2  # frames read ahead per connection
+    inbound_bytes: int = 16 * 1024 * 1024  # request bytes all connections may hold (see _Capped)
     max_request_rate: float = 500.0  # budget units/s per connection (1 per request + 1 per KiB)
-    global_request_rate: float = 4000.0  # budget units/s for all connections together
+    global_request_rate: float = 4000.0  # budget units/s for all, shared fairly between tokens
     slow_close_s: float = 5.0  # a client whose outbox did not move for this long is closed
     open_timeout_s: float = 5.0  # opening handshake (TLS included)
+    auth_hold_s: float = 1.0  # during an auth back-off, each attempt waits this before its check
     status_period: float = 0.05  # s between status snapshots from the daemon
     goal_poll_s: float = 0.05  # s between goal status polls for trajectory pushes
     upload_points_total: int = 4 * S.MAX_POINTS  # pending chunked-upload points, all clients
@@ -168,6 +182,9 @@ class ApiServer:
         self._start_error: BaseException | None = None
         self._tcp_total = 0
         self._tcp_by_ip: dict[str, int] = {}
+        self._conns: set[Any] = set()  # open TCP connections (the _Capped class below)
+        self.inbound = 0  # request bytes the connections hold (frames read, being read, answered)
+        self.inbound_peak = 0
         self._backoff = Backoff()
         self._link: DaemonLink | None = None
         self._bridge: DaemonBridge | None = None
@@ -182,6 +199,9 @@ class ApiServer:
             "slow_closed": 0,
             "forbidden": 0,
             "throttled": 0,
+            "rate_limited": 0,
+            "auth_backoff": 0,
+            "inbound_closed": 0,
             "memory_releases": 0,
         }
         self.outboxes = Outboxes(opts, self.counters, self._want_stream)
@@ -279,6 +299,8 @@ class ApiServer:
             "tcp_connections": self._tcp_total,
             "subscriptions": sum(len(s.subs) for s in sessions),
             "queued_bytes": self.outboxes.queued_bytes,
+            "inbound_bytes": self.inbound,
+            "inbound_peak": self.inbound_peak,
             "upload_points": self.requests.upload_points,
         }
 
@@ -315,7 +337,11 @@ class ApiServer:
             process_request=self._authorize,
             create_connection=self._connection_class(),
             max_size=self.opts.hard_frame_bytes,
-            max_queue=2,
+            max_queue=self.opts.max_queue,
+            # No permessage-deflate: inbound, a 1 KiB frame inflated to 1 MiB in the server
+            # (every frame of a read inflated at once, before any cap could look); outbound, it
+            # cost each subscriber a compression of every message (docs/api.md, "Limits").
+            compression=None,
             open_timeout=self.opts.open_timeout_s,
             ping_interval=20,
             ping_timeout=20,
@@ -353,11 +379,15 @@ class ApiServer:
 
     # ------------------------------------------------------------------ connection caps
     def _connection_class(self) -> type[ServerConnection]:
-        """ServerConnection that refuses TCP connections above the caps before any work."""
+        """ServerConnection that refuses TCP connections above the caps before any work, and
+        counts the request bytes it holds into :attr:`inbound` (see :meth:`_account`)."""
         srv = self
 
         class _Capped(ServerConnection):
             _ucr_ip: str | None = None
+            ucr_held = 0  # request bytes this connection holds, as counted in srv.inbound
+            ucr_handling = 0  # length of the request its handler is answering
+            ucr_shed = False  # closed for holding the most when all held too much
 
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
                 ip = _peer_ip(transport.get_extra_info("peername"))
@@ -370,6 +400,7 @@ class ApiServer:
                 self._ucr_ip = ip
                 srv._tcp_total += 1
                 srv._tcp_by_ip[ip] = per_peer + 1
+                srv._conns.add(self)
                 super().connection_made(transport)
 
             def connection_lost(self, exc: Exception | None) -> None:
@@ -383,12 +414,81 @@ class ApiServer:
                     srv._tcp_by_ip[ip] = left
                 else:
                     srv._tcp_by_ip.pop(ip, None)
+                srv._conns.discard(self)
+                srv.inbound -= self.ucr_held
+                self.ucr_held = 0
                 super().connection_lost(exc)
+
+            def data_received(self, data: bytes) -> None:
+                super().data_received(data)
+                srv._account(self)
+
+            def ucr_account(self) -> None:
+                """Count again what this connection holds (its handler took or answered one)."""
+                srv._account(self)
+
+            def ucr_holds(self) -> int:
+                """Request bytes held now: the bytes read and not yet parsed into frames (a
+                frame being read), the frames read ahead, the fragments of a message being
+                assembled and the request the handler is answering."""
+                if self._ucr_ip is None:
+                    return 0
+                protocol = self.protocol
+                held = len(protocol.reader.buffer) + (protocol.current_size or 0)
+                held += sum(len(f.data) for f in self.recv_messages.frames.queue)
+                return held + self.ucr_handling
+
+            def ucr_close_for_input(self) -> None:
+                """Close this connection now (1013) and drop what it holds."""
+                srv.counters["inbound_closed"] += 1
+                self.ucr_shed = True
+                log.warning(
+                    "API: closing %s: it holds %d request bytes and all connections together "
+                    "hold more than %d",
+                    _peer(self),
+                    self.ucr_held,
+                    srv.opts.inbound_bytes,
+                )
+                with contextlib.suppress(Exception):
+                    self.protocol.fail(CloseCode.TRY_AGAIN_LATER, "server busy: too much input")
+                    self.send_data()
+                self.transport.abort()
+                # Free what it holds now: the bytes read, and the frames read ahead but the one
+                # a pending read was already promised (its handler stops at it: ucr_shed).
+                self.protocol.reader.buffer.clear()
+                frames = self.recv_messages.frames
+                keep = 1 if frames.get_waiter is not None and frames.get_waiter.done() else 0
+                while len(frames.queue) > keep:
+                    frames.queue.pop()
+                srv.inbound -= self.ucr_held
+                self.ucr_held = 0
 
         return _Capped
 
+    def _account(self, conn: Any) -> None:
+        """Update :attr:`inbound` with what ``conn`` holds now; above ``inbound_bytes`` close
+        the connections holding the most until the total is back under it. A client sending
+        requests of at most 64 KiB one at a time holds at most one: 256 of them together stay
+        under the default cap (16 MiB), so only clients sending more than that are closed."""
+        held = conn.ucr_holds() if conn in self._conns else 0
+        self.inbound += held - conn.ucr_held
+        conn.ucr_held = held
+        if self.inbound > self.inbound_peak:
+            self.inbound_peak = self.inbound
+        while self.inbound > self.opts.inbound_bytes:
+            victim = max(self._conns, key=lambda c: c.ucr_held, default=None)
+            if victim is None or victim.ucr_held <= 0:
+                break
+            self._conns.discard(victim)
+            victim.ucr_close_for_input()
+
     # ------------------------------------------------------------------ handshake
-    def _authorize(self, conn: ServerConnection, request: Request) -> Response | None:
+    async def _authorize(self, conn: ServerConnection, request: Request) -> Response | None:
+        """Guard (Origin, Host, path), then the token. A valid token always gets in; the
+        back-off (per source and for all sources together, :class:`host.api.auth.Backoff`)
+        meets only wrong ones. While it is on, every attempt it concerns first waits
+        ``auth_hold_s`` (the valid ones too, so an early answer does not tell a guesser it was
+        wrong): guessing runs at most one guess per connection and hold."""
         refusal = self.guard.check(request.path, request.headers)
         if refusal is not None:
             self.counters["refused_handshakes"] += 1
@@ -398,27 +498,29 @@ class ApiServer:
             conn.ucr_token = None
             return None
         ip = _peer_ip(conn.remote_address)
+        if self._backoff.blocked_for(ip) > 0 and self.opts.auth_hold_s > 0:
+            self.counters["auth_backoff"] += 1
+            await asyncio.sleep(self.opts.auth_hold_s)
+        token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
+        if token is not None:
+            conn.ucr_token = token
+            return None
+        self.counters["auth_failures"] += 1
         wait = self._backoff.blocked_for(ip)
-        if wait > 0:
-            self.counters["auth_failures"] += 1
+        if wait > 0:  # refused without counting again: the back-off grows once it has passed
             response = conn.respond(
-                HTTPStatus.TOO_MANY_REQUESTS, f"too many failed attempts: retry in {wait:.0f} s\n"
+                HTTPStatus.TOO_MANY_REQUESTS,
+                f"missing or wrong API token; too many failed attempts: retry in {wait:.0f} s\n",
             )
             response.headers["Retry-After"] = str(math.ceil(wait))
             return response
-        token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
-        if token is None:
-            self.counters["auth_failures"] += 1
-            backoff = self._backoff.failed(ip)
-            log.warning(
-                "API: refused %s: missing or wrong token%s",
-                _peer(conn),
-                f" (back-off {backoff:.0f} s)" if backoff else "",
-            )
-            return conn.respond(HTTPStatus.UNAUTHORIZED, "missing or wrong API token\n")
-        self._backoff.succeeded(ip)
-        conn.ucr_token = token
-        return None
+        backoff = self._backoff.failed(ip)
+        log.warning(
+            "API: refused %s: missing or wrong token%s",
+            _peer(conn),
+            f" (back-off {backoff:.0f} s)" if backoff else "",
+        )
+        return conn.respond(HTTPStatus.UNAUTHORIZED, "missing or wrong API token\n")
 
 
 def start_server(

@@ -1,4 +1,5 @@
-"""Per-connection state of the API server: the client session, its subscriptions, a chunked upload.
+"""Per-connection state of the API server: the client session, its subscriptions, a chunked upload,
+a parsed request.
 
 Plain data holders used by :mod:`host.api.connection` (outbox, fan-out) and
 :mod:`host.api.dispatch` (requests); no I/O here.
@@ -10,7 +11,7 @@ import asyncio
 import collections
 import ipaddress
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 from websockets.asyncio.server import ServerConnection
 
@@ -18,6 +19,14 @@ from host.api import schema as S
 from host.api.auth import (
     Token,
 )
+
+
+class _Request(NamedTuple):
+    """A request that parsed and passed the scope check: id, op and validated parameters."""
+
+    rid: Any
+    op: str
+    params: dict
 
 
 class _Subscription:
@@ -73,7 +82,9 @@ class _Session:
         self.closed = False
         self.tokens = 0.0  # request budget (token bucket)
         self.t_refill = time.monotonic()
-        self.throttled = 0
+        self.throttled = 0  # requests read later: this connection's own budget was used up
+        self.share: Any = None  # its token's share of the global budget (host.api.connection)
+        self.rate_limited = 0  # requests refused: its token's share was used up
         self.t_progress = time.monotonic()  # last time the sender got a message out
         self.upload: _Upload | None = None
 
