@@ -188,8 +188,11 @@ def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     sock = socket.socket(fileno=int(args[0]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon decides when the API ends
-    with contextlib.suppress(OSError):
+    try:
         os.nice(API_NICE)  # when CPU is short, the control loop's process goes first
+        nice_error = None
+    except OSError as exc:  # e.g. a seccomp filter without setpriority (host/ucr-daemon.service)
+        nice_error = exc
     lock = threading.Lock()
     try:
         kind, body = recv_frame(sock)
@@ -200,6 +203,13 @@ def main(argv: list[str] | None = None) -> int:
         level=getattr(logging, str(config.get("log_level", "info")).upper(), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s[api]: %(message)s",
     )
+    if nice_error is not None:
+        logging.getLogger("ucr.api").warning(
+            "could not lower the API process's priority by %d (%s): it competes with the "
+            "control loop at the daemon's priority",
+            API_NICE,
+            nice_error,
+        )
     link = DaemonLink(sock)
     try:
         server = ApiServer(

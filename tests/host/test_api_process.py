@@ -286,3 +286,24 @@ def test_ten_thousand_waypoints_through_ucr_trajectory(daemon_url, tmp_path, cap
             assert c.trajectory_status(goal)["points"] == 10_000
         finally:
             c.cancel(goal)
+
+
+def test_the_api_process_says_when_it_cannot_lower_its_priority() -> None:
+    """Review 2026-11-26: the unit's seccomp filter took setpriority away, and os.nice's EPERM
+    was swallowed: the API ran at the control loop's priority without a word. Now it warns."""
+    script = """
+import json, os, socket, sys, threading
+def refuse(_n):
+    raise PermissionError(1, "Operation not permitted")
+os.nice = refuse
+from host.api import process
+from host.api.bridge import send_frame
+a, b = socket.socketpair()
+config = {"host": "127.0.0.1", "port": -1, "token": None, "options": {}, "log_level": "info"}
+send_frame(b, threading.Lock(), b"C", json.dumps(config).encode())
+sys.exit(process.main([str(a.detach())]))
+"""
+    proc = subprocess.run(
+        [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
+    assert "could not lower the API process's priority" in proc.stderr, proc.stderr
