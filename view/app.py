@@ -4,6 +4,11 @@ One update thread polls the source's snapshot and pushes only what changed (tube
 poses, tendons, colours, trail) in one atomic viser batch; it rebuilds the scene when the robot file
 reloads or the chain's topology changes. Facts a test or a person can read are printed on the page
 (tube count and names, update rate, latency, who has control, last refusal).
+
+Controls (sliders, tip gizmo, buttons) are per page client: a live view gives them only to a page
+that presents the page token (view/guard.py ``PageToken``: the URL the view prints); any other page
+client gets the scene and a line saying why it has no controls. Every motion command from a page
+is written to the audit log (``ucr.audit``) with that page client's id and address.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import logging
 import math
 import threading
 import time
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -21,9 +27,18 @@ import trimesh
 import viser
 import viser.transforms as vtf
 
+from host.api.audit import audit_logger
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
-from view.guard import GuardError, guarded_viser, page_guard, probe_refuses_foreign_host
+from view.guard import (
+    GuardError,
+    PageGate,
+    PageToken,
+    guarded_viser,
+    page_guard,
+    peer_address,
+    probe_refuses_foreign_host,
+)
 from view.scene import SceneModel
 from view.source import LiveSource, OfflineSource
 
@@ -36,6 +51,31 @@ COLOURS = {
     "missing": (150, 150, 150),
 }
 TRAIL_POINTS = 300
+#: What a page client without the page token sees instead of the controls.
+VIEW_ONLY_NOTE = (
+    "**view only:** this page was not opened with the view's token, so it has no controls "
+    "(sliders, tip gizmo, buttons). Open the URL `ucr view` printed "
+    "(`http://…/?token=…`) to move the robot."
+)
+PLAN_HINT = "Drag the tip gizmo to plan a move."
+
+
+@dataclass
+class _Page:
+    """One page client allowed to use the controls, and its own control handles."""
+
+    client: Any
+    peer: str
+    plan: Any = None
+    execute: Any = None
+    folder: Any = None
+    sliders: dict[str, tuple[Any, Any]] = field(default_factory=dict)
+    gizmo: Any = None
+    extra: list[Any] = field(default_factory=list)  # its other handles (buttons)
+
+    @property
+    def id(self) -> int:
+        return int(self.client.client_id)
 
 
 def _wxyz(t: np.ndarray) -> np.ndarray:
@@ -63,30 +103,60 @@ class ViewApp:
         self.idle_skips = 0
         self.live = isinstance(source, LiveSource)
         self.control_enabled = control and self.live
-        # set once the port is known (port 0: any free port); until then everything is refused
-        guard: list = []
+        # pages get sliders: offline (FK only) and live with controls; never a replay or a
+        # view-only live view
+        self.has_controls = self.control_enabled or not (
+            self.live or getattr(source, "mode", "") == "replay"
+        )
+        # the robot moves only for a page client presenting this (the URL printed has it)
+        self.page_token = PageToken() if self.control_enabled else None
+        # the guard is set once the port is known (port 0: any free port); until then everything
+        # is refused
+        self.gate = PageGate(self.page_token)
         self.server = guarded_viser(
-            lambda: viser.ViserServer(host=host, port=port, verbose=False), guard, log.warning
+            lambda: viser.ViserServer(host=host, port=port, verbose=False), self.gate, log.warning
         )
         actual = self.server.get_port()
         if port and actual != port:  # viser silently moves on to the next free port
             self.server.stop()
             raise OSError(f"port {port} already in use")
-        guard.append(page_guard(host, actual, allow_hosts))
+        if self.page_token is not None and not isinstance(
+            getattr(self.server._websock_server, "_live_connections", None), dict
+        ):  # which page client presented the token is read there: fail closed
+            self.server.stop()
+            raise GuardError(
+                "viser has no _live_connections (its internals changed; view/app.py supports "
+                "the pinned viser): the page's credential cannot be checked, not served"
+            )
+        self.gate.arm(page_guard(host, actual, allow_hosts))
         why = probe_refuses_foreign_host(host, actual)
         if why is not None:  # the guard is not in the request path: never serve unguarded
             self.server.stop()
             raise GuardError(f"the page server is not guarded ({why}): not served")
         self.host, self.port = host, actual
+        # viser lets any page client ask for a public share tunnel (share.viser.studio) to this
+        # page: never (a page that can move hardware is not published by a visitor)
+        self.server.request_share_url = self._no_share_url  # type: ignore[method-assign]
+        self.server.gui.configure_theme(show_share_button=False)
         self.server.scene.set_up_direction("+z")  # U(C)RDF frames: z along the base segment
         self.server.scene.add_grid("/grid", width=1.0, height=1.0, cell_size=0.1)
         self.server.initial_camera.position = (1.5, -1.5, 1.2)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.35)
-        self.url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{actual}"
+        shown = "127.0.0.1" if host in ("0.0.0.0", "") else "[::1]" if host == "::" else host
+        if ":" in shown and not shown.startswith("["):
+            shown = f"[{shown}]"
+        #: the page without the token: view only when the view has controls
+        self.page_url = f"http://{shown}:{actual}/"
+        #: the URL to open: with the page token when the page can move the robot
+        self.url = self.page_url + (
+            f"?{PageToken.QUERY}={self.page_token.secret}" if self.page_token else ""
+        )
+        self.pages: dict[int, _Page] = {}  # page clients with controls, by viser client id
+        self.viewers: dict[int, str] = {}  # page clients without the token -> their address
+        self.plan_text = PLAN_HINT
         self.lock = threading.RLock()
         self.model: SceneModel | None = None
         self.nodes: dict[str, Any] = {}
-        self.sliders: dict[str, tuple[Any, Any]] = {}
         self.trail: collections.deque = collections.deque(maxlen=TRAIL_POINTS)
         self.built: tuple = (-1, ())  # robot_version, present segments
         self.last_seq = -1
@@ -108,12 +178,17 @@ class ViewApp:
                 _CurrentClient(source),  # the source's client of the day (it reconnects)
                 self._measured,
                 self._rate_max,
-                lambda: bool(self.server.get_clients()),
+                lambda: bool(self.pages),  # the deadman counts pages with controls only
                 self._refused,
             ).start()
+        self.server.on_client_connect(self._client_connected)
+        self.server.on_client_disconnect(self._client_gone)
         self._thread = threading.Thread(target=self._run, name="ucr-view-update", daemon=True)
 
     # -- lifecycle -------------------------------------------------------------------------------
+    def _no_share_url(self, verbose: bool = True) -> None:
+        log.warning("refused a page's request for a public share URL (viser's share tunnel)")
+
     def start(self) -> ViewApp:
         self._thread.start()
         return self
@@ -158,15 +233,90 @@ class ViewApp:
         self.g_frames.on_update(lambda _e: self._visibility())
         self.g_tendons.on_update(lambda _e: self._visibility())
         self.g_trail.on_update(lambda _e: self._visibility())
-        if self.control_enabled:
-            self.g_stop = gui.add_button("Stop (hold)", color="red")
-            self.g_stop.on_click(lambda _e: self.stop_motion("stop button"))
-            self.g_plan = gui.add_markdown("Drag the tip gizmo to plan a move.")
-            self.g_execute = gui.add_button("Execute move", disabled=True)
-            self.g_execute.on_click(lambda _e: self.execute_move())
-            self.g_handback = gui.add_button("Hand back control")
-            self.g_handback.on_click(lambda _e: self._hand_back())
-        self.slider_folder = gui.add_folder("Segments (κ 1/m, φ deg)")
+        if self.live and not self.control_enabled and kind != "replay":
+            gui.add_markdown(
+                "**view only:** served off loopback, so no page has controls; to control "
+                "remotely, tunnel the loopback page (docs/view.md)."
+            )
+
+    # -- page clients ----------------------------------------------------------------------------
+    def _connection(self, client: Any) -> Any:
+        """The WebSocket (its request and peer) of a viser client; None if unknown."""
+        conns = getattr(self.server._websock_server, "_live_connections", None)
+        return conns.get(client.client_id) if isinstance(conns, dict) else None
+
+    def _client_connected(self, client: Any) -> None:
+        conn = self._connection(client)
+        peer = peer_address(conn) if conn is not None else "?"
+        if not self.has_controls:
+            return
+        if self.page_token is not None:
+            request = getattr(conn, "request", None)
+            if request is None or not self.gate.has_token(request.headers):
+                with self.lock:
+                    self.viewers[client.client_id] = peer
+                try:
+                    client.gui.add_markdown(VIEW_ONLY_NOTE)
+                except Exception:  # noqa: BLE001, S110 - the page went away meanwhile
+                    pass
+                _audit(client.client_id, peer, "connect", "without the page token: view only")
+                return
+            _audit(client.client_id, peer, "connect", "with the page token: controls")
+        page = _Page(client, peer)
+        with self.lock:
+            self.pages[page.id] = page
+            if self.model is not None:
+                with self.source.lock:
+                    state = {n: dict(v) for n, v in self.source.snap.state.items()}
+                self._page_controls(page, state, sliders=True, gizmo_at=self.model.frame(state).tip)
+
+    def _client_gone(self, client: Any) -> None:
+        with self.lock:
+            page = self.pages.pop(client.client_id, None)
+            peer = self.viewers.pop(client.client_id, None)
+        if page is not None and self.page_token is not None:
+            _audit(page.id, page.peer, "disconnect", "(controls)")
+        elif peer is not None:
+            _audit(client.client_id, peer, "disconnect", "(view only)")
+
+    def _page_of(self, event: Any) -> _Page | None:
+        """The page with controls an event came from (None: ignore the event)."""
+        client = getattr(event, "client", None)
+        return None if client is None else self.pages.get(client.client_id)
+
+    def _page_controls(
+        self, page: _Page, state: dict, sliders: bool, gizmo_at: np.ndarray | None
+    ) -> None:
+        """Give ``page`` its controls (buttons once; sliders when ``sliders``; the tip gizmo
+        again at ``gizmo_at``). Under self.lock."""
+        gui, model = page.client.gui, self.model
+        if model is None:
+            return
+        try:
+            if self.control_enabled and page.plan is None:
+                stop = gui.add_button("Stop (hold)", color="red")
+                stop.on_click(lambda e: self._stop_clicked(e))
+                page.plan = gui.add_markdown(self.plan_text)
+                page.execute = gui.add_button(
+                    "Execute move", disabled=self.planner is None or self.planner.result is None
+                )
+                page.execute.on_click(lambda e: self._execute_clicked(e))
+                handback = gui.add_button("Hand back control")
+                handback.on_click(lambda e: self._hand_back_clicked(e))
+                page.extra = [stop, handback]
+            if page.folder is None:
+                page.folder = gui.add_folder("Segments (κ 1/m, φ deg)")
+            if sliders or not page.sliders:
+                self._page_sliders(page, model, state)
+            if self.control_enabled and gizmo_at is not None:
+                if page.gizmo is not None:
+                    page.gizmo.remove()
+                page.gizmo = page.client.scene.add_transform_controls(
+                    "/robot/gizmo", scale=0.3, disable_rotations=True, position=gizmo_at
+                )
+                page.gizmo.on_update(self._gizmo)
+        except Exception:  # noqa: BLE001 - a page that went away while its controls were made
+            log.debug("controls for page client %d not made", page.id, exc_info=True)
 
     def _visibility(self) -> None:
         self.last_seq = -1  # the next update sets the poses of frames shown now
@@ -179,37 +329,66 @@ class ViewApp:
                 elif key == "trail":
                     node.visible = bool(self.g_trail.value)
 
-    def _build_sliders(self, model: SceneModel, state: dict) -> None:
-        for k, p in self.sliders.values():
+    def _page_sliders(self, page: _Page, model: SceneModel, state: dict) -> None:
+        for k, p in page.sliders.values():
             k.remove()
             p.remove()
-        self.sliders = {}
-        if (self.live and not self.control_enabled) or getattr(self.source, "mode", "") == "replay":
-            return  # view only (not on loopback, or a recording playing): no controls
-        with self.slider_folder:
+        page.sliders = {}
+        gui = page.client.gui
+        with page.folder:
             for name in model.bendables:
                 kmax, _ = model.limits(name)
                 cur = state.get(name, {"kappa": 0.0, "phi": 0.0})
-                k = self.server.gui.add_slider(
+                k = gui.add_slider(
                     f"{name} κ", 0.0, round(kmax, 3), 0.01, round(min(cur["kappa"], kmax), 2)
                 )
-                p = self.server.gui.add_slider(
-                    f"{name} φ", -180.0, 180.0, 1.0, round(math.degrees(cur["phi"]))
-                )
+                p = gui.add_slider(f"{name} φ", -180.0, 180.0, 1.0, round(math.degrees(cur["phi"])))
                 k.on_update(lambda e, n=name: self._slider(e, n))
                 p.on_update(lambda e, n=name: self._slider(e, n))
-                self.sliders[name] = (k, p)
+                page.sliders[name] = (k, p)
 
     def _slider(self, event: Any, name: str) -> None:
-        if event.client is None:
+        page = self._page_of(event)
+        if page is None or name not in page.sliders:
             return
-        k, p = self.sliders[name]
+        k, p = page.sliders[name]
         kappa, phi = float(k.value), math.radians(float(p.value))
         if isinstance(self.source, OfflineSource):
             self.source.set_target(name, kappa, phi)
         elif self.driver is not None:
             self.refusal = ""
+            _audit(page.id, page.peer, "slider",
+                   f"{name} κ {kappa:.2f} 1/m φ {math.degrees(phi):.0f}°")  # fmt: skip
             self.driver.set_target(name, kappa, phi)
+
+    def _stop_clicked(self, event: Any) -> None:
+        page = self._page_of(event)
+        if page is not None:
+            _audit(page.id, page.peer, "stop", "stop button")
+            self.stop_motion("stop button")
+
+    def _execute_clicked(self, event: Any) -> None:
+        page = self._page_of(event)
+        if page is not None:
+            self.execute_move(page)
+
+    def _hand_back_clicked(self, event: Any) -> None:
+        page = self._page_of(event)
+        if page is not None:
+            _audit(page.id, page.peer, "hand_back", "hand back control")
+            self._hand_back()
+
+    def _set_plan(self, text: str, executable: bool | None = None) -> None:
+        """The plan line (and the Execute button's state) on every page with controls."""
+        self.plan_text = text
+        for page in list(self.pages.values()):
+            try:
+                if page.plan is not None:
+                    page.plan.content = text
+                if executable is not None and page.execute is not None:
+                    page.execute.disabled = not executable
+            except Exception:  # noqa: BLE001, S110 - a page that went away meanwhile
+                pass
 
     # -- control ---------------------------------------------------------------------------------
     def stop_motion(self, why: str) -> None:
@@ -237,7 +416,7 @@ class ViewApp:
             self._refused(f"hand back refused: {exc}")
 
     def _gizmo(self, event: Any) -> None:
-        if event.client is None or self.planner is None:
+        if self._page_of(event) is None or self.planner is None:
             return
         target = np.asarray(event.target.position, dtype=float)
         res = self.planner.plan(target, self._measured())
@@ -263,13 +442,13 @@ class ViewApp:
             if isinstance(v, dict) and "kappa" in v
         )
         tx, ty, tz = target
-        self.g_plan.content = (
-            f"target ({tx:.3f}, {ty:.3f}, {tz:.3f}) m — {state}<br/>solution: {cfg}"
+        self._set_plan(
+            f"target ({tx:.3f}, {ty:.3f}, {tz:.3f}) m — {state}<br/>solution: {cfg}", True
         )
-        self.g_execute.disabled = False
 
-    def execute_move(self) -> None:
-        """Send the planned solution as one trajectory (after ending our own takeover)."""
+    def execute_move(self, page: _Page | None = None) -> None:
+        """Send the planned solution as one trajectory (after ending our own takeover);
+        ``page``: the page client that asked (audited)."""
         src = self.source
         if self.planner is None or not isinstance(src, LiveSource):
             return
@@ -283,9 +462,17 @@ class ViewApp:
                 if manual and self.driver.owns_control:
                     src.client.hand_back()
                     self.driver.owns_control = False
+            target = self.planner.executed[0] if self.planner.executed else None
+            where = "" if target is None else " to ({:.3f}, {:.3f}, {:.3f}) m".format(*target)
+            segs = ", ".join(
+                f"{n} κ {v['kappa']:.2f} φ {math.degrees(v['phi']):.0f}°"
+                for n, v in points[0]["segments"].items()
+            )
+            if page is not None:
+                _audit(page.id, page.peer, "move", f"tip{where}: {segs}")
             goal = src.client.send_trajectory(points, wait=False)
             self.refusal = ""
-            self.g_plan.content = f"move {goal} sent ({points[0]['time_from_start']:.2f} s)"
+            self._set_plan(f"move {goal} sent ({points[0]['time_from_start']:.2f} s)")
         except Exception as exc:  # noqa: BLE001 - every refusal is shown on the page
             self._refused(f"move refused: {exc}")
 
@@ -301,11 +488,11 @@ class ViewApp:
     def _build(self, snap: Any, robot: Any) -> None:
         """(Re)create every scene node for the robot and the present segments."""
         scene = self.server.scene
-        if self.model is None or self.model.robot is not robot:
+        new_model = self.model is None or self.model.robot is not robot
+        if new_model:
             self.model = SceneModel(robot)
             self.visual_problems = []
             self.planner = MovePlanner(_solver(self.model)) if self.control_enabled else None
-            self._build_sliders(self.model, snap.state)
             self.trail.clear()
         model = self.model
         self._clear()
@@ -349,11 +536,10 @@ class ViewApp:
             self.nodes["target"] = scene.add_icosphere(
                 "/robot/target", 0.012, (230, 40, 40), visible=False
             )
-            gizmo = scene.add_transform_controls(
-                "/robot/gizmo", scale=0.3, disable_rotations=True, position=frame.tip
-            )
-            gizmo.on_update(self._gizmo)
-            self.nodes["gizmo"] = gizmo
+        for page in list(self.pages.values()):  # each page's sliders and tip gizmo
+            self._page_controls(page, snap.state, sliders=new_model, gizmo_at=frame.tip)
+        if new_model:
+            self._set_plan(PLAN_HINT, False)
         self.built = (snap.robot_version, tuple(snap.present))
         self.facts["tubes"] = sorted(n for n in model.bendables if n in present)
 
@@ -419,9 +605,10 @@ class ViewApp:
                 if tn is not None:
                     tn.points = _segments(frame.tendons[name])
             self.nodes["trail"].points = np.asarray(self.trail, dtype=np.float32)
-            gizmo = self.nodes.get("gizmo")
-            if gizmo is not None and self.planner is not None and self.planner.result is None:
-                gizmo.position = frame.tip
+            if self.planner is not None and self.planner.result is None:
+                for page in list(self.pages.values()):
+                    if page.gizmo is not None:
+                        page.gizmo.position = frame.tip
         self.facts["tip"] = [round(float(v), 4) for v in frame.tip]
 
     def _text(self, snap: Any) -> None:
@@ -514,6 +701,11 @@ def _segments(paths: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(segs).astype(np.float32)
 
 
+def _audit(page: int, peer: str, op: str, summary: str) -> None:
+    """One audit line (``ucr.audit``, as the daemon's) for what a page client did."""
+    audit_logger().info("view page=%s peer=%s op=%s %s", page, peer, op, summary[:500])
+
+
 def _solver(model: SceneModel):
     return IKSolver(model.kin, model.tip_link)
 
@@ -523,7 +715,7 @@ def _who(control: dict, driver: SliderDriver | None) -> str:
     active, manual, goals = (control.get(k, []) for k in ("active", "manual", "goals"))
     if manual:
         mine = driver is not None and driver.owns_control
-        who = "this page (sliders)" if mine else "gamepad/teleop"
+        who = "this view's page sliders" if mine else "gamepad/teleop"
         line = f"**control:** {who} via {', '.join(manual)} (manual takeover; trajectories wait)"
     elif goals:
         line = f"**control:** trajectory {', '.join(goals)} ({', '.join(active)})"

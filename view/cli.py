@@ -15,7 +15,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-INSTALL_HINT = "ucr view needs the `view` extra: pip install 'ucr[view]' (viser)"
+from host.client_common import number_arg
+from host.extras import install_command
+
+INSTALL_HINT = f"ucr view needs the `view` extra (viser): {install_command('view')}"
 ENV_TOKEN_FILE = "UCR_TOKEN_FILE"
 VIEW_NICE = 5  # as the API process (host.api.process.API_NICE): the control loop comes first
 
@@ -36,7 +39,14 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--token-file",
         default=os.environ.get(ENV_TOKEN_FILE),
-        help="file holding the daemon API token (default $UCR_TOKEN_FILE; or set $UCR_TOKEN)",
+        help="file (mode 0600) holding the daemon API token (default $UCR_TOKEN_FILE; or set "
+        "$UCR_TOKEN)",
+    )
+    p.add_argument(
+        "--timeout",
+        type=number_arg(float, 0.0, False, " s"),
+        default=5.0,
+        help="seconds to wait for the daemon's replies (default 5)",
     )
     p.add_argument("--host", default="127.0.0.1", help="address to serve the page on (loopback)")
     p.add_argument("--port", type=int, default=8080, help="port of the page (8080)")
@@ -61,13 +71,14 @@ def register(subparsers: Any) -> None:
 
 
 def _token(args: argparse.Namespace) -> str | None:
-    if args.token_file:
-        try:
-            return Path(args.token_file).read_text().strip() or None
-        except OSError as exc:
-            msg = f"ucr: cannot read token file {args.token_file}: {exc.strerror}"
-            raise SystemExit(msg) from None
-    return os.environ.get("UCR_TOKEN") or None
+    """The daemon API token as every client reads it (host.api.auth.read_token_file: a file
+    of mode 0600 owned by us, a token of 16+ printable characters; else $UCR_TOKEN)."""
+    from host.api.client import ApiAuthError, read_token
+
+    try:
+        return read_token(args.token_file)
+    except ApiAuthError as exc:
+        raise SystemExit(f"ucr: {exc.message}") from None
 
 
 def _not_a_file(path: str) -> str | None:
@@ -110,6 +121,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             os.nice(args.nice)
         except OSError as exc:  # not fatal: the view works at any priority
             print(f"ucr view: priority unchanged ({exc.strerror})", file=sys.stderr)
+    from host.api.client import ApiError
     from view.app import ViewApp
     from view.guard import GuardError, is_loopback
     from view.source import LiveSource, OfflineSource
@@ -138,9 +150,11 @@ def cmd_view(args: argparse.Namespace) -> int:
             return 1
         source = OfflineSource(args.file, on_errors=_print_check(args.file)).start()
     else:
+        token = _token(args)
         try:
-            source = LiveSource(args.url, _token(args), args.file).start()
-        except (ConnectionError, PermissionError, RuntimeError) as exc:
+            source = LiveSource(args.url, token, args.file, timeout=args.timeout).start()
+        except (ConnectionError, PermissionError, RuntimeError, TimeoutError, ApiError) as exc:
+            # (a daemon too slow to answer: ApiTimeoutError, a TimeoutError and an ApiError)
             if not args.file:
                 print(f"ucr: {exc}", file=sys.stderr)
                 return 1
@@ -158,6 +172,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         source.stop()
         print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 1
+    # the URL that works: with the page token when the page can move the robot (view/guard.py)
     print(f"ucr view: {app.url}  ({source.mode}; Ctrl-C to stop)", flush=True)
     parent = os.getppid()
     try:

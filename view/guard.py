@@ -7,33 +7,68 @@ come from the view's own page. The rules are the project's browser guard (``host
 anything refused gets HTTP 403 before the WebSocket opens. viser offers no hook for this, so
 :func:`guarded_viser` wraps the ``process_request`` of the one ``websockets`` server viser starts
 (see docs/view.md).
+
+The same wrapper bounds what a page client may cost (:data:`MAX_FRAME_BYTES` per message,
+:data:`MAX_CONNECTIONS` page WebSockets without the page token, :data:`MAX_PER_ADDRESS` from one
+remote address) and carries the page's credential (:class:`PageToken`): a secret made at each
+start and printed in the view's URL (``?token=…``, as Jupyter does), exchanged for a cookie that
+the page's WebSocket presents; only a page client holding it gets controls.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import hmac
 import http
+import io
+import ipaddress
+import secrets
 import socket
 import threading
 from collections.abc import Callable, Iterable
 from typing import Any
+from urllib.parse import parse_qsl, urlencode, urlsplit
 
 import websockets.asyncio.server as wss
 from websockets.datastructures import Headers
 from websockets.http11 import Response
 
-from host.api.guard import WebGuard, is_loopback
+from host.api.guard import GuardConfigError, WebGuard, is_loopback, normalize_origin
 
 __all__ = [
+    "MAX_CONNECTIONS",
+    "MAX_FRAME_BYTES",
+    "MAX_PER_ADDRESS",
     "GuardError",
+    "PageGate",
+    "PageToken",
     "guarded_viser",
     "is_loopback",
+    "own_origins",
     "page_guard",
+    "peer_address",
     "probe_refuses_foreign_host",
     "refuse_reason",
 ]
 
 #: The Host a probe sends: never an allowed name (not an IP literal, never --allow-host-able).
 PROBE_HOST = "ucr-guard-probe.invalid"
+#: Largest WebSocket message a page client may send (viser asks for 50 MiB). The page sends its
+#: camera pose, slider values, button clicks and gizmo drags: a few hundred bytes each (the
+#: largest measured on a page with sliders typed, a checkbox clicked, the camera dragged and the
+#: window resized: a 231-byte camera pose). A larger message closes that connection (1009)
+#: before its payload is read.
+MAX_FRAME_BYTES = 64 * 1024
+#: Messages read ahead per connection (so at most MAX_QUEUE * MAX_FRAME_BYTES buffered each).
+MAX_QUEUE = 4
+#: Page WebSockets without the page token: in total, and from one remote address (loopback
+#: peers count only in the total). One more is refused with HTTP 503 before it opens. A page
+#: presenting the page token (the operator's) is always admitted.
+MAX_CONNECTIONS = 32
+MAX_PER_ADDRESS = 8
+#: Seconds a client has to complete its opening handshake.
+OPEN_TIMEOUT_S = 5.0
 
 
 class GuardError(RuntimeError):
@@ -51,28 +86,204 @@ def page_guard(bind: str, port: int, extra: Iterable[str] = ()) -> WebGuard:
     return WebGuard.build(bind=bind, port=port, origins=origins, names=plain)
 
 
+def _all(headers: Any, name: str) -> list[str]:
+    get_all = getattr(headers, "get_all", None)
+    if get_all is not None:
+        return list(get_all(name))
+    value = headers.get(name)
+    return [] if value is None else [value]
+
+
+def own_origins(headers: Any, port: int) -> frozenset[str]:
+    """The origin of a page served under this request's ``Host`` (``http(s)://`` + that
+    host:port), when that Host names the server's ``port`` (explicitly, or as the scheme's
+    default port); empty otherwise. Whether the Host itself is acceptable is the guard's check."""
+    hosts = _all(headers, "Host")
+    if len(hosts) != 1 or not port:
+        return frozenset()
+    host = hosts[0].strip()
+    try:
+        named = urlsplit(f"//{host}").port
+    except ValueError:
+        return frozenset()
+    own = set()
+    for scheme, default in (("http", 80), ("https", 443)):
+        if (named or default) == port:
+            try:
+                own.add(normalize_origin(f"{scheme}://{host}"))
+            except GuardConfigError:
+                pass  # not a host[:port]: the guard's Host check refuses it anyway
+    return frozenset(own)
+
+
 def refuse_reason(headers: Any, guard: WebGuard | None) -> str | None:
     """Why a request must be refused (None: allowed); everything while the guard is not set.
 
+    The page's own origin (the host:port it was served under, i.e. this request's ``Host``) is
+    allowed besides the configured ones: a page reached at ``http://192.0.2.2:8080`` opens its
+    WebSocket with that Origin and that Host. The Host must still pass the guard's Host check.
     Paths are viser's business (its static files, with its own traversal check), so the guard's
     path rule is not applied here."""
     if guard is None:
         return "the page server is starting"
+    own = own_origins(headers, guard.port)
+    if own - guard.origins:
+        guard = WebGuard(
+            guard.origins | own, guard.names, guard.port, guard.path, guard.extra_paths
+        )
     refusal = guard.check(guard.path, headers)
     return None if refusal is None else refusal.reason
+
+
+def peer_address(connection: Any) -> str:
+    """``host:port`` of a connection's remote end (``[v6]:port``), ``?`` if unknown."""
+    addr = getattr(connection, "remote_address", None)
+    if not addr:
+        return "?"
+    host, port = str(addr[0]), addr[1]
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
+def _peer_ip(connection: Any) -> str:
+    addr = getattr(connection, "remote_address", None)
+    return str(addr[0]) if addr else "?"
+
+
+def _is_loopback_ip(ip: str) -> bool:
+    try:
+        return ipaddress.ip_address(ip).is_loopback
+    except ValueError:
+        return False
+
+
+class PageToken:
+    """The page's credential for controls: a random secret made at each start of the view.
+
+    It is printed in the view's URL (``http://127.0.0.1:PORT/?token=…``). A request for the page
+    carrying it in its query is redirected to the same page without it, with a cookie holding it
+    (``HttpOnly``, ``SameSite=Strict``, named after the port: ``ucr_view_PORT``); the page's
+    WebSocket then presents the cookie. Compared in constant time."""
+
+    QUERY = "token"
+
+    def __init__(self, secret: str | None = None) -> None:
+        self.secret = secret or secrets.token_urlsafe(32)
+        self.port = 0  # set once the server is bound (the cookie is named after it)
+
+    @property
+    def cookie(self) -> str:
+        return f"ucr_view_{self.port}"
+
+    def matches(self, value: str) -> bool:
+        return hmac.compare_digest(value.encode(), self.secret.encode())
+
+    def presented(self, headers: Any) -> bool:
+        """Whether the request carries the token in its cookie."""
+        for line in _all(headers, "Cookie"):
+            for part in line.split(";"):
+                name, eq, value = part.strip().partition("=")
+                if eq and name == self.cookie and self.matches(value.strip().strip('"')):
+                    return True
+        return False
+
+    def set_cookie(self) -> str:
+        return f"{self.cookie}={self.secret}; Path=/; HttpOnly; SameSite=Strict"
+
+
+class PageGate:
+    """What the page server admits besides the Host/Origin guard: the page token's cookie (see
+    :class:`PageToken`), and a cap on page WebSockets without it (:data:`MAX_CONNECTIONS`,
+    :data:`MAX_PER_ADDRESS`). ``guard`` is set once the port is known; until then everything is
+    refused."""
+
+    def __init__(
+        self,
+        token: PageToken | None = None,
+        max_connections: int = MAX_CONNECTIONS,
+        max_per_address: int = MAX_PER_ADDRESS,
+    ) -> None:
+        self.guard: WebGuard | None = None
+        self.token = token
+        self.max_connections = max_connections
+        self.max_per_address = max_per_address
+        self._open: dict[Any, str] = {}  # page WebSockets without the token -> remote IP
+        self._tasks: set[asyncio.Task] = set()
+
+    def arm(self, guard: WebGuard) -> None:
+        if self.token is not None:
+            self.token.port = guard.port
+        self.guard = guard
+
+    def has_token(self, headers: Any) -> bool:
+        return self.token is not None and self.token.presented(headers)
+
+    @property
+    def open_without_token(self) -> int:
+        return len(self._open)
+
+    def admit(self, connection: Any, request: Any, log: Callable[[str], None]) -> Any:
+        """None to go on (viser serves the file or opens the WebSocket), else the Response."""
+        headers = request.headers
+        if str(headers.get("Upgrade", "")).lower() != "websocket":
+            return self._page_request(connection, request, log)
+        if self.has_token(headers):
+            return None  # the operator's page: never locked out by a crowd of viewers
+        ip = _peer_ip(connection)
+        same = sum(1 for v in self._open.values() if v == ip)
+        if len(self._open) >= self.max_connections or (
+            same >= self.max_per_address and not _is_loopback_ip(ip)
+        ):
+            why = (
+                f"too many page connections ({len(self._open)} open, {same} from {ip}; "
+                f"at most {self.max_connections}, {self.max_per_address} per address)"
+            )
+            log(f"refused a page connection from {peer_address(connection)}: {why}")
+            return connection.respond(http.HTTPStatus.SERVICE_UNAVAILABLE, f"{why}\n")
+        self._open[connection] = ip
+        task = asyncio.get_running_loop().create_task(self._forget(connection))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return None
+
+    async def _forget(self, connection: Any) -> None:
+        try:
+            await connection.wait_closed()
+        finally:
+            self._open.pop(connection, None)
+
+    def _page_request(self, connection: Any, request: Any, log: Callable[[str], None]) -> Any:
+        """A plain HTTP request: ``?token=`` is exchanged for the cookie (redirect without it)."""
+        if self.token is None:
+            return None
+        parts = urlsplit(request.path)
+        query = parse_qsl(parts.query, keep_blank_values=True)
+        given = [v for k, v in query if k == PageToken.QUERY]
+        if not given:
+            return None
+        rest = urlencode([(k, v) for k, v in query if k != PageToken.QUERY])
+        response = connection.respond(http.HTTPStatus.FOUND, "")
+        # always the page itself ("/"): a path such as //evil.example would be another site
+        response.headers["Location"] = "/" + (f"?{rest}" if rest else "")
+        response.headers["Cache-Control"] = "no-store"
+        if all(self.token.matches(v) for v in given):
+            response.headers["Set-Cookie"] = self.token.set_cookie()
+        else:
+            log(f"a page request from {peer_address(connection)} had a wrong token: view only")
+        return response
 
 
 _patch_lock = threading.Lock()
 
 
-def guarded_viser(
-    factory: Callable[[], Any], guard: list[WebGuard], log: Callable[[str], None]
-) -> Any:
+def guarded_viser(factory: Callable[[], Any], gate: PageGate, log: Callable[[str], None]) -> Any:
     """Build a ViserServer (``factory``) whose web server refuses requests failing the guard
-    (``guard[0]`` once set: the port is known only after binding).
+    (``gate.guard`` once set: the port is known only after binding), admits them through
+    ``gate`` (page token, connection cap) and reads page messages of at most MAX_FRAME_BYTES.
 
     ``websockets.asyncio.server.serve`` is wrapped only while the server starts (viser looks it
     up at call time and the constructor returns once it listens); other servers are unaffected.
+    viser's start-up banner (a URL without the page token) is not printed: the view prints the
+    URL that works.
     """
     original = wss.serve
     calls: list[Any] = []  # the port of each serve() call
@@ -82,21 +293,28 @@ def guarded_viser(
         inner = kwargs.get("process_request")
 
         def process_request(connection: Any, request: Any) -> Any:
-            why = refuse_reason(request.headers, guard[0] if guard else None)
+            why = refuse_reason(request.headers, gate.guard)
             if why is not None:
                 if not str(request.headers.get("Host", "")).startswith(PROBE_HOST):
                     log(f"refused a request: {why}")  # (our own start-up probe: not news)
                 body = f"403 Forbidden: {why}\n".encode()
                 return Response(http.HTTPStatus.FORBIDDEN, "Forbidden", Headers(), body)
+            answer = gate.admit(connection, request, log)
+            if answer is not None:
+                return answer
             return inner(connection, request) if inner is not None else None
 
         kwargs["process_request"] = process_request
+        kwargs["max_size"] = MAX_FRAME_BYTES  # viser asks for 50 MiB
+        kwargs["max_queue"] = MAX_QUEUE
+        kwargs["open_timeout"] = OPEN_TIMEOUT_S
         return original(*args, **kwargs)
 
     with _patch_lock:
         wss.serve = serve
         try:
-            server = factory()
+            with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: a URL, no token
+                server = factory()
         finally:
             wss.serve = original
     if len(calls) > 1 and _moved_on(calls):  # the port was taken: viser tried the next ones

@@ -13,10 +13,12 @@ from view.cli import INSTALL_HINT
 
 
 class ViewProcess:
-    """A running ``ucr view`` child process and the URL it serves."""
+    """A running ``ucr view`` child process and the URL it printed (with the page token when
+    the page has controls: the URL to open); ``lines``: what it printed so far."""
 
-    def __init__(self, proc: subprocess.Popen, url: str):
+    def __init__(self, proc: subprocess.Popen, url: str, lines: list[str] | None = None):
         self.proc, self.url = proc, url
+        self.lines = lines if lines is not None else []
 
     def stop(self, timeout: float = 5.0) -> None:
         if self.proc.poll() is None:
@@ -49,7 +51,8 @@ def start_view_process(api_url: str, port: int = 0, timeout: float = 60.0) -> Vi
             lines.append(line.rstrip())
             if line.startswith("ucr view: http") and not found:
                 found.append(line.split()[2])
-            elif found and line.startswith("ucr view:"):  # its warnings, once it runs
+            elif found and (line.startswith("ucr view:") or " AUDIT view " in line):
+                # its warnings and its audit (what each page client did), once it runs
                 print(line.rstrip(), file=sys.stderr, flush=True)
         # (keeps draining so the child never blocks on a full pipe)
 
@@ -61,4 +64,4 @@ def start_view_process(api_url: str, port: int = 0, timeout: float = 60.0) -> Vi
         ViewProcess(proc, "").stop()
         why = next((ln for ln in reversed(lines) if ln.startswith("ucr")), "no URL printed")
         raise RuntimeError(f"view did not start: {why}")
-    return ViewProcess(proc, found[0])
+    return ViewProcess(proc, found[0], lines)

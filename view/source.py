@@ -141,10 +141,17 @@ class LiveSource:
     mode = "live"
 
     def __init__(
-        self, url: str | None, token: str | None, robot_file: str | None = None, rate_hz=60.0
+        self,
+        url: str | None,
+        token: str | None,
+        robot_file: str | None = None,
+        rate_hz=60.0,
+        timeout: float = 5.0,
     ):
+        """``timeout``: seconds to wait for the daemon's handshake and each reply."""
         self._token = token
-        self.client = connect(url, token=token)
+        self.timeout = timeout
+        self.client = connect(url, token=token, timeout=timeout)
         self.url = self.client_url = url
         self.rate_hz = rate_hz
         self.lock = threading.Lock()
@@ -156,7 +163,11 @@ class LiveSource:
         self._topo_dirty = False
         self._faults: set[str] = set()  # segments the daemon reports in FAULT (status)
         self.reconnects = 0
-        self._topology_locked_refresh()
+        try:
+            self._topology_locked_refresh()
+        except BaseException:  # no reply in time, no robot file: do not leave it connected
+            self.client.close()
+            raise
         self._supervisor = threading.Thread(
             target=self._supervise, name="ucr-view-session", daemon=True
         )
@@ -206,7 +217,7 @@ class LiveSource:
         while not self._stop.wait(delay):
             attempt += 1
             try:
-                client = connect(self.url, token=self._token)
+                client = connect(self.url, token=self._token, timeout=self.timeout)
             except Exception as exc:  # noqa: BLE001 - any failure: shown, retried
                 self._note_lost(f"{exc}", attempt, min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S))
                 delay = min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S)

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from view_helpers import wait_for
+from view_helpers import page_controls, wait_for
 
 pytestmark = pytest.mark.timeout(240)
 # the page's initial camera (view/app.py) and gizmo size, to find the gizmo on the screen
@@ -80,7 +80,7 @@ def test_slider_bends_the_emulated_segment_and_changes_the_picture(rig, live_vie
     )
     # it went through the arbitration as a manual source
     assert daemon.status()["manual_control"] == ["ffc"]
-    page.get_by_text("this page (sliders)").wait_for(timeout=10000)
+    page.get_by_text("this view's page sliders").wait_for(timeout=10000)
     time.sleep(1.0)
     assert canvas.screenshot() != before
     settle(daemon, live_view)
@@ -124,7 +124,7 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
     _, daemon, _ = rig
     page.get_by_text("tubes: 3").wait_for(timeout=60000)
     time.sleep(1.0)
-    gizmo = live_view.nodes["gizmo"]
+    gizmo = page_controls(live_view).gizmo  # this page's own gizmo (it has the page token)
     start = tuple(gizmo.position)
     box = page.locator("canvas").first.bounding_box()
     # drag from the gizmo's centre (the camera looks at the robot; the gizmo sits at the tip)
@@ -148,18 +148,18 @@ def test_gizmo_drag_plans_ik_and_the_chain_executes_the_move(rig, live_view, pag
         # plans for the segments present) or trip the path tolerance: execute on a whole chain,
         # and try again when the daemon's supervision got in the way
         assert wait_for(whole, 30), daemon.status()["segments"]
-        before = live_view.g_plan.content
+        before = live_view.plan_text
         page.get_by_role("button", name="Execute move").click()
 
         def sent(b: str = before) -> bool:
-            content = live_view.g_plan.content
+            content = live_view.plan_text
             return content.startswith("move ") and content != b
 
-        assert wait_for(sent, 10), (live_view.g_plan.content, live_view.refusal)
-        page.get_by_text(live_view.g_plan.content).wait_for(timeout=10000)  # shown on the page
+        assert wait_for(sent, 10), (live_view.plan_text, live_view.refusal)
+        page.get_by_text(live_view.plan_text).wait_for(timeout=10000)  # shown on the page
         target, planned = live_view.planner.executed  # the plan the page showed when clicked
         assert planned.success
-        goal = re.search(r"move (\S+) sent", live_view.g_plan.content).group(1)
+        goal = re.search(r"move (\S+) sent", live_view.plan_text).group(1)
         assert wait_for(lambda g=goal: daemon.trajectory_status(g)["done"], 30)
         status = daemon.trajectory_status(goal)
         if status["state"] == "succeeded" and wait_for(lambda t=target: tip_error(t) < 0.01, 10):
@@ -184,7 +184,7 @@ def project(p, box, cam=CAMERA, look=LOOK_AT, fov_deg=FOV_DEG) -> tuple[float, f
 
 def drag_gizmo(page, view, box) -> bool:
     """Grab the gizmo's z arrow (found by projecting it) and pull it down by 0.12 m."""
-    gizmo = view.nodes["gizmo"]
+    gizmo = page_controls(view).gizmo
     start = np.asarray(gizmo.position, float)
     for frac in (0.6, 0.75, 0.45, 0.9, 0.3):
         grab = start + [0.0, 0.0, frac * GIZMO_SCALE]

@@ -100,3 +100,67 @@ def test_the_offline_source_reports_check_errors_when_they_change(tmp_path):
         assert wait_for(lambda: seen[-1] == [], 10), seen
     finally:
         src.stop()
+
+
+@pytest.mark.parametrize("kind", ["readable by others", "too short"])
+def test_a_token_file_is_checked_as_every_client_checks_it(tmp_path, kind):
+    """Defect: `ucr view --token-file` read any file (read_text, no mode check); docs/api.md
+    says token files are 0600 and `ucr status` & co refuse others (host.api.auth.read_token_file).
+    Same check, same one line as `ucr status`, before any connection is tried."""
+    path = tmp_path / "api.token"
+    path.write_text("a-good-long-token-value-0123456789\n" if kind != "too short" else "short\n")
+    path.chmod(0o644 if kind == "readable by others" else 0o600)
+    url = "ws://127.0.0.1:9"  # nothing listens: a token that passed would get "cannot reach"
+    view = _view("--url", url, "--token-file", str(path), "--port", "0")
+    status = subprocess.run([sys.executable, "-m", "tools.cli", "status", "--url", url,
+                             "--token-file", str(path)], cwd=ROOT, capture_output=True,
+                            text=True, timeout=60)  # fmt: skip
+    assert view.returncode == status.returncode == 1, (view.stderr, status.stderr)
+    assert view.stderr.strip().splitlines() == status.stderr.strip().splitlines(), view.stderr
+    assert str(path) in view.stderr and "http://" not in view.stdout
+    if kind == "readable by others":
+        assert "mode 0644" in view.stderr and f"chmod 600 {path}" in view.stderr
+
+
+@pytest.fixture
+def silent_daemon():
+    """A WebSocket server that accepts the handshake and never answers: a daemon too slow."""
+    import threading
+
+    from websockets.sync.server import serve
+
+    def handler(ws):
+        for _ in ws:
+            pass
+
+    with serve(handler, "127.0.0.1", 0) as srv:
+        threading.Thread(target=srv.serve_forever, daemon=True).start()
+        yield f"ws://127.0.0.1:{srv.socket.getsockname()[1]}"
+        srv.shutdown()
+
+
+def test_a_daemon_that_does_not_answer_in_time_is_one_line(silent_daemon):
+    """Defect: the API client's timeout error (a TimeoutError, not a ConnectionError) was not
+    caught: a slow daemon gave a traceback. Now one line, as `ucr status` says it."""
+    res = _view("--url", silent_daemon, "--port", "0")  # the default reply timeout, 5 s
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.strip().splitlines() == ["ucr: timeout: no reply to 'topology' within 5 s"]
+    assert "http://" not in res.stdout
+
+
+def test_with_a_file_a_daemon_too_slow_falls_back_to_the_file(silent_daemon):
+    """As for an unreachable daemon: offline on FILE, saying why (--timeout: reply timeout)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "view", str(ROBOT), "--url", silent_daemon,
+         "--timeout", "0.5", "--port", "0"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("ucr view: http://127.0.0.1:") and "(offline;" in line, line
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    assert "ucr view: no daemon (timeout: no reply to 'topology' within 0.5 s); offline on" in err
+    assert "Traceback" not in err, err

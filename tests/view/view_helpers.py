@@ -27,3 +27,62 @@ def wait_for(cond, timeout: float, step: float = 0.05) -> bool:
             return True
         time.sleep(step)
     return bool(cond())
+
+
+def page_controls(view, timeout: float = 30.0):
+    """The controls of the page client that connected last with the page token (one page open)."""
+    assert wait_for(lambda: any(p.gizmo is not None or p.sliders for p in view.pages.values()),
+                    timeout), view.pages  # fmt: skip
+    return view.pages[max(view.pages)]
+
+
+class RawPage:
+    """A page client speaking viser's protocol without a browser (what any local process can do):
+    it sends what the page sends and decodes what the view sends it."""
+
+    CAMERA = {"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+              "position": [1.5, -1.5, 1.2], "fov": 1.3, "near": 0.01, "far": 1000.0,
+              "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 0.35],
+              "up_direction": [0.0, 0.0, 1.0]}  # fmt: skip
+
+    def __init__(self, port: int, cookie: str | None = None, host: str = "127.0.0.1"):
+        import viser
+        from websockets.sync.client import connect
+
+        headers = {"Cookie": cookie} if cookie else None
+        self.ws = connect(f"ws://{host}:{port}/", subprotocols=[f"viser-v{viser.__version__}"],
+                          additional_headers=headers, max_size=None, open_timeout=30)  # fmt: skip
+        self.seen: list[dict] = []
+        self.send(self.CAMERA)  # viser counts a client as connected after its first camera pose
+
+    def send(self, msg: dict) -> None:
+        import msgspec
+
+        self.ws.send(msgspec.msgpack.encode(msg))
+
+    def read_until(self, cond, timeout: float) -> bool:
+        """Decode what the view sends until ``cond(message)`` holds for one (all kept in seen)."""
+        import msgspec
+        import zstandard
+
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                raw = self.ws.recv(timeout=max(0.01, end - time.monotonic()))
+            except TimeoutError:
+                break
+            if isinstance(raw, str):
+                continue
+            n, c = int.from_bytes(raw[:8], "little"), int.from_bytes(raw[8:16], "little")
+            body = zstandard.ZstdDecompressor().decompress(raw[16 : 16 + c], max_output_size=n)
+            for m in msgspec.msgpack.decode(body)["messages"]:
+                self.seen.append(m)
+                if cond(m):
+                    return True
+        return False
+
+    def labels(self, kind: str) -> list[str]:
+        return [m.get("props", {}).get("label", "") for m in self.seen if m.get("type") == kind]
+
+    def close(self) -> None:
+        self.ws.close()
