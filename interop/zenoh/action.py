@@ -46,6 +46,7 @@ from interop.zenoh.commands import (
     ENVELOPE_BYTES,
     CommandError,
     SentGoals,
+    audit,
     daemon_said,
     max_trajectory_bytes,
     to_waypoints,
@@ -221,6 +222,8 @@ class FollowJointTrajectoryServer:
             return refuse
         g = Goal(uuid, str(daemon_id), list(goal.trajectory.joint_names), now)
         self.sent.note(g.daemon_id, "action")
+        audit("follow_joint_trajectory", f"goal_uuid={uuid.hex()}", goal=g.daemon_id,
+              points=len(points))  # fmt: skip
         with self._lock:
             self.goals[uuid] = g
             self._forget_old()
@@ -270,6 +273,9 @@ class FollowJointTrajectoryServer:
                     and (every or g.accepted_ns <= stamp_ns or g.uuid == uuid)
                 ]
         canceling = []
+        if chosen:
+            audit("follow_joint_trajectory.cancel", f"goal_uuid={uuid.hex()}",
+                  stamp_ns=stamp_ns, goals=",".join(g.daemon_id for g in chosen))  # fmt: skip
         for g in chosen:
             try:
                 self.client.cancel(g.daemon_id)

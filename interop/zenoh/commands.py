@@ -58,6 +58,16 @@ def daemon_said(exc: Any) -> str:
     return f" by the daemon ({exc.code}): {exc.message}"
 
 
+def audit(op: str, who: str, **fields: Any) -> None:
+    """One audit line (``ucr.audit``, as the daemon's and the view's) for a command this bridge
+    sent on behalf of a ROS 2 entity: the daemon's own line names only the bridge's token, so
+    this one names the ROS side (``who``: the publisher's GID, the action goal's UUID)."""
+    from host.api.audit import audit_field, audit_logger  # noqa: PLC0415
+
+    rest = " ".join(f"{k}={audit_field(v)}" for k, v in fields.items())
+    audit_logger().info("zenoh %s op=%s %s", who, audit_field(op), rest)
+
+
 class CommandError(ValueError):
     """A JointTrajectory ucr refuses before it reaches the daemon (the reason says why)."""
 
@@ -143,6 +153,7 @@ class TrajectoryCommands:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._data: bytes | None = None  # the newest message not yet handled
+        self._att: Any = None  # its rmw_zenoh attachment (the publisher's GID), if any
         self._notes: list[str] = []  # refusals made on the Zenoh thread, reported by the worker
         self._stop = threading.Event()
         self.accepted = 0
@@ -170,6 +181,7 @@ class TrajectoryCommands:
                     )
             else:
                 self._data = data
+                self._att = attachment
         self._wake.set()
 
     def _run(self) -> None:
@@ -179,14 +191,17 @@ class TrajectoryCommands:
             with self._lock:
                 self._wake.clear()
                 data, self._data = self._data, None
+                att, self._att = self._att, None
                 notes, self._notes = self._notes, []
             for text in notes:
                 self.report(40, text)
             if data is not None:
-                self.handle(data)
+                self.handle(data, att)
 
-    def handle(self, data: bytes) -> None:
+    def handle(self, data: bytes, attachment: Any = None) -> None:
         """Decode, check and send one JointTrajectory (runs on the worker thread)."""
+        gid = getattr(attachment, "gid", None)
+        who = f"publisher={gid.hex()}" if gid else "publisher=unknown"
         from host.api.client import ApiError  # noqa: PLC0415
 
         try:
@@ -196,12 +211,14 @@ class TrajectoryCommands:
             self.report(40, f"JointTrajectory refused: not decodable CDR ({type(exc).__name__})")
             return
         if not msg.points:
+            audit("joint_trajectory.stop", who)
             self.stop_sent()
             return
         try:
             points = to_waypoints(msg, self.bendables)
             goal = self.client.send_trajectory(points, wait=False, controller=self.controller)
             self.sent.note(goal, "topic")
+            audit("joint_trajectory", who, goal=goal, points=len(points))
             self.accepted += 1
             self.report(20, f"JointTrajectory accepted: goal {goal}, {len(points)} points")
         except CommandError as exc:

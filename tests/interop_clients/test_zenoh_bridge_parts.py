@@ -555,3 +555,36 @@ def test_the_topic_table_of_docs_ros2_lists_every_topic_the_bridge_publishes():
     assert listed.get("joint_states") == "sensor_msgs/msg/JointState"  # the parse sees rows
     for topic, typename in TOPICS.items():
         assert listed.get(relative(topic)) == typename, (topic, listed)
+
+
+def test_each_command_from_ros_is_audited_with_its_ros_identity(commands, action, caplog):
+    """Review 2026-11-26: the daemon's audit line names only the bridge's token; who on the ROS
+    side moved the robot was written nowhere. The bridge's own audit line names the
+    JointTrajectory publisher's GID and the action goal's UUID."""
+    import logging
+
+    from host.api.audit import audit_logger
+    from interop.zenoh import rmw
+
+    audit_logger().addHandler(caplog.handler)
+    caplog.set_level(logging.INFO, logger="ucr.audit")
+    try:
+        cmds, daemon, _, _ = commands
+        att = rmw.Attachment(1, 0, bytes(range(16)))
+        cmds.on_message(jt_bytes(["segment_1/kappa", "segment_1/phi"], [(1, [1.0, 0.0])]), att)
+        assert wait_for(lambda: daemon.sent, 10)
+        lines = [r.getMessage() for r in caplog.records]
+        assert any(
+            ln.startswith(f"zenoh publisher={bytes(range(16)).hex()} op=joint_trajectory goal=")
+            for ln in lines
+        ), lines
+        server, _, _, session = action
+        req = actions.codec(FJT, "SendGoal_Request")
+        assert call(
+            server, session, "send_goal", req.encode(_goal_request(bytes([7] * 16)))
+        ).accepted
+        lines = [r.getMessage() for r in caplog.records]
+        mark = f"zenoh goal_uuid={bytes([7] * 16).hex()} op=follow_joint_trajectory goal="
+        assert any(ln.startswith(mark) for ln in lines), lines
+    finally:
+        audit_logger().removeHandler(caplog.handler)
