@@ -22,6 +22,7 @@ from host.api import schema
 from host.api.client import ApiAuthError, ApiError, connect
 from host.api.server import ApiServer, ApiServerError
 from host.config import ConfigError, load_config
+from tests.raw_http import read_head
 
 # New modules are imported inside the tests that need them, so that every test here can also be
 # run against the code before issue 13 (and fail there on its own assertion).
@@ -68,12 +69,7 @@ def handshake(port: int, headers: dict[str, str], path: str = "/") -> int:
     ]
     with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
         s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
-        head = b""
-        while b"\r\n" not in head:
-            chunk = s.recv(1024)
-            if not chunk:
-                break
-            head += chunk
+        head = read_head(s)
     return int(head.split(b" ", 2)[1])
 
 

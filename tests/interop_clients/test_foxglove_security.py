@@ -22,6 +22,7 @@ from websockets.sync.client import connect
 from interop.foxglove import FoxgloveSink
 from interop.sinks import Fanout
 from interop.topics import Message
+from tests.raw_http import read_head
 
 PROTO = ["foxglove.sdk.v1"]
 TOKEN = "s3cret-token-42-foxglove"
@@ -73,13 +74,7 @@ def _raw_upgrade(port: int, path: str = "/", headers: tuple[str, ...] = ()) -> s
 
 
 def _response_head(s: socket.socket) -> bytes:
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = s.recv(4096)
-        if not chunk:
-            break
-        data += chunk
-    return data
+    return read_head(s, b"\r\n\r\n")
 
 
 # -- 3: the door is the only way in ------------------------------------------------------------

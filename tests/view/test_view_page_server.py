@@ -22,6 +22,8 @@ pytest.importorskip("viser", reason="the view extra (viser) is not installed")
 
 from view_helpers import ROBOT, wait_for  # noqa: E402
 
+from tests.raw_http import read_head
+
 pytestmark = pytest.mark.timeout(180)
 
 
@@ -178,12 +180,7 @@ def _handshake(port: int, *headers: str) -> str:
              f"Sec-WebSocket-Protocol: viser-v{viser.__version__}", *headers]  # fmt: skip
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
         s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode("latin-1"))
-        data = b""
-        while b"\r\n" not in data:
-            chunk = s.recv(4096)
-            if not chunk:
-                break
-            data += chunk
+        data = read_head(s)
     return data.split(b"\r\n", 1)[0].decode("latin-1")
 
 
