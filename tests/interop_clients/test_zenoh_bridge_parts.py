@@ -29,6 +29,7 @@ from interop.ros2 import actions, services  # noqa: E402
 from interop.zenoh import rmw  # noqa: E402
 
 from .conftest import REPO, wait_for  # noqa: E402
+from .zenoh_query import query  # noqa: E402
 
 BENDABLES = ["segment_1", "segment_2", "segment_3"]
 FJT = "control_msgs/action/FollowJointTrajectory"
@@ -125,21 +126,6 @@ def session():
     conf.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as s:
         yield s
-
-
-def query(session, key: str, payload: bytes, attachment: bytes | None) -> list:
-    """One query; its replies as ("ok", bytes, attachment bytes) / ("err", text, None)."""
-    out = []
-    kw = {"payload": payload, "timeout": 10.0}
-    if attachment is not None:
-        kw["attachment"] = attachment
-    for reply in session.get(key, **kw):
-        if reply.ok is not None:
-            att = reply.ok.attachment.to_bytes() if reply.ok.attachment is not None else None
-            out.append(("ok", reply.ok.payload.to_bytes(), att))
-        else:
-            out.append(("err", reply.err.payload.to_bytes().decode(), None))
-    return out
 
 
 # ---------------------------------------------------------------- refused service requests

@@ -19,6 +19,8 @@ from interop.ros2 import services  # noqa: E402
 from interop.ros2 import type_hash as th  # noqa: E402
 from interop.zenoh import rmw  # noqa: E402
 
+from .zenoh_query import query  # noqa: E402
+
 # RIHS01 hashes as rosidl generates them (Jazzy; rosidl_generator_c type hash constants as
 # published in generated code and third-party rmw_zenoh clients)
 TRIGGER = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
@@ -94,21 +96,6 @@ def session():
         yield s
 
 
-def _get(session, key, payload, attachment):
-    """One query; its replies as ("ok", bytes, attachment bytes) / ("err", text, None)."""
-    out = []
-    kw = {"payload": payload, "timeout": 10.0}
-    if attachment is not None:
-        kw["attachment"] = attachment
-    for reply in session.get(key, **kw):
-        if reply.ok is not None:
-            att = reply.ok.attachment.to_bytes() if reply.ok.attachment is not None else None
-            out.append(("ok", reply.ok.payload.to_bytes(), att))
-        else:
-            out.append(("err", reply.err.payload.to_bytes().decode(), None))
-    return out
-
-
 def test_service_server_echoes_the_request_id_and_refuses_bad_envelopes(session):
     """A service without a typed refusal (the bridge's all have one: test_zenoh_bridge_parts.py)
     answers refused requests with a Zenoh error reply, none reaching the handler."""
@@ -124,7 +111,7 @@ def test_service_server_echoes_the_request_id_and_refuses_bad_envelopes(session)
     gid = bytes(range(16))
     att = rmw.Attachment(41, 123, gid).encode()
     try:
-        replies = _get(session, srv.key, req.encode({}), att)
+        replies = query(session, srv.key, req.encode({}), att)
         assert len(replies) == 1, replies
         [(kind, data, ratt)] = replies
         assert kind == "ok"
@@ -139,7 +126,7 @@ def test_service_server_echoes_the_request_id_and_refuses_bad_envelopes(session)
             (b"\x00" * (MAX_REQUEST_BYTES + 1), att, "bytes refused unread (at most"),
             (b"\xff", att, "not decodable CDR"),
         ]:
-            [(kind, text, _)] = _get(session, srv.key, payload, attachment)
+            [(kind, text, _)] = query(session, srv.key, payload, attachment)
             assert kind == "err" and why in text, text
         assert len(calls) == 1  # none of them reached the handler
     finally:
@@ -162,7 +149,9 @@ def test_service_server_answers_busy_when_its_queue_is_full(session):
     att = rmw.Attachment(1, 1, bytes(16)).encode()
     results: list = []
     threads = [
-        threading.Thread(target=lambda: results.append(_get(session, srv.key, req.encode({}), att)))
+        threading.Thread(
+            target=lambda: results.append(query(session, srv.key, req.encode({}), att))
+        )
         for _ in range(4)
     ]
     try:
