@@ -56,7 +56,7 @@ from host.api.auth import (
     check_token_text,
     find_token,
 )
-from host.api.guard import GuardConfigError, WebGuard, is_loopback
+from host.api.guard import GuardConfigError, TcpCounts, WebGuard
 from interop import foxglove_protocol as P
 from interop import ros2
 
@@ -182,8 +182,7 @@ class FoxgloveGuard:
         self.dropped = 0  # data messages dropped for slow clients
         self.backoff = backoff if backoff is not None else Backoff()
         self.auth_hold_s = auth_hold_s
-        self._tcp_total = 0
-        self._tcp_by_ip: dict[str, int] = {}
+        self._tcp = TcpCounts()
         self._at_cap = False
         self._session = str(time.time_ns())
         self._lock = threading.Lock()  # channels, kept messages, clients and their queues
@@ -279,9 +278,7 @@ class FoxgloveGuard:
 
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
                 ip = _peer_ip(transport.get_extra_info("peername"))
-                per_peer = guard._tcp_by_ip.get(ip, 0)
-                over_peer = per_peer >= MAX_PER_PEER and not is_loopback(ip)
-                if guard._tcp_total >= MAX_CONNECTIONS or over_peer:
+                if not guard._tcp.admit(ip, MAX_CONNECTIONS, MAX_PER_PEER):
                     guard.refused_connections += 1
                     if not guard._at_cap:  # one line per episode, not one per connection
                         guard._at_cap = True
@@ -291,8 +288,6 @@ class FoxgloveGuard:
                     transport.abort()
                     return
                 self._ucr_ip = ip
-                guard._tcp_total += 1
-                guard._tcp_by_ip[ip] = per_peer + 1
                 super().connection_made(transport)
 
             def connection_lost(self, exc: Exception | None) -> None:
@@ -300,13 +295,8 @@ class FoxgloveGuard:
                 if ip is None:
                     return  # refused in connection_made: nothing was set up
                 self._ucr_ip = None
-                guard._tcp_total -= 1
+                guard._tcp.release(ip)
                 guard._at_cap = False
-                left = guard._tcp_by_ip.get(ip, 1) - 1
-                if left > 0:
-                    guard._tcp_by_ip[ip] = left
-                else:
-                    guard._tcp_by_ip.pop(ip, None)
                 super().connection_lost(exc)
 
         return _Capped

@@ -191,3 +191,31 @@ def _all(headers: Mapping[str, str], name: str) -> list[str]:
         return list(get_all(name))
     value = headers.get(name)
     return [] if value is None else [value]
+
+
+class TcpCounts:
+    """TCP connections open per peer address and in all, for the caps a server applies the
+    moment a connection is made, before any work on it (the API server, the Foxglove door).
+    Loopback peers count only in the total: every local client shares 127.0.0.1."""
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.by_ip: dict[str, int] = {}
+
+    def admit(self, ip: str, max_total: int, max_per_peer: int) -> bool:
+        """Count a new connection from ``ip``; False (nothing counted) above either cap."""
+        n = self.by_ip.get(ip, 0)
+        if self.total >= max_total or (n >= max_per_peer and not is_loopback(ip)):
+            return False
+        self.total += 1
+        self.by_ip[ip] = n + 1
+        return True
+
+    def release(self, ip: str) -> None:
+        """A connection :meth:`admit` counted has gone."""
+        self.total -= 1
+        left = self.by_ip.get(ip, 1) - 1
+        if left > 0:
+            self.by_ip[ip] = left
+        else:
+            self.by_ip.pop(ip, None)

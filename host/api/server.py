@@ -61,8 +61,8 @@ from host.api.auth import check_bind as _check_bind_policy
 from host.api.bridge import DaemonBridge, DaemonLink
 from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
-from host.api.guard import GuardConfigError, WebGuard, is_loopback
-from host.api.session import _is_loopback_ip, _peer, _peer_ip
+from host.api.guard import GuardConfigError, TcpCounts, WebGuard, is_loopback
+from host.api.session import _peer, _peer_ip
 
 __all__ = [
     "ApiServer",
@@ -180,8 +180,7 @@ class ApiServer:
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
         self._start_error: BaseException | None = None
-        self._tcp_total = 0
-        self._tcp_by_ip: dict[str, int] = {}
+        self._tcp = TcpCounts()
         self._conns: set[Any] = set()  # open TCP connections (the _Capped class below)
         self.inbound = 0  # request bytes the connections hold (frames read, being read, answered)
         self.inbound_peak = 0
@@ -214,7 +213,7 @@ class ApiServer:
             lambda: self.connections.sessions,
         )
         self.connections = Connections(
-            opts, self.counters, self.outboxes, self.requests, self._call, lambda: self._tcp_total
+            opts, self.counters, self.outboxes, self.requests, self._call, lambda: self._tcp.total
         )
 
     def _ssl_context(self) -> ssl.SSLContext:
@@ -296,7 +295,7 @@ class ApiServer:
         return {
             **self.counters,
             "clients": len(sessions),
-            "tcp_connections": self._tcp_total,
+            "tcp_connections": self._tcp.total,
             "subscriptions": sum(len(s.subs) for s in sessions),
             "queued_bytes": self.outboxes.queued_bytes,
             "inbound_bytes": self.inbound,
@@ -391,15 +390,11 @@ class ApiServer:
 
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
                 ip = _peer_ip(transport.get_extra_info("peername"))
-                per_peer = srv._tcp_by_ip.get(ip, 0)
-                over_peer = per_peer >= srv.opts.max_per_peer and not _is_loopback_ip(ip)
-                if srv._tcp_total >= srv.opts.max_connections or over_peer:
+                if not srv._tcp.admit(ip, srv.opts.max_connections, srv.opts.max_per_peer):
                     srv.counters["refused_connections"] += 1
                     transport.abort()
                     return
                 self._ucr_ip = ip
-                srv._tcp_total += 1
-                srv._tcp_by_ip[ip] = per_peer + 1
                 srv._conns.add(self)
                 super().connection_made(transport)
 
@@ -408,12 +403,7 @@ class ApiServer:
                 if ip is None:
                     return  # refused in connection_made: nothing was set up
                 self._ucr_ip = None
-                srv._tcp_total -= 1
-                left = srv._tcp_by_ip.get(ip, 1) - 1
-                if left > 0:
-                    srv._tcp_by_ip[ip] = left
-                else:
-                    srv._tcp_by_ip.pop(ip, None)
+                srv._tcp.release(ip)
                 srv._conns.discard(self)
                 srv.inbound -= self.ucr_held
                 self.ucr_held = 0
