@@ -29,7 +29,7 @@ from interop.ros2 import actions, services  # noqa: E402
 from interop.zenoh import rmw  # noqa: E402
 
 from .conftest import REPO, wait_for  # noqa: E402
-from .zenoh_query import query  # noqa: E402
+from .zenoh_query import isolated_session, query  # noqa: E402
 
 BENDABLES = ["segment_1", "segment_2", "segment_3"]
 FJT = "control_msgs/action/FollowJointTrajectory"
@@ -119,12 +119,7 @@ def jt_bytes(names: list[str], points: list[tuple[float, list[float]]]) -> bytes
 
 @pytest.fixture
 def session():
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf) as s:
+    with isolated_session() as s:
         yield s
 
 

@@ -19,7 +19,7 @@ from interop.ros2 import services  # noqa: E402
 from interop.ros2 import type_hash as th  # noqa: E402
 from interop.zenoh import rmw  # noqa: E402
 
-from .zenoh_query import query  # noqa: E402
+from .zenoh_query import isolated_session, query  # noqa: E402
 
 # RIHS01 hashes as rosidl generates them (Jazzy; rosidl_generator_c type hash constants as
 # published in generated code and third-party rmw_zenoh clients)
@@ -87,12 +87,7 @@ def test_trigger_codecs_round_trip_and_empty_request_has_the_placeholder_byte():
 
 @pytest.fixture
 def session():
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", "[]")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf) as s:
+    with isolated_session() as s:
         yield s
 
 

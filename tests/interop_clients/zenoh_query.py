@@ -1,6 +1,10 @@
-"""A raw Zenoh query as a ROS 2 service client sends one, for the service tests."""
+"""A raw Zenoh query as a ROS 2 service client sends one, and an isolated session, for the
+service tests."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 
 def query(session, key: str, payload: bytes, attachment: bytes | None) -> list:
@@ -16,3 +20,18 @@ def query(session, key: str, payload: bytes, attachment: bytes | None) -> list:
         else:
             out.append(("err", reply.err.payload.to_bytes().decode(), None))
     return out
+
+
+@contextmanager
+def isolated_session() -> Iterator:
+    """A Zenoh peer session that listens nowhere and finds no one (no scouting): the tests'
+    servers and clients meet inside it."""
+    import zenoh  # noqa: PLC0415 - the 'ros2' extra; the test modules skip without it
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("connect/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as s:
+        yield s
