@@ -6,8 +6,8 @@ Runs in the recorder's or the Foxglove server's own process: the daemon never wa
 slow feed loses stream messages in the daemon's per-client outbox, counted, never a cycle).
 
 A long-running client that outlives the daemon (``ucr zenoh``) keeps a :class:`DaemonLink` and
-connects again with :func:`reconnect`, with the back-off of ``ucr view``'s live source
-(:data:`view.source.RECONNECT_FIRST_S` doubling up to :data:`view.source.RECONNECT_MAX_S`).
+connects again with :func:`host.api.reconnect.reconnect`, the back-off ``ucr view``'s live
+source uses too.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ from interop.sinks import Fanout
 from interop.topics import CommandedGoals, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
-from view.source import RECONNECT_FACTOR, RECONNECT_FIRST_S, RECONNECT_MAX_S
 
 
 class FeedError(RuntimeError):
@@ -77,34 +76,6 @@ class DaemonLink:
 
     def close(self) -> None:
         self.client.close()
-
-
-def reconnect(
-    connect: Callable[[], Any],
-    stop: threading.Event,
-    on_retry: Callable[[str, int, float], None],
-    tick: Callable[[], None] | None = None,
-    tick_s: float = 1.0,
-) -> Any:
-    """``connect()`` again and again with ``ucr view``'s back-off (first wait
-    :data:`~view.source.RECONNECT_FIRST_S`, × :data:`~view.source.RECONNECT_FACTOR` after each
-    failure, at most :data:`~view.source.RECONNECT_MAX_S`) until it returns, which is returned;
-    None once ``stop`` is set. ``on_retry(why, attempt, next_wait_s)`` after each failure;
-    ``tick()`` every ``tick_s`` while waiting (to keep saying that the daemon is away)."""
-    delay, attempt = RECONNECT_FIRST_S, 0
-    while True:
-        end = time.monotonic() + delay
-        while (left := end - time.monotonic()) > 0:
-            if stop.wait(min(left, tick_s)):
-                return None
-            if tick is not None:
-                tick()
-        attempt += 1
-        try:
-            return connect()
-        except Exception as exc:  # noqa: BLE001 - any failure: said, retried
-            delay = min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S)
-            on_retry(str(exc) or type(exc).__name__, attempt, delay)
 
 
 class LiveFeed:

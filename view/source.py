@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from host.api.client import ApiError, connect
+from host.api.reconnect import reconnect
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -126,16 +127,12 @@ class OfflineSource:
                 self._reload()
 
 
-#: Reconnect back-off (s): first wait, factor, cap.
-RECONNECT_FIRST_S, RECONNECT_FACTOR, RECONNECT_MAX_S = 0.5, 2.0, 5.0
-
-
 class LiveSource:
     """The daemon: topology, joint states, events and who has control, over its API.
 
     When the connection drops (daemon restarted, network gone) the page shows "daemon
     disconnected", every segment turns grey and the source reconnects by itself with back-off
-    (RECONNECT_FIRST_S doubling up to RECONNECT_MAX_S); once back, the robot file is read again
+    (host.api.reconnect: 0.5 s doubling up to 5 s); once back, the robot file is read again
     and the scene rebuilt (``snap.robot_version`` bumps)."""
 
     mode = "live"
@@ -212,35 +209,33 @@ class LiveSource:
                 return
 
     def _reconnect(self) -> bool:
-        """Connect again (back-off); True once connected and the robot re-read."""
-        delay, attempt = RECONNECT_FIRST_S, 0
-        while not self._stop.wait(delay):
-            attempt += 1
-            try:
-                client = connect(self.url, token=self._token, timeout=self.timeout)
-            except Exception as exc:  # noqa: BLE001 - any failure: shown, retried
-                self._note_lost(f"{exc}", attempt, min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S))
-                delay = min(delay * RECONNECT_FACTOR, RECONNECT_MAX_S)
-                continue
+        """Connect again (host.api.reconnect's back-off); True once connected and the robot
+        re-read."""
+
+        def attempt() -> Any:
+            client = connect(self.url, token=self._token, timeout=self.timeout)
             self.client = client
             try:
                 self.robot = None  # the daemon may run another file now: read it again
                 self._topology_locked_refresh()
-            except Exception as exc:  # noqa: BLE001 - not ready (rebuilding): retried
+            except Exception:  # not ready (rebuilding): retried
                 try:
                     client.close()
-                except Exception:  # noqa: BLE001, S110
+                except Exception:  # noqa: BLE001, S110 - already broken
                     pass
-                self._note_lost(f"{exc}", attempt, delay)
-                continue
-            with self.lock:
-                self.snap.connected = True
-                self.snap.errors = []
-                self.snap.seq += 1
-                self.reconnects += 1
-            log.warning("reconnected to the daemon (attempt %d)", attempt)
-            return True
-        return False
+                raise
+            return client
+
+        back = reconnect(attempt, self._stop, self._note_lost)
+        if back is None:
+            return False
+        with self.lock:
+            self.snap.connected = True
+            self.snap.errors = []
+            self.snap.seq += 1
+            self.reconnects += 1
+        log.warning("reconnected to the daemon (attempt %d)", back[1])
+        return True
 
     def _note_lost(self, why: str, attempt: int, next_s: float) -> None:
         with self.lock:

@@ -292,7 +292,8 @@ def _serve(
     (its services answer that the daemon is away, ``/ucr/segments`` says so every second) and the
     bridge connects again with ``ucr view``'s back-off (:func:`interop.live.reconnect`)."""
     from host.api.client import ApiConnectionError, ApiTimeoutError  # noqa: PLC0415
-    from interop.live import LiveFeed, reconnect  # noqa: PLC0415
+    from host.api.reconnect import reconnect  # noqa: PLC0415
+    from interop.live import LiveFeed  # noqa: PLC0415
 
     while not stop.is_set():
         feed = LiveFeed(link.client, topics(), fanout, viz_rate=args.viz_rate)
@@ -318,7 +319,7 @@ def _serve(
         back = reconnect(reopen, stop, retry, tick=away)
         if back is None:
             break
-        client, new_robot, new_text = back
+        (client, new_robot, new_text), _attempt = back
         link.replace(client)
         if new_text != robot_text:
             robot_text = new_text
