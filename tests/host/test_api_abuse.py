@@ -18,7 +18,6 @@ running it with the old ``host/api``), on its own assertion where the old code a
 from __future__ import annotations
 
 import base64
-import importlib.util
 import json
 import logging
 import os
@@ -38,12 +37,7 @@ from tests.raw_http import read_head
 
 pytestmark = pytest.mark.timeout(90)
 
-_spec = importlib.util.spec_from_file_location(
-    "_api_protocol_stub_abuse", Path(__file__).with_name("test_api_protocol.py")
-)
-_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_mod)
-FacadeStub = _mod.FacadeStub
+from test_api_protocol import FacadeStub  # noqa: E402 - the in-memory facade
 
 READ_TOKEN = "read-only-token-0123456789"
 CONTROL_TOKEN = "control-token-0123456789ab"

@@ -7,7 +7,6 @@ import importlib.util
 import shutil
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 
 import pytest
 
@@ -22,12 +21,7 @@ if importlib.util.find_spec("playwright") is None:
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
 from playwright.sync_api import sync_playwright  # noqa: E402
-
-_spec = importlib.util.spec_from_file_location(
-    "_api_protocol_stub_browser", Path(__file__).with_name("test_api_protocol.py")
-)
-_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_mod)
+from test_api_protocol import FacadeStub  # noqa: E402 - the in-memory facade
 
 PAGE = """<!doctype html><meta charset="utf-8"><title>page</title><script>
 window.result = undefined;
@@ -79,7 +73,7 @@ def _visit(browser, url: str):
 
 
 def test_only_the_configured_origin_can_command_the_robot_from_a_browser(browser):
-    stub = _mod.FacadeStub()
+    stub = FacadeStub()
     page: dict[str, bytes] = {"body": b""}
     allowed_page, other_page = _page_server(page), _page_server(page)
     allowed_origin = f"http://127.0.0.1:{allowed_page.server_port}"

@@ -5,7 +5,6 @@ the API server in front of the in-memory facade of test_api_protocol.py."""
 from __future__ import annotations
 
 import base64
-import importlib.util
 import json
 import logging
 import os
@@ -29,14 +28,7 @@ from tests.raw_http import read_head
 
 pytestmark = pytest.mark.timeout(90)
 
-_spec = importlib.util.spec_from_file_location(
-    "_api_protocol_stub_sec", Path(__file__).with_name("test_api_protocol.py")
-)
-_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_mod)
-FacadeStub = _mod.FacadeStub
-rpc = _mod.rpc
-wait_for = _mod.wait_for
+from test_api_protocol import FacadeStub, _lazy_client, rpc, wait_for  # noqa: E402 - the in-memory facade
 
 READ_TOKEN = "read-only-token-0123456789"
 CONTROL_TOKEN = "control-token-0123456789ab"
@@ -486,7 +478,7 @@ def test_a_client_that_stops_reading_is_closed(stub):
     stub.period = 1 / 500
     srv = ApiServer(stub, "127.0.0.1", 0, slow_close_s=1.0, outbox_bytes=256 * 1024).start()
     try:
-        lazy = _mod._lazy_client(srv.port, {"id": 1, "op": "subscribe", "kinds": ["joint_states"]})
+        lazy = _lazy_client(srv.port, {"id": 1, "op": "subscribe", "kinds": ["joint_states"]})
         assert wait_for(lambda: srv.stats()["slow_closed"] >= 1, timeout=30)
         assert wait_for(lambda: srv.stats()["clients"] == 0)
         assert srv.stats()["queued_bytes"] == 0

@@ -4,7 +4,6 @@ server; the real daemon is exercised in test_api_e2e.py."""
 
 from __future__ import annotations
 
-import importlib.util
 import socket
 import subprocess
 import sys
@@ -18,12 +17,7 @@ from tools.cli import main as ucr
 pytestmark = pytest.mark.timeout(60)
 ROOT = Path(__file__).resolve().parents[2]
 
-_spec = importlib.util.spec_from_file_location(
-    "_api_protocol_stub", Path(__file__).with_name("test_api_protocol.py")
-)
-_mod = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_mod)
-FacadeStub = _mod.FacadeStub
+from test_api_protocol import FacadeStub  # noqa: E402 - the in-memory facade
 
 
 def free_url() -> str:
