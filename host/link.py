@@ -86,6 +86,7 @@ class ChainLink(_FramePlumbing):
             "rx_bytes": 0,
             "timeouts": 0,
             "unmatched": 0,
+            "stale": 0,  # a STATE with the request's seq but another cycle (a late answer)
             "error_replies": 0,
             "bad_payloads": 0,
             "alive": 0,
@@ -193,10 +194,17 @@ class ChainLink(_FramePlumbing):
         self, mtype: int, payload: dict, expected: int, timeout: float
     ) -> list[dict | None]:
         col = self._send(C.FLAG_BCAST, 0, mtype, payload, (C.T_STATE,))
-        return self._states(col, expected, timeout)
+        return self._states(col, expected, timeout, payload[C.K_CYCLE])
 
-    def _states(self, col: _Collector, expected: int, timeout: float) -> list[dict | None]:
-        """Wait for the STATEs of ``col``'s cycle; decode them, None where one is missing."""
+    def _states(
+        self, col: _Collector, expected: int, timeout: float, cycle: int
+    ) -> list[dict | None]:
+        """Wait for the STATEs of ``col``'s cycle; decode them, None where one is missing.
+
+        A STATE is matched to its request by ``seq``, which wraps after 256 requests; it must
+        also echo ``cycle`` (docs/protocol.md 8.4), else it is a late answer to an older request
+        that had the same seq: counted as ``stale`` and treated as missing, never as this
+        cycle's measurement."""
         self._wait(col, timeout, lambda c: all(i in c.replies for i in range(expected)))
         states: list[dict | None] = []
         for pos in range(expected):
@@ -206,6 +214,10 @@ class ChainLink(_FramePlumbing):
                 continue
             try:
                 st = M.decode_state(frame.payload, pos)
+                if st["cycle"] != cycle:
+                    self._counters["stale"] += 1
+                    states.append(None)
+                    continue
                 length, spool = self._geometry.get(pos, (None, None))
                 st["tendon_lengths"] = M.tendon_lengths(length, spool, st["servo_angles"])
                 states.append(st)
@@ -264,7 +276,7 @@ class ChainLink(_FramePlumbing):
     def sync_collect(self, pending: PendingCycle, timeout: float = 0.1) -> list[dict | None]:
         """The STATEs (SI, per position, None if missing) of a cycle begun with :meth:`sync_send`,
         waiting at most ``timeout`` s; the cycle is closed afterwards."""
-        return self._states(pending.col, pending.expected, timeout)
+        return self._states(pending.col, pending.expected, timeout, pending.cycle)
 
     def heartbeat(self, timeout: float = 0.1, *, expected: int | None = None) -> list[dict | None]:
         """Broadcast HEARTBEAT (feeds watchdogs); STATE per position (default: last discovery)."""

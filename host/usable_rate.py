@@ -22,7 +22,8 @@ log = logging.getLogger("ucr.daemon")
 def late_replies(link: Any) -> int:
     """The link's count of replies that came too late to match an exchange (OSError if the
     port failed)."""
-    return int(link.stats.get("unmatched", 0))
+    stats = link.stats
+    return int(stats.get("unmatched", 0)) + int(stats.get("stale", 0))
 
 
 class UsableRate:

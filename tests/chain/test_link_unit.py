@@ -39,6 +39,7 @@ class FakeChain:
         self.stop = False
         self.received: list = []
         self.truncate_state = False
+        self.cycle_shift = 0  # answer with another cycle than the request's (a late answer)
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -62,7 +63,8 @@ class FakeChain:
                 elif f.mtype == C.T_HEARTBEAT:
                     self.send(0, C.T_STATE, (f.seq + 1) & 0xFF, {0: 99})  # stale seq: ignored
                     self.send(0, C.T_ALIVE, 0, {}, flags=UP | C.FLAG_LOCAL)
-                    state = _state(body[0], 1.2345, -0.5, 0x11)
+                    cycle = (body[0] - self.cycle_shift) % C.TIME_WRAP
+                    state = _state(cycle, 1.2345, -0.5, 0x11)
                     if self.truncate_state:
                         state[0] = state[0][:14]  # cut inside the fixed part: not a valid STATE
                     self.send(0, C.T_STATE, f.seq, state)
@@ -70,6 +72,9 @@ class FakeChain:
                     self.send(1, C.T_ERROR, f.seq, {0: C.ERR_UNKNOWN_PARAM, 1: f.mtype, 2: "no"})
                 elif f.mtype == C.T_PARAM_GET and f.hop == 0:
                     self.send(0, C.T_PARAM_VALUE, f.seq, {0: body[0], 1: 42})
+                elif f.mtype == C.T_SYNC:
+                    cycle = (body[0] - self.cycle_shift) % C.TIME_WRAP
+                    self.send(0, C.T_STATE, f.seq, _state(cycle, 0.5, 0.0, 0))
 
     def close(self) -> None:
         self.stop = True
@@ -113,6 +118,25 @@ def test_an_incomplete_state_is_counted_and_dropped_not_passed_on(fake) -> None:
     chain.truncate_state = True
     assert link.heartbeat(timeout=0.2, expected=1) == [None]
     assert link.stats["bad_payloads"] == 1
+
+
+@pytest.mark.parametrize("pipelined", [False, True])
+def test_a_state_with_the_seq_but_another_cycle_is_stale_never_this_cycles_state(
+    fake, pipelined
+) -> None:
+    """seq wraps after 256 requests: a STATE answering an older request with the same seq must
+    not pass as this cycle's measurement (docs/protocol.md 8.4: the cycle echo tells them apart).
+    """
+    chain, link = fake
+    chain.cycle_shift = 256
+    if pipelined:
+        states = link.sync_collect(link.sync_send([(1.0, 0.0)]), timeout=0.2)
+    else:
+        states = link.heartbeat(timeout=0.2, expected=1)
+    assert states == [None]
+    assert link.stats["stale"] == 1 and link.stats["timeouts"] == 1
+    chain.cycle_shift = 0  # the same link goes on matching current answers
+    assert link.sync([(1.0, 0.0)], timeout=0.5)[0]["kappa"] == pytest.approx(0.5)
 
 
 def test_missing_answers_are_none_and_counted_as_timeouts(fake) -> None:
