@@ -57,9 +57,10 @@ Reference byte counts (computed here from the published frame formats, not measu
 # wire sizes
 # --------------------------------------------------------------------------------------------
 def _sync_bytes(n: int, worst: bool) -> int:
-    if worst:  # the cycle near 2**30 needs a 4-byte argument (setpoints are fixed-width)
+    if worst:  # the cycle near 2**30 needs a 4-byte argument (setpoints are fixed-width), and
+        # the resume key comes once when a HOLD ends
         sps = [(99.0, -3.0)] * n
-        return len(M.encode_sync(255, 2**30 - 1, sps))
+        return len(M.encode_sync(255, 2**30 - 1, sps, resume=True))
     sps = [(12.3456, 1.2345)] * n  # kappa 123456 (5 bytes), phi 12345 (3 bytes)
     return len(M.encode_sync(17, 123456, sps))
 

@@ -77,7 +77,7 @@ def rebuild_message(names: list[str], cut: dict[str, Any] | None, cmp: Compariso
 
 def largest_rate_hz(n: int, baudrate: int) -> int:
     """The largest loop rate (Hz) whose reply window (0.8 x period) holds one exchange of ``n``
-    segments at ``baudrate`` (store-and-forward floor, largest frames)."""
+    segments at ``baudrate`` (``exchange_floor_s``: the store-and-forward floor, largest frames)."""
     return math.floor(0.8 / exchange_floor_s(n, baudrate))
 
 
@@ -103,7 +103,8 @@ def rate_warning(
         advice = f"use rate_hz <= {max_rate} or a higher baudrate"
     return (
         f"{n} segment(s) at {baudrate} baud need at least {floor * 1e3:.1f} ms per exchange on "
-        "a real UART chain (store-and-forward), more than the "
+        "a real UART chain (bounded as store-and-forward to allow for each segment's "
+        "processing, docs/daemon.md), more than the "
         f"{reply_timeout_s * 1e3:.1f} ms a {rate_hz:.0f} Hz loop waits for their states: "
         f"states would arrive late or be missed; {advice}"
     )

@@ -28,9 +28,10 @@ RELAY_HOP_BYTES = 4
 
 
 def max_sync_bytes(n: int) -> int:
-    """Wire bytes of the largest SYNC for ``n`` segments (COBS, CRC and delimiter included)."""
+    """Wire bytes of the largest SYNC for ``n`` segments (COBS, CRC and delimiter included):
+    the largest cycle number and the resume key (sent once when a HOLD ends)."""
     sps = [(C.SP_KAPPA_MAX / C.KAPPA_SCALE, -3.0)] * n
-    return len(M.encode_sync(255, C.TIME_WRAP - 1, sps))
+    return len(M.encode_sync(255, C.TIME_WRAP - 1, sps, resume=True))
 
 
 def max_state_bytes(servos: int = 3) -> int:

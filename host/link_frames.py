@@ -55,10 +55,12 @@ class SegmentError(LinkError):
 
 
 def exchange_floor_s(n: int, baudrate: int) -> float:
-    """Shortest SYNC -> all-STATEs exchange (s) on today's store-and-forward chain of ``n``.
+    """The daemon's bound of one SYNC -> all-STATEs exchange (s) on a chain of ``n``.
 
     ``host.floors.store_and_forward_floor_s`` at the largest frames (docs/protocol.md
-    "Floors"); the daemon's rate warning uses it.
+    "Floors"), although protocol-v2 segments relay cut-through: the cut-through floor leaves
+    out every segment's processing time, which dominates on a real chain (docs/daemon.md "Rate
+    versus baud rate"); the daemon's rate warning uses it.
     """
     return floors.store_and_forward_floor_s(n, baudrate)
 

@@ -48,6 +48,9 @@ def test_largest_sizes_bound_real_frames() -> None:
     assert len(state) <= floors.max_state_bytes()
     sync = M.encode_sync(7, 2**29, [(-20.0, 3.1)] * 8)
     assert len(sync) <= floors.max_sync_bytes(8)
+    for n in (1, 3, 8):  # the SYNC that ends a HOLD carries the resume key on top
+        resume = M.encode_sync(7, 2**30 - 1, [(-20.0, 3.1)] * n, resume=True)
+        assert len(resume) <= floors.max_sync_bytes(n)
 
 
 def test_pipelined_ceiling_is_set_by_the_busiest_direction() -> None:

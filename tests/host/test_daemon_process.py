@@ -227,7 +227,7 @@ def test_segment_not_in_the_description_is_reported_and_held(chain):
 
 
 def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(chain, caplog):
-    """3 segments at 115200 baud need >= 17.7 ms per exchange (protocol v2, store-and-forward): a
+    """3 segments at 115200 baud need >= 18.2 ms per exchange (the store-and-forward bound): a
     100 Hz loop cannot get their states in time, and the daemon says so (with the limit and what
     to change); at 921600 it is silent."""
     import logging
@@ -258,10 +258,10 @@ def test_a_loop_rate_the_chains_baud_rate_cannot_serve_is_reported_with_the_fix(
 
     slow = warnings_at(115200)
     assert len(slow) == 1, slow
-    assert "3 segment(s) at 115200 baud need at least 17.7" in slow[0]
-    assert "use rate_hz <= 45" in slow[0]
+    assert "3 segment(s) at 115200 baud need at least 18.2" in slow[0]
+    assert "use rate_hz <= 43" in slow[0]
     # a reply timeout below the floor: the advice says to raise it too
     slow = warnings_at(115200, reply_timeout_s=0.015)
     assert len(slow) == 1, slow
-    assert "raise watchdog.reply_timeout_s" in slow[0] and "rate_hz <= 45" in slow[0]
+    assert "raise watchdog.reply_timeout_s" in slow[0] and "rate_hz <= 43" in slow[0]
     assert warnings_at(921600) == []
