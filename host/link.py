@@ -75,6 +75,8 @@ class ChainLink(_FramePlumbing):
         self._seq = 0
         self._cycle = 0
         self._expected: int | None = None
+        #: the segment of another protocol version the last discovery stopped before (a hot-plug)
+        self.version_refusal: ProtocolVersionError | None = None
         #: position -> (length m, spool radius m) from the last discovery: STATE (version 2)
         #: carries servo angles, the host derives the tendon lengths from them
         self._geometry: dict[int, tuple[float | None, float | None]] = {}
@@ -120,12 +122,17 @@ class ChainLink(_FramePlumbing):
         with self._cond:
             self._cond.notify_all()
 
-    def discover(self, timeout: float = 0.5) -> list[dict]:
+    def discover(self, timeout: float = 0.5, *, upto_other_version: bool = False) -> list[dict]:
         """Broadcast DISCOVER; descriptors in chain order (with ``position``).
 
         Stops as soon as the tip (``downstream_present`` false) and every position before it have
         answered, else after ``timeout`` s with the contiguous answers from position 0. Raises
         :class:`LinkError` if a segment's answer is missing between others (a lost reply).
+
+        A segment speaking another protocol version raises :class:`ProtocolVersionError`; with
+        ``upto_other_version`` (a hot-plug: the chain before it stays under control) only when
+        it is the first, else the segments before it are returned and the refusal is kept in
+        :attr:`version_refusal` (None when every segment speaks this host's version).
         """
         with self._call_lock:
             col = self._send(C.FLAG_BCAST, 0, C.T_DISCOVER, {}, (C.T_DESCRIPTOR,))
@@ -139,11 +146,20 @@ class ChainLink(_FramePlumbing):
                     if isinstance(p, dict) and p.get(C.KD_DOWNSTREAM_PRESENT) is False:
                         tip.append(pos)
                 if c.errors:  # a segment refused the DISCOVER: nothing passes it
-                    return True
+                    return all(i in c.replies for i in range(min(c.errors)))
                 return bool(tip) and all(i in c.replies for i in range(min(tip) + 1))
 
             self._wait(col, timeout, done)
-            self._refuse_other_versions(col)
+            self.version_refusal = None
+            try:
+                self._refuse_other_versions(col)
+            except ProtocolVersionError as exc:
+                if not upto_other_version or exc.position == 0:
+                    raise
+                self.version_refusal = exc  # the chain ends before that segment
+                cut = exc.position
+                col.replies = {p: f for p, f in col.replies.items() if p < cut}
+                tip = [cut - 1]
             descs = []
             for pos in sorted(col.replies):
                 try:

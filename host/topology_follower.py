@@ -95,6 +95,7 @@ class TopologyFollower:
         self.gap_cycles = 2  # set by the daemon from its (usable) period
         self.rejoins = 0  # segments probed back beyond a cut
         self._next_probe = 0.0
+        self._refused: str | None = None  # the last segment_refused message (reported once)
 
     @property
     def connected(self) -> bool:
@@ -137,28 +138,47 @@ class TopologyFollower:
             raise
         self.link_state = "connected"
 
-    def discover(self, quick: bool = False) -> list[dict]:
+    def discover(self, quick: bool = False, *, running: bool = False) -> list[dict]:
         """DISCOVER. ``quick`` (after a hot-plug) bounds the wait by what the line needs: the new
         tip may still believe its lost neighbour is present for 150 ms, so the link would
-        otherwise wait the whole configured timeout for an answer that will never come."""
+        otherwise wait the whole configured timeout for an answer that will never come.
+
+        ``running`` (a hot-plug or reconnect, not the start): a segment speaking another
+        protocol version ends the chain there, the segments before it stay under control, and
+        an event ``segment_refused`` says to reflash it (once per segment and version); at the
+        start the daemon refuses to run (docs/protocol.md section 10)."""
         timeout = self.cfg.watchdog.discover_timeout_s
         if quick:
             n = max(len(self.descriptors), 1) + 1
             line_s = 2 * n * _DESCRIPTOR_BYTES * 10 / self.cfg.baudrate
             # at a lowered (usable) rate the link is slow: allow two reply times
             timeout = min(timeout, max(0.08, line_s + 0.04, 2.0 * self.reply_timeout))
-        return self.link.discover(timeout=timeout)
+        if not running:
+            return self.link.discover(timeout=timeout)
+        descs = self.link.discover(timeout=timeout, upto_other_version=True)
+        refusal = getattr(self.link, "version_refusal", None)
+        text = None if refusal is None else str(refusal)
+        if text is not None and text != self._refused:
+            log.error("%s; the chain before it stays under control", text)
+            self._fanout.emit_event(
+                "segment_refused",
+                message=text,
+                position=refusal.position + 1,  # 1-based, like every position a user sees
+            )
+        self._refused = text
+        return descs
 
     def port_ok(self) -> bool:
         """The port works (a lost reply or a silent chain leave it working)."""
         return self.link is not None and bool(getattr(self.link, "port_ok", True))
 
     def discover_retrying(self, quick: bool = False) -> list[dict]:
-        """:meth:`discover`, retried at once when a reply was lost on a working port (a glitch
-        or corrupted bytes); raises OSError when the port failed or every try was incomplete."""
+        """:meth:`discover` of a running daemon, retried at once when a reply was lost on a
+        working port (a glitch or corrupted bytes); raises OSError when the port failed or
+        every try was incomplete."""
         for attempt in range(_DISCOVER_TRIES):
             try:
-                return self.discover(quick=quick)
+                return self.discover(quick=quick, running=True)
             except OSError:
                 if attempt == _DISCOVER_TRIES - 1 or not self.port_ok():
                     raise
@@ -428,6 +448,8 @@ class TopologyFollower:
     def describe(self) -> dict[str, Any]:
         """The chain as discovered, what is controlled, differences, cuts (caller holds lock)."""
         controlled = list(self.hwi.names) if self.hwi else []
-        return describe_chain(
+        out = describe_chain(
             self.robot, self.full_robot, self.descriptors, controlled, self.comparison, self.cut
         )
+        out["refused"] = self._refused  # a segment of another protocol version ends the chain
+        return out
