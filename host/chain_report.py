@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from host.floors import pipelined_rate_hz
 from host.link import exchange_floor_s
 from host.positions import label
 from host.topology import Comparison, chain_bendables
@@ -75,10 +76,14 @@ def rebuild_message(names: list[str], cut: dict[str, Any] | None, cmp: Compariso
     return msg
 
 
-def largest_rate_hz(n: int, baudrate: int) -> int:
-    """The largest loop rate (Hz) whose reply window (0.8 x period) holds one exchange of ``n``
-    segments at ``baudrate`` (``exchange_floor_s``: the store-and-forward floor, largest frames)."""
-    return math.floor(0.8 / exchange_floor_s(n, baudrate))
+def largest_rate_hz(n: int, baudrate: int, pipeline: bool = False) -> int:
+    """The largest loop rate (Hz) whose reply window (0.8 x period; pipelined 1.8 x period, the
+    STATEs are collected one cycle later) holds one exchange of ``n`` segments at ``baudrate``
+    (``exchange_floor_s``: the store-and-forward floor, largest frames); pipelined, never
+    above what link 0 carries one exchange per period of (``floors.pipelined_rate_hz``)."""
+    if not pipeline:
+        return math.floor(0.8 / exchange_floor_s(n, baudrate))
+    return math.floor(min(1.8 / exchange_floor_s(n, baudrate), pipelined_rate_hz(n, baudrate)))
 
 
 def rate_warning(
@@ -87,24 +92,31 @@ def rate_warning(
     reply_timeout_s: float,
     configured_reply_timeout_s: float,
     rate_hz: float,
+    pipeline: bool = False,
 ) -> str | None:
     """Why a real UART chain of ``n`` segments cannot answer within ``reply_timeout_s`` (and
-    what to change), or None when it can."""
+    what to change), or None when it can. ``pipeline``: the daemon collects the STATEs one
+    period later, so they have the period on top."""
     floor = exchange_floor_s(n, baudrate)
-    if floor <= reply_timeout_s:
+    window = reply_timeout_s + (1.0 / rate_hz if pipeline else 0.0)
+    if floor <= window:
         return None
-    max_rate = largest_rate_hz(n, baudrate)
-    if floor > configured_reply_timeout_s:
+    max_rate = largest_rate_hz(n, baudrate, pipeline)
+    extra = 1.0 / rate_hz if pipeline else 0.0
+    if floor > configured_reply_timeout_s + extra:
         advice = (
             f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "
             f"{max_rate}, or a higher baudrate"
         )
     else:
         advice = f"use rate_hz <= {max_rate} or a higher baudrate"
+    if not pipeline and largest_rate_hz(n, baudrate, True) >= rate_hz:
+        advice += ", or pipeline: true (docs/daemon.md 'Pipelining')"
     return (
         f"{n} segment(s) at {baudrate} baud need at least {floor * 1e3:.1f} ms per exchange on "
         "a real UART chain (bounded as store-and-forward to allow for each segment's "
         "processing, docs/daemon.md), more than the "
-        f"{reply_timeout_s * 1e3:.1f} ms a {rate_hz:.0f} Hz loop waits for their states: "
+        f"{window * 1e3:.1f} ms a {rate_hz:.0f} Hz loop"
+        f"{' (pipelined)' if pipeline else ''} waits for their states: "
         f"states would arrive late or be missed; {advice}"
     )

@@ -41,6 +41,13 @@ def register(subparsers: Any) -> None:
         help="run the control loop and link reader threads SCHED_FIFO at priority N (1-98; "
         "0: normal scheduling; overrides config realtime_priority; needs root or RLIMIT_RTPRIO)",
     )
+    p.add_argument(
+        "--pipeline",
+        action="store_true",
+        default=None,
+        help="collect each SYNC's states one cycle later, for a chain whose exchange is longer "
+        "than the reply window (overrides config pipeline; docs/daemon.md 'Pipelining')",
+    )
     p.add_argument("--no-api", action="store_true", help="do not start the network API")
     p.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING (default INFO)")
     p.set_defaults(func=cmd_daemon)
@@ -115,6 +122,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     setup_logging(args.log_level)
     try:
         robot, cfg = _load(args.robot, args.config)
+        if args.pipeline:
+            cfg.pipeline = True
         port = resolve_port(args.port, cfg.port, robot)
         daemon = Daemon(
             robot,

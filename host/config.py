@@ -96,6 +96,8 @@ class DaemonConfig:
     #: SCHED_FIFO priority of the control loop and link reader threads; 0: normal scheduling
     #: (host/realtime.py, docs/daemon.md "Real-time scheduling")
     realtime_priority: int = 0
+    #: collect each SYNC's STATEs one cycle later (host/hwi.py, docs/daemon.md "Pipelining")
+    pipeline: bool = False
     controllers: dict[str, dict[str, Any]] = field(
         default_factory=lambda: {
             k: {"type": v["type"], "params": dict(v["params"])}
@@ -154,6 +156,7 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
             "baudrate",
             "rate_hz",
             "realtime_priority",
+            "pipeline",
             "controllers",
             "active",
             "api",
@@ -174,6 +177,12 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
         cfg.realtime_priority = int(
             _num(source, "realtime_priority", data["realtime_priority"], lo=0, hi=98, integer=True)
         )
+    if "pipeline" in data:
+        if not isinstance(data["pipeline"], bool):
+            raise ConfigError(
+                source, "pipeline", f"expected true or false, got {data['pipeline']!r}"
+            )
+        cfg.pipeline = data["pipeline"]
     if "controllers" in data:
         ctrls = data["controllers"]
         if not isinstance(ctrls, dict) or not ctrls:

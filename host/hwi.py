@@ -35,6 +35,14 @@ One bus exchange per cycle: ``write()`` sends one SYNC (setpoints of every segme
 HEARTBEAT and stores the STATE replies; ``read()`` at the start of the next cycle copies those
 states into the state interfaces. So read → update → write costs one frame down and one round of
 STATE frames up.
+
+``pipeline`` (docs/daemon.md "Pipelining"): ``write()`` sends this cycle's SYNC and then collects
+the STATEs of the previous cycle's SYNC, which had a whole period to arrive, instead of waiting
+for this one's: a chain whose exchange takes longer than the reply window still gets every
+STATE, at the price of one period more between a measurement and the setpoint computed from it.
+Setpoints are applied in the order sent (FIFO links, rule 8.4 of docs/protocol.md). A probe
+beyond the tip is pipelined like any SYNC; a HEARTBEAT (inactive) closes the open cycle without
+waiting for its STATEs and runs unpipelined.
 """
 
 from __future__ import annotations
@@ -66,10 +74,12 @@ class HardwareInterface:
         reply_timeout: float = 0.02,
         known: dict[str, dict] | None = None,
         gap_cycles: int = 2,
+        pipeline: bool = False,
     ):
         """``known``: last STATE per bendable from a previous HWI of this chain (a rebuild);
         ``gap_cycles``: consecutive cycles without a STATE after which a segment loses its
-        command (held where measured when it answers again)."""
+        command (held where measured when it answers again); ``pipeline``: collect each SYNC's
+        STATEs one cycle later (module docstring)."""
         self.limits = limits
         self.names = list(limits)
         self.link = link
@@ -100,6 +110,8 @@ class HardwareInterface:
         self.exchanges = 0
         self.resume_pending = False  # next SYNCs carry "resume" until no segment reports HOLD
         self._pending: list[dict | None] | None = None
+        self.pipeline = bool(pipeline)
+        self._inflight: Any = None  # the pipelined SYNC whose STATEs the next write() collects
 
     # -- lifecycle ---------------------------------------------------------------------------
     def configure(self) -> None:
@@ -248,6 +260,11 @@ class HardwareInterface:
         if self.state == ACTIVE:
             sp = self.setpoints()
             self.exchange_probed = self.probe_extra > 0
+            if self.pipeline:
+                self._write_pipelined(sp)
+                self.exchange_s = time.perf_counter() - t0
+                self.exchanges += 1
+                return
             if self.probe_extra > 0:
                 self._pending = self.link.sync(
                     sp,
@@ -260,9 +277,32 @@ class HardwareInterface:
                     sp, timeout=self.reply_timeout, resume=self.resume_pending
                 )
         else:
+            self.close_pipeline()
             self._pending = self.link.heartbeat(timeout=self.reply_timeout)
         self.exchange_s = time.perf_counter() - t0
         self.exchanges += 1
+
+    def _write_pipelined(self, sp: list) -> None:
+        """Send this cycle's SYNC, then collect the previous one's STATEs. With no cycle open
+        (the pipeline starts) nothing is collected: ``read()`` keeps the last STATEs, which are
+        as old as a pipelined cycle's always are. ``exchange_probed`` says whether the
+        collected SYNC waited beyond the tip."""
+        sent = self.link.sync_send(
+            sp, resume=self.resume_pending, expected=len(sp) + self.probe_extra
+        )
+        previous, self._inflight = self._inflight, (sent, self.exchange_probed)
+        if previous is None:
+            self.exchange_probed = False
+            return
+        cycle, self.exchange_probed = previous
+        self._pending = self.link.sync_collect(cycle, timeout=self.reply_timeout)
+
+    def close_pipeline(self) -> None:
+        """Close the pipelined cycle still open, if any: its STATEs are not waited for (any
+        that come are counted by the link as unmatched)."""
+        if self._inflight is not None:
+            (inflight, _probed), self._inflight = self._inflight, None
+            self.link.sync_abandon(inflight)
 
 
 def robot_state_from(hwi: HardwareInterface, t: float) -> RobotState:

@@ -135,6 +135,8 @@ class ChainLink(_FramePlumbing):
         :attr:`version_refusal` (None when every segment speaks this host's version).
         """
         with self._call_lock:
+            with self._cond:  # a rediscovery ends every pipelined cycle still open
+                self._pipelined.clear()
             col = self._send(C.FLAG_BCAST, 0, C.T_DISCOVER, {}, (C.T_DESCRIPTOR,))
             tip: list[int] = []
 
@@ -288,6 +290,13 @@ class ChainLink(_FramePlumbing):
             n = len(setpoints) if expected is None else expected
             col = self._send(C.FLAG_BCAST, 0, C.T_SYNC, payload, (C.T_STATE,), pipelined=True)
             return PendingCycle(col, cycle, n)
+
+    def sync_abandon(self, pending: PendingCycle) -> None:
+        """Close a cycle begun with :meth:`sync_send` without waiting for its STATEs: any that
+        still come are counted as unmatched, never returned."""
+        with self._cond:
+            if self._pipelined.get(pending.col.seq) is pending.col:
+                del self._pipelined[pending.col.seq]
 
     def sync_collect(self, pending: PendingCycle, timeout: float = 0.1) -> list[dict | None]:
         """The STATEs (SI, per position, None if missing) of a cycle begun with :meth:`sync_send`,

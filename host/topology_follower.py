@@ -239,7 +239,12 @@ class TopologyFollower:
                 n: st for n, st in zip(self.hwi.names, self.hwi.last_states, strict=True) if st
             }
         hwi = HardwareInterface(
-            limits, self.link, self.reply_timeout, known=known, gap_cycles=self.gap_cycles
+            limits,
+            self.link,
+            self.reply_timeout,
+            known=known,
+            gap_cycles=self.gap_cycles,
+            pipeline=self.cfg.pipeline,
         )
         hwi.configure()
         hwi.activate()
@@ -271,6 +276,7 @@ class TopologyFollower:
             self.reply_timeout,
             self.cfg.watchdog.reply_timeout_s,
             self.rate_hz,
+            self.cfg.pipeline,
         )
         if warning is not None:
             log.warning("%s", warning)
