@@ -133,13 +133,47 @@ def register(subparsers: Any) -> None:
 
 
 # --------------------------------------------------------------------------- status
+def format_link_health(st: dict) -> tuple[str, list[str]]:
+    """The loop rate as the status line shows it, and the lines on a degraded link: which link,
+    its loss, the exchange latency, usable versus nominal rate (docs/daemon.md "Degrade, don't
+    stall"). Positions and links count from 1, as the daemon reports them."""
+    health = st.get("link_health") or {}
+    nominal = st.get("nominal_rate_hz", health.get("nominal_rate_hz", st.get("rate_hz", 0)))
+    usable = health.get("usable_rate_hz", st.get("rate_hz", 0)) or 0
+    if not health.get("degraded"):
+        return f"loop: {usable:g} Hz", []
+    rate = f"loop: {usable:g} Hz (slowed from {nominal:g} Hz: link degraded)"
+    last = health.get("last_change") or {}
+    link = last.get("link", last.get("position"))
+    into = f" (into {last['segment']})" if last.get("segment") else ""
+    where = f"link {link}{into}" if link is not None else "a link"
+    loss = last.get("loss")
+    lat = health.get("latency_ms_p90")
+    lines = [
+        f"link degraded: {where} is slow"
+        + (f", {loss:.0%} missed" if isinstance(loss, int | float) else "")
+        + (f" at {last['measured_at_hz']:g} Hz" if last.get("measured_at_hz") else "")
+        + f"; loop at {usable:g} Hz of {nominal:g} Hz nominal",
+    ]
+    per = health.get("loss") or []
+    if any(per) or lat is not None:
+        shares = ", ".join(f"{i + 1}: {x:.0%}" for i, x in enumerate(per))  # 1-based
+        lines.append(
+            f"  loss per position (last 30 exchanges) {shares or '-'}; exchange latency p90 "
+            + ("-" if lat is None else f"{lat:g} ms")
+        )
+    return rate, lines
+
+
 def format_status(st: dict) -> list[str]:
     """Human lines for a daemon status."""
+    rate, degraded = format_link_health(st)
     lines = [
         (
             f"daemon: {st.get('state')}  robot: {st.get('robot')}  port: {st.get('port')}  "
-            f"loop: {st.get('rate_hz', 0):g} Hz  up {st.get('uptime_s', 0):.0f} s"
+            f"{rate}  up {st.get('uptime_s', 0):.0f} s"
         ),
+        *degraded,
     ]
     if st.get("error"):
         lines.append(f"  error: {st['error']}")

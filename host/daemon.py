@@ -254,7 +254,9 @@ class Daemon:
         if reason is not None:
             stalls = topo.stalls
             missing = [i for i, m in enumerate(hwi.missing) if m > 0]
-            topo.hotplug(reason, now, verify=self.supervisor.silent)
+            topo.hotplug(
+                reason, now, verify=self.supervisor.silent, position=self.supervisor.position
+            )
             if topo.hwi is not hwi:
                 self.usable_rate.reset()
             elif topo.stalls > stalls and missing:
@@ -298,6 +300,11 @@ class Daemon:
             raise DaemonError(f"chain not available ({topo.link_state}: {topo.link_error})")
 
     # -- facade ------------------------------------------------------------------------------
+    def usable_rate_hz(self) -> float:
+        """The rate the loop runs at now: the configured one unless a slow link lowered it."""
+        period = self.loop.period
+        return self.rate_hz if abs(period - self.period) < 1e-12 else round(1.0 / period, 2)
+
     def status(self) -> dict[str, Any]:
         """Overall state: link, robot, segments, HWI lifecycle, active controllers, goals."""
         with self._lock:
@@ -308,7 +315,11 @@ class Daemon:
                 "error": topo.link_error,
                 "port": self.port,
                 "robot": topo.robot.name,
-                "rate_hz": self.rate_hz,
+                # the rate the loop runs at: the usable one (lowered while a link is slow,
+                # docs/daemon.md "Degrade, don't stall"), as in loop_stats(); the configured one
+                # is nominal_rate_hz
+                "rate_hz": self.usable_rate_hz(),
+                "nominal_rate_hz": self.rate_hz,
                 "segments": list(hwi.names) if hwi else [],
                 "hwi": hwi.state if hwi else "unconfigured",
                 "active_controllers": motion["active_controllers"],

@@ -8,6 +8,16 @@ for ``recover_s`` at the lower rate, the loop tries the nominal rate again.
 A return that fails at once doubles the clean time asked for next (up to 12 s): a link that
 stays bad is not probed at full rate over and over.
 
+One rule slows the loop, on either path (:meth:`LinkHealth.observe` every cycle,
+:meth:`LinkHealth.stall` after a silent stretch that found the same chain): a position missed
+≥ DEGRADE_LOSS of the exchanges in the window *and* at least DEGRADE_LATE replies arrived late
+meanwhile (the caller counts them since that position began to miss, never from longer ago).
+The stall path only does not wait for a full window.
+
+Positions in what it reports (``position``, ``link``) count from 1, like every position a user
+sees (:mod:`host.positions`): ``link`` k is the cable into the k-th segment. The ``loss`` list
+is indexed by chain order.
+
 It decides and reports; the daemon applies the period (loop, reply timeout, supervision).
 """
 
@@ -120,12 +130,15 @@ class LinkHealth:
         if now - self._clean_since < self.recover_s:
             return None
         p90 = self._latency_p90()
+        measured_at = 1.0 / self.period
         self.period = self.nominal
         self._t_restored = now
         self.reset()
         self.last = {
             "position": None,
+            "link": None,
             "loss": 0.0,
+            "measured_at_hz": round(measured_at, 2),
             "latency_ms": round(p90 * 1e3, 2),
             "usable_rate_hz": round(1.0 / self.period, 2),
             "cause": "recovered",
@@ -133,18 +146,22 @@ class LinkHealth:
         return {"period": self.period, "change": "restored", **self.last}
 
     def _degrade(self, position: int, loss: float, now: float) -> dict[str, Any]:
-        """Halve the rate (not below the floor); the change as reported."""
+        """Halve the rate (not below the floor); the change as reported (0-based
+        ``position`` in, 1-based ``position``/``link`` out)."""
         p90 = self._latency_p90()
         if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
             self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
         self._t_restored = None
+        measured_at = 1.0 / self.period  # the rate the loss was measured at
         self.period = min(self.period * 2, self.min_period)
         self.degradations += 1
         self.reset()
         self._late_seen = None
         self.last = {
-            "position": position,
+            "position": position + 1,  # 1-based, as a user reads it
+            "link": position + 1,  # the cable into that segment, as the emulator counts links
             "loss": round(loss, 3),
+            "measured_at_hz": round(measured_at, 2),
             "latency_ms": round(p90 * 1e3, 2),
             "usable_rate_hz": round(1.0 / self.period, 2),
             "cause": "loss",
@@ -152,16 +169,20 @@ class LinkHealth:
         return {"period": self.period, "change": "degraded", **self.last}
 
     def stall(self, position: int, late: int, now: float) -> dict[str, Any] | None:
-        """Supervision found a silent stretch and the very same chain behind it (a stall): with
-        replies arriving late meanwhile (``late`` > 0) the link is slow — degrade at once,
-        without waiting for a full window; unless an exchange was held up in this process less
-        than HOST_STALL_HOLD_S ago (:meth:`observe`). Returns a change as :meth:`observe` does."""
-        if late <= 0 or self.period >= self.min_period * 0.999:
+        """Supervision found a silent stretch and the very same chain behind it (a stall) at
+        0-based ``position``: when that position missed ≥ DEGRADE_LOSS of the exchanges in the
+        window so far and ``late`` ≥ DEGRADE_LATE replies (counted since it began to miss)
+        arrived late meanwhile, the link is slow — degrade at once, without waiting for a full
+        window; unless an exchange was held up in this process less than HOST_STALL_HOLD_S ago
+        (:meth:`observe`). Returns a change as :meth:`observe` does."""
+        if late < DEGRADE_LATE or self.period >= self.min_period * 0.999:
             return None
         if self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S:
             return None  # the process was held up meanwhile (see observe), not the link
         loss = self.loss()
-        return self._degrade(position, loss[position] if position < len(loss) else 1.0, now)
+        if not 0 <= position < len(loss) or loss[position] < DEGRADE_LOSS:
+            return None  # the same threshold as a full window: a few misses are no slow link
+        return self._degrade(position, loss[position], now)
 
     def _push(self, answered: tuple[bool, ...]) -> None:
         """Adds one exchange to the window, keeping the per-position miss counts (the cycle

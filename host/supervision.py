@@ -5,7 +5,8 @@ their own (watchdog, HOLD or FAULT). Segments in FAULT are listed in :attr:`Supe
 until their STATE shows the fault cleared (only an explicit CLEAR_FAULT does that).
 
 It decides and reports; it does not rebuild. :meth:`Supervisor.check` returns the reason for a
-topology change, and the topology follower acts on it.
+topology change (and :attr:`Supervisor.position`, the chain index it concerns), and the topology
+follower acts on it. Events carry 1-based positions, as every position a user sees.
 """
 
 from __future__ import annotations
@@ -70,6 +71,21 @@ def is_news(event: str, position: Any, descriptors: list[dict]) -> bool:
     return position >= last  # DOWNSTREAM_UP: we believed it was the tip
 
 
+def _one_based(position: Any) -> Any:
+    """A chain index as events carry it: counted from 1 (anything else as is)."""
+    if isinstance(position, int) and not isinstance(position, bool):
+        return position + 1
+    return position
+
+
+def _concerned(event: str, position: Any) -> int | None:
+    """The chain index a topology event concerns: the segment that booted, or the neighbour
+    behind the segment whose downstream port changed."""
+    if not isinstance(position, int):
+        return None
+    return position if event == "BOOT" else position + 1
+
+
 class Supervisor:
     """SMCS for one loop. ``emit_event(event, message, **fields)`` reports;
     ``rehold(state, message)`` makes the controllers hold the measured state."""
@@ -79,13 +95,14 @@ class Supervisor:
         watchdog: WatchdogConfig,
         period: float,
         emit_event: Callable[..., None],
-        rehold: Callable[[RobotState, str], None],
+        rehold: Callable[..., None],
     ):
         self.watchdog = watchdog
         self.period = period
         self._emit = emit_event
         self._rehold = rehold
         self.silent = False  # the last reason was silence (no event): verify before aborting
+        self.position: int | None = None  # 0-based index of the segment the last reason concerns
         # segments in FAULT: name -> {position, code, name, text}
         self.faults: dict[str, dict[str, Any]] = {}
 
@@ -99,13 +116,14 @@ class Supervisor:
         """Return a reason when the topology changed; handle unexpected HOLDs."""
         reason = None
         self.silent = False
+        self.position = None
         for ev in events:
             name = ev.get("name", "")
             extra = {"text": ev["text"]} if "text" in ev else {}
             self._emit(
                 name.lower(),
                 message=describe_event(ev, descriptors),
-                position=ev.get("position"),
+                position=_one_based(ev.get("position")),
                 detail=ev.get("detail"),
                 segment_t_ms=ev.get("t_ms"),
                 source="segment",
@@ -115,6 +133,7 @@ class Supervisor:
                 self._note_fault(hwi, ev)
             if reason is None and is_news(name, ev.get("position"), descriptors):
                 reason = f"{name} from {label(ev.get('position'))}"
+                self.position = _concerned(name, ev.get("position"))
         self._track_faults(hwi)
         if reason is None:
             reason = self._misaddressed(hwi)
@@ -126,9 +145,11 @@ class Supervisor:
                 names = ", ".join(f"{hwi.names[i]} ({label(i)})" for i in silent)
                 reason = f"no STATE from {names} for {limit} cycles"
                 self.silent = True
+                self.position = silent[0]
         if reason is None and getattr(hwi, "extra_states", None):
             tip = hwi.names[-1] if hwi.names else "the host"
             reason = f"{len(hwi.extra_states)} segment(s) answer beyond {tip} (rejoin)"
+            self.position = len(hwi.names)
         if reason is None and hwi.raw_states and descriptors:
             tip = hwi.raw_states[-1]
             known_tip = descriptors[len(hwi.names) - 1]
@@ -138,6 +159,7 @@ class Supervisor:
                 and known_tip.get("downstream_present") is False
             ):
                 reason = f"a segment answers downstream of {hwi.names[-1]}"
+                self.position = len(hwi.names)
         if reason is None:
             held = [
                 hwi.names[i]
@@ -146,7 +168,7 @@ class Supervisor:
             ]
             if held and not hwi.resume_pending:
                 msg = f"segment(s) {', '.join(held)} holding (watchdog, HOLD or FAULT)"
-                self._rehold(state, msg)
+                self._rehold(state, msg, segments=held)
                 hwi.resume_pending = True
                 self._emit(
                     "segments_held", message=msg + "; controllers re-held, resuming", segments=held
@@ -195,6 +217,12 @@ class Supervisor:
                     f"{name} ({label(i)}) applied the setpoint of {label(applied)}: "
                     "misaddressed SYNC"
                 )
-                self._emit("misaddressed", message=msg + "; holding", position=i, applied=applied)
+                self._emit(
+                    "misaddressed",
+                    message=msg + "; holding",
+                    position=i + 1,  # 1-based, like every position a user sees
+                    applied=_one_based(applied),
+                )
+                self.position = i
                 return msg
         return None

@@ -7,6 +7,11 @@ chain, rediscover, compare, cut the robot to the matching segments, build a new 
 :class:`host.motion.Motion` rebuild the controllers (they hold the measured position) — in the
 loop thread, without restarting. Talks to the rest through: ``motion.build`` /
 ``motion.abort_goals``, ``fanout.publish`` / ``fanout.emit_event``, ``submit`` (publisher thread).
+Why a change aborts goals (segment, cause) is decided in :mod:`host.motion_abort`.
+
+One piece: it is one state machine over one link (connected, waiting, reconnecting, stopped),
+and discovery, rebuild and reopen each move it between those states; split apart, the
+transitions and the back-off they share would be scattered over several modules.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from host.errors import DaemonError, TopologyError
 from host.hwi import HardwareInterface, robot_state_from
 from host.limits import bendable_limits
 from host.motion import Motion
+from host.motion_abort import hotplug_abort
 from host.publisher import Fanout
 from host.topology import (
     Comparison,
@@ -42,7 +48,7 @@ _DESCRIPTOR_BYTES = 200  # a DESCRIPTOR frame on the wire, bytes (upper estimate
 PROBE_INTERVAL_S = 0.1  # while the chain is shorter than its description: one probe per 0.1 s
 REJOIN_RETRY_S = 0.2  # longest wait between discoveries while the port is fine but no segment
 # answers (the port's own reopen back-off goes up to watchdog.reconnect_max_s)
-_DISCOVER_TRIES = 3  # an incomplete discovery (a lost reply) is retried this often at once
+_DISCOVER_TRIES = 3  # an incomplete or unanswered discovery is retried this often at once
 
 
 class TopologyFollower:
@@ -174,15 +180,22 @@ class TopologyFollower:
 
     def discover_retrying(self, quick: bool = False) -> list[dict]:
         """:meth:`discover` of a running daemon, retried at once when a reply was lost on a
-        working port (a glitch or corrupted bytes); raises OSError when the port failed or
-        every try was incomplete."""
+        working port (a glitch or corrupted bytes) — and, after a hot-plug (``quick``), when no
+        segment answered at all on a working port (a restarting neighbour, a burst of
+        corruption): the last try then waits the full ``discover_timeout_s``. Raises OSError
+        when the port failed or every try was incomplete; [] when every try went unanswered."""
+        descs: list[dict] = []
         for attempt in range(_DISCOVER_TRIES):
+            last = attempt == _DISCOVER_TRIES - 1
             try:
-                return self.discover(quick=quick, running=True)
+                descs = self.discover(quick=quick and not (last and attempt), running=True)
             except OSError:
-                if attempt == _DISCOVER_TRIES - 1 or not self.port_ok():
+                if last or not self.port_ok():
                     raise
-        return []
+                continue
+            if descs or not quick or not self.port_ok():
+                return descs
+        return descs
 
     def probe_due(self, now: float) -> int:
         """Positions beyond the tip the next SYNC should wait for: while the chain is shorter
@@ -282,16 +295,17 @@ class TopologyFollower:
             log.warning("%s", warning)
 
     # -- changes (loop thread) ---------------------------------------------------------------
-    def hotplug(self, reason: str, t_detect: float, verify: bool = False) -> None:
+    def hotplug(
+        self, reason: str, t_detect: float, verify: bool = False, position: int | None = None
+    ) -> None:
         """Hold, rediscover, abort, rebuild — in the loop thread, without restarting.
 
         ``verify`` (silent segments, no event): if discovery finds the very same chain, the
         silence was a stall (late replies, a loaded host): resume without aborting anything.
+        ``position``: the 0-based index the reason concerns (named in the abort reason).
         """
-        aborted: list[str] = []
         if not verify:
             log.warning("topology change: %s", reason)
-            aborted = self._motion.abort_goals(f"topology changed: {reason}")
         try:
             self.link.hold()
             descs = self.discover_retrying(quick=True)
@@ -299,7 +313,7 @@ class TopologyFollower:
             if self.port_ok():  # replies lost on a working port: rediscover shortly
                 if verify:
                     log.warning("topology change: %s", reason)
-                    self._motion.abort_goals(f"link loss: {reason}", "link_loss")
+                self._abort(reason, verify, None, position)
                 self.topology_changes += 1
                 self._lost_chain(f"{reason}; discovery incomplete: {exc}")
                 return
@@ -331,7 +345,7 @@ class TopologyFollower:
                 log.warning("stall: %s; chain unchanged, resumed", reason)
                 return
             log.warning("topology change: %s", reason)
-            aborted = self._motion.abort_goals(f"topology changed: {reason}")
+        aborted = self._abort(reason, verify, descs, position)
         self.topology_changes += 1
         if not descs:
             self._lost_chain(f"{reason}; no segment answers DISCOVER")
@@ -377,6 +391,20 @@ class TopologyFollower:
         )
         log.warning("rebuilt in %.0f ms: %s", (t_ready - t_detect) * 1e3, msg)
 
+    def _abort(
+        self, reason: str, silent: bool, descs: list[dict] | None, position: int | None
+    ) -> list[str]:
+        """Abort the running goals naming the segment and the cause (host/motion_abort.py)."""
+        text, cause, segment = hotplug_abort(
+            reason,
+            silent=silent,
+            before=[d.get("uid") for d in self.descriptors],
+            found=None if descs is None else [d.get("uid") for d in descs],
+            expected=chain_bendables(self.full_robot),
+            position=position,
+        )
+        return self._motion.abort_goals(text, cause, segment)
+
     def _lost_chain(self, why: str) -> None:
         """No usable segment: keep the port, retry discovery with back-off."""
         log.error("chain lost: %s", why)
@@ -392,7 +420,8 @@ class TopologyFollower:
         """The port failed: abort goals, drop the HWI, close; :meth:`recover` reopens it."""
         log.error("link lost: %s", exc)
         with self._lock:
-            self._motion.abort_goals(f"link lost: {exc}")
+            first = self.hwi.names[0] if self.hwi is not None and self.hwi.names else None
+            self._motion.abort_goals(f"link lost: {exc}", "link_loss", first)  # the host's port
             self.hwi = None
         self.close_link()
         self.link_state = "reconnecting"

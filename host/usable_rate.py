@@ -40,23 +40,32 @@ class UsableRate:
         self.rate_hz = rate_hz
         self._emit_event = emit_event
         self._apply_period = apply_period
-        self._late_mark: int | None = None  # link's late-reply count at the last stall
+        # the link's late-reply count when replies began to miss (the first incomplete exchange
+        # after a complete one); None while every position answers. A stall counts late
+        # replies from there: never from an older stretch (a burst long ago is no slow link).
+        self._late_mark: int | None = None
 
     def start(self, link: Any) -> None:
-        """Count late replies from now on (a fresh link)."""
-        try:
-            self._late_mark = late_replies(link)
-        except (OSError, AttributeError):
-            self._late_mark = None
+        """A fresh link: no stretch of misses yet."""
+        self._late_mark = None
 
     def reset(self) -> None:
         """The chain was rebuilt: start the health window again."""
         self.health.reset()
+        self._late_mark = None
 
     def observe(self, hwi: HardwareInterface, link: Any, now: float) -> None:
         """Feed the link health with the last exchange; apply and report a change."""
+        answered = [s is not None for s in hwi.raw_states]
+        if all(answered):
+            self._late_mark = None  # a complete exchange ends a stretch of misses
+        elif self._late_mark is None:
+            try:  # one look at the link's counters per stretch, not per cycle
+                self._late_mark = late_replies(link)
+            except (OSError, AttributeError):
+                self._late_mark = None
         change = self.health.observe(
-            [s is not None for s in hwi.raw_states],
+            answered,
             hwi.exchange_s,
             now,
             lambda: late_replies(link),
@@ -65,12 +74,15 @@ class UsableRate:
         self._report(hwi, change)
 
     def stall(self, hwi: HardwareInterface, link: Any, position: int, now: float) -> None:
-        """A stall (silence, same chain): late replies meanwhile mean a slow link."""
+        """A stall (silence, same chain) at 0-based ``position``: late replies since the
+        replies began to miss mean a slow link (link health decides, with its loss rule)."""
+        if self._late_mark is None:
+            return  # no stretch of misses was seen: nothing to count from
         try:
             count = late_replies(link)
-        except OSError:
+        except (OSError, AttributeError):
             return
-        late = count - (self._late_mark if self._late_mark is not None else 0)
+        late = count - self._late_mark
         self._late_mark = count
         self._report(hwi, self.health.stall(position, late, now))
 
@@ -81,14 +93,17 @@ class UsableRate:
         self._apply_period(change["period"])
         rate, nominal = change["usable_rate_hz"], round(self.rate_hz, 2)
         if change["change"] == "degraded":
-            pos = change["position"]
-            into = hwi.names[pos] if pos < len(hwi.names) else label(pos)
+            index = change["position"] - 1  # the change counts from 1, names from 0
+            into = hwi.names[index] if index < len(hwi.names) else label(index)
+            change["segment"] = into
+            if self.health.last is not None:
+                self.health.last["segment"] = into  # status()["link_health"]["last_change"]
             msg = (
-                f"link {pos + 1} (into {into}) is slow: its replies come late, "
-                f"{change['loss']:.0%} missed at {round(1.0 / (change['period'] / 2), 2)} Hz; "
+                f"link {change['link']} (into {into}) is slow: its replies come late, "
+                f"{change['loss']:.0%} missed at {change['measured_at_hz']} Hz; "
                 f"loop slowed to {rate} Hz (nominal {nominal} Hz)"
             )
-            self._emit_event("link_degraded", message=msg, link=pos + 1, segment=into, **change)
+            self._emit_event("link_degraded", message=msg, **change)
         else:
             msg = f"link recovered (exchange p90 {change['latency_ms']} ms): loop back to {rate} Hz"
             self._emit_event("link_recovered", message=msg, **change)

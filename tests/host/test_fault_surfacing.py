@@ -24,7 +24,7 @@ def _supervisor(events: list) -> Supervisor:
         WatchdogConfig(missed_cycles=3, silence_s=0.0),
         0.01,
         lambda ev, message="", **kw: events.append((ev, message, kw)),
-        lambda state, msg: None,
+        lambda state, msg, segments=None: None,
     )
 
 

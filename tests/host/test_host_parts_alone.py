@@ -61,12 +61,21 @@ def test_exchanges_held_up_in_the_daemons_own_process_do_not_slow_the_loop():
         rate.observe(stalled, link, 0.01 * k)
     assert periods == [] and health.host_stalls == 40
     assert health.snapshot()["host_stalls"] == 40 and not health.snapshot()["degraded"]
-    # supervision's silent stretch right after it is the process's too; later, the link's
+    # supervision's silent stretch right after it is the process's too
     link.stats["unmatched"] += 1
     rate.stall(stalled, link, 1, 0.4)
     assert periods == []
-    link.stats["unmatched"] += 1
-    rate.stall(stalled, link, 1, 2.0)
+    # later, a stretch that is the link's own: exchanges on time, position 1 missing and its
+    # replies coming late (the documented rule: >= 60 % missed and >= 3 late replies)
+    slow = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008,
+        reply_timeout=0.008,
+    )  # fmt: skip
+    for k in range(5):
+        link.stats["unmatched"] += 1
+        rate.observe(slow, link, 2.0 + 0.01 * k)
+    assert periods == []  # (a window is not full yet)
+    rate.stall(slow, link, 1, 2.1)
     assert periods == [0.02]
 
 

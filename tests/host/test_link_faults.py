@@ -15,6 +15,7 @@ import time
 import pytest
 from daemon_helpers import emulated_configs, start_daemon, wait_for
 
+from host.client_cli import format_status
 from host.config import DaemonConfig
 from host.daemon import Daemon
 from tools.emulator import EmulatedChain
@@ -203,6 +204,10 @@ def test_a_slow_link_lowers_the_rate_keeps_control_and_recovers(ready, chain, fa
         assert wait_for(lambda: d.status()["link_health"]["degraded"], 10.0)
         health = d.status()["link_health"]
         assert health["usable_rate_hz"] < health["nominal_rate_hz"]
+        # status and `ucr status` show the rate the loop runs at, and the degraded link
+        assert wait_for(lambda: d.status()["rate_hz"] < d.status()["nominal_rate_hz"], 10.0)
+        text = "\n".join(format_status(d.status()))
+        assert "slowed from 100 Hz" in text and "link degraded: link " in text, text
         # the whole chain stays under control at the usable rate: a goal on the tip succeeds
         # (a reply the slow link still loses now and then aborts a goal by the gap rule, with
         # cause link_loss: the goal is sent again, at most 3 times)
@@ -236,5 +241,6 @@ def test_a_slow_link_lowers_the_rate_keeps_control_and_recovers(ready, chain, fa
     links = (2,) if "latency" in fault else (2, 3)
     degraded = [m for m in msgs if m["event"] == "link_degraded" and m["link"] in links]
     assert degraded and degraded[0]["segment"] == NAMES[degraded[0]["link"] - 1], msgs
+    assert degraded[0]["position"] == degraded[0]["link"]  # the same cable, counted from 1
     assert "slowed to" in degraded[0]["message"] and degraded[0]["usable_rate_hz"] < 100
     assert any(m["event"] == "link_recovered" for m in msgs)

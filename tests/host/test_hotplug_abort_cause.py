@@ -1,0 +1,138 @@
+"""Issue 12, "one coherent abort reason", for hot-plug aborts: the goal's abort names the segment
+and the cause (a silent link whose rediscovery finds the same chain, or its leading part, is a
+``link_loss``, a change a segment reports is a ``topology_change``); and a rediscovery that gets
+no answer at all on a working port is retried (bounded) before the chain is given up.
+
+On a fake chain link (no firmware, no serial port, no loop thread): the topology follower's
+``hotplug`` is called directly, as the loop calls it, so nothing depends on timing."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from test_review_fixes import FakeLink
+
+from host.config import DaemonConfig
+from host.daemon import Daemon
+
+NAMES = ["segment_1", "segment_2", "segment_3"]
+SILENT = "no STATE from segment_2 (position 2), segment_3 (position 3) for 8 cycles"
+
+
+class ScriptedLink(FakeLink):
+    """A FakeLink whose DISCOVER answers follow ``answers``: each entry the number of leading
+    segments that answer one discovery (the last entry repeats); ``calls`` counts them."""
+
+    def __init__(self, robot, answers: list[int] | None = None):
+        super().__init__(robot)
+        self.answers = list(answers or [])
+        self.calls = 0
+        self.port_ok = True
+
+    def discover(self, timeout: float = 0.5, upto_other_version: bool = False) -> list[dict]:
+        self.calls += 1
+        if not self.answers:
+            return [dict(d) for d in self.descs]
+        n = self.answers.pop(0) if len(self.answers) > 1 else self.answers[0]
+        return [dict(d) for d in self.descs[:n]]
+
+
+@pytest.fixture()
+def opened(robot3):
+    """A daemon whose chain is open and built (no loop thread), and a goal running on it."""
+    made = []
+
+    def make() -> tuple[Daemon, ScriptedLink, str]:
+        link = ScriptedLink(robot3)
+        d = Daemon(
+            robot3,
+            DaemonConfig(),
+            port="fake://chain",
+            rate_hz=100.0,
+            link_factory=lambda url, baud: link,
+        )
+        made.append(d)
+        d.topo.open()
+        gid = d.send_trajectory(
+            [{"time_from_start": 5.0, "segments": {"segment_3": {"kappa": 1.0, "phi": 0.0}}}]
+        )
+        assert not d.trajectory_status(gid)["done"]
+        link.calls = 0
+        return d, link, gid
+
+    yield make
+    for d in made:
+        d.stop(hold=False)
+
+
+def abort_of(d: Daemon, gid: str) -> dict:
+    st = d.trajectory_status(gid)
+    assert st["state"] == "aborted", st
+    return {**st["abort"], "reason": st["reason"]}
+
+
+def test_silence_whose_rediscovery_finds_the_leading_part_is_link_loss_naming_the_segment(opened):
+    # `corrupt 2 0.3`: the replies of segment_2 and segment_3 are lost, the rediscovery finds
+    # segment_1 only (today: cause topology_change, segment None)
+    d, link, gid = opened()
+    link.answers = [1]
+    d.topo.hotplug(SILENT, time.monotonic(), verify=True)
+    ab = abort_of(d, gid)
+    assert ab["cause"] == "link_loss" and ab["segment"] == "segment_2", ab
+    assert "segment_2" in ab["reason"]
+
+
+def test_a_reported_change_is_a_topology_change_naming_the_segment(opened):
+    # DOWNSTREAM_DOWN from segment_2: segment_3 is gone (`off 3`); the rediscovery finds two
+    d, link, gid = opened()
+    link.answers = [2]
+    d.topo.hotplug("DOWNSTREAM_DOWN from position 2", time.monotonic())
+    ab = abort_of(d, gid)
+    assert ab["cause"] == "topology_change" and ab["segment"] == "segment_3", ab
+    assert ab["reason"].startswith("topology changed at segment_3: DOWNSTREAM_DOWN"), ab
+
+
+def test_a_failed_port_aborts_as_link_loss_naming_the_first_segment(opened):
+    d, link, gid = opened()
+    d.topo.link_lost(OSError("port vanished"))
+    ab = abort_of(d, gid)
+    assert ab["cause"] == "link_loss" and ab["segment"] == "segment_1", ab
+
+
+def test_a_rediscovery_nobody_answers_is_retried_and_finds_the_same_chain(opened):
+    # the quick window went unanswered once (a restarting neighbour): asked again, the same
+    # chain answers — a stall, nothing dropped (today: "chain lost: …; no segment answers
+    # DISCOVER", every segment dropped)
+    d, link, gid = opened()
+    link.answers = [0, 3]
+    d.topo.hotplug(SILENT, time.monotonic(), verify=True)
+    assert link.calls == 2
+    assert d.topo.link_state == "connected" and d.hwi is not None, d.topo.link_error
+    assert list(d.hwi.names) == NAMES and d.topo.stalls == 1
+    assert not d.trajectory_status(gid)["done"]  # a stall aborts nothing
+
+
+def test_a_rediscovery_nobody_answers_is_retried_a_bounded_number_of_times(opened):
+    d, link, gid = opened()
+    link.answers = [0]
+    # as the loop calls it: the supervisor's position is the first silent segment (index 1)
+    d.topo.hotplug(SILENT, time.monotonic(), verify=True, position=1)
+    assert link.calls == 3  # then the chain is lost: rediscovered every <= 0.2 s from there
+    assert d.topo.link_state == "waiting" and d.hwi is None
+    ab = abort_of(d, gid)
+    assert ab["cause"] == "link_loss" and ab["segment"] == "segment_2", ab
+
+
+def test_the_supervisor_says_which_segment_its_reason_concerns():
+    from test_daemon_parts import _hwi, _supervisor
+
+    sup = _supervisor([], [])
+    hwi = _hwi(3)
+    hwi.missing = [0, 9, 9]
+    assert sup.check(hwi, None, [], []).startswith("no STATE from")
+    assert sup.position == 1  # segment_2, the first silent one
+    descs = [{"name": n, "downstream_present": i < 2} for i, n in enumerate(NAMES)]
+    hwi.missing = [0, 0, 0]
+    reason = sup.check(hwi, None, [{"name": "DOWNSTREAM_DOWN", "position": 1}], descs)
+    assert reason == "DOWNSTREAM_DOWN from position 2" and sup.position == 2  # behind it
