@@ -328,8 +328,9 @@ class LiveSource:
                   "watchdog_tripped": "fault"}.get(ev)  # fmt: skip
         with self.lock:
             names = self.snap.expected
-            if status and isinstance(pos, int) and 0 <= pos < len(names):
-                self._events[names[pos]] = (status, time.monotonic() + EVENT_HOLD_S)
+            # segment events count positions from 1, like every position a user sees
+            if status and isinstance(pos, int) and 1 <= pos <= len(names):
+                self._events[names[pos - 1]] = (status, time.monotonic() + EVENT_HOLD_S)
             self.snap.control["last_event"] = msg.get("message") or ev
 
     def _recolour(self, now: float) -> None:

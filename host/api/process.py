@@ -104,6 +104,11 @@ class ApiProcess:
                 [sys.executable, "-m", "host.api.process", str(theirs.fileno())],
                 pass_fds=[theirs.fileno()],
                 stdin=subprocess.DEVNULL,
+                # a process group of its own: a terminal's Ctrl-C (sent to the foreground group)
+                # reaches the daemon, which stops the API in order; before, it also reached the
+                # API process, and while it still imported (seconds on a loaded Pi) it died
+                # and the daemon reported "API process did not start" and exited 1
+                process_group=0,
             )
         finally:
             theirs.close()

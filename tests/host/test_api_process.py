@@ -307,3 +307,21 @@ sys.exit(process.main([str(a.detach())]))
         [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=60
     )
     assert "could not lower the API process's priority" in proc.stderr, proc.stderr
+
+
+def test_a_ctrl_c_on_the_terminal_reaches_the_daemon_not_its_api_process():
+    """Suite run 2026-11-26 (a loaded machine): Ctrl-C while `ucr daemon` started reached the
+    API process too, which died in its imports; the daemon exited 1 with "API process did
+    not start". The API process is in a process group of its own: a terminal's SIGINT goes to
+    the foreground group (the daemon's) only, and the daemon stops the API in order."""
+    from host.api.process import ApiProcess
+
+    class Daemon:
+        def status(self) -> dict:
+            return {"state": "connected"}
+
+    api = ApiProcess(Daemon(), "127.0.0.1", 0).start()
+    try:
+        assert os.getpgid(api.pid) == api.pid != os.getpgid(0)
+    finally:
+        api.stop()
