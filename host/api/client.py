@@ -154,6 +154,7 @@ class Client:
         self._goals: dict[Any, Callable[[dict], None]] = {}
         self._goal_final: dict[Any, dict] = {}
         self._goal_cond = threading.Condition()
+        self._upload_lock = threading.Lock()  # one chunked upload at a time from this client
         self.last_goal: Any = None
         self._reader = threading.Thread(target=self._read_loop, name="ucr-api-client", daemon=True)
         self._reader.start()
@@ -316,16 +317,21 @@ class Client:
         if controller is not None:
             params["controller"] = controller
         chunks = _chunks(points, CHUNK_BYTES)
-        if len(chunks) > 1:  # above the request limit: upload in chunks, then send
-            upload = None
-            for chunk in chunks[:-1]:
-                extra = {} if upload is None else {"upload": upload}
-                upload = self.call("trajectory.upload", points=chunk, **extra)["upload"]
-            params["upload"] = upload
         # The daemon builds and retimes the whole path before it answers: ~0.2 ms per waypoint
         # on a Pi-class CPU, more when loaded, so a long trajectory gets a longer reply timeout.
         reply_s = self.timeout + 0.002 * len(points)
-        result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
+        if len(chunks) > 1:  # above the request limit: upload in chunks, then send
+            # Threads sending long trajectories take turns: the server serves one request of a
+            # connection at a time anyway, and holds at most schema.MAX_UPLOADS per connection.
+            with self._upload_lock:
+                upload = None
+                for chunk in chunks[:-1]:
+                    extra = {} if upload is None else {"upload": upload}
+                    upload = self.call("trajectory.upload", points=chunk, **extra)["upload"]
+                params["upload"] = upload
+                result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
+        else:
+            result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
         goal = result["goal"]
         self.last_goal = goal
         if progress is not None:

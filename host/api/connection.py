@@ -94,6 +94,8 @@ class Requests(Protocol):
 
     def end_upload(self, session: _Session) -> None: ...
 
+    def drop_stale_uploads(self, now: float) -> None: ...
+
 
 class Outboxes:
     """Subscriptions by kind and every client's outbox (``queued_bytes``: all of them).
@@ -428,9 +430,7 @@ class Connections:
                     self._outboxes.drop(session)
                     session.closed = True
                     session.ws.transport.abort()
-                up = session.upload
-                if up is not None and now - up.t_touched > 60.0:
-                    self._requests.end_upload(session)
+            self._requests.drop_stale_uploads(now)
 
 
 #: request bytes after which a quiet second returns free memory to the OS (see janitor)

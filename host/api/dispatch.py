@@ -31,6 +31,8 @@ from host.api.session import _Request, _Session, _Subscription, _Upload
 
 log = logging.getLogger("ucr.api")
 
+UPLOAD_IDLE_S = 60.0  # an upload untouched this long is dropped
+
 _TERMINAL_STATES = frozenset(
     {
         "succeeded",
@@ -69,7 +71,9 @@ def goal_done(status: Any) -> bool:
 class Dispatcher:
     """Answering one request frame of a session (and pushing its goals' progress).
 
-    ``upload_points``: waypoints held by unfinished uploads of every client.
+    ``upload_points``: waypoints held by unfinished uploads of every client. Uploads are kept
+    here by id, each with the session that owns it: a connection may have up to
+    ``schema.MAX_UPLOADS`` at once, and a new one never replaces another.
     """
 
     def __init__(
@@ -89,6 +93,7 @@ class Dispatcher:
         self._sessions = sessions
         self._next_sub = 1
         self._next_upload = 1
+        self._uploads: dict[int, _Upload] = {}
         self.upload_points = 0
 
     # ------------------------------------------------------------------ requests
@@ -101,9 +106,13 @@ class Dispatcher:
         """The parsed request, or the error reply (bad frame, unknown op, wrong scope)."""
         self.counters["requests"] += 1
         try:
-            rid, op, params = S.parse_request(frame, self.opts.max_request_bytes)
+            rid, op, params = S.parse_request(
+                frame, self.opts.max_request_bytes, lambda uid: self._held(session, uid)
+            )
         except S.RequestError as exc:
             self.counters["errors"] += 1
+            if exc.upload is not None:  # a refused chunk ends its upload
+                self.end_upload(session, exc.upload)
             return S.error_reply(exc.request_id, exc.code, exc.message)
         if op not in READ_OPS and session.scope != CONTROL:
             self.counters["errors"] += 1
@@ -215,15 +224,14 @@ class Dispatcher:
     async def _send_trajectory(self, session: _Session, p: dict) -> dict:
         points = p["points"] or []
         if p.get("upload") is not None:
-            up = session.upload
-            if up is None or up.uid != p["upload"]:
-                raise S.RequestError(S.NOT_FOUND, f"no upload {p['upload']} on this connection")
+            up = self._own_upload(session, p["upload"])
+            self.end_upload(session, p["upload"])  # sent or refused, the upload ends here
             if points and points[0]["time_from_start"] <= up.last_t:
                 raise S.RequestError(
-                    S.INVALID_PARAMS, "points[0].time_from_start: must continue after the upload"
+                    S.INVALID_PARAMS,
+                    f"points[{len(up.points)}].time_from_start: must continue after the upload",
                 )
             points = up.points + points
-            self.end_upload(session)
             if len(points) > S.MAX_POINTS:
                 raise S.RequestError(S.INVALID_PARAMS, f"at most {S.MAX_POINTS} waypoints")
         if not points:
@@ -255,20 +263,42 @@ class Dispatcher:
         return {"goal": goal}
 
     def _upload(self, session: _Session, p: dict) -> dict:
-        up = session.upload
-        if p.get("upload") is None:
-            if up is not None:
-                self.end_upload(session)  # a new upload replaces an unfinished one
-            up = session.upload = _Upload(self._next_upload)
+        """One chunk: a first one (no ``upload``) opens a new upload beside the connection's
+        others, never replacing one; a refused later chunk ends its upload."""
+        new = p.get("upload") is None
+        if new:
+            mine = sum(1 for u in self._uploads.values() if u.owner is session)
+            if mine >= S.MAX_UPLOADS:
+                raise S.RequestError(
+                    S.REJECTED,
+                    f"at most {S.MAX_UPLOADS} uploads in progress on one connection: finish one "
+                    f"(trajectory.send with its id) or wait ({UPLOAD_IDLE_S:g} s untouched ends "
+                    "one)",
+                )
+            up = _Upload(self._next_upload, session)
+        else:
+            up = self._own_upload(session, p["upload"])
+        try:
+            self._check_chunk(up, p["points"])
+        except S.RequestError:
+            self.end_upload(session, up.uid)
+            raise
+        if new:  # kept once its first chunk is accepted
             self._next_upload += 1
-        elif up is None or up.uid != p["upload"]:
-            raise S.RequestError(S.NOT_FOUND, f"no upload {p['upload']} on this connection")
+            self._uploads[up.uid] = up
         pts = p["points"]
-        if pts[0]["time_from_start"] <= up.last_t:
+        up.points.extend(pts)
+        up.last_t = pts[-1]["time_from_start"]
+        up.t_touched = time.monotonic()
+        self.upload_points += len(pts)
+        return {"upload": up.uid, "points": len(up.points)}
+
+    def _check_chunk(self, up: _Upload, pts: list[dict]) -> None:
+        if pts[0]["time_from_start"] <= up.last_t:  # schema checks it too, given the upload
             raise S.RequestError(
                 S.INVALID_PARAMS,
-                f"points[0].time_from_start: times must increase strictly across chunks "
-                f"({pts[0]['time_from_start']:g} s after {up.last_t:g} s)",
+                f"points[{len(up.points)}].time_from_start: times must increase strictly across "
+                f"chunks ({pts[0]['time_from_start']:g} s after {up.last_t:g} s)",
             )
         if len(up.points) + len(pts) > S.MAX_POINTS:
             raise S.RequestError(
@@ -276,17 +306,33 @@ class Dispatcher:
             )
         if self.upload_points + len(pts) > self.opts.upload_points_total:
             raise S.RequestError(S.UNAVAILABLE, "too many uploads in progress; try again later")
-        up.points.extend(pts)
-        up.last_t = pts[-1]["time_from_start"]
-        up.t_touched = time.monotonic()
-        self.upload_points += len(pts)
-        return {"upload": up.uid, "points": len(up.points)}
 
-    def end_upload(self, session: _Session) -> None:
-        """Forget ``session``'s unfinished upload (if any)."""
-        up, session.upload = session.upload, None
-        if up is not None:
-            self.upload_points -= len(up.points)
+    def _own_upload(self, session: _Session, uid: int) -> _Upload:
+        up = self._uploads.get(uid)
+        if up is None or up.owner is not session:
+            raise S.RequestError(S.NOT_FOUND, f"no upload {uid} on this connection")
+        return up
+
+    def _held(self, session: _Session, uid: int) -> tuple[int, float] | None:
+        """Waypoints held by ``session``'s upload ``uid`` and the time of the last (parsing)."""
+        up = self._uploads.get(uid)
+        if up is None or up.owner is not session:
+            return None
+        return len(up.points), up.last_t
+
+    def end_upload(self, session: _Session, uid: int | None = None) -> None:
+        """Forget ``session``'s upload ``uid``, or every unfinished upload it has."""
+        for key in list(self._uploads) if uid is None else [uid]:
+            up = self._uploads.get(key)
+            if up is not None and up.owner is session:
+                del self._uploads[key]
+                self.upload_points -= len(up.points)
+
+    def drop_stale_uploads(self, now: float) -> None:
+        """Forget every upload untouched for ``UPLOAD_IDLE_S`` (janitor)."""
+        for up in list(self._uploads.values()):
+            if now - up.t_touched > UPLOAD_IDLE_S:
+                self.end_upload(up.owner, up.uid)
 
     def _subscribe(self, session: _Session, kinds: list[str], max_rate: float | None) -> dict:
         if len(session.subs) >= self.opts.max_subscriptions:

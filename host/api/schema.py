@@ -24,6 +24,8 @@ MAX_POINTS = 10_000
 MAX_TIME_S = 604_800.0  # a waypoint's time_from_start: at most a week (1e15 s broke retiming)
 MAX_SEGMENTS = 64
 MAX_RATE_HZ = 1000.0
+MIN_RATE_HZ = 0.1  # a subscription's max_rate: at least one message per 10 s (1e-300 never sent)
+MAX_UPLOADS = 4  # chunked uploads in progress on one connection
 MAX_DEFLECTION = 1.0
 MAX_INT_MAGNITUDE = 2**53  # JSON integers beyond this are refused (exact in a float up to here)
 
@@ -68,6 +70,7 @@ class RequestError(Exception):
         self.code = code
         self.message = message
         self.request_id = request_id
+        self.upload: int | None = None  # the upload a refused chunk belonged to (it ends)
 
 
 # --------------------------------------------------------------------------- field checkers
@@ -161,7 +164,9 @@ def _switch(params: dict) -> dict:
     return {"start": start, "stop": stop}
 
 
-def validate_points(points: Any, field: str = "points") -> list[dict]:
+def validate_points(
+    points: Any, field: str = "points", *, start: int = 0, last_t: float = 0.0
+) -> list[dict]:
     """Waypoints ``[{"time_from_start": s, "segments": {name: {"kappa": 1/m, "phi": rad}}}, ...]``.
 
     ``time_from_start`` (alias ``t``) is seconds from the start of the motion, > 0 and strictly
@@ -169,6 +174,9 @@ def validate_points(points: Any, field: str = "points") -> list[dict]:
     curvature vector ``kx``, ``ky`` (1/m). Segments left out of a waypoint keep their previous
     target. Returns the points in canonical form; raises :class:`RequestError` naming the field.
     Limits (kappa_max, phi range) are checked by the daemon, which knows the robot.
+
+    A chunk of an upload passes ``start`` (waypoints before it) and ``last_t`` (the time of the
+    last one): errors then name the waypoint's index in the whole trajectory.
     """
     if not isinstance(points, list):
         raise _bad(field, f"expected a list of waypoints, got {_type_name(points)}")
@@ -177,8 +185,7 @@ def validate_points(points: Any, field: str = "points") -> list[dict]:
     if len(points) > MAX_POINTS:
         raise _bad(field, f"at most {MAX_POINTS} waypoints")
     out: list[dict] = []
-    last_t = 0.0
-    for i, p in enumerate(points):
+    for i, p in enumerate(points, start):
         where = f"{field}[{i}]"
         if not isinstance(p, dict):
             raise _bad(where, f"expected an object, got {_type_name(p)}")
@@ -244,14 +251,31 @@ def _upload_id(value: Any) -> int | None:
     return value
 
 
-def _trajectory_send(params: dict) -> dict:
+#: ``uploaded(upload id)``: ``(waypoints, time of the last one)`` the connection's upload holds
+#: (None if it has no such upload), so a chunk's errors name indices of the whole trajectory.
+Uploaded = Callable[[int], tuple[int, float] | None]
+
+
+def _chunk_points(points: Any, upload: int | None, uploaded: Uploaded | None) -> list[dict]:
+    """A chunk's waypoints, numbered after what its upload holds; a refused chunk names its
+    upload in the error (the server then ends that upload)."""
+    held = uploaded(upload) if upload is not None and uploaded is not None else None
+    start, last_t = held if held is not None else (0, 0.0)
+    try:
+        return validate_points(points, start=start, last_t=last_t)
+    except RequestError as exc:
+        exc.upload = upload
+        raise
+
+
+def _trajectory_send(params: dict, uploaded: Uploaded | None = None) -> dict:
     """Waypoints in ``points``, or appended to a chunked upload named by ``upload``."""
     _check_fields(params, ("points", "controller", "upload"))
     upload = _upload_id(params.get("upload"))
     if upload is None and "points" not in params:
         raise RequestError(INVALID_PARAMS, "missing field 'points'")
     out: dict[str, Any] = {
-        "points": validate_points(params["points"]) if "points" in params else [],
+        "points": _chunk_points(params["points"], upload, uploaded) if "points" in params else [],
         "upload": upload,
     }
     if params.get("controller") is not None:
@@ -261,11 +285,12 @@ def _trajectory_send(params: dict) -> dict:
     return out
 
 
-def _trajectory_upload(params: dict) -> dict:
+def _trajectory_upload(params: dict, uploaded: Uploaded | None = None) -> dict:
     """One chunk of a long trajectory: ``points`` (validated now) and, after the first chunk,
     the ``upload`` id the server returned."""
     _check_fields(params, ("points", "upload"), ("points",))
-    return {"points": validate_points(params["points"]), "upload": _upload_id(params.get("upload"))}
+    upload = _upload_id(params.get("upload"))
+    return {"points": _chunk_points(params["points"], upload, uploaded), "upload": upload}
 
 
 def _hand_back(params: dict) -> dict:
@@ -330,7 +355,7 @@ def _subscribe(params: dict) -> dict:
             out.append(normalize_kind(k))
     rate = params.get("max_rate")
     if rate is not None:
-        rate = _number(rate, "max_rate", lo=0.0, lo_open=True, hi=MAX_RATE_HZ)
+        rate = _number(rate, "max_rate", lo=MIN_RATE_HZ, hi=MAX_RATE_HZ)
     return {"kinds": out, "max_rate": rate}
 
 
@@ -359,6 +384,9 @@ OPS: dict[str, Callable[[dict], dict]] = {
     "subscribe": _subscribe,
     "unsubscribe": _unsubscribe,
 }
+
+
+_CHUNK_OPS = {"trajectory.send": _trajectory_send, "trajectory.upload": _trajectory_upload}
 
 
 def _reject_constant(name: str) -> Any:
@@ -390,11 +418,14 @@ def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
     return obj
 
 
-def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tuple[Any, str, dict]:
+def parse_request(
+    data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES, uploaded: Uploaded | None = None
+) -> tuple[Any, str, dict]:
     """Decode and validate one request frame; returns ``(id, op, params)``.
 
     Raises :class:`RequestError`; its ``request_id`` is set whenever the id could be read, so the
-    error reply can be matched by the client.
+    error reply can be matched by the client. ``uploaded``: the connection's uploads (see
+    :data:`Uploaded`), so a later chunk's errors count from the start of the trajectory.
     """
     if isinstance(data, bytes | bytearray | memoryview):
         raise RequestError(BAD_REQUEST, "binary frames are not accepted: send JSON text")
@@ -425,6 +456,8 @@ def parse_request(data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES) -> tupl
         raise RequestError(UNKNOWN_OP, f"unknown op {op[:64]!r} (known: {', '.join(OPS)})", rid)
     params = {k: v for k, v in obj.items() if k not in ("id", "op")}
     try:
+        if op in _CHUNK_OPS:
+            return rid, op, _CHUNK_OPS[op](params, uploaded)
         return rid, op, OPS[op](params)
     except RequestError as exc:
         exc.request_id = rid

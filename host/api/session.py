@@ -1,5 +1,6 @@
-"""Per-connection state of the API server: the client session, its subscriptions, a chunked upload,
-a parsed request.
+"""Per-connection state of the API server: the client session, its subscriptions, a chunked upload
+(kept by the request side, :mod:`host.api.dispatch`, with the session that owns it), a parsed
+request.
 
 Plain data holders used by :mod:`host.api.connection` (outbox, fan-out) and
 :mod:`host.api.dispatch` (requests); no I/O here.
@@ -56,8 +57,9 @@ class _Subscription:
 class _Upload:
     """A trajectory being uploaded in chunks (``trajectory.upload``)."""
 
-    def __init__(self, uid: int) -> None:
+    def __init__(self, uid: int, owner: Any) -> None:
         self.uid = uid
+        self.owner = owner  # the _Session that uploads it
         self.points: list[dict] = []
         self.last_t = 0.0
         self.t_touched = time.monotonic()
@@ -86,7 +88,6 @@ class _Session:
         self.share: Any = None  # its token's share of the global budget (host.api.connection)
         self.rate_limited = 0  # requests refused: its token's share was used up
         self.t_progress = time.monotonic()  # last time the sender got a message out
-        self.upload: _Upload | None = None
 
 
 def _peer(ws: Any) -> str:
