@@ -103,11 +103,15 @@ _STALL_MS = const(250)  # ... for 250 ms is stalled (feedback drivers only)
 _EVQ = const(16)  # event queue length
 _FAULT_TEXT = const(48)  # bytes of a FAULT's reason kept and sent (EVENT key 3)
 _RXBUF = const(256)
-_PEND = const(252)  # an own upstream frame held while a relayed frame is half sent
-# a relayed frame silent this long is ended (invalid): a sender that died mid-frame must not hold
-# the port; generous, because a frame's bytes come back to back on a wire but an emulated link
-# under load may pause for milliseconds (the reader itself never gives up on a frame)
-_RELAY_SILENCE_MS = const(50)
+_PEND = const(252)  # own upstream frames held while a relayed frame is half sent
+# A relayed frame silent for more than this is ended (invalid COBS): a sender that died mid-frame
+# must not hold the port (docs/firmware.md, "A neighbour that dies mid-frame"). On the wire a
+# frame's bytes come back to back (10.9 us each at 921600 baud); a live relaying neighbour pauses
+# inside one at most for its relay path plus a SYNC it handles (0.59 + 1.25 ms on the esp32 model),
+# and ticks_ms stamps add < 1 ms. A live sender that pauses longer (a slow-path reply) loses no
+# frame: the reader never gives up on it, and once complete and good it goes on
+# store-and-forward. The emulator runs this same limit.
+_RELAY_SILENCE_MS = const(3)
 _LOAD_WINDOW_MS = const(1000)  # CPU load measured over windows this long
 _T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
 _FWD_DOWN = const(2)  # protocol.device.FWD_DOWN (a const of another module is a lookup)
@@ -228,14 +232,23 @@ class Segment:
     def _up(self, end):
         if self.rl_up.busy:  # a relayed frame is half sent upstream: ours goes after it
             p = self.pend_len
-            if p + end > _PEND:
-                self.events_lost += 1  # a second own frame within one relayed frame: dropped
+            if p + end <= _PEND:
+                _move(self.wire, 0, self.pend, p, end)
+                self.pend_len = p + end
                 return
-            _move(self.wire, 0, self.pend, p, end)
-            self.pend_len = p + end
-            return
+            # no room left: end the relayed frame (invalid) rather than lose an own frame; a
+            # live sender's frame still follows, store-and-forward, once it is complete
+            self._cut_up()
         self.hal.up.write(self.wire, end)
         self.last_up_tx = self.now
+
+    def _cut_up(self):
+        """End the frame half relayed upstream as invalid COBS, then send the own frames that
+        waited behind it."""
+        m = self.rl_up.abort(self.rout)
+        if m:
+            self.hal.up.write(self.rout, m)
+        self._flush_pending()
 
     def _flush_pending(self):
         if self.pend_len and not self.rl_up.busy:
@@ -307,10 +320,7 @@ class Segment:
             if m:
                 self.hal.down.write(self.rout, m)
         if self.rl_up.busy and ((now - self.t_rx_dn) & _TMASK) > _RELAY_SILENCE_MS:
-            m = self.rl_up.abort(self.rout)
-            if m:
-                self.hal.up.write(self.rout, m)
-            self._flush_pending()
+            self._cut_up()
         return total
 
     def relay_point(self):
