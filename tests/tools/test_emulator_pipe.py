@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from tools.emulator import Pipe
@@ -95,3 +97,46 @@ def test_bytes_in_flight_follow_a_latency_change() -> None:
     assert p.due(0.0) == b"abc"
     with pytest.raises(ValueError, match="latency must be within"):
         p.configure(latency_s=1e9)
+
+
+def test_removing_the_throttle_frees_the_bytes_waiting_at_once() -> None:
+    """Audit (issue 14): `baud 1 9600`, then `baud 1 off` left every byte already queued at
+    9600 baud at its old time (and bytes fed later queued behind them), so the link stayed dead
+    for as long as the backlog lasted; after `baud 1 1` for ever. Now the byte being shifted out
+    completes at the old rate and everything behind it leaves at once."""
+    p = Pipe("x")
+    p.configure(baud=1000, now=0.0)  # 10 ms per byte
+    p.feed(b"0123456789", now=0.0)  # on the wire 0..100 ms
+    assert p.due(0.025) == b"01"
+    p.configure(baud=None, now=0.025)  # byte "2" is half sent
+    assert p.due(0.0299) == b""
+    assert p.due(0.030) == b"23456789"  # "2" at the old rate, the rest at once
+    p.feed(b"ab", now=0.031)
+    assert p.due(0.031) == b"ab" and p.in_flight() == 0
+
+    p = Pipe("y")  # on the proxy's clock (the default), as the control socket does it
+    p.configure(baud=1)  # 10 s per byte
+    t0 = time.monotonic()
+    for _ in range(50):
+        p.feed(b"z", now=t0)
+    p.configure(baud=None)
+    p.feed(b"new", now=time.monotonic())
+    assert p.due(t0 + 9.9) == b""
+    assert p.due(t0 + 10.5) == b"z" * 50 + b"new"  # not 500 s later
+    assert p.in_flight() == 0
+
+
+def test_a_new_rate_retimes_the_bytes_waiting_and_keeps_the_latency() -> None:
+    p = Pipe("x")
+    p.configure(baud=1000, latency_s=0.005, now=0.0)
+    p.feed(bytes(10), now=0.0)
+    p.configure(baud=10_000, now=0.0)  # nothing on the wire yet: all of it at 1 ms per byte
+    chunks = drain(p, 0.1, step=1e-5)
+    assert sum(len(d) for _, d in chunks) == 10
+    assert chunks[-1][0] == pytest.approx(0.015, abs=1e-4)
+    p.configure(baud=100, now=1.0)
+    p.feed(b"ab", now=1.0)  # 100 ms per byte from here
+    assert p.due(1.104) == b""
+    assert p.due(1.105) == b"a"
+    p.configure(baud=None, now=1.15)  # "b" is on the wire: done at 1.2, then the latency
+    assert p.due(1.204) == b"" and p.due(1.205) == b"b"

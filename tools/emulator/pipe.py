@@ -8,6 +8,7 @@ writes what :meth:`Pipe.due` releases to the other.
 from __future__ import annotations
 
 import random
+import time
 from collections import deque
 
 #: Bits on the wire per byte of an 8N1 UART frame (start + 8 data + stop).
@@ -26,6 +27,11 @@ class Pipe:
     counted), ``baud`` (None = unthrottled; else each byte takes ``10 / baud`` s, order kept
     ), ``latency_s`` (fixed delay added to every byte), ``corrupt_rate`` (probability that a
     byte is replaced by a different value; seeded RNG, every corrupted byte is counted).
+
+    A baud change re-times the bytes still waiting at once, as a UART changes its divisor
+    between bytes: bytes fully on the wire keep their time, the byte being shifted out when the
+    change comes completes at the old rate, and every byte after it leaves at the new rate (at
+    once, plus the latency, when the throttle is removed).
     """
 
     def __init__(self, name: str, *, seed: int = 0) -> None:
@@ -35,7 +41,8 @@ class Pipe:
         self.latency_s = 0.0
         self.corrupt_rate = 0.0
         self._rng = random.Random(seed)
-        self._queue: deque[tuple[float, bytes]] = deque()
+        # (delivery time, bytes, time the first of them started on the wire)
+        self._queue: deque[tuple[float, bytes, float]] = deque()
         self._busy_until = 0.0
         self.bytes_in = 0
         self.bytes_out = 0
@@ -50,15 +57,23 @@ class Pipe:
         latency_s: float | None = None,
         corrupt_rate: float | None = None,
         seed: int | None = None,
+        now: float | None = None,
     ) -> None:
         """Change settings; arguments left at their default keep the current value.
 
-        ``baud=None`` removes the throttle (``False`` means "unchanged").
+        ``baud=None`` removes the throttle (``False`` means "unchanged"). ``now``: the time of
+        the change on the pipe's clock (default ``time.monotonic()``, the proxy's clock); a baud
+        change re-times the bytes waiting from there.
         """
         if baud is not False:
             if baud is not None and (not isinstance(baud, int) or baud <= 0):
                 raise ValueError(f"baud must be a positive integer or None, got {baud!r}")
-            self.baud = baud
+            if latency_s is not None and not 0.0 <= latency_s <= MAX_LATENCY_S:
+                raise ValueError(
+                    f"latency must be within [0, {MAX_LATENCY_S:g}] s, got {latency_s!r}"
+                )
+            if baud != self.baud:
+                self._rebaud(baud, time.monotonic() if now is None else now)
         if latency_s is not None:
             if not 0.0 <= latency_s <= MAX_LATENCY_S:
                 raise ValueError(
@@ -68,7 +83,7 @@ class Pipe:
             # left the link dead behind bytes still due in 30 years)
             shift = float(latency_s) - self.latency_s
             if shift and self._queue:
-                self._queue = deque((t + shift, d) for t, d in self._queue)
+                self._queue = deque((t + shift, d, w) for t, d, w in self._queue)
             self.latency_s = float(latency_s)
         if corrupt_rate is not None:
             if not 0.0 <= corrupt_rate <= 1.0:
@@ -77,11 +92,43 @@ class Pipe:
         if seed is not None:
             self._rng.seed(seed)
 
+    def _rebaud(self, baud: int | None, now: float) -> None:
+        """Switch the throttle to ``baud`` at ``now``: bytes that left the wire (only the latency
+        is left) and the byte being shifted out keep their time; the rest is sent again at the
+        new rate from the end of that byte."""
+        old = self.baud
+        self.baud = baud
+        if old is None:
+            return  # unthrottled bytes were all on the wire at once: nothing waits to be sent
+        byte_s = BITS_PER_BYTE / old
+        kept: deque[tuple[float, bytes, float]] = deque()
+        rest = bytearray()
+        wire_free = now
+        for t, d, w in self._queue:
+            if rest:
+                rest += d
+                continue
+            if w + len(d) * byte_s <= now + 1e-12:  # all of it on the wire already
+                kept.append((t, d, w))
+                wire_free = max(wire_free, w + len(d) * byte_s)
+                continue
+            # the first byte not yet fully sent: it completes at the old rate if it started
+            k = int((now - w) / byte_s) + 1 if now > w else 0
+            if k:
+                end = w + k * byte_s
+                kept.append((end + self.latency_s, d[:k], w))
+                wire_free = end
+            rest += d[k:]
+        self._queue = kept
+        self._busy_until = wire_free
+        if rest:
+            self._schedule(bytes(rest), wire_free)
+
     def set_enabled(self, enabled: bool) -> None:
         """Plug (True) or pull (False) the cable; pulling loses the bytes still in flight."""
         self.enabled = enabled
         if not enabled:
-            self.dropped += sum(len(d) for _, d in self._queue)
+            self.dropped += sum(len(d) for _, d, _ in self._queue)
             self._queue.clear()
             self._busy_until = 0.0
 
@@ -94,16 +141,21 @@ class Pipe:
             return
         if self.corrupt_rate > 0.0:
             data = self._corrupt(data)
+        self._schedule(data, now)
+
+    def _schedule(self, data: bytes, now: float) -> None:
+        """Queue ``data`` for the wire from ``now`` on at the current rate."""
         if self.baud is None:
-            self._queue.append((now + self.latency_s, bytes(data)))
+            self._queue.append((now + self.latency_s, bytes(data), now))
             return
         byte_s = BITS_PER_BYTE / self.baud
         chunk = max(1, int(CHUNK_S / byte_s))
         start = max(now, self._busy_until)
         for i in range(0, len(data), chunk):
             piece = bytes(data[i : i + chunk])
+            w = start
             start += len(piece) * byte_s
-            self._queue.append((start + self.latency_s, piece))
+            self._queue.append((start + self.latency_s, piece, w))
         self._busy_until = start
 
     def _corrupt(self, data: bytes) -> bytes:
@@ -132,7 +184,7 @@ class Pipe:
         return self._queue[0][0] if self._queue else None
 
     def in_flight(self) -> int:
-        return sum(len(d) for _, d in self._queue)
+        return sum(len(d) for _, d, _ in self._queue)
 
     def stats(self) -> dict:
         return {
