@@ -10,9 +10,22 @@ floor is the bytes the exchange puts on link 0 (SYNC + every STATE, sizes measur
 baud; the cut-through floor adds the relay's 4 bytes per hop and direction (what the firmware's
 cut-through allows with zero processing); the store-and-forward floor is n x (SYNC + STATE) x 10
 / baud, what forwarding whole frames costs. Nothing is dropped: a cycle in which any STATE is
-missing or late is a miss and is counted, in the round trip (excluded from the median, printed
-beside it) and in the sustained runs (a cycle whose STATEs are not all in before the next tick,
-or a tick the host could not start on time, is a miss).
+missing or late is a miss and is counted (excluded from the median, printed beside it). Late
+means after the cycle's deadline:
+
+* round trip (one cycle at a time, 10 ms apart): its period, 10 ms, or where even the
+  store-and-forward floor of the largest frames does not fit in it (8 segments at 115200 baud),
+  twice that floor (``rtt_deadline_s``); the host still waits up to 1 s, so a late cycle's time
+  is seen, but it is a miss;
+* paced: before the next tick (one period from its SYNC); a tick the host could not start on
+  time is a miss too;
+* pipelined: before the tick after next (two periods from its SYNC); a SYNC the host could not
+  send is a miss of its cycle.
+
+Each figure is printed as a ratio to its floor: round trip and paced cycle times to the
+line-rate / cut-through / store-and-forward floors, back-to-back rates to the line-rate ceiling
+(1 / line-rate floor), pipelined rates to the pipelined ceiling (``floors.pipelined_rate_hz``,
+the busiest direction of link 0) and paced / pipelined complete rates to the rate asked.
 
 Sustained: the host starts a SYNC on every tick of ``--rate`` Hz for ``--duration`` s and waits
 at most until the next tick (the issue's goal: 8 segments @ 921600, 100 Hz for 60 s, 0 misses).
@@ -36,6 +49,13 @@ from host.link import ChainLink, LinkError  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
 
 SETPOINT = (0.5, 0.3)  # kappa 1/m, phi rad
+RTT_PERIOD_S = 0.01  # round trips are this far apart: the period each must fit in
+
+
+def rtt_deadline_s(n: int, baud: int) -> float:
+    """A round trip's deadline: its period, or twice the store-and-forward floor of the largest
+    frames where that floor alone does not fit in the period."""
+    return max(RTT_PERIOD_S, 2.0 * floors.store_and_forward_floor_s(n, baud))
 
 
 @dataclass
@@ -86,11 +106,18 @@ def _cycle(link: ChainLink, n: int, timeout: float) -> tuple[float, bool]:
 
 
 def run_cycles(
-    link: ChainLink, n: int, *, count: int = 0, duration_s: float = 0.0, rate_hz: float = 0.0
+    link: ChainLink,
+    n: int,
+    *,
+    count: int = 0,
+    duration_s: float = 0.0,
+    rate_hz: float = 0.0,
+    deadline_s: float = 0.0,
 ) -> Cycles:
-    """``count`` cycles 10 ms apart (round trip), or cycles for ``duration_s`` at ``rate_hz``
-    (0 = back to back). A cycle is a miss if any STATE is missing or, paced, arrives after the
-    next tick; ticks the host starts late are misses too."""
+    """``count`` cycles ``RTT_PERIOD_S`` apart (round trip), or cycles for ``duration_s`` at
+    ``rate_hz`` (0 = back to back). A cycle is a miss if any STATE is missing or late: after
+    ``deadline_s`` from its SYNC (round trip; 0 = none) or, paced, after the next tick; ticks
+    the host starts late are misses too."""
     s0 = link.stats
     times: list[float] = []
     misses = cycles = 0
@@ -114,7 +141,11 @@ def run_cycles(
             timeout = 1.0
         dt, ok = _cycle(link, n, timeout)
         cycles += 1
-        if ok and (not period or time.perf_counter() <= next_tick + period):
+        if period:
+            ok = ok and time.perf_counter() <= next_tick + period
+        elif deadline_s:
+            ok = ok and dt <= deadline_s
+        if ok:
             times.append(dt)
         else:
             misses += 1
@@ -124,7 +155,7 @@ def run_cycles(
             if delay > 0:
                 time.sleep(delay)
         elif count:
-            time.sleep(0.01)
+            time.sleep(RTT_PERIOD_S)
     elapsed = time.perf_counter() - t_start
     s1 = link.stats
     return Cycles(
@@ -160,7 +191,9 @@ def run_pipelined(link: ChainLink, n: int, *, duration_s: float, rate_hz: float)
         try:
             cur = link.sync_send([SETPOINT] * n)
         except LinkError:
-            cur = None
+            cur = None  # this tick's cycle never started: a miss (it has nothing to collect)
+            cycles += 1
+            misses += 1
         t_cur = time.perf_counter()
         if prev is not None:
             left = max(1e-3, next_tick + period - time.perf_counter())
@@ -222,7 +255,7 @@ def bench_chain(
         for baud in bauds:
             chain.set_all_links(baud=baud)
             settle(link, n)  # warm up at this baud
-            rtt = run_cycles(link, n, count=args.repeat)
+            rtt = run_cycles(link, n, count=args.repeat, deadline_s=rtt_deadline_s(n, baud))
             sync_b = rtt.tx_bytes / max(1, rtt.cycles)
             state_b = rtt.rx_bytes / max(1, rtt.cycles) / n
             lr = floors.line_rate_floor_s(n, baud, sync_b, state_b)
@@ -236,7 +269,8 @@ def bench_chain(
                 f" ms, misses {rtt.misses}/{rtt.cycles} | line-rate floor {lr * 1e3:6.2f} ms"
                 f" -> {med / lr:4.2f}x (goal <= 1.3) | cut-through floor {ct * 1e3:6.2f} ms ->"
                 f" {med / ct:4.2f}x | store-and-forward floor {sf * 1e3:6.2f}"
-                f" ms -> {med / sf:4.2f}x | {sync_b:.0f} B SYNC, {state_b:.0f} B/STATE",
+                f" ms -> {med / sf:4.2f}x | deadline {rtt_deadline_s(n, baud) * 1e3:.0f} ms"
+                f" | {sync_b:.0f} B SYNC, {state_b:.0f} B/STATE",
                 flush=True,
             )
             b2b = run_cycles(link, n, duration_s=min(args.duration, 3.0))
@@ -246,16 +280,22 @@ def bench_chain(
             piped = run_pipelined(link, n, duration_s=args.duration, rate_hz=args.rate)
             settle(link, n)
             ceiling = 1.0 / lr
+            pipe_ceiling = floors.pipelined_rate_hz(n, baud, sync_b, state_b)
+            pmed = statistics.median(paced.times) if paced.times else float("nan")
             print(
                 f"{'':>{len(label)}}  {args.rate:.0f} Hz for {paced.elapsed_s:.0f} s: "
-                f"{paced.rate_hz:6.1f} Hz complete, misses {paced.misses}/{paced.cycles}"
+                f"{paced.rate_hz:6.1f} Hz complete = {paced.rate_hz / args.rate:4.2f}x asked,"
+                f" misses {paced.misses}/{paced.cycles}, cycle median {pmed * 1e3:6.2f} ms ->"
+                f" {pmed / lr:4.2f}x line-rate, {pmed / ct:4.2f}x cut-through floor"
                 f" | back to back: {b2b.rate_hz:6.1f} Hz, misses {b2b.misses}/{b2b.cycles}"
                 f" = {b2b.rate_hz / ceiling:4.2f}x the line-rate ceiling {ceiling:6.0f} Hz",
                 flush=True,
             )
             print(
                 f"{'':>{len(label)}}  {args.rate:.0f} Hz pipelined (next SYNC first): "
-                f"{piped.rate_hz:6.1f} Hz complete, misses {piped.misses}/{piped.cycles}",
+                f"{piped.rate_hz:6.1f} Hz complete = {piped.rate_hz / args.rate:4.2f}x asked"
+                f" = {piped.rate_hz / pipe_ceiling:4.2f}x the pipelined ceiling"
+                f" {pipe_ceiling:6.0f} Hz, misses {piped.misses}/{piped.cycles}",
                 flush=True,
             )
             if figs is not None:

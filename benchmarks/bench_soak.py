@@ -18,9 +18,18 @@ after the start if it was invalid then). A segment that moved more, while no sou
 it, is one motion without a command (must be 0). A restarted segment is rebased at its first
 fresh state after the restart (a reboot is a power cycle, not a motion).
 
-Memory: RSS of this process (the daemon, with the emulator's proxy threads) and of each segment
-process, at the start and at the end (a restarted segment's process is new: its growth is since
-its restart).
+**Holding after an abort.** Every fourth goal is cancelled half-way (``cancel_trajectory``),
+while the segments move towards its targets. From 0.45 s after the abort (its 0.3 s deceleration
+and the segments' slew) for 1.5 s, each segment must hold where it was first measured in that
+window: coming more than 0.05 1/m closer to the aborted goal's target — a stale target — is a
+motion without a command too, counted apart ("after an abort").
+
+Memory: the firmware's own free heap per segment (PARAM_GET ``mem_free``), read before the daemon
+starts and after it stops, each time right after a collection on the segment (a CALIBRATE read
+collects before it answers: device/segment.py ``_process``), so the two are comparable; a
+firmware leak shows as less free heap at the end (the VM's heap is fixed and preallocated: the
+RSS of the process hosting it never shows one). A segment restarted meanwhile compares two
+boots. Also the RSS of this process (the daemon, with the emulator's proxy threads).
 
 Run: ``.venv/bin/python benchmarks/bench_soak.py`` (10 minutes) or ``--minutes 3``; ``--seed``.
 """
@@ -52,18 +61,36 @@ RECOVER_LIMIT_S = 10.0
 QUIET_SETTLE_S = 0.6
 QUIET_S = 1.5
 MOTION_EPS = 0.05  # 1/m
+MEM_FREE_PARAM = 17  # PARAM_GET id of mem_free (device/params.py PARAM_NAMES, docs/firmware.md)
+ABORT_EVERY = 4  # every fourth goal is cancelled half-way
+ABORT_SETTLE_S = 0.45  # the abort's 0.3 s deceleration, then the slew settles
 
 
-def rss_kb(pid: int | None) -> int | None:
-    if pid is None:
-        return None
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except OSError:
-        return None
-    return None
+def segment_mem_free(port: str, n: int, timeout: float = 20.0) -> list[int | None]:
+    """Free heap (bytes) of every segment, each read right after a collection on it: a
+    CALIBRATE read makes the segment collect (device/segment.py, before loading calib) and
+    answer, then PARAM_GET mem_free. Only while no daemon holds the port."""
+    from host.link import ChainLink, LinkError
+    from protocol.cal_core import ACTION_READ
+    from protocol.calibration import calibrate_payload
+    from protocol.constants import T_CALIBRATE, T_CALIBRATION
+
+    pid = MEM_FREE_PARAM
+    out: list[int | None] = [None] * n
+    end = time.monotonic() + timeout
+    with ChainLink(port) as link:
+        while time.monotonic() < end and None in out:
+            try:
+                if len(link.discover(timeout=0.5)) < n:
+                    time.sleep(0.2)
+                    continue
+                for k in range(n):
+                    if out[k] is None:
+                        link.request(k, T_CALIBRATE, calibrate_payload(ACTION_READ), T_CALIBRATION)
+                        out[k] = int(link.param_get(k, pid, timeout=0.5))
+            except (LinkError, OSError):
+                time.sleep(0.2)
+    return out
 
 
 def rss_kb_self() -> int:
@@ -119,7 +146,10 @@ class Mover(threading.Thread):
         self.results: Counter[str] = Counter()
         self.uncommanded: list[str] = []
         self.windows = 0
+        self.after_abort: list[str] = []  # moved towards an aborted goal's target
+        self.abort_windows = 0
         self.restarted_at: dict[str, float] = {}
+        self.goals = 0
 
     def run(self) -> None:
         while not self.stop.is_set():
@@ -138,6 +168,16 @@ class Mover(threading.Thread):
                 self.results[f"refused ({type(exc).__name__})"] += 1
                 self.stop.wait(0.3)
                 continue
+            self.goals += 1
+            t_abort = None
+            if self.goals % ABORT_EVERY == 0:  # cancel it half-way, while the segments move
+                if self.stop.wait(0.75):
+                    return
+                try:
+                    self.d.cancel_trajectory(gid)
+                    t_abort = time.monotonic()
+                except (DaemonError, ValueError, KeyError):
+                    pass
             end = time.monotonic() + 20
             st = self.d.trajectory_status(gid)
             while not st["done"] and time.monotonic() < end and not self.stop.is_set():
@@ -146,9 +186,40 @@ class Mover(threading.Thread):
             cause = (st.get("abort") or {}).get("cause")
             self.results[st["state"] + (f" ({cause})" if cause else "")] += 1
             t_done = time.monotonic()
-            if self.stop.wait(QUIET_SETTLE_S + QUIET_S):
+            if t_abort is not None:
+                w0 = t_abort + ABORT_SETTLE_S
+                if self.stop.wait(max(0.0, w0 + QUIET_S - time.monotonic())):
+                    return
+                targets = {n: v["kappa"] for n, v in pts[0]["segments"].items()}
+                self._check_hold(w0, w0 + QUIET_S, targets)
+                t_done = max(t_done, w0 + QUIET_S - QUIET_SETTLE_S)
+            if self.stop.wait(max(0.0, t_done + QUIET_SETTLE_S + QUIET_S - time.monotonic())):
                 return
             self._check_quiet(t_done + QUIET_SETTLE_S, t_done + QUIET_SETTLE_S + QUIET_S)
+
+    def _rebooted(self, n: str, t0: float, t1: float) -> bool:
+        r = self.restarted_at.get(n)
+        return r is not None and t0 - 1.0 <= r <= t1
+
+    def _check_hold(self, t0: float, t1: float, stale: dict[str, float]) -> None:
+        """After an abort: no segment comes closer to the aborted goal's target (``stale``)."""
+        samples = self.watch.between(t0, t1)
+        if not samples:
+            return
+        self.abort_windows += 1
+        ref: dict[str, float] = {}
+        for t, fresh in samples:
+            for n, k in fresh.items():
+                if self._rebooted(n, t0, t1):
+                    continue
+                if n not in ref:
+                    ref[n] = k
+                elif abs(ref[n] - stale[n]) - abs(k - stale[n]) > MOTION_EPS:
+                    self.after_abort.append(
+                        f"{n}: kappa {ref[n]:.3f} -> {k:.3f} 1/m at +{t - t0:.2f} s after an "
+                        f"abort, towards the aborted target {stale[n]:.3f}"
+                    )
+                    return
 
     def _check_quiet(self, t0: float, t1: float) -> None:
         samples = self.watch.between(t0, t1)
@@ -158,8 +229,7 @@ class Mover(threading.Thread):
         ref: dict[str, float] = {}
         for t, fresh in samples:
             for n, k in fresh.items():
-                r = self.restarted_at.get(n)
-                if r is not None and t0 - 1.0 <= r <= t1:
+                if self._rebooted(n, t0, t1):
                     continue  # rebooted around this window: not judged
                 if n not in ref:
                     ref[n] = k
@@ -189,6 +259,7 @@ def main() -> int:
     with EmulatedChain(
         3, config_for=lambda k: {**config_for(robot, names[k]), "servo_driver": "emulated"}
     ) as chain:
+        mem0 = segment_mem_free(chain.host_port, 3)
         d = Daemon(robot, DaemonConfig(port=chain.host_port))
         end = time.monotonic() + 20
         while True:
@@ -205,7 +276,6 @@ def main() -> int:
         mover.start()
         time.sleep(2.0)
         rss0 = rss_kb_self()
-        seg0 = [rss_kb(chain.pid(k)) for k in range(3)]
         pids0 = [chain.pid(k) for k in range(3)]
         t_end = time.monotonic() + args.minutes * 60
         t_start = time.monotonic()
@@ -267,11 +337,12 @@ def main() -> int:
         watch.stop.set()
         time.sleep(2.0)
         rss1 = rss_kb_self()
-        seg1 = [rss_kb(chain.pid(k)) for k in range(3)]
         pids1 = [chain.pid(k) for k in range(3)]
         stats = d.loop_stats()
         status = d.status()
         d.stop()
+        time.sleep(0.5)
+        mem1 = segment_mem_free(chain.host_port, 3)
     allt = np.array([t for v in times.values() for t in v]) * 1e3
     print(f"\nfault soak: {args.minutes:g} min, seed {args.seed}, 3 emulated segments, 100 Hz")
     print(f"faults injected   {sum(injected.values())}  ({dict(injected)})")
@@ -296,16 +367,24 @@ def main() -> int:
     )
     for u in mover.uncommanded[:10]:
         print(f"  {u}")
+    print(
+        f"motions towards an aborted goal's target: {len(mover.after_abort)} "
+        f"(in {mover.abort_windows} windows after an abort; must be 0)"
+    )
+    for u in mover.after_abort[:10]:
+        print(f"  {u}")
     print(f"goals: {dict(mover.results)}")
     print(
         f"memory: daemon process RSS {rss0 / 1024:.1f} -> {rss1 / 1024:.1f} MB "
         f"({(rss1 - rss0) / 1024:+.1f} MB)"
     )
     for k in range(3):
-        new = " (restarted: since its restart)" if pids1[k] != pids0[k] else ""
-        a, b = seg0[k], seg1[k]
-        if a and b:
-            print(f"  segment {k + 1} RSS {a / 1024:.2f} -> {b / 1024:.2f} MB{new}")
+        new = " (restarted meanwhile: two boots compared)" if pids1[k] != pids0[k] else ""
+        a, b = mem0[k], mem1[k]
+        if a is not None and b is not None:
+            print(f"  segment {k + 1} free heap {a} -> {b} bytes ({b - a:+d}){new}")
+        else:
+            print(f"  segment {k + 1} free heap not read ({a} -> {b})")
     h = status["link_health"]
     print(
         f"loop: {stats['cycles']} cycles, overruns {stats['overruns']}, topology changes "
@@ -317,8 +396,12 @@ def main() -> int:
         figs.table("soak", headers,
                    note=f"{args.minutes:g} min, seed {args.seed}, 3 emulated segments, 100 Hz, a "
                    "repeating trajectory; motions without a command: "
-                   f"{len(mover.uncommanded)} in {mover.windows} quiet windows (must be 0); daemon "
-                   f"RSS {(rss1 - rss0) / 1024:+.1f} MB")  # fmt: skip
+                   f"{len(mover.uncommanded)} in {mover.windows} quiet windows and "
+                   f"{len(mover.after_abort)} in {mover.abort_windows} windows after an abort "
+                   f"(must be 0); segments' free heap "
+                   + ", ".join("?" if a is None or b is None else f"{b - a:+d} B"
+                               for a, b in zip(mem0, mem1, strict=True))
+                   + f"; daemon RSS {(rss1 - rss0) / 1024:+.1f} MB")  # fmt: skip
         rows = sorted(times.items()) + [("all", [t / 1e3 for t in allt])]
         for kind, v in rows:
             a = np.array(v) * 1e3
@@ -328,7 +411,7 @@ def main() -> int:
                     if len(a) else "—")  # fmt: skip
             figs.row("soak", [kind, n_in, n_ok, cell])
         figs.save()
-    ok = not failures and not mover.uncommanded
+    ok = not failures and not mover.uncommanded and not mover.after_abort
     return 0 if ok else 1
 
 
