@@ -222,7 +222,8 @@ def validate_points(
                 raise _bad(
                     swhere,
                     f"unknown field(s) {', '.join(map(str, unknown))} (allowed: 'kappa' (1/m) "
-                    "and 'phi' (rad), or 'kx' and 'ky' (1/m))",
+                    "and 'phi' (rad), or 'kx' and 'ky' (1/m); a `ucr trajectory` file also "
+                    "takes 'phi_deg')",
                 )
             if keys & {"kx", "ky"}:
                 if keys != {"kx", "ky"}:  # never a silent 0 for a component left out
@@ -237,7 +238,13 @@ def validate_points(
             if "kappa" not in keys:
                 raise _bad(swhere, "give 'kappa' (1/m) and 'phi' (rad), or 'kx' and 'ky' (1/m)")
             kappa = _number(target["kappa"], f"{swhere}.kappa", lo=0.0)
-            phi = _number(target.get("phi", 0.0), f"{swhere}.phi", lo=-100.0, hi=100.0)
+            phi = _number(target.get("phi", 0.0), f"{swhere}.phi")
+            if abs(phi) > 2 * math.pi:  # more than a turn: degrees in a radian field
+                raise _bad(
+                    f"{swhere}.phi",
+                    f"{phi:g} is more than a full turn: phi is in rad (if you meant "
+                    f"{phi:g} degrees, that is {math.radians(phi):.4f} rad)",
+                )
             seg_out[name] = {"kappa": kappa, "phi": phi}
         out.append({"time_from_start": t, "segments": seg_out})
     return out
