@@ -29,9 +29,11 @@ FoxgloveBindError = GuardError  # a refused address or token
 
 
 class FoxgloveSink:
-    """The Foxglove server as a sink: one channel per topic, advertised when the topic first
-    appears. Latched topics (/robot_description, /tf_static, the U(C)RDF) are sent again to each
-    new subscriber of theirs, and to it only."""
+    """The Foxglove server as a sink: one channel per topic, advertised before its first message
+    (:meth:`advertise`: the live feed and a replay announce every topic they will write, so a
+    client can subscribe before data flows; a topic never announced is advertised with its first
+    message, which then reaches no client). Latched topics (/robot_description, /tf_static, the
+    U(C)RDF) are sent again to each new subscriber of theirs, and to it only."""
 
     def __init__(
         self,
@@ -56,6 +58,10 @@ class FoxgloveSink:
     def latched(self, topic: str) -> tuple[bytes, int] | None:
         """The last message (CDR bytes, log time ns) of a latched topic, else None."""
         return self.guard.latched(topic)
+
+    def advertise(self, channels: list[tuple[str, str, str]]) -> None:
+        """Advertise ``(topic, typename, schema)`` channels now, before their messages."""
+        self.guard.advertise(channels)
 
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
         self.guard.write(topic, typename, schema, data, t_ns)

@@ -22,8 +22,11 @@ are dropped, counted), and a client that leaves :data:`CONTROL_BACKLOG` replies 
 Every client message is answered per the protocol: a malformed or unsupported one with a
 ``status`` message (counted, logged once per connection), never an exception.
 
-Latched topics (``latched``): the last message is kept and sent to each new subscriber of the
-topic, on its subscription, and to it only.
+Channels: the publisher advertises every topic it will write before the first message
+(:meth:`FoxgloveGuard.advertise`: the live feed the topics of :mod:`interop.topics`, a replay the
+recording's channels), so a client (Foxglove subscribes after the advertisement) is subscribed
+when a one-shot topic's only message comes. Latched topics (``latched``): the last message is
+kept and sent to each new subscriber of the topic, on its subscription, and to it only.
 
 A malformed handshake (no WebSocket upgrade, e.g. ``curl``; no or a foreign subprotocol; not HTTP)
 is refused by ``websockets`` itself; it is logged as one line (``Foxglove: refused ADDR: why``)
@@ -217,17 +220,36 @@ class FoxgloveGuard:
             self._thread.join(5)
 
     # -- data (any thread) ---------------------------------------------------------------------
+    def advertise(self, channels: Iterable[tuple[str, str, str]]) -> None:
+        """Advertise topics before any message of theirs: ``(topic, typename, schema)`` each
+        (topics already advertised are left as they are). A client subscribes to a channel
+        only after it is advertised (as Foxglove does), so a topic first advertised by the
+        :meth:`write` of its first message would lose that message to every client: whoever
+        publishes advertises the topics it will write first."""
+        with self._lock:
+            new = [self._channel(*c) for c in channels if c[0] not in self._channels]
+            if new:
+                text = P.advertise(new)
+                for c in self._clients:
+                    c.push_control(text)
+
+    def _channel(self, topic: str, typename: str, schema: str) -> P.ChannelInfo:
+        """A new channel for ``topic`` (under the lock; advertising it is the caller's)."""
+        ch = P.ChannelInfo(len(self._channels) + 1, topic, ros2.MESSAGE_ENCODING, typename,
+                           ros2.SCHEMA_ENCODING, schema)  # fmt: skip
+        self._channels[topic] = ch
+        self._channel_ids[ch.id] = ch
+        return ch
+
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
-        """Publish one encoded message: advertise its topic the first time, keep it if latched,
-        queue it for every client subscribed to the topic."""
+        """Publish one encoded message: keep it if latched, queue it for every client subscribed
+        to the topic. A topic not advertised before (:meth:`advertise`) is advertised now, and
+        this message goes to no client (none can have subscribed to it yet) unless latched."""
         t_ns = min(max(int(t_ns), 0), P.U64_MAX)
         with self._lock:
             ch = self._channels.get(topic)
             if ch is None:
-                ch = P.ChannelInfo(len(self._channels) + 1, topic, ros2.MESSAGE_ENCODING,
-                                   typename, ros2.SCHEMA_ENCODING, schema)  # fmt: skip
-                self._channels[topic] = ch
-                self._channel_ids[ch.id] = ch
+                ch = self._channel(topic, typename, schema)
                 text = P.advertise([ch])
                 for c in self._clients:
                     c.push_control(text)

@@ -18,8 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from interop.sinks import Fanout
-from interop.topics import CommandedGoals, RobotTopics, commanded
+from interop.sinks import Fanout, channels_of
+from interop.topics import TOPICS, CommandedGoals, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -76,6 +76,16 @@ class DaemonLink:
 
     def close(self) -> None:
         self.client.close()
+
+
+def next_due(due: float, period: float, now: float) -> float:
+    """When a periodic output is due next, after one that was due at ``due`` went out at ``now``
+    (>= ``due``): one ``period`` after ``due``, not after ``now``, so the rate is ``1/period`` even
+    when the trigger (a 50 Hz joint state) comes a little after each due time (restarting from
+    ``now`` would round every period up to the next trigger: 60 ms instead of 50 at 20 Hz). If
+    that time has passed as well (a pause, a stalled stream), from ``now``: no burst to catch up."""
+    nxt = due + period
+    return nxt if nxt > now else now + period
 
 
 class LiveFeed:
@@ -147,6 +157,9 @@ class LiveFeed:
     ) -> None:
         """Publish until ``stop`` is set, ``duration`` (s) passed or the connection ends."""
         t0 = time.monotonic()
+        advertise = getattr(self.out, "advertise", None)
+        if advertise is not None:  # every topic before any message: a client can subscribe
+            advertise(channels_of(TOPICS))
         for m in self.topics.static_messages(self._t_ns(None)):
             self.out.publish(m)
         next_viz = next_status = next_goal = 0.0
@@ -165,7 +178,7 @@ class LiveFeed:
                     if kind == "joint_states":
                         self.out.publish(self.topics.joint_states(msg, t_ns))
                         if now >= next_viz:
-                            next_viz = now + self.viz_period
+                            next_viz = next_due(next_viz, self.viz_period, now)
                             self.out.publish(self.topics.tf(msg, t_ns))
                             self.out.publish(self.topics.arcs(msg, t_ns))
                     elif kind in ("event", "topology"):

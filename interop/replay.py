@@ -24,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Schema
+from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import generate_dynamic
 
 from host.api.client import ApiError
@@ -137,6 +139,48 @@ def read_recording(path: str | Path, report: ReadReport | None = None) -> Iterat
             report.damage = why  # a killed recording: everything before the damage was delivered
 
 
+def recorded_channels(path: str | Path) -> list[tuple[str, str, str]]:
+    """(topic, typename, schema text) of every channel :func:`read_recording` would deliver
+    messages of, in the file's channel order: from the summary, or for a file without one (a
+    killed recorder) by reading its records up to the end or the first damage. Empty for a file
+    that cannot be read (:func:`read_recording` says why)."""
+    try:
+        with open(path, "rb") as f:
+            if f.read(len(MAGIC)) != MAGIC:
+                return []
+            f.seek(0)
+            try:
+                summary = make_reader(f).get_summary()
+            except Exception:  # noqa: BLE001 - damaged: read as a stream below
+                summary = None
+            if summary is not None:
+                chans = [(c, summary.schemas.get(c.schema_id)) for c in summary.channels.values()]
+            else:
+                f.seek(0)
+                chans = _streamed_channels(f)
+    except OSError:
+        return []
+    out: list[tuple[str, str, str]] = []
+    for channel, schema in sorted(chans, key=lambda cs: cs[0].id):
+        if _unplayable(schema, channel) is None and all(channel.topic != o[0] for o in out):
+            out.append((channel.topic, schema.name, schema.data.decode(errors="replace")))
+    return out
+
+
+def _streamed_channels(f: Any) -> list[tuple[Channel, Schema | None]]:
+    schemas: dict[int, Schema] = {}
+    chans: list[tuple[Channel, Schema | None]] = []
+    try:
+        for rec in StreamReader(f).records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                chans.append((rec, schemas.get(rec.schema_id)))
+    except Exception:  # noqa: BLE001, S110 - the damage ends the file: what came before counts
+        pass
+    return chans
+
+
 def _unplayable(schema: Any, channel: Any) -> str | None:
     """Why a message cannot be replayed as recorded ROS 2 data, else None."""
     enc = channel.message_encoding
@@ -160,11 +204,15 @@ def play(
     rate: float = 1.0,
     stop: threading.Event | None = None,
     report: ReadReport | None = None,
+    advertise: bool = True,
 ) -> int:
     """Write every message to ``sinks`` at ``rate`` x recorded speed (0: as fast as possible).
     Returns the number of messages; ``report`` says whether the file ended early and what was
-    skipped."""
+    skipped. First (``advertise``) the recording's channels are advertised to the sinks that
+    advertise (:func:`advertise_recording`)."""
     out = Fanout(sinks)
+    if advertise:
+        advertise_recording(path, sinks)
     stop = stop or threading.Event()
     t_rec0: int | None = None
     t_wall0 = time.monotonic()
@@ -186,6 +234,14 @@ def play(
         n += 1
     out.tick()
     return n
+
+
+def advertise_recording(path: str | Path, sinks: list[Any]) -> None:
+    """Advertise every channel of the recording to the sinks that advertise (the Foxglove
+    server), before any message: a client subscribes to what it has seen advertised, so a topic
+    advertised with its first message would lose that message (a one-shot topic: all of it)."""
+    if any(hasattr(s, "advertise") for s in sinks):
+        Fanout(sinks).advertise(recorded_channels(path))
 
 
 # -- re-executing the recorded motion ----------------------------------------------------------
@@ -557,11 +613,12 @@ def run(args: Any) -> int:
         if not sinks:
             print("ucr: nothing to play into (--no-foxglove without --view)", file=sys.stderr)
             return 2
+        advertise_recording(args.file, sinks)  # before a client connects (--wait-client)
         print(f"ucr: replaying {args.file} at {args.rate:g}x", file=sys.stderr, flush=True)
         if args.wait_client > 0:
             time.sleep(args.wait_client)
         report = ReadReport()
-        n = play(args.file, sinks, rate=args.rate, stop=stop, report=report)
+        n = play(args.file, sinks, rate=args.rate, stop=stop, report=report, advertise=False)
         for line in report.warnings(args.file):
             print(f"ucr: warning: {line}", file=sys.stderr, flush=True)
         print(f"ucr: {n} messages replayed", file=sys.stderr, flush=True)

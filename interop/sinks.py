@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Iterable, Mapping
 from typing import Protocol
 
 from interop import ros2
 from interop.topics import Message
+
+Channel = tuple[str, str, str]  # (topic, typename, schema text)
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,19 @@ class Sink(Protocol):
 
     def close(self) -> None: ...
 
+    # optional: ``advertise(channels: list[Channel]) -> None``, the topics to come, before their
+    # first message (a live server's clients subscribe to what is advertised: the Foxglove sink)
+
+
+def channels_of(topics: Mapping[str, str]) -> list[Channel]:
+    """(topic, typename, schema text) of each ``topic -> ROS 2 type``, as :meth:`Fanout.publish`
+    writes them."""
+    out = []
+    for topic, typename in topics.items():
+        c = ros2.codec(typename)
+        out.append((topic, c.name, c.schema_text))
+    return out
+
 
 class Fanout:
     """Encode once, write to every sink."""
@@ -40,6 +56,19 @@ class Fanout:
     def publish(self, m: Message) -> None:
         c = ros2.codec(m.typename)
         self.write(m.topic, c.name, c.schema_text, c.encode(m.msg), m.t_ns)
+
+    def advertise(self, channels: Iterable[Channel]) -> None:
+        """Announce the topics to come to every sink that advertises (the others learn a topic
+        from its first message)."""
+        channels = list(channels)
+        for s in list(self.sinks):
+            adv = getattr(s, "advertise", None)
+            if adv is None:
+                continue
+            try:
+                adv(channels)
+            except Exception as exc:  # noqa: BLE001 - one broken sink never stops the others
+                self._drop(s, exc)
 
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
         self.messages += 1

@@ -4,13 +4,23 @@ Foxglove server; both decode the ROS 2 CDR with @foxglove/rosmsg2-serialization.
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 import time
 
 import pytest
 
-from .conftest import EXPECTED_TOPICS, GOAL, ROBOT_FILE, run_node, stop, ucr, wait_for
+from .conftest import (
+    EXPECTED_TOPICS,
+    GOAL,
+    ROBOT_FILE,
+    run_node,
+    stop,
+    straighten,
+    ucr,
+    wait_for,
+)
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -111,9 +121,7 @@ def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
         code, _, err = stop(proc)
     assert code == 0, err
     assert out["serverInfo"]["capabilities"] == []  # read-only: no publish, services, params
-    for topic, typename in EXPECTED_TOPICS.items():
-        if topic.startswith("/ucr/trajectory"):
-            continue  # advertised once a goal is seen
+    for topic, typename in EXPECTED_TOPICS.items():  # all advertised from the start
         assert out["channels"][topic]["schemaName"] == typename
         assert out["channels"][topic]["encoding"] == "cdr"
     assert out["robotDescription"] > 1000  # latched: sent to a client that came later
@@ -124,6 +132,54 @@ def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
     last = dict(zip(names, js[-1]["position"], strict=True))
     for seg, kappa in want.items():
         assert last[f"{seg}/kappa"] == pytest.approx(kappa, abs=0.05)
+
+
+ONE_SHOT = ("/ucr/trajectory/goals", "/ucr/trajectory/commanded", "/ucr/trajectory/results")
+
+
+def test_node_foxglove_client_gets_the_one_shot_topics_of_a_single_goal(rig, node_clients):
+    """Defect: the server advertised a topic with its first message, so no client could be
+    subscribed to it yet: the one message of a one-shot topic (a goal's /ucr/trajectory/...)
+    reached nobody. Every topic is advertised before data flows; a client that subscribes to
+    what is advertised (as Foxglove does) and is watching when a goal is sent gets all three."""
+    import subprocess
+
+    from host.api.client import connect
+
+    url = rig.ensure_whole()
+    with connect(url) as c:
+        straighten(c)  # before the server starts: it sees one goal only, the test's
+    proc = ucr("foxglove", "--port", "0", "--url", url, "--robot", str(ROBOT_FILE))
+    node = None
+    try:
+        fox_url = None
+
+        def announced() -> bool:
+            nonlocal fox_url
+            m = re.search(r"(ws://127\.0\.0\.1:\d+)", proc.stderr.readline() or "")
+            fox_url = m.group(1) if m else None
+            return fox_url is not None or proc.poll() is not None
+
+        assert wait_for(announced, 60) and fox_url, "no server URL printed"
+        node = subprocess.Popen(["node", "foxglove_topics.mjs", fox_url, "90", *ONE_SHOT],
+                                cwd=node_clients, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)  # fmt: skip
+        assert node.stderr.readline().strip() == "ready", node.communicate(timeout=30)
+        with connect(url) as c:  # one goal: goals, commanded and results once each
+            pts = [{"time_from_start": 1.5, "segments": {n: {"kappa": k, "phi": p}
+                    for n, (k, p) in GOAL.items()}}]  # fmt: skip
+            c.send_trajectory(pts, timeout=30)
+        outp, err = node.communicate(timeout=120)
+        out = json.loads(outp.strip().splitlines()[-1])
+    finally:
+        if node is not None and node.poll() is None:
+            node.kill()
+            node.communicate()
+        code, _, serr = stop(proc)
+    assert code == 0, serr
+    assert set(EXPECTED_TOPICS) <= set(out["advertised"]), out  # all before any goal
+    for topic in ONE_SHOT:
+        assert out["counts"].get(topic, 0) >= 1, (topic, out, err)
 
 
 def test_foxglove_refuses_a_non_loopback_address_without_a_token(rig):

@@ -467,3 +467,119 @@ def test_messages_not_in_cdr_are_reported_as_skipped(tmp_path):
         make_plan(path, load(ROBOT_FILE))
     code, _, err = _ucr_run("replay", str(path), "--port", "0", "--rate", "0")
     assert code == 0 and "skipped 10 messages on /joint_states" in err, err
+
+
+class _Gate:
+    """A sink in front of the Foxglove server that holds the first message back until the test
+    opens it (its client is subscribed to what was advertised so far): no timing involved."""
+
+    def __init__(self, sink) -> None:
+        import threading
+
+        self.sink = sink
+        self.open = threading.Event()
+
+    def advertise(self, channels) -> None:
+        self.sink.advertise(channels)
+
+    def write(self, *message) -> None:
+        self.open.wait(30)
+        self.sink.write(*message)
+
+    def tick(self) -> None:
+        self.sink.tick()
+
+    def close(self) -> None:
+        pass
+
+
+def _one_shot_recording(path) -> None:
+    """A recording with a latched topic, a stream and one-shot topics (one message each)."""
+    from interop.record import McapSink
+    from interop.sinks import Fanout
+    from interop.topics import Message, RobotTopics
+    from ucrdf.parser import load
+
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    sink = McapSink(path)
+    out = Fanout([sink])
+    t_ns = 1_700_000_000_000_000_000
+    string = "std_msgs/msg/String"
+    out.publish(Message("/robot_description", string, {"data": "<robot/>"}, t_ns))
+    for i in range(5):
+        js = {"t": 0.1 * i, "names": JOINTS, "kappa": [0.1 * i, 0.0, 0.0], "phi": [0.5, 0, 0]}
+        out.publish(topics.joint_states(js, t_ns + i * 10**8))
+    out.publish(Message("/ucr/trajectory/goals", string, {"data": '{"id": "jtc-0"}'}, t_ns + 1))
+    out.publish(Message("/ucr/trajectory/results", string, {"data": '{"id": "jtc-0"}'},
+                        t_ns + 6 * 10**8))  # fmt: skip
+    sink.close()
+
+
+@pytest.mark.parametrize("summary", [True, False], ids=["whole", "no-summary"])
+def test_a_replay_client_gets_every_message_of_every_topic(tmp_path, summary):
+    """Defect: the Foxglove server advertised a topic with its first message, which therefore
+    reached no client (none can subscribe to a channel not advertised yet): every non-latched
+    topic arrived one short, a one-shot topic not at all. The replay advertises the recording's
+    channels (from its summary; without one, read from the file) before playing; a client that
+    subscribes to what it sees advertised, as Foxglove does, gets every message."""
+    import json
+    import struct
+    import threading
+    from collections import Counter
+
+    from websockets.sync.client import connect
+
+    from interop.foxglove import FoxgloveSink
+    from interop.replay import play, read_recording
+
+    path = tmp_path / "run.mcap"
+    _one_shot_recording(path)
+    if not summary:  # a killed recorder: no footer, read as a stream
+        path.write_bytes(path.read_bytes()[:-37])
+    want = Counter(m.topic for m in read_recording(path))
+    assert want["/ucr/trajectory/goals"] == 1 and want["/joint_states"] == 5
+    sink = FoxgloveSink(port=0)
+    gate = _Gate(sink)
+    got: Counter = Counter()
+    subs: dict[int, str] = {}
+    status = []
+
+    def handle(ws, frame) -> None:
+        if isinstance(frame, bytes):
+            if frame[0] == 1:
+                got[subs[struct.unpack_from("<I", frame, 1)[0]]] += 1
+            return
+        msg = json.loads(frame)
+        if msg.get("op") == "advertise":  # subscribe to each new channel, as Foxglove does
+            new = [c for c in msg["channels"] if 100 + c["id"] not in subs]
+            subs.update({100 + c["id"]: c["topic"] for c in new})
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 100 + c["id"], "channelId": c["id"]} for c in new]}))  # fmt: skip
+        elif msg.get("op") == "status":
+            status.append(msg)
+
+    player = threading.Thread(target=play, args=(path, [gate]), kwargs={"rate": 0}, daemon=True)
+    try:
+        with connect(sink.url, subprotocols=["foxglove.sdk.v1"], open_timeout=10) as ws:
+            assert json.loads(ws.recv(timeout=10))["op"] == "serverInfo"
+            player.start()
+            try:
+                handle(ws, ws.recv(timeout=10))  # the recording's channels, before any message
+            except TimeoutError:
+                pass
+            # the server answers in order: once this status is back, the subscriptions are in
+            ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [99999]}))
+            while not status:
+                handle(ws, ws.recv(timeout=10))
+            gate.open.set()
+            end = time.monotonic() + 20
+            while got != want and time.monotonic() < end:
+                try:
+                    handle(ws, ws.recv(timeout=0.2))
+                except TimeoutError:
+                    continue
+        player.join(30)
+    finally:
+        gate.open.set()
+        sink.close()
+    assert got == want

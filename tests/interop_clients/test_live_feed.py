@@ -1,0 +1,120 @@
+"""interop.live.LiveFeed on a simulated clock: /tf and /ucr/arcs at --viz-rate while joint states
+stream at 50 Hz, and no burst after a pause. Counted over simulated time (no wall-clock rates)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from interop import live
+from interop.topics import Message
+
+JS_PERIOD = 0.02  # the daemon's joint states: 50 Hz
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def monotonic(self) -> float:
+        return self.t
+
+
+class _Stream:
+    """The daemon's subscription: a joint state every 20 ms of simulated time, except in
+    ``pauses`` ((start, end) s after the first), where ``get`` waits its timeout for nothing."""
+
+    dropped_local = dropped_server = 0
+
+    def __init__(self, clock: _Clock, pauses=()) -> None:
+        self.clock, self.t0, self.pauses = clock, clock.t, pauses
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+    def get(self, timeout: float):
+        at = self.clock.t - self.t0
+        if any(a <= at < b for a, b in self.pauses):
+            self.clock.t += timeout
+            return None
+        self.clock.t += JS_PERIOD
+        return {"kind": "joint_states"}
+
+
+class _Daemon:
+    def __init__(self, stream: _Stream) -> None:
+        self.stream = stream
+
+    def subscribe(self, *args, **kw) -> _Stream:
+        return self.stream
+
+    def status(self) -> dict:
+        return {"running_goals": []}
+
+    def topology(self) -> dict:
+        return {}
+
+    def loop_stats(self) -> dict:
+        return {}
+
+
+class _Topics:
+    root = "base"
+
+    def static_messages(self, t_ns):
+        return []
+
+    def __getattr__(self, name):  # joint_states, tf, arcs, segments, loop_stats
+        return lambda *args: Message(name, "", {}, 0)
+
+
+class _Out:
+    def __init__(self, clock: _Clock) -> None:
+        self.clock = clock
+        self.sent: list[tuple[str, float]] = []
+
+    def publish(self, m: Message) -> None:
+        self.sent.append((m.topic, self.clock.t))
+
+    def tick(self) -> None:
+        pass
+
+
+def _run(monkeypatch, seconds: float, viz_rate: float, pauses=()) -> list[tuple[str, float]]:
+    clock = _Clock()
+    monkeypatch.setattr(live, "time", SimpleNamespace(monotonic=clock.monotonic, time=time.time))
+    out = _Out(clock)
+    feed = live.LiveFeed(_Daemon(_Stream(clock, pauses)), _Topics(), out, viz_rate=viz_rate)
+    feed.run(threading.Event(), duration=seconds)
+    t0 = out.sent[0][1] - JS_PERIOD
+    return [(topic, t - t0) for topic, t in out.sent]
+
+
+@pytest.mark.parametrize("viz_rate", [20.0, 10.0])
+def test_tf_and_arcs_go_out_at_the_viz_rate_not_slower(monkeypatch, viz_rate):
+    """Defect: the next /tf was scheduled one period after the joint state that triggered it,
+    so each period rounded up to the next 50 Hz joint state: 60 ms, ~16.7 Hz instead of 20."""
+    sent = _run(monkeypatch, 10.0, viz_rate)
+    js = [t for topic, t in sent if topic == "joint_states"]
+    assert len(js) == pytest.approx(10.0 / JS_PERIOD, abs=2)
+    for topic in ("tf", "arcs"):
+        n = sum(1 for name, _ in sent if name == topic)
+        assert n == pytest.approx(10.0 * viz_rate, abs=2), (topic, n)
+
+
+def test_no_burst_of_tf_after_a_pause(monkeypatch):
+    """After a pause in the stream the schedule starts again from then: no /tf on consecutive
+    joint states to catch up (the due times missed in the pause are dropped), and the rate is
+    the viz rate again."""
+    sent = _run(monkeypatch, 6.0, 20.0, pauses=[(2.0, 3.0)])
+    tf = [t for topic, t in sent if topic == "tf"]
+    gaps = [b - a for a, b in zip(tf, tf[1:], strict=False)]
+    assert min(gaps) > JS_PERIOD + 1e-6, min(gaps)  # never on two joint states in a row
+    after = [t for t in tf if t >= 3.1]
+    assert len(after) == pytest.approx((6.0 - 3.1) * 20, abs=2)
