@@ -195,11 +195,11 @@ class LiveFeed:
                         if kind == "topology":
                             topology = None  # re-read with the next status poll
                 if now >= next_goal:
-                    next_goal = now + self.goal_period
+                    next_goal = next_due(next_goal, self.goal_period, now)
                     status = self.client.status()
                     self._poll_goals(status)
                     if now >= next_status:
-                        next_status = now + self.status_period
+                        next_status = next_due(next_status, self.status_period, now)
                         if topology is None:
                             topology = self.client.topology()
                         t_ns = self._t_ns(None)
