@@ -87,7 +87,13 @@ def connect_daemon(args: argparse.Namespace) -> Any:
                 f"/proc; use --token-file FILE (mode 0600) or ${ENV_TOKEN}"
             )
         token = read_token(getattr(args, "token_file", None))
-        return connect(url, token=token, timeout=args.timeout, cafile=getattr(args, "ca", None))
+        return connect(
+            url,
+            token=token,
+            timeout=args.timeout,
+            cafile=getattr(args, "ca", None),
+            agent=f"ucr {getattr(args, 'command', None) or 'client'}",
+        )
     except ApiAuthError as exc:
         raise CliError(exc.message) from None
     except ApiConnectionError as exc:

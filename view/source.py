@@ -148,7 +148,7 @@ class LiveSource:
         """``timeout``: seconds to wait for the daemon's handshake and each reply."""
         self._token = token
         self.timeout = timeout
-        self.client = connect(url, token=token, timeout=timeout)
+        self.client = connect(url, token=token, timeout=timeout, agent="ucr view")
         self.url = self.client_url = url
         self.rate_hz = rate_hz
         self.lock = threading.Lock()
@@ -213,7 +213,7 @@ class LiveSource:
         re-read."""
 
         def attempt() -> Any:
-            client = connect(self.url, token=self._token, timeout=self.timeout)
+            client = connect(self.url, token=self._token, timeout=self.timeout, agent="ucr view")
             self.client = client
             try:
                 self.robot = None  # the daemon may run another file now: read it again

@@ -2,7 +2,8 @@
 
 One line per op that can cause motion or changes controllers (trajectory send/cancel, cFFC input
 when the set of deflected sticks changes, manual takeover, controller switch and hand-back, the
-zero command sent for a client that vanished): peer, token label, scope, op, goal id, summary.
+zero command sent for a client that vanished): peer, token label, scope, the client program
+(as the connection declares it), op, goal id, summary.
 The logger has its own handler on stderr (journald under systemd) and does not propagate, so it
 stays on when the rest of the logging is turned down (``--log-level warning``).
 
@@ -66,10 +67,14 @@ def _one_line(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
-def audit_log(peer: str, who: str, scope: str, op: str, goal: Any, summary: str) -> None:
-    """One audit record, one line (fields as ``key=value``, the summary last)."""
+def audit_log(
+    peer: str, who: str, scope: str, op: str, goal: Any, summary: str, client: str = "-"
+) -> None:
+    """One audit record, one line (fields as ``key=value``, the summary last). ``client``: the
+    program the connection said it is (its WebSocket User-Agent, e.g. ``ucr view``): what it
+    declares, not what the token proves."""
     audit_logger().info(
-        "peer=%s token=%s scope=%s op=%s goal=%s %s",
-        *(audit_field(v) for v in (peer, who, scope, op, goal)),
+        "peer=%s token=%s scope=%s client=%s op=%s goal=%s %s",
+        *(audit_field(v) for v in (peer, who, scope, client, op, goal)),
         _one_line(summary)[:500],
     )

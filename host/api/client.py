@@ -425,12 +425,14 @@ def connect(
     timeout: float = 5.0,
     *,
     cafile: str | None = None,
+    agent: str | None = None,
 ) -> Client:
     """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to ``$UCR_TOKEN``.
 
     ``cafile`` (default ``$UCR_CA``): a CA bundle or the daemon's own certificate, to verify a
-    ``wss://`` server that uses a self-signed certificate.
+    ``wss://`` server that uses a self-signed certificate. ``agent``: the program's name, sent
+    as the User-Agent (the daemon's audit lines show it; default ``ucr python client``).
     """
     url = url or default_url()
     token = token if token is not None else os.environ.get(ENV_TOKEN) or None
-    return Client(open_websocket(url, token, timeout, cafile), url, timeout)
+    return Client(open_websocket(url, token, timeout, cafile, agent), url, timeout)

@@ -21,6 +21,8 @@ from host.api.client_errors import ApiAuthError, ApiConnectionError
 from host.api.guard import is_loopback
 
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024  # largest message the client accepts from the daemon
+#: the User-Agent a client sends unless told (the daemon writes it into its audit lines)
+DEFAULT_AGENT = "ucr python client"
 
 
 def read_token(token_file: str | None = None) -> str | None:
@@ -44,10 +46,11 @@ def token_may_travel(url: str) -> None:
 
 
 def open_websocket(
-    url: str, token: str | None, timeout: float, cafile: str | None
+    url: str, token: str | None, timeout: float, cafile: str | None, agent: str | None = None
 ) -> ClientConnection:
     """The WebSocket to ``url`` (``token`` as a Bearer header; ``cafile`` or ``$UCR_CA`` to
-    verify ``wss://``). Raises :class:`ApiAuthError` / :class:`ApiConnectionError`."""
+    verify ``wss://``; ``agent``: the User-Agent, the program's name in the daemon's audit
+    lines). Raises :class:`ApiAuthError` / :class:`ApiConnectionError`."""
     headers = {"Authorization": f"Bearer {token}"} if token else None
     if token:
         token_may_travel(url)
@@ -62,6 +65,7 @@ def open_websocket(
         return ws_connect(
             url,
             additional_headers=headers,
+            user_agent_header=agent or DEFAULT_AGENT,
             ssl=ssl_ctx,
             open_timeout=timeout,
             max_size=MAX_MESSAGE_BYTES,

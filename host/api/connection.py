@@ -395,7 +395,13 @@ class Connections:
             # Stop its cFFC input at once rather than waiting for the daemon's deadman.
             zeros = {name: (0.0, 0.0) for name in session.ffc_active}
             audit_log(
-                session.peer, session.who, session.scope, "ffc.input", None, "zeroed on disconnect"
+                session.peer,
+                session.who,
+                session.scope,
+                "ffc.input",
+                None,
+                "zeroed on disconnect",
+                session.agent,
             )
             try:
                 await self._call("ffc_input", zeros)

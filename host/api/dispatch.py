@@ -142,7 +142,7 @@ class Dispatcher:
         return S.ok_reply(rid, result)
 
     def _audit(self, session: _Session, op: str, goal: Any, summary: str) -> None:
-        audit_log(session.peer, session.who, session.scope, op, goal, summary)
+        audit_log(session.peer, session.who, session.scope, op, goal, summary, session.agent)
 
     async def _dispatch(self, session: _Session, op: str, p: dict) -> Any:
         call = self._call

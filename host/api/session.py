@@ -71,6 +71,7 @@ class _Session:
     def __init__(self, ws: ServerConnection, token: Token | None, anonymous_scope: str) -> None:
         self.ws = ws
         self.peer = _peer(ws)
+        self.agent = _agent(ws)  # the program it says it is (User-Agent): for the audit log
         self.scope = token.scope if token is not None else anonymous_scope
         self.who = token.label if token is not None else "anonymous"
         self.subs: dict[int, _Subscription] = {}
@@ -96,6 +97,16 @@ def _peer(ws: Any) -> str:
         return f"{addr[0]}:{addr[1]}"
     except Exception:  # noqa: BLE001 - purely cosmetic
         return "?"
+
+
+def _agent(ws: Any) -> str:
+    """The connection's User-Agent (``ucr view``, ``ucr zenoh``, a browser's), at most 64
+    characters; ``-`` when it sent none."""
+    try:
+        agent = ws.request.headers.get("User-Agent") or "-"
+    except Exception:  # noqa: BLE001 - purely informative
+        return "-"
+    return str(agent)[:64]
 
 
 def _peer_ip(addr: Any) -> str:

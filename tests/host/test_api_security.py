@@ -547,3 +547,26 @@ def test_ucr_token_writes_a_private_token_file_usable_by_server_and_cli(tmp_path
     assert ucr(["token", str(link), "--force"]) == 0
     assert victim.read_text() == "keep\n" and not link.is_symlink()
     capsys.readouterr()
+
+
+def test_audit_lines_name_the_client_program_each_connection_declares(stub, audit_lines):
+    """The daemon's audit line named the token and the peer, not the program: `ucr view` and
+    `ucr zenoh` connect with one token from one address, so their commands were told apart only
+    by their own logs. Each connection's User-Agent is written as `client=`."""
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    point = {"time_from_start": 1.0, "segments": {"s1": {"kappa": 1.0}}}
+    try:
+        with connect(srv.url, agent="ucr view") as c:
+            c.send_trajectory([point], wait=False)
+        with connect(srv.url) as c:
+            c.send_trajectory([point], wait=False)
+        with ws_connect(srv.url, user_agent_header="x op=fake " + "A" * 200) as ws:
+            rpc(ws, {"id": 1, "op": "trajectory.send", "points": [point]})
+    finally:
+        srv.stop()
+    sends = [ln for ln in audit_lines if "op=trajectory.send" in ln]
+    assert len(sends) == 3, audit_lines
+    assert "client='ucr view' op=" in sends[0]
+    assert "client='ucr python client' op=" in sends[1]
+    # quoted when it is not a plain word, at most 64 characters (HTTP allows no line break)
+    assert f"client='x op=fake {'A' * 54}' op=" in sends[2]
