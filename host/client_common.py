@@ -97,7 +97,7 @@ def connect_daemon(args: argparse.Namespace) -> Any:
     except ApiAuthError as exc:
         raise CliError(exc.message) from None
     except ApiConnectionError as exc:
-        if exc.code in ("bad_url", "tls"):
+        if exc.code in ("bad_url", "tls", "busy"):
             raise CliError(exc.message) from None
         raise CliError(f"cannot reach the daemon at {url}: is `ucr daemon` running?") from None
 

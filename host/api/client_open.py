@@ -82,6 +82,13 @@ def open_websocket(
                 f"the daemon at {url} refused the connection: too many failed attempts, "
                 f"retry in {exc.response.headers.get('Retry-After', '?')} s"
             ) from None
+        if status == 503:  # full: e.g. the connections kept for control tokens
+            reason = exc.response.body.decode(errors="replace").strip()[:200]
+            retry = exc.response.headers.get("Retry-After", "?")
+            raise ApiConnectionError(
+                f"the daemon at {url} refused the connection: {reason}; retry in {retry} s",
+                code="busy",
+            ) from None
         if status in (400, 403, 404, 421):
             reason = exc.response.body.decode(errors="replace").strip()[:200]
             raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None

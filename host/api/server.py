@@ -114,6 +114,9 @@ class ServerOptions:
     outbox_bytes: int = 4 * 1024 * 1024  # bytes queued per client
     global_outbox_bytes: int = 64 * 1024 * 1024  # bytes queued for all clients together
     max_connections: int = 256  # TCP connections, handshaking or open
+    #: the last of those slots admit only control tokens (with tokens configured): viewers
+    #: with a read token cannot take every slot and keep the operator out
+    control_reserve: int = 16
     max_per_peer: int = 32  # per remote address (loopback peers count only in the total)
     max_subscriptions: int = 16  # per connection
     max_queue: int = 2  # frames read ahead per connection
@@ -493,6 +496,21 @@ class ApiServer:
             await asyncio.sleep(self.opts.auth_hold_s)
         token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
         if token is not None:
+            free_for_all = self.opts.max_connections - self.opts.control_reserve
+            if token.scope != CONTROL and self._tcp.total > free_for_all:
+                self.counters["refused_connections"] += 1
+                log.warning(
+                    "API: refused %s (%s): the last %d connections are kept for control tokens",
+                    _peer(conn),
+                    token.label,
+                    self.opts.control_reserve,
+                )
+                response = conn.respond(
+                    HTTPStatus.SERVICE_UNAVAILABLE,
+                    "too many connections: the remaining ones are kept for control tokens\n",
+                )
+                response.headers["Retry-After"] = "5"
+                return response
             conn.ucr_token = token
             return None
         self.counters["auth_failures"] += 1

@@ -473,6 +473,28 @@ def test_connections_are_capped_in_total_and_per_peer(stub):
         srv.stop()
 
 
+def test_viewers_cannot_take_the_connections_kept_for_control(stub):
+    """With tokens, read-token clients get the first max_connections - control_reserve slots;
+    the rest are kept for control tokens, so viewers cannot keep the operator out."""
+    from host.api.auth import CONTROL, READ, Token
+    from host.api.client import ApiConnectionError
+
+    tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens, max_connections=6, control_reserve=2)
+    srv.start()
+    viewers: list = []
+    try:
+        viewers = [connect(srv.url, token=READ_TOKEN) for _ in range(4)]
+        with pytest.raises(ApiConnectionError, match="kept for control tokens.*retry in 5 s"):
+            connect(srv.url, token=READ_TOKEN)
+        with connect(srv.url, token=CONTROL_TOKEN) as c1, connect(srv.url, token=CONTROL_TOKEN):
+            assert c1.ping() < 2
+    finally:
+        for c in viewers:
+            c.close()
+        srv.stop()
+
+
 def test_a_client_that_stops_reading_is_closed(stub):
     stub.pad = "x" * 16000
     stub.period = 1 / 500
