@@ -238,6 +238,8 @@ class Session:
         position becomes the zero (straight, equally taut). Servos without load are skipped."""
         if not 0.0 < threshold < 0.8:
             raise CalibrationError("tension threshold must be in (0, 0.8) of max torque")
+        if not 0.0 < step <= 0.1:
+            raise CalibrationError("tension step must be in (0, 0.1] rad")
         self.move(0.0, 0.0)
         for i in range(self.n):
             load = self.loads()[i]

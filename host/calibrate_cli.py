@@ -83,6 +83,18 @@ def open_session(args: argparse.Namespace, say=print) -> tuple[Any, Any]:
         raise
 
 
+def check_robot(args: argparse.Namespace, session: Any) -> None:
+    """With --robot: the file must take this segment's calibration (its bendable, one <servo>
+    per servo, and `ucr check` passing afterwards), checked before anything moves or is stored
+    on the segment; RobotFileError says why not."""
+    if not args.robot:
+        return
+    from host.calibrate_robot import check  # noqa: PLC0415
+
+    name = session.desc.get("name") or args.segment
+    check(args.robot, name, list(session.zeros), list(session.dirs))
+
+
 def persist_robot(args: argparse.Namespace, session: Any, result: Any, say=print) -> None:
     """Write the persisted calibration into the U(C)RDF given with --robot (if any)."""
     if not args.robot or result is None:
@@ -97,7 +109,7 @@ def persist_robot(args: argparse.Namespace, session: Any, result: Any, say=print
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from host.calibrate import CalibrationError  # noqa: PLC0415
     from host.calibrate_robot import RobotFileError  # noqa: PLC0415
-    from host.calibrate_script import ScriptError, load, run  # noqa: PLC0415
+    from host.calibrate_script import ScriptError, check_segment, load, run  # noqa: PLC0415
     from host.link import LinkError  # noqa: PLC0415
 
     if args.script is None:
@@ -107,6 +119,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         link, session = open_session(args)
     except (ScriptError, ValueError, LinkError) as exc:
         print(f"ucr calibrate: {exc}", file=sys.stderr)
+        return 1
+    try:  # the script and the robot file against the segment found, still before any motion
+        check_segment(steps, session.desc, args.script)
+        check_robot(args, session)
+    except (ScriptError, RobotFileError) as exc:
+        link.close()
+        print(f"ucr calibrate: {exc} (nothing moved)", file=sys.stderr)
         return 1
     try:
         result = run(session, steps, args.script)
@@ -133,6 +152,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def run_tui(args: argparse.Namespace) -> int:
     """``ucr calibrate --segment NAME`` without --script: the terminal UI (the 'tui' extra)."""
+    from host.calibrate_robot import RobotFileError  # noqa: PLC0415
     from host.calibrate_tui import CalibrateApp  # noqa: PLC0415 - textual only here
     from host.link import LinkError  # noqa: PLC0415
 
@@ -140,6 +160,12 @@ def run_tui(args: argparse.Namespace) -> int:
         link, session = open_session(args, say=print)
     except (ValueError, LinkError) as exc:
         print(f"ucr calibrate: {exc}", file=sys.stderr)
+        return 1
+    try:
+        check_robot(args, session)
+    except RobotFileError as exc:
+        link.close()
+        print(f"ucr calibrate: {exc} (nothing moved)", file=sys.stderr)
         return 1
     try:
         app = CalibrateApp(

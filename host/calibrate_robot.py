@@ -69,6 +69,29 @@ def updated_text(text: str, bendable: str, zeros: list[float], dirs: list[int]) 
     return text[: m.start()] + new_block + text[end:]
 
 
+def check(path: str | Path, bendable: str, zeros: list[float], dirs: list[int]) -> None:
+    """Would :func:`write` succeed? The file is read, given this calibration in memory and
+    checked as ``ucr check`` checks it; nothing is written. ``ucr calibrate --robot`` calls it
+    before the segment moves, so a file that cannot take the result is refused up front, not
+    after the calibration was already stored on the segment. RobotFileError says why not."""
+    from ucrdf.parser import parse_string  # noqa: PLC0415 - lxml only when checking
+
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise RobotFileError(f"{p}: cannot read the robot file: {exc.strerror}") from None
+    try:
+        new = updated_text(text, bendable, zeros, dirs)
+    except RobotFileError as exc:
+        raise RobotFileError(f"{p}: {exc}") from None
+    try:
+        parse_string(new, source=str(p))
+    except UcrdfError as exc:
+        shown = "; ".join(str(d) for d in exc.diagnostics)
+        raise RobotFileError(f"the calibrated file would not pass `ucr check`: {shown}") from None
+
+
 def write(path: str | Path, bendable: str, zeros: list[float], dirs: list[int]) -> Path:
     """Put the calibration into the robot file at ``path``; checked, then replaced atomically."""
     from ucrdf.parser import load  # noqa: PLC0415 - lxml only when writing

@@ -12,7 +12,10 @@ Commands (``#`` starts a comment; angles in rad unless said; docs/commissioning.
     wait SECONDS                  keep holding the current setpoint
     persist                       store the calibration on the segment (and in the robot file)
 
-The whole file is checked before anything moves: errors are ``FILE:LINE: message``.
+The whole file is checked before anything moves: errors are ``FILE:LINE: message``. :func:`parse`
+checks what needs no segment (names, counts, numbers, jog <= 0.5 rad, LOAD in (0, 0.8), STEP in
+(0, 0.1] rad, wait 0..60 s, KAPPA >= 0); :func:`check_segment` then, with the segment found,
+refuses a KAPPA beyond its kappa_max (the segment would clamp it and report a bend it never made).
 """
 
 from __future__ import annotations
@@ -35,6 +38,14 @@ _ARITY = {
     "wait": (1, 1),
     "persist": (0, 0),
 }
+
+
+#: commands whose first argument is a curvature (1/m, 0..kappa_max)
+_KAPPA_ARG = ("identify", "check-directions", "bend")
+#: ``tension LOAD`` is a fraction of max torque below this (host/calibrate.py refuses more)
+TENSION_MAX = 0.8
+#: largest ``tension … STEP`` (rad): each step changes the zero offset by this much at once
+TENSION_STEP_MAX = 0.1
 
 
 class ScriptError(ValueError):
@@ -78,10 +89,38 @@ def parse(text: str, source: str = "<script>") -> list[Step]:
             raise ScriptError(f"{where}: jog at most 0.5 rad at a time")
         if cmd == "wait" and not 0 <= args[0] <= 60:
             raise ScriptError(f"{where}: wait 0..60 s")
+        if cmd in _KAPPA_ARG and args and args[0] < 0:
+            raise ScriptError(
+                f"{where}: {cmd}: kappa {args[0]:g} 1/m is negative: kappa is a magnitude >= 0 "
+                "(bend the other way with phi + 180 deg)"
+            )
+        if cmd == "tension" and not 0 < args[0] < TENSION_MAX:
+            raise ScriptError(
+                f"{where}: tension LOAD {args[0]:g} must be in (0, {TENSION_MAX:g}) of max torque"
+            )
+        if cmd == "tension" and len(args) > 1 and not 0 < args[1] <= TENSION_STEP_MAX:
+            raise ScriptError(
+                f"{where}: tension STEP {args[1]:g} rad must be in (0, {TENSION_STEP_MAX:g}] rad "
+                "(default 0.01)"
+            )
         steps.append(Step(no, cmd, args))
     if not steps:
         raise ScriptError(f"{source}: the script has no step")
     return steps
+
+
+def check_segment(steps: list[Step], descriptor: dict, source: str = "<script>") -> None:
+    """The steps against the segment found (its descriptor): every curvature within
+    [0, kappa_max]. Called before anything moves; ScriptError ``FILE:LINE: message``."""
+    kappa_max = descriptor.get("kappa_max")
+    if not isinstance(kappa_max, (int, float)) or not kappa_max > 0:
+        raise ScriptError(f"{source}: the segment reports no kappa_max to check the script against")
+    for st in steps:
+        if st.command in _KAPPA_ARG and st.args and st.args[0] > kappa_max + 1e-9:
+            raise ScriptError(
+                f"{source}:{st.line}: {st.command}: kappa {st.args[0]:g} 1/m is beyond the "
+                f"segment's kappa_max {kappa_max:g} 1/m (it would stop at the limit)"
+            )
 
 
 def run(session: Session, steps: list[Step], source: str = "<script>") -> Result | None:
@@ -103,8 +142,11 @@ def run(session: Session, steps: list[Step], source: str = "<script>") -> Result
             elif st.command == "tension":
                 session.tension(*a)
             elif st.command == "bend":
-                session.move(a[0], math.radians(a[1]))
-                session.say(f"bend: kappa {a[0]:.3f} 1/m phi {a[1]:.1f} deg")
+                st_ = session.move(a[0], math.radians(a[1]))
+                session.say(
+                    f"bend: kappa {st_['kappa']:.3f} 1/m phi {math.degrees(st_['phi']):.1f} deg "
+                    f"measured (asked {a[0]:.3f} 1/m, {a[1]:.1f} deg)"
+                )
             elif st.command == "wait":
                 session.keep(a[0])
             elif st.command == "persist":
