@@ -639,8 +639,31 @@ def flash(
         wire = fl.wire.tx + fl.wire.rx
     if sigs.pending:
         log("interrupt received during the final renames and reset: held back until they ended")
-    log(
-        f"flashed {len(files)} files in {time.monotonic() - t0:.1f} s ({wire} bytes over the "
-        f"REPL: at least {wire * 10 / 115200:.1f} s at 115200 baud)"
-    )
+    log(summary_line(len(files), time.monotonic() - t0, wire, port, config))
     return info
+
+
+#: The UART speed of a board's REPL behind a USB-UART bridge (ESP32 devkits).
+REPL_BAUD = 115200
+
+
+def repl_is_uart(port: str, config: dict) -> bool:
+    """Does the REPL run over a 115200-baud UART (a USB-UART bridge)? Not on a board whose REPL
+    is native USB (``*-usbrepl``), nor on an emulated segment (a pty or a URL: no line rate)."""
+    from protocol.boards import default_board  # noqa: PLC0415
+
+    board = config.get("board") or default_board(config.get("servo_driver"))
+    if str(board).endswith("-usbrepl") or "://" in port:
+        return False
+    real = os.path.realpath(port)
+    return not real.startswith(("/dev/pts/", "/dev/ptmx"))
+
+
+def summary_line(n: int, seconds: float, wire: int, port: str, config: dict) -> str:
+    """The last line of a flash: files, time, bytes over the REPL and the rate measured; the
+    115200-baud floor only where the REPL is such a UART (:func:`repl_is_uart`)."""
+    rate = wire / seconds / 1000.0 if seconds > 0 else 0.0
+    text = f"flashed {n} files in {seconds:.1f} s ({wire} bytes over the REPL, {rate:.1f} kB/s"
+    if repl_is_uart(port, config):
+        text += f"; a {REPL_BAUD}-baud UART REPL needs at least {wire * 10 / REPL_BAUD:.1f} s"
+    return text + ")"

@@ -87,8 +87,13 @@ def _ms_param(robot: Robot, bendable: Bendable, name: str) -> int | None:
         raise SegmentConfigError(str(exc)) from None
 
 
-def config_for(robot: Robot, bendable_name: str) -> dict:
-    """The configuration dict (SI units, contract keys) of bendable ``bendable_name``."""
+def config_for(robot: Robot, bendable_name: str, *, emulated: bool = False) -> dict:
+    """The configuration dict (SI units, contract keys) of bendable ``bendable_name``.
+
+    A bendable without ``<servo>`` elements is refused (``ucr flash``): its servo ids, zero
+    offsets, directions and ranges are unknown, and inventing them would drive real servos by
+    guesses. Only for an emulated chain (``emulated``, :func:`configs`), whose servos are
+    emulated anyway, do stand-ins take their place (ids 0.., zero 0, direction 1)."""
     bendable = robot.bendables.get(bendable_name)
     if bendable is None:
         names = ", ".join(robot.bendables) or "none"
@@ -109,6 +114,14 @@ def config_for(robot: Robot, bendable_name: str) -> dict:
     for what, v in (("tendon radius", act.radius), ("spool radius", act.spool_radius)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise SegmentConfigError(f"bendable {bendable_name!r}: {what} must be > 0 m, got {v!r}")
+    if not act.servos and not emulated:
+        raise SegmentConfigError(
+            f"bendable {bendable_name!r} declares no <servo>: its servo ids, zero offsets, "
+            "directions and ranges are unknown and are not invented; add one <servo index= id= "
+            "zero_offset= direction= min_angle= max_angle=/> per tendon to its <actuation> "
+            "(docs/ucrdf.md, Servos)",
+            _where(robot, bendable.line),
+        )
     if act.servos and len(act.servos) != len(act.angles):
         raise SegmentConfigError(
             f"bendable {bendable_name!r}: {len(act.servos)} servos for {len(act.angles)} tendons"
@@ -133,8 +146,9 @@ def _wiring(name: str, act: Actuation) -> dict:
 
 
 def configs(robot: Robot) -> list[dict]:
-    """Configuration of every bendable, in document order (for an emulated chain of the robot)."""
-    return [config_for(robot, name) for name in robot.bendables]
+    """Configuration of every bendable, in document order, for an emulated chain of the robot
+    (a bendable without ``<servo>`` gets emulated stand-ins, see :func:`config_for`)."""
+    return [config_for(robot, name, emulated=True) for name in robot.bendables]
 
 
 def dumps_config(config: dict) -> str:

@@ -61,8 +61,15 @@ def plan(act: Actuation) -> dict[str, Any]:
         "board": name,
         "pins": chain,
         "bus": bus_full if act.driver in boards.BUS_DRIVERS else None,
-        "pwm": {"pins": pwm_pins[: act.count]} if act.driver == "pwm" and pwm_pins else None,
+        "pwm": _pwm(act, pwm_pins) if act.driver == "pwm" and pwm_pins else None,
     }
+
+
+def _pwm(act: Actuation, pins: list[int]) -> dict[str, Any]:
+    """config.json ``pwm`` of a PWM segment: its pins and the pulse calibration it runs
+    (``<pwm_pulse>``, else the firmware's defaults, written out so the file says them)."""
+    p = act.pulse()
+    return {"pins": pins[: act.count], "min_us": p.min_us, "max_us": p.max_us, "range": p.range}
 
 
 def problems(act: Actuation) -> list[tuple[str, str]]:

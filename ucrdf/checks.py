@@ -105,6 +105,13 @@ SEGMENT_PLUGIN_PARAMS = ("model", "port", "baudrate", "watchdog_ms", "tick_ms")
 MIN_BAUDRATE = 1200
 
 
+#: PWM pulse limits the segment firmware accepts (device/servos/pwm.py): a pulse shorter than
+#: the 50 Hz period, a span of at most 4000 us; a range above 10*pi rad (5 turns) is taken for
+#: degrees written for radians.
+PWM_PERIOD_US = 20000
+PWM_MAX_SPAN_US = 4000
+PWM_MAX_RANGE = 10 * math.pi
+
 #: Watchdog time (ms) when the robot does not say: the host cycle runs at 50–100 Hz, so 200 ms is
 #: ten to twenty missed cycles.
 DEFAULT_WATCHDOG_MS = 200
@@ -223,6 +230,29 @@ def check(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
     return checker.diagnostics
 
 
+def warnings(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
+    """What ``ucr check`` warns about in a usable description: a tendon actuation without
+    ``<servo>`` elements, whose segment ``ucr flash`` refuses (its servo ids and calibration are
+    unknown, and none are invented)."""
+    lines = lines or {}
+    out = []
+    for b in robot.bendables.values():
+        act = b.actuation
+        if act is None or not act.angles or act.servos:
+            continue
+        line = lines.get(("bendable", b.name, "actuation"), b.line)
+        out.append(
+            Diagnostic(
+                robot.source or "<robot>",
+                line,
+                f"warning: bendable {b.name!r}: actuation declares no <servo>: add one <servo "
+                "index= id= zero_offset= direction= min_angle= max_angle=/> per tendon; "
+                "`ucr flash` refuses this segment until then",
+            )
+        )
+    return out
+
+
 def inertia_problem(inertia: tuple[float, ...]) -> str | None:
     """Why the inertia tensor (ixx, ixy, ixz, iyy, iyz, izz) in kg m^2 no rigid body has, or None:
     its principal moments must be >= 0 and each at most the sum of the other two (a slack of
@@ -292,7 +322,12 @@ class _Checker:
         for link in robot.links.values():
             if link.inertial is not None:
                 line = self.line(("link", link.name, "inertial"), link.line)
-                self.inertial(link.inertial, f"link {link.name!r}", line)
+                self.inertial(
+                    link.inertial,
+                    f"link {link.name!r}",
+                    line,
+                    self.line(("link", link.name, "inertial", "origin"), line),
+                )
         for joint in robot.joints.values():
             self.joint(joint)
         for bendable in robot.bendables.values():
@@ -384,6 +419,8 @@ class _Checker:
         line = joint.line
         if not all(map(math.isfinite, (*joint.origin.xyz, *joint.origin.rpy))):
             self.error(line, f"{where}: origin has a non-finite value")
+        else:
+            self.rpy(joint.origin.rpy, where, self.line(("joint", joint.name, "origin"), line))
         if joint.type in ("revolute", "prismatic") and joint.limit is None:
             self.error(
                 line, f"{where}: a {joint.type} joint needs <limit lower upper effort velocity>"
@@ -413,7 +450,18 @@ class _Checker:
                 aline = self.line(("joint", joint.name, "axis"), line)
                 self.error(aline, f"{where}: axis {joint.axis} has no direction (zero length)")
 
-    def inertial(self, inertial: Inertial, where: str, line: int) -> None:
+    def rpy(self, rpy: tuple[float, float, float], where: str, line: int) -> None:
+        """An ``<origin rpy>`` beyond 2*pi is degrees written for radians (like revolute limits
+        and tendon angles): refused with the radians to write."""
+        for name, value in zip(("roll", "pitch", "yaw"), rpy, strict=True):
+            if abs(value) > math.tau + 1e-9:  # 90 instead of 1.571
+                self.error(
+                    line,
+                    f"{where}: origin rpy {name} {value:g} is beyond 2*pi: rpy is radians "
+                    f"(if {value:g} is degrees, write {math.radians(value):.10g})",
+                )
+
+    def inertial(self, inertial: Inertial, where: str, line: int, oline: int = 0) -> None:
         mass = inertial.mass
         if not math.isfinite(mass) or mass < 0:
             self.error(line, f"{where}: mass must be a finite value >= 0 kg, got {mass}")
@@ -421,6 +469,7 @@ class _Checker:
         if not all(map(math.isfinite, values)):
             self.error(line, f"{where}: <inertial> has a non-finite origin or inertia value")
             return
+        self.rpy(inertial.origin.rpy, f"{where}: <inertial>", oline or line)
         problem = inertia_problem(inertial.inertia)
         if problem:
             self.error(line, f"{where}: <inertia> is not physically possible: {problem}")
@@ -432,8 +481,11 @@ class _Checker:
         spec = b.model
         if not all(map(math.isfinite, (*b.origin.xyz, *b.origin.rpy))):
             self.error(b.line, f"{where}: origin has a non-finite value")
+        else:
+            self.rpy(b.origin.rpy, where, self.line((*key, "origin"), b.line))
         if b.inertial is not None:
-            self.inertial(b.inertial, where, self.line((*key, "inertial"), b.line))
+            iline = self.line((*key, "inertial"), b.line)
+            self.inertial(b.inertial, where, iline, self.line((*key, "inertial", "origin"), iline))
 
         sound = True
         bb = spec.backbone
@@ -595,6 +647,7 @@ class _Checker:
                     tline, f"{where}: tendon {i} sits at the same angle as tendon {seen[wrapped]}"
                 )
             seen[wrapped] = i
+        pulse_ok = act.driver != "pwm" or self.pwm_pulse(b, aline)
         ids: dict[int, int] = {}
         # spool angle needed to pay out / wind the largest tendon length change, l*d*kappa_max
         travel = None
@@ -624,6 +677,8 @@ class _Checker:
                     f"{where}: servo {i} min_angle {servo.min_angle} must be < max_angle "
                     f"{servo.max_angle} rad",
                 )
+            elif act.driver == "pwm" and pulse_ok and self.beyond_pulse(b, i, sline):
+                pass  # reported: the firmware would saturate there
             elif travel is not None and (
                 _below(-travel, servo.min_angle) or _exceeds(travel, servo.max_angle)
             ):
@@ -635,6 +690,67 @@ class _Checker:
                 )
         if sound and act.type == "tendon" and act.angles and act.driver in FIRMWARE_DRIVERS:
             self.firmware(b, aline)
+
+    def pwm_pulse(self, b: Bendable, aline: int) -> bool:
+        """The PWM pulse calibration is one the firmware runs (device/servos/pwm.py); False after
+        reporting why not."""
+        act = b.actuation
+        assert act is not None
+        p = act.pulse()
+        line = self.line(("bendable", b.name, "pwm_pulse"), aline)
+        where = f"bendable {b.name!r}: <pwm_pulse>"
+        if not all(map(math.isfinite, (p.min_us, p.max_us, p.range))):
+            self.error(line, f"{where}: min_us, max_us and range must be finite")
+            return False
+        if not 0 < p.min_us < p.max_us < PWM_PERIOD_US:
+            self.error(
+                line,
+                f"{where}: need 0 < min_us < max_us < {PWM_PERIOD_US} us, got min_us "
+                f"{p.min_us:g}, max_us {p.max_us:g}",
+            )
+            return False
+        if p.max_us - p.min_us > PWM_MAX_SPAN_US:
+            self.error(
+                line,
+                f"{where}: max_us - min_us = {p.max_us - p.min_us:g} us is more than "
+                f"{PWM_MAX_SPAN_US} us (pulse widths are microseconds)",
+            )
+            return False
+        if not 0 < p.range <= PWM_MAX_RANGE:
+            hint = (
+                f" (if {p.range:g} is degrees, write {math.radians(p.range):.10g})"
+                if p.range > PWM_MAX_RANGE
+                else ""
+            )
+            self.error(
+                line,
+                f"{where}: range {p.range:g} must be > 0 and at most 10*pi rad: it is the raw "
+                f"servo angle in radians between min_us and max_us{hint}",
+            )
+            return False
+        return True
+
+    def beyond_pulse(self, b: Bendable, i: int, sline: int) -> bool:
+        """Servo ``i``'s declared travel leaves what its PWM pulse range can output (reported);
+        the firmware outputs min_us/max_us there and the servo stops short."""
+        act = b.actuation
+        assert act is not None
+        servo = act.servos[i]
+        p = act.pulse()
+        lo, hi = -p.half - servo.zero_offset, p.half - servo.zero_offset
+        if not (_below(servo.min_angle, lo) or _exceeds(servo.max_angle, hi)):
+            return False
+        declared = "" if act.pwm_pulse is not None else " (the defaults: no <pwm_pulse>)"
+        self.error(
+            sline,
+            f"bendable {b.name!r}: actuation: servo {i} travel [{servo.min_angle:.4g}, "
+            f"{servo.max_angle:.4g}] rad leaves its PWM pulse range: {p.min_us:g}..{p.max_us:g} us "
+            f"span {p.range:.4g} rad{declared}, i.e. raw ±{p.half:.4g} rad, so from zero_offset "
+            f"{servo.zero_offset:g} only [{lo:.4g}, {hi:.4g}] rad is reached (the firmware "
+            "saturates there). Declare the servo's real pulse range with <pwm_pulse min_us= "
+            "max_us= range=/> in the <actuation>, or narrow min_angle/max_angle",
+        )
+        return True
 
     def firmware(self, b: Bendable, aline: int) -> None:
         """Run the firmware's own validation on the segment configuration of ``b``, unless an

@@ -16,7 +16,7 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the model imports numpy; keep `ucr --help` light
-    from ucrdf.model import Bendable, Interface, Joint, Robot
+    from ucrdf.model import Actuation, Bendable, Interface, Joint, Robot
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -54,6 +54,7 @@ def run_check(args: argparse.Namespace) -> int:
         count = len(exc.diagnostics)
         print(f"{args.file}: {count} error{'s' if count != 1 else ''}", file=sys.stderr)
         return 1
+    _print_warnings(args.file, robot)
     if not args.quiet:
         try:
             print(summary(robot), flush=True)
@@ -61,6 +62,21 @@ def run_check(args: argparse.Namespace) -> int:
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())  # keep the interpreter's final flush quiet
     return 0
+
+
+def _print_warnings(path: str, robot: Robot) -> None:
+    """``path:line: warning: …`` on stderr for what a usable file still lacks (exit code 0)."""
+    from pathlib import Path  # noqa: PLC0415
+
+    from ucrdf.checks import warnings  # noqa: PLC0415
+    from ucrdf.parser import parse_with_lines  # noqa: PLC0415
+
+    try:
+        _, lines = parse_with_lines(Path(path).read_bytes(), path)
+    except Exception:  # noqa: BLE001 - it loaded a moment ago; lines are a nicety
+        lines = {}
+    for diagnostic in warnings(robot, lines):
+        print(diagnostic, file=sys.stderr)
 
 
 # -- summary -------------------------------------------------------------------------------------
@@ -119,8 +135,41 @@ def _bendable_lines(b: Bendable) -> list[str]:
         )
         if act.servos:
             text += f", servo ids {', '.join(str(s.id) for s in act.servos)}"
+        else:
+            text += ", no servos declared"
         out.append(text)
+        out.append(_board_line(act))
     return out
+
+
+def _board_line(act: Actuation) -> str:
+    """The segment's board and wiring as config.json gets it (ucrdf/boards.py): chain UARTs,
+    servo bus UART or PWM pins and pulse range."""
+    from ucrdf.boards import board_of, plan, problems  # noqa: PLC0415
+
+    if problems(act):
+        return f"board {board_of(act)} (wiring not possible: see the errors)"
+    p = plan(act)
+    pins = p["pins"]
+    parts = [
+        f"board {p['board']}",
+        f"upstream UART{pins['up_uart']} tx {pins['up_tx']} rx {pins['up_rx']}",
+        f"downstream UART{pins['down_uart']} tx {pins['down_tx']} rx {pins['down_rx']}",
+        f"{pins.get('baud', 921600)} baud",
+    ]
+    if p["bus"]:
+        bus = p["bus"]
+        text = f"servo bus UART{bus['uart']} tx {bus['tx']} rx {bus['rx']}"
+        if "baud" in bus:
+            text += f" {bus['baud']} baud"
+        parts.append(text)
+    if p["pwm"]:
+        pw = p["pwm"]
+        parts.append(
+            f"PWM pins {', '.join(str(g) for g in pw['pins'])}, pulse "
+            f"{_num(pw['min_us'])}..{_num(pw['max_us'])} us = {_num(pw['range'])} rad"
+        )
+    return ", ".join(parts)
 
 
 #: Tree levels the summary indents; deeper levels print at this indentation.

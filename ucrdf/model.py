@@ -173,6 +173,29 @@ class Servo:
     max_angle: float = math.pi
 
 
+#: The PWM pulse calibration a ``pwm`` driver runs when ``<pwm_pulse>`` does not say (the firmware's
+#: defaults, device/servos/pwm.py ``_DEFAULT``): 500..2500 us span pi rad of raw servo angle.
+PWM_MIN_US = 500.0
+PWM_MAX_US = 2500.0
+PWM_RANGE = math.pi
+
+
+@dataclass
+class PwmPulse:
+    """``<pwm_pulse min_us max_us range/>``: the pulse widths (us) at the ends of a hobby servo's
+    travel and the raw angle (rad) between them. Raw angle 0 (= ``zero_offset``) is the centre
+    pulse, so a PWM servo reaches raw angles in [-range/2, range/2] and no further."""
+
+    min_us: float = PWM_MIN_US
+    max_us: float = PWM_MAX_US
+    range: float = PWM_RANGE
+
+    @property
+    def half(self) -> float:
+        """Largest raw angle (rad) either side of the centre pulse."""
+        return self.range / 2.0
+
+
 @dataclass
 class Actuation:
     """``<actuation type="tendon">``: how the segment bends.
@@ -196,6 +219,12 @@ class Actuation:
     uarts: dict[str, dict[str, int]] = field(default_factory=dict)
     #: PWM pin per servo index (overrides the board's default pins)
     pwm_pins: dict[int, int] = field(default_factory=dict)
+    #: PWM pulse calibration (``<pwm_pulse>``); None = the firmware's defaults (PwmPulse())
+    pwm_pulse: PwmPulse | None = None
+
+    def pulse(self) -> PwmPulse:
+        """The PWM pulse calibration a ``pwm`` driver runs (declared, else the defaults)."""
+        return self.pwm_pulse if self.pwm_pulse is not None else PwmPulse()
 
     @property
     def count(self) -> int:

@@ -34,6 +34,7 @@ from ucrdf.model import (
     Link,
     ModelSpec,
     Origin,
+    PwmPulse,
     Robot,
     Ros2Control,
     Servo,
@@ -339,8 +340,10 @@ class _Builder:
             rpy=_vec3(element.get("rpy"), (0.0, 0.0, 0.0)),
         )
 
-    def inertial(self, element: etree._Element) -> Inertial:
+    def inertial(self, element: etree._Element, key: LineKey) -> Inertial:
         origin_el = element.find("origin")
+        if origin_el is not None:
+            self.lines[(*key, "origin")] = origin_el.sourceline or 0
         mass_el = element.find("mass")
         inertia_el = element.find("inertia")
         inertia = (0.0,) * 6
@@ -363,7 +366,7 @@ class _Builder:
                 if link.inertial is not None:
                     self.error(child, f"link {name!r} has more than one <inertial>")
                     continue
-                link.inertial = self.inertial(child)
+                link.inertial = self.inertial(child, ("link", name, "inertial"))
                 self.lines[("link", name, "inertial")] = child.sourceline or 0
             elif child.tag in ("visual", "collision"):
                 link.geometry.append(
@@ -416,6 +419,8 @@ class _Builder:
             self.lines[("joint", name, "limit")] = limit_el.sourceline or 0
         if axis is not None:
             self.lines[("joint", name, "axis")] = axis.sourceline or 0
+        if origin is not None:
+            self.lines[("joint", name, "origin")] = origin.sourceline or 0
         extensions = [
             normalise_xml(c)
             for c in _children(element)
@@ -450,8 +455,11 @@ class _Builder:
         inertial_el = element.find("inertial")
         inertial = None
         if inertial_el is not None:
-            inertial = self.inertial(inertial_el)
+            inertial = self.inertial(inertial_el, (*key, "inertial"))
             self.lines[(*key, "inertial")] = inertial_el.sourceline or 0
+        origin_el = element.find("origin")
+        if origin_el is not None:
+            self.lines[(*key, "origin")] = origin_el.sourceline or 0
         actuation_el = element.find("actuation")
         actuation = None
         if actuation_el is not None:
@@ -529,9 +537,23 @@ class _Builder:
         servos: dict[int, Servo] = {}
         uarts: dict[str, dict[str, int]] = {}
         pwm_pins: dict[int, int] = {}
+        pulse: PwmPulse | None = None
+        #: servo index -> (min_angle given, max_angle given): the rest default below
+        given: dict[int, tuple[bool, bool]] = {}
         for child in _children(element):
             if child.tag == "uart":
                 self._uart(child, owner, key, uarts)
+                continue
+            if child.tag == "pwm_pulse":
+                if pulse is not None:
+                    self.error(child, f"{owner} has two <pwm_pulse>")
+                    continue
+                self.lines[(*key, "pwm_pulse")] = child.sourceline or 0
+                pulse = PwmPulse(
+                    min_us=_float(child.get("min_us", repr(PwmPulse.min_us))),
+                    max_us=_float(child.get("max_us", repr(PwmPulse.max_us))),
+                    range=_float(child.get("range", repr(PwmPulse.range))),
+                )
                 continue
             index = int(child.get("index"))
             if child.tag == "pwm":
@@ -570,11 +592,26 @@ class _Builder:
                     min_angle=_float(child.get("min_angle", repr(-math.pi))),
                     max_angle=_float(child.get("max_angle", repr(math.pi))),
                 )
+                given[index] = (
+                    child.get("min_angle") is not None,
+                    child.get("max_angle") is not None,
+                )
         if len(tendons) != count:
             self.error(
                 element,
                 f"{owner} declares count={count} but has {len(tendons)} <tendon> elements",
             )
+        driver = element.get("driver", "pwm")
+        if driver == "pwm":
+            # a PWM servo's travel defaults to what its pulse range spans: raw angles
+            # -range/2..range/2 around the centre pulse, i.e. relative to zero_offset
+            half = (pulse or PwmPulse()).half
+            for i, servo in servos.items():
+                has_min, has_max = given.get(i, (True, True))
+                if not has_min:
+                    servo.min_angle = -half - servo.zero_offset
+                if not has_max:
+                    servo.max_angle = half - servo.zero_offset
         return Actuation(
             type=element.get("type"),
             angles=[tendons[i] for i in sorted(tendons)],
@@ -585,6 +622,7 @@ class _Builder:
             board=element.get("board"),
             uarts=uarts,
             pwm_pins=pwm_pins,
+            pwm_pulse=pulse,
         )
 
     def _uart(

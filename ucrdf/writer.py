@@ -26,6 +26,13 @@ from ucrdf.model import (
     Ros2Control,
 )
 
+#: Written into an ``<actuation>`` without ``<servo>`` elements (``ucr flash`` refuses it).
+NO_SERVOS_COMMENT = (
+    " no <servo> declared: the servo ids, zero offsets, directions and ranges are unknown "
+    "(a chain's descriptors do not report them). Add one <servo index= id= zero_offset= direction= "
+    "min_angle= max_angle=/> per tendon: `ucr flash` refuses this segment until then "
+)
+
 
 def fmt(value: float) -> str:
     """A float as xs:double text that reads back exactly (INF/-INF/NaN spelt the XSD way)."""
@@ -131,6 +138,10 @@ def _actuation(parent: etree._Element, act: Actuation) -> None:
     )
     if act.board is not None:
         el.set("board", act.board)
+    if not act.servos and act.angles:
+        # e.g. a robot composed from a chain's descriptors (``ucr daemon --adopt``), which do
+        # not report servo ids or calibration: say what is missing in the file itself
+        el.append(etree.Comment(NO_SERVOS_COMMENT))
     for i, angle in enumerate(act.angles):
         _sub(el, "tendon", index=str(i), angle=fmt(angle))
     for i, servo in enumerate(act.servos):
@@ -148,6 +159,9 @@ def _actuation(parent: etree._Element, act: Actuation) -> None:
         _sub(el, "uart", role=role, **{k: str(v) for k, v in u.items()})
     for i, pin in sorted(act.pwm_pins.items()):
         _sub(el, "pwm", index=str(i), pin=str(pin))
+    if act.pwm_pulse is not None:
+        p = act.pwm_pulse
+        _sub(el, "pwm_pulse", min_us=fmt(p.min_us), max_us=fmt(p.max_us), range=fmt(p.range))
 
 
 def _bendable(parent: etree._Element, b: Bendable) -> None:

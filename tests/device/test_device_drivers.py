@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from protocol import messages as M
 
 SYNC = M.encode_sync(1, 1, [(2.0, 0.7)]).hex()
@@ -116,3 +118,60 @@ R['run'] = [[p.pin for p in hal.pwms], [p.freq for p in hal.pwms], [p.ns for p i
         want = min(max(want, 1_000_000), 2_000_000)
         assert abs(pulse - want) <= 20  # slope in 1/256 ns; LEDC resolution is ~300 ns
     assert status & 0x04 == 0  # open loop: no faults observable
+
+
+def test_pwm_runs_the_pulse_range_the_robot_file_declares(vm):
+    """robots/hybrid_arm.ucrdf's wrist needs ±2.945 rad of 360° servos (<pwm_pulse range=2π>):
+    the generated config.json carries the pulse range and the firmware reaches the full bend
+    instead of saturating at the default ±π/2."""
+    from tools.mpvm import REPO
+    from tools.segment_config import config_for
+    from ucrdf.parser import load
+
+    cfg = config_for(load(REPO / "robots" / "hybrid_arm.ucrdf"), "wrist")
+    assert cfg["pwm"]["range"] == math.tau and cfg["pwm"]["min_us"] == 500.0
+    cfg["watchdog_ms"] = 60000
+    sync = M.encode_sync(1, 1, [(cfg["kappa_max"], 0.0)]).hex()
+    r = vm(
+        f"""
+import gc, config
+cfg = config.Config({cfg!r})
+gc.collect()
+import servos, vmfakes
+from segment import Segment
+hal = vmfakes.BusHal()
+bus = servos.make('pwm', cfg, hal)
+seg = Segment(hal, cfg, bus, 5)
+vmkit.run(hal, seg, 20)
+for _ in range(60):
+    hal.up.feed(bytes.fromhex('{sync}'))
+    vmkit.run(hal, seg, 25)
+    hal.up.discard()
+R['run'] = [[p.ns for p in hal.pwms], list(seg.mc.servo_target), bus.saturated, seg.mc.kappa]
+"""
+    )
+    ns, targets, saturated, kappa = r["run"]
+    need = cfg["length"] * cfg["tendon_radius"] * cfg["kappa_max"] / cfg["spool_radius"]
+    assert abs(targets[0] * 1e-4 - need) < 2e-3  # tendon 0 winds in the full 2.945 rad
+    assert not saturated
+    assert abs(kappa * 1e-4 - cfg["kappa_max"]) < 0.05  # the whole bend, not a clamped one
+    want = 1_500_000 + targets[0] * 1e-4 * (2_000_000 / math.tau)
+    assert abs(ns[0] - want) <= 100 and ns[0] < 2_490_000  # inside the pulse range (1/256 ns slope)
+
+
+def test_the_firmware_pwm_defaults_are_the_u_c_rdf_defaults():
+    """device/servos/pwm.py's defaults = ucrdf.model's (what `ucr check` judges against)."""
+    import ast
+
+    from tools.mpvm import REPO
+    from ucrdf.model import PwmPulse
+
+    tree = ast.parse((REPO / "device" / "servos" / "pwm.py").read_text())
+    default = next(
+        ast.literal_eval(n.value)
+        for n in tree.body
+        if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "_DEFAULT"
+    )
+    p = PwmPulse()
+    assert (default["min_us"], default["max_us"]) == (p.min_us, p.max_us)
+    assert default["range"] == pytest.approx(p.range, abs=1e-8)

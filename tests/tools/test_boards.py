@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import subprocess
 import sys
@@ -152,12 +153,17 @@ def test_ucr_flash_refuses_a_servo_driver_override_the_board_cannot_wire() -> No
 
 
 def test_the_board_and_its_pins_reach_config_json(tmp_path) -> None:
-    wiring = '\n        <uart role="downstream" id="2" tx="4" rx="13"/>'
+    # the servos travel ±π: 360° PWM servos (the default pulse range spans only ±π/2)
+    wiring = (
+        '\n        <uart role="downstream" id="2" tx="4" rx="13"/>'
+        f'\n        <pwm_pulse range="{2 * math.pi!r}"/>'
+    )
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32"'), wiring)
     cfg = config_for(load(path), "segment_2")
     assert cfg["board"] == "esp32"
     assert cfg["pins"]["down_tx"] == 4 and cfg["pins"]["up_tx"] == 19
-    assert cfg["pwm"] == {"pins": [25, 26, 27]} and cfg["bus"] is None
+    assert cfg["pwm"] == {"pins": [25, 26, 27], "min_us": 500.0, "max_us": 2500.0,
+                          "range": 2 * math.pi} and cfg["bus"] is None  # fmt: skip
 
 
 # -- the firmware: config.json at boot, and the emulated machine ---------------------------------
@@ -282,6 +288,7 @@ def test_board_and_wiring_survive_a_write_and_parse(tmp_path) -> None:
     wiring = (
         '\n        <uart role="downstream" id="2" tx="4" rx="13" baud="460800"/>'
         '\n        <pwm index="2" pin="32"/>'
+        f'\n        <pwm_pulse range="{2 * math.pi!r}"/>'
     )
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32"'), wiring)
     robot = load(path)
@@ -289,4 +296,6 @@ def test_board_and_wiring_survive_a_write_and_parse(tmp_path) -> None:
     assert act.board == "esp32" and act.pwm_pins == {2: 32}
     assert act.uarts == {"downstream": {"id": 2, "tx": 4, "rx": 13, "baud": 460800}}
     assert parse_string(dumps(robot)) == robot
-    assert config_for(robot, "segment_2")["pwm"] == {"pins": [25, 26, 32]}
+    assert config_for(robot, "segment_2")["pwm"] == {
+        "pins": [25, 26, 32], "min_us": 500.0, "max_us": 2500.0, "range": 2 * math.pi
+    }  # fmt: skip

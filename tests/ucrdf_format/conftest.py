@@ -42,6 +42,7 @@ VALID = """<?xml version="1.0"?>
       <servo index="0" id="1"/>
       <servo index="1" id="2"/>
       <servo index="2" id="3"/>
+      <pwm_pulse min_us="500" max_us="2500" range="6.283185307179586"/>
     </actuation>
   </bendable>
   <ros2_control name="hw" type="system">

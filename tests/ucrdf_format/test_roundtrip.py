@@ -246,9 +246,11 @@ def robots(draw):
 @given(robots())
 def test_random_valid_robots_round_trip(robot):
     # the drawn tendon ranges are valid U(C)RDF but often beyond what the ucr segment firmware
-    # runs (servo_driver is one of its drivers): those refusals are the only problems allowed
+    # runs (servo_driver is one of its drivers) or what a PWM servo's pulse range spans: those
+    # refusals are the only problems allowed
+    allowed = ("segment firmware would refuse", "leaves its PWM pulse range")
     problems = [d.message for d in check(robot)]
-    assert all("segment firmware would refuse" in m for m in problems), problems
+    assert all(any(a in m for a in allowed) for m in problems), problems
     again = parse_string(dumps(robot), check=False)
     assert again == robot
     assert [d.message for d in check(again)] == problems
