@@ -106,6 +106,13 @@ def _json_arg(text: str, option: str) -> Any:
         raise _CliError(f"{source} is not usable JSON: {reason}") from None
     if not isinstance(value, dict):
         raise _CliError(f"{source} must be a JSON object mapping names to values")
+    for name, variables in value.items():  # a unit mistake, not an angle to wrap
+        phi = variables.get("phi") if isinstance(variables, dict) else None
+        if isinstance(phi, (int, float)) and not isinstance(phi, bool) and abs(phi) > 2 * math.pi:
+            raise _CliError(
+                f"{source}: {name}: phi = {phi:g} is more than a full turn: phi is in rad (if "
+                f"you meant {phi:g} degrees, that is {math.radians(phi):.4f} rad)"
+            )
     return value
 
 

@@ -80,3 +80,16 @@ def test_ik_initial_outside_the_limits_is_refused_like_fk_config(kappa, capsys):
     code, out, err = run(["ik", SOFTROBOT2, "--target", "0,0,0.6", "--initial", config], capsys)
     assert fk_code == 1 and code == 1 and out == ""
     assert "outside its limits" in fk_err and "--initial: " in err and "outside its limits" in err
+
+
+@pytest.mark.parametrize("command", ["fk", "export-urdf"])
+def test_the_cli_refuses_a_phi_in_degrees_instead_of_wrapping_it(command, capsys) -> None:
+    """Commissioning audit 2026-11-26: `ucr fk --config '{"seg1": {"kappa": 2, "phi": 90}}'`
+    was accepted and wrapped (90 rad = 116.6 deg): a unit mistake, refused with the radians."""
+    name = next(iter(load(SOFTROBOT2).bendables))
+    config = json.dumps({name: {"kappa": 2.0, "phi": 90}})
+    extra = ["-o", "-"] if command == "export-urdf" else []
+    code, _, err = run([command, SOFTROBOT2, "--config", config, *extra], capsys)
+    assert code != 0 and "1.5708 rad" in err and "Traceback" not in err, err
+    within = json.dumps({name: {"kappa": 2.0, "phi": -6.0}})
+    assert run(["fk", SOFTROBOT2, "--config", within], capsys)[0] == 0
