@@ -394,15 +394,8 @@ class Connections:
         if session.ffc_active:
             # Stop its cFFC input at once rather than waiting for the daemon's deadman.
             zeros = {name: (0.0, 0.0) for name in session.ffc_active}
-            audit_log(
-                session.peer,
-                session.who,
-                session.scope,
-                "ffc.input",
-                None,
-                "zeroed on disconnect",
-                session.agent,
-            )
+            s = session
+            audit_log(s.peer, s.who, s.scope, "ffc.input", None, "zeroed on disconnect", s.agent)
             try:
                 await self._call("ffc_input", zeros)
             except Exception:  # noqa: BLE001 - e.g. a segment gone meanwhile: try one by one
