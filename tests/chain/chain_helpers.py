@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import re
+import shutil
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 from host.link import ChainLink, LinkError
 from tools.emulator import EmulatedChain
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def wait_discover(link: ChainLink, n: int, timeout: float = 15.0) -> list[dict]:
@@ -59,3 +64,17 @@ def events_until(link: ChainLink, pred, timeout: float = 2.0, keep_alive=None) -
             return seen
         time.sleep(0.02)
     raise AssertionError(f"expected event not seen within {timeout} s; got {seen}")
+
+
+def protocol_speaking(tmp_path: Path, version: int) -> Path:
+    """A copy of protocol/ whose firmware build speaks only ``version``."""
+    out = tmp_path / "protocol"
+    shutil.copytree(REPO / "protocol", out, ignore=shutil.ignore_patterns("vectors", "__pycache__"))
+    src = (out / "constants.py").read_text()
+    for name in ("VERSION", "VERSION_MIN", "VERSION_MAX"):
+        src, count = re.subn(
+            rf"^{name} = const\(\d+\)", f"{name} = const({version})", src, flags=re.M
+        )
+        assert count == 1, name
+    (out / "constants.py").write_text(src)
+    return out

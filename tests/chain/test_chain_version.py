@@ -4,7 +4,6 @@ says to reflash it (docs/protocol.md section 10), and the descriptor announces t
 from __future__ import annotations
 
 import io
-import re
 import shutil
 import subprocess
 import tarfile
@@ -15,30 +14,16 @@ import pytest
 
 from host.link import LinkError, ProtocolVersionError
 from protocol import constants as C
-from tests.chain.chain_helpers import chain_and_link, wait_discover
+from tests.chain.chain_helpers import chain_and_link, protocol_speaking, wait_discover
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _protocol_speaking(tmp_path: Path, version: int) -> Path:
-    """A copy of protocol/ whose firmware build speaks only ``version``."""
-    out = tmp_path / "protocol"
-    shutil.copytree(REPO / "protocol", out, ignore=shutil.ignore_patterns("vectors", "__pycache__"))
-    src = (out / "constants.py").read_text()
-    for name in ("VERSION", "VERSION_MIN", "VERSION_MAX"):
-        src, count = re.subn(
-            rf"^{name} = const\(\d+\)", f"{name} = const({version})", src, flags=re.M
-        )
-        assert count == 1, name
-    (out / "constants.py").write_text(src)
-    return out
 
 
 def test_segment_speaking_another_protocol_version_is_refused_with_reflash_message(
     tmp_path: Path,
 ) -> None:
     other = C.VERSION_MAX + 1
-    with chain_and_link(1, protocol_dir=_protocol_speaking(tmp_path, other)) as (_chain, link):
+    with chain_and_link(1, protocol_dir=protocol_speaking(tmp_path, other)) as (_chain, link):
         end = time.monotonic() + 30.0
         refusal: ProtocolVersionError | None = None
         while refusal is None and time.monotonic() < end:

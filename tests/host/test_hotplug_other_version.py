@@ -5,8 +5,6 @@ chain before it: the segments before it stay under control and an event says to 
 from __future__ import annotations
 
 import queue
-import re
-import shutil
 from pathlib import Path
 
 import pytest
@@ -15,25 +13,12 @@ from daemon_helpers import emulated_configs, start_daemon, wait_for
 from host.config import DaemonConfig
 from host.daemon import Daemon
 from protocol import constants as C
+from tests.chain.chain_helpers import protocol_speaking
 from tools.emulator import EmulatedChain, populate_segment_dir
 
 pytestmark = pytest.mark.timeout(240)
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _protocol_speaking(tmp_path: Path, version: int) -> Path:
-    """A copy of protocol/ whose firmware build speaks only ``version``."""
-    out = tmp_path / "protocol"
-    shutil.copytree(REPO / "protocol", out, ignore=shutil.ignore_patterns("vectors", "__pycache__"))
-    src = (out / "constants.py").read_text()
-    for name in ("VERSION", "VERSION_MIN", "VERSION_MAX"):
-        src, count = re.subn(
-            rf"^{name} = const\(\d+\)", f"{name} = const({version})", src, flags=re.M
-        )
-        assert count == 1, name
-    (out / "constants.py").write_text(src)
-    return out
 
 
 def _reflash(chain: EmulatedChain, k: int, protocol_dir: Path, config: dict) -> None:
@@ -44,7 +29,7 @@ def _reflash(chain: EmulatedChain, k: int, protocol_dir: Path, config: dict) -> 
 
 
 def test_a_hot_plugged_segment_of_another_version_keeps_the_chain_before_it(tmp_path, robot3):
-    other = _protocol_speaking(tmp_path, C.VERSION_MAX + 1)
+    other = protocol_speaking(tmp_path, C.VERSION_MAX + 1)
     configs = emulated_configs(robot3)
     with EmulatedChain(3, config_for=configs) as chain:
         d = Daemon(robot3, DaemonConfig(port=chain.host_port))

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,19 +16,11 @@ from ucrdf.errors import UcrdfError
 from ucrdf.parser import load, parse_string, parse_with_lines
 from ucrdf.writer import dumps
 
+from .test_cli import ucr
+
 REPO = Path(__file__).resolve().parents[2]
 HYBRID = REPO / "robots" / "hybrid_arm.ucrdf"
 PULSE = '      <pwm_pulse min_us="500" max_us="2500" range="6.283185307179586"/>\n'
-
-
-def ucr(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 def _hybrid(tmp_path: Path, old: str = "", new: str = "") -> Path:
