@@ -35,7 +35,7 @@ def describe_chain(
         pos = d.get("position", len(segs))
         segs.append(
             {
-                "position": pos,
+                "position": pos + 1,  # counted from 1, like every position a user sees
                 "bendable": names[pos] if pos < len(names) else None,
                 "name": d.get("name"),
                 "uid": d.get("uid"),

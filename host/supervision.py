@@ -181,7 +181,7 @@ class Supervisor:
         if isinstance(pos, int) and 0 <= pos < len(hwi.names):
             code = ev.get("detail")
             self.faults[hwi.names[pos]] = {
-                "position": pos,
+                "position": pos + 1,  # counted from 1, like every position a user sees
                 "code": code,
                 "name": FAULT_NAMES.get(code, f"FAULT_{code}"),
                 "text": ev.get("text", ""),
@@ -197,7 +197,7 @@ class Supervisor:
             if "FAULT" in st["status"]:
                 if name not in self.faults:  # the FAULT event not (yet) seen: the bit says it
                     self.faults[name] = {
-                        "position": i,
+                        "position": i + 1,
                         "code": None,
                         "name": "FAULT",
                         "text": "",

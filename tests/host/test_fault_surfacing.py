@@ -59,6 +59,7 @@ def test_supervisor_keeps_a_fault_until_the_state_shows_it_cleared():
     ev = [{"name": "FAULT", "position": 0, "detail": 1, "text": "tick: RuntimeError: boom"}]
     sup.check(_hwi([faulty]), RobotState.zeros([]), ev, [{"name": "a"}])
     assert sup.faults["segment_1"]["name"] == "TICK_EXCEPTION"
+    assert sup.faults["segment_1"]["position"] == 1  # counted from 1, as users read it
     assert "boom" in sup.faults["segment_1"]["text"]
     assert "boom" in events[0][1] and events[0][2]["text"].endswith("boom")
     sup.check(_hwi([faulty]), RobotState.zeros([]), [], [{"name": "a"}])

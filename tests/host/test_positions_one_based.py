@@ -43,3 +43,18 @@ def test_no_host_message_formats_a_raw_position_index() -> None:
                     ):
                         offenders.append(f"{path.relative_to(HOST.parent)}:{node.lineno}")
     assert not offenders, f"format positions with host.positions.label: {offenders}"
+
+
+def test_the_topology_listing_counts_positions_from_one() -> None:
+    """`topology()` segments (and the /ucr/segments diagnostics built from them) count from 1,
+    like events and the CLI (issue 12: positions 1-based wherever a user sees them)."""
+    from host.chain_report import describe_chain
+    from ucrdf.parser import load
+
+    robot = load(str(Path(__file__).resolve().parents[2] / "robots" / "softrobot3.ucrdf"))
+    descs = [{"position": i, "uid": f"u{i}", "name": f"segment_{i + 1}"} for i in range(3)]
+    names = ["segment_1", "segment_2", "segment_3"]
+    out = describe_chain(robot, robot, descs, names, None, None)
+    assert [(s["position"], s["bendable"]) for s in out["segments"]] == list(
+        zip([1, 2, 3], names, strict=True)
+    )
