@@ -45,6 +45,7 @@ from ucrdf.model import (
     Ros2Control,
 )
 from ucrdf.models.base import CurvatureModel, ModelError
+from ucrdf.units import beyond_a_turn, degrees_hint
 
 # Key of a line-number table entry: ("bendable", name, "limits"), ("ros2_control", 0, "joint", 2)…
 LineKey = tuple[object, ...]
@@ -435,12 +436,12 @@ class _Checker:
                 self.error(lline, f"{where}: limit lower {lim.lower} > upper {lim.upper}")
             elif joint.type == "revolute":
                 for attr, value in (("lower", lim.lower), ("upper", lim.upper)):
-                    if abs(value) > math.tau + 1e-9:  # -135 for -2.356: degrees for radians
+                    if beyond_a_turn(value):  # -135 for -2.356: degrees for radians
                         self.error(
                             lline,
                             f"{where}: limit {attr} {value:g} is beyond 2*pi: revolute limits are "
-                            f"radians (if {value:g} is degrees, write "
-                            f"{math.radians(value):.10g}; a joint without bounds is 'continuous')",
+                            "radians "
+                            + degrees_hint(value, "a joint without bounds is 'continuous'"),
                         )
             if lim.effort < 0 or lim.velocity < 0:
                 self.error(lline, f"{where}: limit effort and velocity must be >= 0")
@@ -454,11 +455,11 @@ class _Checker:
         """An ``<origin rpy>`` beyond 2*pi is degrees written for radians (like revolute limits
         and tendon angles): refused with the radians to write."""
         for name, value in zip(("roll", "pitch", "yaw"), rpy, strict=True):
-            if abs(value) > math.tau + 1e-9:  # 90 instead of 1.571
+            if beyond_a_turn(value):  # 90 instead of 1.571
                 self.error(
                     line,
                     f"{where}: origin rpy {name} {value:g} is beyond 2*pi: rpy is radians "
-                    f"(if {value:g} is degrees, write {math.radians(value):.10g})",
+                    f"{degrees_hint(value)}",
                 )
 
     def inertial(self, inertial: Inertial, where: str, line: int, oline: int = 0) -> None:
@@ -634,11 +635,11 @@ class _Checker:
             if not math.isfinite(angle):
                 self.error(tline, f"{where}: tendon {i} angle is not finite")
                 continue
-            if abs(angle) > math.tau + 1e-9:  # 120 instead of 2.094: degrees given for radians
+            if beyond_a_turn(angle):  # 120 instead of 2.094: degrees given for radians
                 self.error(
                     tline,
                     f"{where}: tendon {i} angle {angle:g} is beyond 2*pi: angles are radians "
-                    f"(if {angle:g} is degrees, write {math.radians(angle):.10g})",
+                    f"{degrees_hint(angle)}",
                 )
                 continue
             wrapped = round(math.remainder(angle, math.tau), 9)
@@ -717,11 +718,7 @@ class _Checker:
             )
             return False
         if not 0 < p.range <= PWM_MAX_RANGE:
-            hint = (
-                f" (if {p.range:g} is degrees, write {math.radians(p.range):.10g})"
-                if p.range > PWM_MAX_RANGE
-                else ""
-            )
+            hint = f" {degrees_hint(p.range)}" if p.range > PWM_MAX_RANGE else ""
             self.error(
                 line,
                 f"{where}: range {p.range:g} must be > 0 and at most 10*pi rad: it is the raw "

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ucrdf.units import phi_beyond_a_turn
+
 
 class _CliError(Exception):
     """A user mistake on the command line: printed as one line, exit 1."""
@@ -108,11 +110,11 @@ def _json_arg(text: str, option: str) -> Any:
         raise _CliError(f"{source} must be a JSON object mapping names to values")
     for name, variables in value.items():  # a unit mistake, not an angle to wrap
         phi = variables.get("phi") if isinstance(variables, dict) else None
-        if isinstance(phi, (int, float)) and not isinstance(phi, bool) and abs(phi) > 2 * math.pi:
-            raise _CliError(
-                f"{source}: {name}: phi = {phi:g} is more than a full turn: phi is in rad (if "
-                f"you meant {phi:g} degrees, that is {math.radians(phi):.4f} rad)"
-            )
+        why = None
+        if isinstance(phi, (int, float)) and not isinstance(phi, bool):
+            why = phi_beyond_a_turn(phi)
+        if why is not None:
+            raise _CliError(f"{source}: {name}: phi = {why}")
     return value
 
 

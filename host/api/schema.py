@@ -18,6 +18,8 @@ import re
 from collections.abc import Callable
 from typing import Any
 
+from ucrdf.units import phi_beyond_a_turn
+
 MAX_REQUEST_BYTES = 64 * 1024
 MAX_NAME_LEN = 64
 MAX_POINTS = 10_000
@@ -239,12 +241,9 @@ def validate_points(
                 raise _bad(swhere, "give 'kappa' (1/m) and 'phi' (rad), or 'kx' and 'ky' (1/m)")
             kappa = _number(target["kappa"], f"{swhere}.kappa", lo=0.0)
             phi = _number(target.get("phi", 0.0), f"{swhere}.phi")
-            if abs(phi) > 2 * math.pi:  # more than a turn: degrees in a radian field
-                raise _bad(
-                    f"{swhere}.phi",
-                    f"{phi:g} is more than a full turn: phi is in rad (if you meant "
-                    f"{phi:g} degrees, that is {math.radians(phi):.4f} rad)",
-                )
+            why = phi_beyond_a_turn(phi)  # more than a turn: degrees in a radian field
+            if why is not None:
+                raise _bad(f"{swhere}.phi", why)
             seg_out[name] = {"kappa": kappa, "phi": phi}
         out.append({"time_from_start": t, "segments": seg_out})
     return out
