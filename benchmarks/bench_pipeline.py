@@ -25,9 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.figures import Figures  # noqa: E402
 from host.config import DaemonConfig  # noqa: E402
-from host.daemon import Daemon, DaemonError  # noqa: E402
 from host.link import ChainLink  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
+from tools.rig import start_daemon_on  # noqa: E402
 from ucrdf.compose import robot_from_descriptors  # noqa: E402
 
 HEADERS = [
@@ -58,16 +58,7 @@ def _robot(chain: EmulatedChain, n: int):
 
 
 def _run(chain, robot, rate: float, pipeline: bool, duration: float) -> dict:
-    d = Daemon(robot, DaemonConfig(port=chain.host_port, pipeline=pipeline), rate_hz=rate)
-    end = time.monotonic() + 30.0
-    while True:
-        try:
-            d.start()
-            break
-        except DaemonError:
-            if time.monotonic() > end:
-                raise
-            time.sleep(0.3)
+    d = start_daemon_on(chain, robot, 30.0, config=DaemonConfig(pipeline=pipeline), rate_hz=rate)
     try:
         time.sleep(1.0)  # settle
         o0 = d.loop_stats()["overruns"]

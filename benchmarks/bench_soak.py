@@ -50,9 +50,9 @@ sys.path.insert(0, str(REPO))
 import numpy as np  # noqa: E402
 
 from benchmarks.figures import Figures  # noqa: E402
-from host.config import DaemonConfig  # noqa: E402
 from host.daemon import Daemon, DaemonError  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
+from tools.rig import start_daemon_on  # noqa: E402
 from tools.segment_config import config_for  # noqa: E402
 from ucrdf.parser import load  # noqa: E402
 
@@ -260,16 +260,7 @@ def main() -> int:
         3, config_for=lambda k: {**config_for(robot, names[k]), "servo_driver": "emulated"}
     ) as chain:
         mem0 = segment_mem_free(chain.host_port, 3)
-        d = Daemon(robot, DaemonConfig(port=chain.host_port))
-        end = time.monotonic() + 20
-        while True:
-            try:
-                d.start()
-                break
-            except DaemonError:
-                if time.monotonic() > end:
-                    raise
-                time.sleep(0.3)
+        d = start_daemon_on(chain, robot, 20.0)
         watch = Watch(d)
         watch.start()
         mover = Mover(d, names, watch, rng)

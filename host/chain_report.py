@@ -98,11 +98,11 @@ def rate_warning(
     what to change), or None when it can. ``pipeline``: the daemon collects the STATEs one
     period later, so they have the period on top."""
     floor = exchange_floor_s(n, baudrate)
-    window = reply_timeout_s + (1.0 / rate_hz if pipeline else 0.0)
+    extra = 1.0 / rate_hz if pipeline else 0.0  # pipelined: the STATEs have a period more
+    window = reply_timeout_s + extra
     if floor <= window:
         return None
     max_rate = largest_rate_hz(n, baudrate, pipeline)
-    extra = 1.0 / rate_hz if pipeline else 0.0
     if floor > configured_reply_timeout_s + extra:
         advice = (
             f"raise watchdog.reply_timeout_s above {floor:.3f} s and use rate_hz <= "

@@ -262,10 +262,7 @@ class HardwareInterface:
             self.exchange_probed = self.probe_extra > 0
             if self.pipeline:
                 self._write_pipelined(sp)
-                self.exchange_s = time.perf_counter() - t0
-                self.exchanges += 1
-                return
-            if self.probe_extra > 0:
+            elif self.probe_extra > 0:
                 self._pending = self.link.sync(
                     sp,
                     timeout=self.reply_timeout,

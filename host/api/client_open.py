@@ -74,6 +74,7 @@ def open_websocket(
         )
     except InvalidStatus as exc:
         status = exc.response.status_code
+        reason = exc.response.body.decode(errors="replace").strip()[:200]  # the server's why
         if status == 401:
             what = "wrong token" if token else "a token is required (--token-file or $UCR_TOKEN)"
             raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
@@ -83,14 +84,12 @@ def open_websocket(
                 f"retry in {exc.response.headers.get('Retry-After', '?')} s"
             ) from None
         if status == 503:  # full: e.g. the connections kept for control tokens
-            reason = exc.response.body.decode(errors="replace").strip()[:200]
             retry = exc.response.headers.get("Retry-After", "?")
             raise ApiConnectionError(
                 f"the daemon at {url} refused the connection: {reason}; retry in {retry} s",
                 code="busy",
             ) from None
         if status in (400, 403, 404, 421):
-            reason = exc.response.body.decode(errors="replace").strip()[:200]
             raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
         raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
     except InvalidURI as exc:
