@@ -10,7 +10,8 @@
 Errors: :class:`ApiError` (``code``, ``message``) for refused requests; connection problems raise
 :class:`ApiConnectionError`, which is also a built-in ``ConnectionError``; a refused token raises
 :class:`ApiAuthError` (also a ``PermissionError``); timeouts raise :class:`ApiTimeoutError`.
-Opening the connection (token, TLS, handshake refusals) is :mod:`host.api.client_open`; the
+Opening the connection (token, TLS, handshake refusals) is :mod:`host.api.client_open`, sending
+a trajectory above the request limit in chunks :mod:`host.api.client_upload`; the
 errors live in :mod:`host.api.client_errors` and are re-exported here.
 """
 
@@ -31,7 +32,7 @@ from websockets.sync.client import ClientConnection
 from host.api import ENV_TOKEN, default_url
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
 from host.api.client_open import open_websocket, read_token
-from host.api.schema import MAX_REQUEST_BYTES
+from host.api.client_upload import cancel_upload, send_in_chunks
 
 __all__ = [
     "ApiAuthError",
@@ -45,7 +46,6 @@ __all__ = [
 ]
 
 _COMPACT = (",", ":")
-CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
 
 
 class _Pending:
@@ -299,6 +299,11 @@ class Client:
         """Send CLEAR_FAULT to ``segment`` (or every segment): it leaves FAULT for HOLD."""
         return self.call("faults.clear", **({} if segment is None else {"segment": segment}))
 
+    def cancel_upload(self, upload: int) -> bool:
+        """End an unfinished chunked upload of this connection; False if the server no longer
+        had it (sent, refused or expired) or did not answer."""
+        return cancel_upload(self.call, upload)
+
     def send_trajectory(
         self,
         points: list[dict],
@@ -316,22 +321,10 @@ class Client:
         params: dict[str, Any] = {}
         if controller is not None:
             params["controller"] = controller
-        chunks = _chunks(points, CHUNK_BYTES)
         # The daemon builds and retimes the whole path before it answers: ~0.2 ms per waypoint
         # on a Pi-class CPU, more when loaded, so a long trajectory gets a longer reply timeout.
         reply_s = self.timeout + 0.002 * len(points)
-        if len(chunks) > 1:  # above the request limit: upload in chunks, then send
-            # Threads sending long trajectories take turns: the server serves one request of a
-            # connection at a time anyway, and holds at most schema.MAX_UPLOADS per connection.
-            with self._upload_lock:
-                upload = None
-                for chunk in chunks[:-1]:
-                    extra = {} if upload is None else {"upload": upload}
-                    upload = self.call("trajectory.upload", points=chunk, **extra)["upload"]
-                params["upload"] = upload
-                result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
-        else:
-            result = self.call("trajectory.send", timeout=reply_s, points=chunks[-1], **params)
+        result = send_in_chunks(self.call, points, params, reply_s, self._upload_lock)
         goal = result["goal"]
         self.last_goal = goal
         if progress is not None:
@@ -403,20 +396,6 @@ class Client:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _chunks(points: list[dict], limit: int) -> list[list[dict]]:
-    """Split waypoints into lists whose JSON stays below ``limit`` bytes (at least one each)."""
-    out: list[list[dict]] = [[]]
-    size = 0
-    for p in points:
-        n = len(json.dumps(p, separators=_COMPACT).encode()) + 1
-        if out[-1] and size + n > limit:
-            out.append([])
-            size = 0
-        out[-1].append(p)
-        size += n
-    return out
 
 
 def connect(

@@ -168,6 +168,10 @@ class Dispatcher:
             return await call("clear_fault", p["segment"])
         if op == "trajectory.upload":
             return self._upload(session, p)
+        if op == "trajectory.upload_cancel":
+            up = self._own_upload(session, p["upload"])
+            self.end_upload(session, up.uid)
+            return {"upload": up.uid, "canceled": True, "points": len(up.points)}
         if op == "trajectory.send":
             return await self._send_trajectory(session, p)
         if op == "trajectory.status":

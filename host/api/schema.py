@@ -299,6 +299,15 @@ def _trajectory_upload(params: dict, uploaded: Uploaded | None = None) -> dict:
     return {"points": _chunk_points(params["points"], upload, uploaded), "upload": upload}
 
 
+def _upload_cancel(params: dict) -> dict:
+    """End an unfinished upload of this connection (its waypoints are forgotten)."""
+    _check_fields(params, ("upload",), ("upload",))
+    upload = _upload_id(params["upload"])
+    if upload is None:
+        raise _bad("upload", "expected an upload id (positive integer)")
+    return {"upload": upload}
+
+
 def _hand_back(params: dict) -> dict:
     _check_fields(params, ("manual",))
     manual = params.get("manual")
@@ -384,6 +393,7 @@ OPS: dict[str, Callable[[dict], dict]] = {
     "faults.clear": _clear_fault,
     "trajectory.send": _trajectory_send,
     "trajectory.upload": _trajectory_upload,
+    "trajectory.upload_cancel": _upload_cancel,
     "trajectory.status": _goal_op,
     "trajectory.cancel": _goal_op,
     "ffc.input": _ffc_input,

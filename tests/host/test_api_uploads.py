@@ -19,7 +19,7 @@ from test_api_protocol import FacadeStub, rpc, wait_for
 from websockets.sync.client import connect as ws_connect
 
 from host.api import schema
-from host.api.client import ApiError, connect
+from host.api.client import ApiError, ApiTimeoutError, connect
 from host.api.server import ApiServer
 from host.client_common import CliError
 from host.client_motion import load_trajectory_file
@@ -194,6 +194,44 @@ def test_threads_sending_long_trajectories_through_one_client_all_succeed(server
             for p in _points(2000, t0=100.0 * k)
         ]
     assert server.stats()["upload_points"] == 0
+
+
+# ------------------------------------------------------------------ cancel
+def test_an_unfinished_upload_can_be_canceled_by_its_connection_only(server):
+    """Before ``trajectory.upload_cancel`` an abandoned upload held its points (and one of the
+    connection's MAX_UPLOADS slots) for 60 s."""
+    with ws_connect(server.url) as ws, ws_connect(server.url) as other:
+        uid = _upload(ws, _points(3))["result"]["upload"]
+        stolen = rpc(other, {"id": 1, "op": "trajectory.upload_cancel", "upload": uid})
+        assert stolen["error"]["code"] == schema.NOT_FOUND
+        assert server.stats()["upload_points"] == 3
+        done = rpc(ws, {"id": 2, "op": "trajectory.upload_cancel", "upload": uid})
+        assert done["result"] == {"upload": uid, "canceled": True, "points": 3}
+        assert server.stats()["upload_points"] == 0
+        assert _upload(ws, _points(1, t0=1.0), uid, rid=3)["error"]["code"] == schema.NOT_FOUND
+        again = rpc(ws, {"id": 4, "op": "trajectory.upload_cancel", "upload": uid})
+        assert again["error"]["code"] == schema.NOT_FOUND
+        for bad in ({}, {"upload": None}, {"upload": 0}, {"upload": "1"}, {"upload": 1, "x": 1}):
+            reply = rpc(ws, {"id": 5, "op": "trajectory.upload_cancel", **bad})
+            assert reply["error"]["code"] == schema.INVALID_PARAMS, bad
+
+
+def test_the_client_cancels_its_upload_when_a_chunk_times_out(server):
+    with connect(server.url) as c:
+        call = c.call
+        chunks = []
+
+        def timing_out(op, timeout=None, **params):
+            if op == "trajectory.upload" and "upload" in params:
+                chunks.append(params["upload"])
+                raise ApiTimeoutError("no reply to trajectory.upload")  # the 2nd chunk's reply lost
+            return call(op, timeout, **params)
+
+        c.call = timing_out
+        with pytest.raises(ApiTimeoutError):
+            c.send_trajectory(_points(2000), wait=False)
+        assert chunks and server.stats()["upload_points"] == 0  # the first chunk's points freed
+        assert c.cancel_upload(chunks[0]) is False  # already gone
 
 
 # ------------------------------------------------------------------ subscription rates
