@@ -25,7 +25,7 @@ from interop.ros2 import full_name
 from interop.sinks import Fanout
 from interop.topics import LATCHED, TOPICS, Message
 from interop.zenoh import rmw
-from interop.zenoh.node import RmwNode, RmwPublisher
+from interop.zenoh.node import GraphWatch, RmwNode, RmwPublisher
 
 DISTROS = ("jazzy", "kilted", "lyrical", "rolling")  # rmw_zenoh with RIHS01 type hashes
 GLOBAL_TOPICS = ("/rosout",)  # ROS convention: every node logs to the one /rosout
@@ -118,6 +118,45 @@ def daemon_away(bendables: list[str], why: str, t_ns: int) -> Message:
     return Message("/ucr/segments", TOPICS["/ucr/segments"], msg, t_ns)
 
 
+GRAPH_SETTLE_S = 1.0  # how long the start waits for the graph's tokens to reach it
+
+
+def describe_clash(key: str, domain_id: int, *, joined: bool = False) -> str:
+    """One phrase naming what a liveliness token of :func:`watch_clashes` announces."""
+    node = rmw.parse_node_token(key)
+    if node is not None:
+        zid, ns, name = node
+        return (
+            f"a ROS 2 node {ns.rstrip('/')}/{name} "
+            f"{'joined' if joined else 'is already on'} this Zenoh network (domain {domain_id}, "
+            f"Zenoh session {zid})"
+        )
+    e = rmw.parse_endpoint_token(key)
+    if e is not None:
+        action = e.topic.removesuffix("/_action/send_goal")
+        return (
+            f"the action {action} is {'now also' if joined else 'already'} served on this Zenoh "
+            f"network (by node {e.namespace.rstrip('/')}/{e.node}, domain {domain_id}, Zenoh "
+            f"session {e.zid})"
+        )
+    return key
+
+
+def watch_clashes(
+    session: Any, domain_id: int, namespace: str, node_name: str, action: str | None = None
+) -> GraphWatch:
+    """Watch the graph for what would clash with this node: a node of the same fully qualified
+    name in the domain and, given the ``action`` this node serves with commands enabled, another
+    server of that action (a node of another name in the same namespace would take the same
+    commands). Returns once the tokens already there have arrived (:data:`GRAPH_SETTLE_S`)."""
+    keys = [rmw.node_query(domain_id, namespace, node_name)]
+    if action:
+        keys.append(rmw.server_query(domain_id, f"{action}/_action/send_goal"))
+    watch = GraphWatch(session, keys)
+    watch.settle(GRAPH_SETTLE_S, bool)
+    return watch
+
+
 def run(args: Any) -> int:
     """The ``ucr zenoh`` command (dependencies and the domain id already checked)."""
     import zenoh  # noqa: PLC0415
@@ -145,6 +184,7 @@ def run(args: Any) -> int:
         if args.namespace is not None:
             rmw.check_namespace(args.namespace)
         rmw.check_node_name(args.node_name)
+        rmw.check_controller_name(args.controller)  # also when run() is called without argparse
         conf = config.build(
             config.SessionOptions(
                 mode=args.mode,
@@ -162,7 +202,7 @@ def run(args: Any) -> int:
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
-    session = node = commands = fjt = None
+    session = node = commands = fjt = watch = None
     try:
         robot, robot_text = robot_for(link, args.robot)
         namespace = rmw.check_namespace(args.namespace or rmw.namespace_for(robot.name))
@@ -175,6 +215,29 @@ def run(args: Any) -> int:
                 file=sys.stderr,
             )
             return 1
+        # the graph before this node joins it: a second bridge of the same name with commands
+        # would take the same JointTrajectory (both robots move): refused. ROS 2 itself only
+        # warns about two nodes of one name: so does a bridge without commands.
+        action = rmw.fully_qualified(namespace, f"{args.controller}/follow_joint_trajectory")
+        try:
+            watch = watch_clashes(
+                session, args.domain_id, namespace, args.node_name,
+                action if args.enable_commands else None,
+            )  # fmt: skip
+            found = [describe_clash(k, args.domain_id) for k in watch.current()]
+        except Exception as exc:  # noqa: BLE001 - zenoh.ZError: the check itself failed
+            found = []
+            print(f"ucr zenoh: warning: could not look for a node of the same name: {exc}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        if found and args.enable_commands:
+            print(
+                f"ucr: {found[0]}: with --enable-commands both would take the same commands "
+                "(one JointTrajectory would move both robots); not started: give this robot its "
+                f"own --namespace (e.g. --namespace {namespace.rstrip('/')}_2)",
+                file=sys.stderr,
+                flush=True,
+            )
+            return 2
         node = RmwNode(session, name=args.node_name, namespace=namespace, domain_id=args.domain_id)
         sink = ZenohSink(node)
         fanout = NamedFanout([sink], namespace)
@@ -228,6 +291,20 @@ def run(args: Any) -> int:
         )
         for note in notes:
             print(note, file=sys.stderr, flush=True)
+        for said in found:  # without commands: ROS 2 itself only warns
+            report(
+                30,
+                f"warning: {said}: two nodes of one name confuse ROS 2 tools; give this one its "
+                "own --namespace (or --node-name)",
+                "ucr.bridge",
+            )
+        if watch is not None:  # one joining later: it refuses itself if it has commands
+
+            def joined(key: str) -> None:
+                said = describe_clash(key, args.domain_id, joined=True)
+                report(30, f"warning: {said}: give one of them its own --namespace", "ucr.bridge")
+
+            watch.on_join = joined
         if args.duration is not None:
             timer = threading.Timer(args.duration, stop.set)
             timer.daemon = True
@@ -266,6 +343,8 @@ def run(args: Any) -> int:
         print(f"ucr: Zenoh bridge stopped: {exc}", file=sys.stderr)
         return 1
     finally:
+        if watch is not None:
+            watch.close()
         if commands is not None:
             commands.close()
         if fjt is not None:

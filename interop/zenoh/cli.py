@@ -154,7 +154,8 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--controller",
         default="jtc",
-        help="daemon trajectory controller, also the topic's prefix (jtc)",
+        help="daemon trajectory controller, also the prefix of the command topic and action "
+        "inside the namespace: letters, digits, '_' (jtc)",
     )
     p.add_argument("--duration", type=float, default=None, help="stop after this many s")
     p.add_argument(

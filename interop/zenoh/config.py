@@ -1,6 +1,8 @@
 """The Zenoh session configuration of ``ucr zenoh``: rmw_zenoh's session defaults (peer, connect to
 the local router, multicast scouting off, gossip on), a user's Zenoh configuration file (TLS,
 access control, anything Zenoh supports) and the command-line overrides, applied in that order.
+Multicast scouting stays off with a file too, unless the file sets ``scouting/multicast/enabled``
+itself (or ``--multicast-scouting`` is given): Zenoh's own default for it is on.
 """
 
 from __future__ import annotations
@@ -88,7 +90,9 @@ def build(opts: SessionOptions, environ: dict[str, str] | None = None) -> Any:
         settings.append(("connect/endpoints", [_check_endpoint(e) for e in connect]))
     if listen is not None:
         settings.append(("listen/endpoints", [_check_endpoint(e) for e in listen]))
-    if not file_given or opts.multicast:
+    # multicast scouting: on with the flag; else what the file says, if it says anything; else
+    # off, as in rmw_zenoh (Zenoh's own default, which an unset value means, is on)
+    if opts.multicast or _get(conf, "scouting/multicast/enabled") is None:
         settings.append(("scouting/multicast/enabled", bool(opts.multicast)))
     for key, value in settings:
         _insert(conf, key, json.dumps(value))
@@ -107,16 +111,17 @@ def _insert(conf: Any, key: str, value: str) -> None:
         raise ZenohConfigError(f"Zenoh configuration {key}={value}: {exc}") from None
 
 
+def _get(conf: Any, key: str) -> Any:
+    """A configuration value (None: unset, Zenoh's default applies)."""
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:  # noqa: BLE001
+        return None
+
+
 def describe(conf: Any) -> str:
     """One line: mode, connect and listen endpoints (for the start-up message)."""
-
-    def get(key: str) -> Any:
-        try:
-            return json.loads(conf.get_json(key))
-        except Exception:  # noqa: BLE001
-            return None
-
     return (
-        f"mode {get('mode') or 'peer'}, connect {get('connect/endpoints') or []}, "
-        f"listen {get('listen/endpoints') or []}"
+        f"mode {_get(conf, 'mode') or 'peer'}, connect {_get(conf, 'connect/endpoints') or []}, "
+        f"listen {_get(conf, 'listen/endpoints') or []}"
     )

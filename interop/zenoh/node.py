@@ -343,6 +343,67 @@ class RmwService:
         self._thread.join(timeout=5)
 
 
+class GraphWatch:
+    """The liveliness tokens matching ``key_exprs`` that sessions other than this one hold: a
+    liveliness subscriber with history (the tokens already in the graph, then each one declared
+    or withdrawn later). ``on_join(key)`` runs on a Zenoh thread for each token declared after
+    :meth:`settle`."""
+
+    def __init__(self, session: Any, key_exprs: list[str]) -> None:
+        import zenoh  # noqa: PLC0415
+
+        self._put = zenoh.SampleKind.PUT
+        self.own = str(session.info.zid())
+        self.session = session
+        self.keys: dict[str, None] = {}  # insertion-ordered set
+        self.on_join: Callable[[str], None] | None = None
+        self._lock = threading.Lock()
+        self._subs = [
+            session.liveliness().declare_subscriber(k, self._on_sample, history=True)
+            for k in key_exprs
+        ]
+
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        parts = key.split("/")
+        if len(parts) > 2 and parts[2] == self.own:
+            return
+        with self._lock:
+            if sample.kind == self._put:
+                self.keys[key] = None
+                hook = self.on_join
+            else:
+                self.keys.pop(key, None)
+                hook = None
+        if hook is not None:
+            hook(key)
+
+    def settle(self, timeout: float, done: Callable[[list[str]], bool]) -> list[str]:
+        """Wait until ``done(keys)`` or ``timeout`` s (tokens of the sessions this one is connected
+        to reach it shortly after the connection: there is no "that was all" to wait for); at
+        once when this session is connected to no router and no peer. The tokens seen."""
+        end = time.monotonic() + timeout
+        while True:
+            keys = self.current()
+            if done(keys) or time.monotonic() >= end:
+                return keys
+            info = self.session.info
+            if not list(info.routers_zid()) and not list(info.peers_zid()):
+                return keys
+            time.sleep(0.02)
+
+    def current(self) -> list[str]:
+        with self._lock:
+            return list(self.keys)
+
+    def close(self) -> None:
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:  # noqa: BLE001, S110 - the session may be closing already
+                pass
+
+
 class RmwNode:
     """A node in ``namespace`` on an open Zenoh ``session`` (the caller owns the session)."""
 

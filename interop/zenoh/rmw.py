@@ -93,6 +93,18 @@ def check_node_name(name: str) -> str:
     return name
 
 
+def check_controller_name(name: str) -> str:
+    """A controller name: one ROS name token (a ros2_control controller is a node of the robot's
+    namespace). Its topic and action are relative to the namespace, so ``/x`` (absolute, outside
+    the namespace), ``a/b`` and ``~x`` are refused."""
+    if not _TOKEN.fullmatch(name):
+        raise RosNameError(
+            f"invalid controller name {name!r}: letters, digits and '_', not starting with a "
+            "digit (its topics stay inside the robot's namespace: no '/')"
+        )
+    return name
+
+
 def fully_qualified(namespace: str, name: str) -> str:
     """Topic ``name`` (absolute, or relative to ``namespace``) as a fully qualified name."""
     if name.startswith("/"):
@@ -170,6 +182,26 @@ def node_token(node: NodeId) -> str:
         f"{ADMIN_SPACE}/{node.domain_id}/{node.zid}/{node.node_id}/{node.node_id}/{NODE}/"
         f"{mangle(node.enclave)}/{ns}/{node.name}"
     )
+
+
+def node_query(domain_id: int, namespace: str, name: str) -> str:
+    """Liveliness key expression matching every node ``<namespace>/<name>`` of the domain (any
+    session, node id and enclave)."""
+    ns = "%" if namespace in ("", "/") else mangle(namespace)
+    return f"{ADMIN_SPACE}/{domain_id}/*/*/*/{NODE}/*/{ns}/{name}"
+
+
+def server_query(domain_id: int, fqn: str) -> str:
+    """Liveliness key expression matching every server of the service ``fqn`` in the domain."""
+    return f"{ADMIN_SPACE}/{domain_id}/*/*/*/{SERVICE}/*/*/*/{mangle(fqn)}/**"
+
+
+def parse_node_token(key: str) -> tuple[str, str, str] | None:
+    """A node token's (zid, namespace, name), or None for anything else."""
+    parts = key.split("/")
+    if len(parts) != 9 or parts[0] != ADMIN_SPACE or parts[5] != NODE:
+        return None
+    return parts[2], "/" if parts[7] == "%" else parts[7].replace("%", "/"), parts[8]
 
 
 def endpoint_token(

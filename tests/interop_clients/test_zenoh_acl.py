@@ -1,14 +1,18 @@
 """Zenoh's own access control (ACL) in the router's configuration, as docs/ros2.md documents it:
 a `ucr zenoh-router --zenoh-config` denying ``put`` and ``query`` on the robot's command key
-expressions (the trajectory topic, the ``ucr/stop`` service) to the sessions not allowed to
-command. Every session is in client mode (all traffic passes the router,
-which is what makes the router's ACL apply). A denied publisher's JointTrajectory never reaches
-the subscriber; an allowed one's does; the robot's other topics still flow from the denied
-session."""
+expressions (the trajectory topic, the FollowJointTrajectory action's services, the ``ucr/stop``
+service) to the sessions not allowed to command. Every session is in client mode (all traffic
+passes the router, which is what makes the router's ACL apply). Against a stand-in subscriber: a
+denied publisher's JointTrajectory never reaches it, an allowed one's does, the robot's other
+topics still flow from the denied session. Against the real `ucr zenoh --enable-commands`
+behind that router: a denied session's action goal gets no answer and its JointTrajectory never
+reaches the bridge; an allowed session's do."""
 
 from __future__ import annotations
 
 import json
+import signal
+import threading
 import time
 
 import pytest
@@ -38,7 +42,11 @@ def _acl(port: int) -> dict:
                     "permission": "deny",
                     "flows": ["ingress"],
                     "messages": ["put", "query"],
-                    "key_exprs": ["*/**/jtc/joint_trajectory/**", "*/**/ucr/stop/**"],
+                    "key_exprs": [  # docs/ros2.md, verbatim
+                        "*/**/jtc/joint_trajectory/**",
+                        "*/**/jtc/follow_joint_trajectory/**",
+                        "*/**/ucr/stop/**",
+                    ],
                 }
             ],
             "subjects": [{"id": "not_allowed", "zids": [DENIED]}],
@@ -117,3 +125,71 @@ def test_router_acl_drops_commands_from_sessions_not_allowed(tmp_path):
                 s.undeclare()
     finally:
         stop(router)
+
+
+def test_router_acl_keeps_the_real_bridge_s_commands_from_sessions_not_allowed(rig):
+    """The documented ACL in front of `ucr zenoh --enable-commands` (client mode): the denied
+    session's FollowJointTrajectory send_goal query is refused by the router (no answer) and its
+    JointTrajectory never reaches the bridge (no audit line with its GID); the allowed session's
+    goal is answered by the bridge and its JointTrajectory audited. Both commands are harmless:
+    an empty goal (not accepted) and an empty JointTrajectory (nothing to cancel)."""
+    from interop import ros2
+    from interop.ros2 import actions
+    from interop.ros2.type_hash import action_type_hash, type_hash
+    from interop.zenoh import rmw
+
+    port = free_port()
+    # the router in this process (the same configuration `ucr zenoh-router --zenoh-config`
+    # loads, as the test above runs it): one process fewer to start
+    router = zenoh.open(zenoh.Config.from_json5(json.dumps(_acl(port))))
+    bridge = None
+    err: list[str] = []
+    try:
+        bridge = ucr("zenoh", "--url", rig.ensure_whole(), "--mode", "client",
+                     "--connect", f"tcp/127.0.0.1:{port}", "--namespace", "/acl_robot",
+                     "--enable-commands")  # fmt: skip
+        reader = threading.Thread(target=lambda: err.extend(bridge.stderr), daemon=True)
+        reader.start()
+        fjt = "control_msgs/action/FollowJointTrajectory"
+        goal_key = rmw.topic_key(0, "/acl_robot/jtc/follow_joint_trajectory/_action/send_goal",
+                                 f"{fjt}_SendGoal", action_type_hash(fjt, "SendGoal"))  # fmt: skip
+        goal = actions.codec(fjt, "SendGoal_Request").encode(
+            {"goal_id": {"uuid": list(b"\x01" * 16)}, "goal": {"trajectory": {}}}
+        )
+        answer = actions.codec(fjt, "SendGoal_Response")
+        traj = "trajectory_msgs/msg/JointTrajectory"
+        cmd_key = rmw.topic_key(0, "/acl_robot/jtc/joint_trajectory", traj, type_hash(traj))
+        empty = ros2.codec(traj).encode({})
+        gids = {"ok": b"\xa1" * 16, "bad": b"\xd2" * 16}
+
+        def att(who: str) -> bytes:
+            return rmw.Attachment(1, time.time_ns(), gids[who]).encode()
+
+        def send_goal(session, who: str, timeout: float) -> list:
+            replies = session.get(goal_key, payload=goal, attachment=att(who), timeout=timeout)
+            return [answer.decode(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+
+        def audited(who: str) -> bool:
+            return any(f"publisher={gids[who].hex()} op=joint_trajectory.stop" in ln for ln in err)
+
+        with _client(port, ALLOWED) as ok_s, _client(port, DENIED) as bad_s:
+            # the allowed goal reaches the bridge (once it has started): answered, not accepted
+            got: list = []
+            assert wait_for(lambda: got.extend(send_goal(ok_s, "ok", 2.0)) or got, 60, 0.2), err
+            assert got[0].accepted is False  # an empty trajectory
+            assert send_goal(bad_s, "bad", 2.0) == []  # the router refused the query
+
+            def both() -> bool:  # the denied one first: it would arrive before the allowed one
+                bad_s.put(cmd_key, empty, attachment=att("bad"))
+                ok_s.put(cmd_key, empty, attachment=att("ok"))
+                return audited("ok")
+
+            assert wait_for(both, 20, 0.5), err
+            time.sleep(0.3)
+            assert not audited("bad"), err
+    finally:
+        if bridge is not None:
+            bridge.send_signal(signal.SIGINT)
+            assert bridge.wait(30) == 0, "".join(err)[-2000:]
+            reader.join(5)
+        router.close()

@@ -474,6 +474,24 @@ def test_impossible_options_are_usage_errors_before_anything_opens(option, value
     assert "daemon" not in res.stderr
 
 
+@pytest.mark.parametrize("value", ["bad-name", "/x"])
+def test_an_impossible_controller_is_a_usage_error_before_anything_opens(value):
+    """Defect: `--controller bad-name` ended in a RosNameError traceback after the Zenoh session
+    had opened, and `--controller /x` made the command topic and action absolute (/x/…, outside
+    the robot's namespace). Now one line, exit 2, before the daemon is asked (none runs there)."""
+    res = _ucr("zenoh", "--enable-commands", "--controller", value, "--url", "ws://127.0.0.1:9")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    said = (
+        f"ucr: invalid controller name {value!r}: letters, digits and '_', not starting with a "
+        "digit (its topics stay inside the robot's namespace: no '/')"
+    )
+    assert res.stderr.strip().splitlines() == [said]
+    assert rmw.check_controller_name("jtc_2") == "jtc_2"
+    for bad in ("a/b", "~x", "1jtc", "", "jtc/"):  # the same check, without a process each
+        with pytest.raises(rmw.RosNameError, match="invalid controller name"):
+            rmw.check_controller_name(bad)
+
+
 # ---------------------------------------------------------------- systemd unit, docs
 UNIT = REPO / "host" / "ucr-zenoh.service"
 

@@ -743,6 +743,56 @@ def test_commands_are_ignored_unless_enabled_and_stopping_removes_the_topics(
     ), topic_list(router)
 
 
+def test_a_second_bridge_of_the_same_name_is_refused_with_commands_and_warned_without(
+    rig, bridge, router
+):
+    """Defect: a second `ucr zenoh --enable-commands` for a robot of the same name (the same
+    U(C)RDF, so the same namespace) started silently as a second /softrobot3/ucr_bridge, and one
+    JointTrajectory moved both robots. Now the graph is asked first (liveliness tokens): with
+    commands a node of the same name, or another server of the robot's FollowJointTrajectory
+    action (a node of another name in that namespace), refuses the start in one line naming the
+    clash and --namespace; without commands the bridge starts and warns, as ROS 2 does."""
+    common = ("zenoh", "--url", rig.url, "--connect", f"tcp/{router}",
+              "--listen", "tcp/127.0.0.1:0", "--duration", "0.5")  # fmt: skip
+    procs = {  # at once: two processes starting cost less wall time than one after another
+        "same": ucr(*common, "--enable-commands"),
+        "watch_only": ucr(*common),
+    }
+    res = {k: (p.communicate(timeout=120)[1], p.returncode) for k, p in procs.items()}
+    err, code = res["same"]
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith(
+        "ucr: a ROS 2 node /softrobot3/ucr_bridge is already on this Zenoh network (domain 0, "
+    ), err
+    assert "not started: give this robot its own --namespace" in err
+    err, code = res["watch_only"]
+    assert code == 0, err
+    lines = err.splitlines()
+    assert "node /softrobot3/ucr_bridge" in lines[0] and "commands off" in lines[0], err
+    assert any(
+        ln.startswith("ucr zenoh: warning: a ROS 2 node /softrobot3/ucr_bridge is already on")
+        and "--namespace" in ln
+        for ln in lines
+    ), err
+    # what a node of another name in the namespace would find (in this process)
+    import zenoh
+
+    from interop.zenoh.bridge import describe_clash, watch_clashes
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/{router}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as session:
+        watch = watch_clashes(session, 0, NS, "ucr_bridge_b", f"{ACTION}")
+        found = [describe_clash(k, 0) for k in watch.current()]
+        watch.close()  # (no clash in another namespace: test_two_robots_on_one_network…)
+    assert len(found) == 1 and found[0].startswith(
+        f"the action {ACTION} is already served on this Zenoh network (by node "
+        f"{NS}/ucr_bridge, domain 0, Zenoh session "
+    ), found
+
+
 @pytest.fixture(scope="module")
 def rig2():
     """A second emulated robot (softrobot2: 2 segments) with its own daemon and API."""

@@ -213,6 +213,36 @@ def test_zenoh_config_defaults_are_rmw_zenohs_session_defaults():
         config.build(config.SessionOptions(config_file="/nonexistent.json5"), environ={})
 
 
+def test_a_zenoh_config_file_leaves_multicast_scouting_off_unless_it_turns_it_on(tmp_path):
+    """Defect: with `--zenoh-config FILE` (or $ZENOH_SESSION_CONFIG_URI) multicast scouting was
+    left unset, so Zenoh's default (on) applied, though docs/ros2.md says it is off as in
+    rmw_zenoh. Now off unless the file sets scouting/multicast/enabled or the flag is given."""
+    pytest.importorskip("zenoh", reason="the 'ros2' extra (eclipse-zenoh) is not installed")
+    import json
+
+    from interop.zenoh import config
+
+    def multicast(text: str, name: str = "c.json5", flag: bool = False, env: bool = False):
+        path = tmp_path / name
+        path.write_text(text)
+        opts = config.SessionOptions(config_file=None if env else str(path), multicast=flag)
+        conf = config.build(opts, environ={config.ENV_CONFIG: str(path)} if env else {})
+        return json.loads(conf.get_json("scouting/multicast/enabled"))
+
+    docs_bridge = (  # docs/ros2.md's bridge.json5: says nothing about scouting
+        '// bridge.json5\n{ mode: "client", connect: { endpoints: ["tls/router.lab:7447"] },\n'
+        '  transport: { link: { tls: { root_ca_certificate: "/etc/ucr/zenoh/ca.pem" } } } }\n'
+    )
+    assert multicast(docs_bridge) is False
+    assert multicast(docs_bridge, env=True) is False  # $ZENOH_SESSION_CONFIG_URI
+    assert multicast("{ scouting: { multicast: { ttl: 2 } } }") is False
+    assert multicast(docs_bridge, flag=True) is True
+    assert multicast("{ scouting: { multicast: { enabled: true } } } // mine") is True
+    assert multicast("{ scouting: { multicast: { enabled: false } } }", flag=True) is True
+    assert multicast("scouting:\n  multicast:\n    enabled: true\n", "c.yaml") is True
+    assert multicast("{ scouting: { multicast: { enabled: false } } }") is False
+
+
 def test_missing_ros2_dependencies_give_one_line(monkeypatch, capsys):
     from interop.zenoh import cli
 
