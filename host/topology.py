@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from host.limits import bendable_limits
 from host.positions import label as position_label
 from ucrdf.checks import check
 from ucrdf.errors import UcrdfError
@@ -256,13 +257,15 @@ class Envelope:
 
 
 def envelope_from(robot: Robot) -> Envelope:
-    """The configured envelope: the largest limits among the described robot's bendables, so an
-    adopted segment never gets more than the user's own description allows anywhere."""
-    lims = [b.model.limits for b in robot.bendables.values()]
+    """The configured envelope: the largest *effective* limits among the described robot's
+    bendables, as the host runs them (:func:`host.limits.bendable_limits`: the model's
+    ``<limits>`` tightened by the ``<ros2_control>`` kappa command interface ``max``, an unset
+    ``kappa_rate_max`` read as ``DEFAULT_KAPPA_RATE_MAX``), so an adopted segment never gets
+    more than the user's own description allows anywhere."""
+    lims = list(bendable_limits(robot).values())
     if not lims:
         return Envelope()
-    rates = [lim.kappa_rate_max for lim in lims if lim.kappa_rate_max]
-    return Envelope(max(lim.kappa_max for lim in lims), max(rates) if rates else None)
+    return Envelope(max(lim.kappa_max for lim in lims), max(lim.kappa_rate_max for lim in lims))
 
 
 def cap_limits(robot: Robot, envelope: Envelope) -> list[str]:

@@ -102,7 +102,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
-OFF_LOOPBACK = "loopback; any other address needs --serve-token-file and --insecure"
+OFF_LOOPBACK = (
+    "loopback; any other address needs --serve-token-file and --tls-cert/--tls-key (or --insecure)"
+)
 
 
 def _serve(p: argparse.ArgumentParser) -> None:
@@ -112,6 +114,11 @@ def _serve(p: argparse.ArgumentParser) -> None:
                    "(default $UCR_FOXGLOVE_TOKEN); needed for a non-loopback address")  # fmt: skip
     # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
     p.add_argument("--serve-token", default=None, help=argparse.SUPPRESS)
+    p.add_argument("--tls-cert", default=None, metavar="FILE",
+                   help="PEM certificate (chain): serve wss:// (with --tls-key)")  # fmt: skip
+    p.add_argument("--tls-key", default=None, metavar="FILE",
+                   help="PEM private key of --tls-cert; mode 0600 (not group/world "
+                   "readable)")  # fmt: skip
     p.add_argument("--insecure", action="store_true",
                    help="allow a non-loopback address without TLS (the token crosses the "
                    "network in clear: trusted networks only)")  # fmt: skip
@@ -229,8 +236,8 @@ def register(subparsers: Any) -> None:
         "foxglove", help="serve the live robot to Foxglove / Lichtblick (WebSocket protocol)",
         description="Serve the same topics as `ucr record` live on the Foxglove WebSocket "
         "protocol (its read-only part, served by ucr itself: docs/recording.md). Loopback by "
-        "default; any other address needs "
-        "--serve-token-file and --insecure (docs/recording.md, security).",
+        "default; any other address needs --serve-token-file and --tls-cert/--tls-key "
+        "(or --insecure) (docs/recording.md, security).",
     )  # fmt: skip
     p.add_argument("--host", default="127.0.0.1",
                    help=f"address to listen on ({OFF_LOOPBACK})")  # fmt: skip

@@ -43,17 +43,22 @@ class FoxgloveSink:
         token: str | None = None,
         allowed_origins: tuple[str, ...] | list[str] = (),
         insecure: bool = False,
+        tls_cert: str | None = None,
+        tls_key: str | None = None,
     ) -> None:
         self.guard = FoxgloveGuard(
             host, port, token, allowed_origins, insecure=insecure, name=name, latched=LATCHED,
+            tls_cert=tls_cert, tls_key=tls_key,
         ).start()  # fmt: skip
+        self.tls = tls_cert is not None
         self._closed = False
         self.port = self.guard.port
         self.host = host
 
     @property
     def url(self) -> str:
-        return f"ws://{self.host}:{self.port}"
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        return f"{'wss' if self.tls else 'ws'}://{host}:{self.port}"
 
     def latched(self, topic: str) -> tuple[bytes, int] | None:
         """The last message (CDR bytes, log time ns) of a latched topic, else None."""
@@ -78,7 +83,8 @@ class FoxgloveSink:
 
 def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
     """A FoxgloveSink with the token of ``--serve-token-file`` (or $UCR_FOXGLOVE_TOKEN), the
-    allowed origins and ``--insecure``. GuardError for a token given on the command line."""
+    allowed origins, ``--tls-cert``/``--tls-key`` and ``--insecure``. GuardError for a token
+    given on the command line."""
     if getattr(args, "serve_token", None):
         raise GuardError(
             "--serve-token is refused: a token on the command line is visible to every user in "
@@ -96,6 +102,8 @@ def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
         token=token,
         allowed_origins=args.allow_origin or (),
         insecure=getattr(args, "insecure", False),
+        tls_cert=getattr(args, "tls_cert", None),
+        tls_key=getattr(args, "tls_key", None),
     )
 
 

@@ -7,6 +7,8 @@ It is the only listener: no other server runs behind it, so nothing bypasses the
 - ``Origin``: refused (403) unless absent (desktop apps, scripts) or listed (``allowed_origins``,
   e.g. ``https://app.foxglove.dev``): a web page in a local browser cannot read the robot;
 - ``Host``: an IP literal or a name of this server (refuses DNS-rebinding pages); path ``/``;
+- TLS: ``tls_cert``/``tls_key`` (PEM; the key file private, mode 0600: the API's rule and code,
+  :func:`host.api.auth.server_tls_context`) make it a ``wss://`` server;
 - token: required for any non-loopback bind (which also needs TLS or ``insecure``), and when
   given, required on loopback too; at least 16 characters; presented as
   ``Authorization: Bearer <token>`` or, for viewers that cannot set headers, a ``?token=`` query
@@ -58,6 +60,7 @@ from host.api.auth import (
     check_bind,
     check_token_text,
     find_token,
+    server_tls_context,
 )
 from host.api.guard import GuardConfigError, TcpCounts, WebGuard
 from interop import foxglove_protocol as P
@@ -158,6 +161,8 @@ class FoxgloveGuard:
         latched: Iterable[str] = (),
         backoff: Backoff | None = None,
         auth_hold_s: float = AUTH_HOLD_S,
+        tls_cert: str | None = None,
+        tls_key: str | None = None,
     ) -> None:
         try:
             tokens = (
@@ -166,10 +171,13 @@ class FoxgloveGuard:
                 else ()
             )
             self.web = WebGuard.build(bind=host, port=port, origins=allowed_origins, path="/")
+            if bool(tls_cert) != bool(tls_key):
+                raise AuthConfigError("TLS needs both --tls-cert and --tls-key")
+            self._ssl = server_tls_context(tls_cert, tls_key) if tls_cert and tls_key else None
         except (AuthConfigError, GuardConfigError) as exc:
             raise GuardError(f"Foxglove server: {exc}") from None
         try:
-            check_bind(host, tokens, tls=False, insecure=insecure)  # the API's policy
+            check_bind(host, tokens, tls=self._ssl is not None, insecure=insecure)  # the API's
         except AuthConfigError:  # its advice names the API's settings: ours are options
             raise GuardError(_bind_refusal(host, bool(tokens))) from None
         self.name = name
@@ -281,7 +289,7 @@ class FoxgloveGuard:
             process_request=self._authorize, create_connection=self._connection_class(),
             max_size=MAX_CLIENT_FRAME, max_queue=4, compression=None,
             open_timeout=OPEN_TIMEOUT_S, ping_interval=20, ping_timeout=20,
-            server_header="ucr-foxglove", logger=_HandshakeLog(self),
+            server_header="ucr-foxglove", logger=_HandshakeLog(self), ssl=self._ssl,
         ) as server:  # fmt: skip
             self.port = next(iter(server.sockets)).getsockname()[1]
             self.web = self.web.with_port(self.port)
@@ -465,8 +473,9 @@ def _bind_refusal(host: str, has_token: bool) -> str:
         return (f"{where} without a token: other machines could read the robot. Give "
                 "--serve-token-file FILE (`ucr token FILE`, mode 0600) or $UCR_FOXGLOVE_TOKEN, "
                 "or bind 127.0.0.1.")  # fmt: skip
-    return (f"{where} without TLS: the token would cross the network in clear. Add --insecure "
-            "on a trusted network, or bind 127.0.0.1 and use an SSH tunnel.")  # fmt: skip
+    return (f"{where} without TLS: the token would cross the network in clear. Give "
+            "--tls-cert FILE --tls-key FILE (key mode 0600), add --insecure on a trusted "
+            "network, or bind 127.0.0.1 and use an SSH tunnel.")  # fmt: skip
 
 
 def _peer_ip(addr: Any) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hmac
 import os
+import ssl
 import stat
 import time
 from collections import OrderedDict
@@ -97,6 +98,21 @@ def check_private(path: Path, what: str) -> None:
             f"reads it (a secret must be the reader's own file, mode 0600); run: "
             f"{chown}sudo chmod 600 {path}"
         )
+
+
+def server_tls_context(cert: str | Path, key: str | Path) -> ssl.SSLContext:
+    """The TLS server context of every listener of the project (the API, the Foxglove server):
+    TLS 1.2 or later, the PEM certificate chain ``cert`` and its private ``key``, which must be
+    private to the reader (:func:`check_private`). :class:`AuthConfigError` otherwise."""
+    cert, key = Path(cert), Path(key)
+    check_private(key, "the TLS key")
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    try:
+        ctx.load_cert_chain(cert, key)
+    except (OSError, ssl.SSLError) as exc:
+        raise AuthConfigError(f"TLS: cannot load {cert} / {key}: {exc}") from None
+    return ctx
 
 
 def read_token_file(path: str | Path) -> str:

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import ipaddress
 import socket
+import sys
+from collections import OrderedDict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from urllib.parse import urlsplit
@@ -219,3 +221,86 @@ class TcpCounts:
             self.by_ip[ip] = left
         else:
             self.by_ip.pop(ip, None)
+
+
+#: how far a pending connection got with its opening handshake (see :class:`Admission`)
+SILENT, TALKING, AUTHORIZING = 0, 1, 2
+
+
+class Admission:
+    """Who may hold a connection to a server that authenticates in its opening handshake.
+
+    A connection is *pending* from its TCP accept until its handshake is accepted (the guard and
+    the token passed: :meth:`promote`), then *open*. The two are capped apart:
+
+    - pending: ``max_pending``. A new connection is never refused for it: when it is full, the
+      oldest pending connection that got least far is evicted (closed) instead: first those that
+      sent nothing yet, then those that sent part of a request, last those whose request is
+      being authorized. A real client sends its request at once and finishes in milliseconds;
+      an idle or trickling socket never does, so a flood of them only evicts itself.
+    - open: ``max_open`` in all; the last ``reserve`` of them only for control
+      (``promote(conn, control=True)``). Connections that have not authenticated never count
+      here, so they cannot use up the slots kept for control.
+    - per remote address (pending and open together): ``max_per_peer``; loopback peers count
+      only in the totals, every local client sharing 127.0.0.1.
+    """
+
+    def __init__(self, max_open: int, max_pending: int, max_per_peer: int, reserve: int = 0):
+        self.max_open, self.max_pending = max_open, max(1, max_pending)
+        self.max_per_peer, self.reserve = max_per_peer, reserve
+        self.tcp = TcpCounts()
+        self._pending: tuple[OrderedDict, ...] = (OrderedDict(), OrderedDict(), OrderedDict())
+        self._stage: dict[object, int] = {}
+        self.opened: set[object] = set()
+
+    @property
+    def pending(self) -> int:
+        return len(self._stage)
+
+    def arrive(self, conn: object, ip: str) -> tuple[bool, object | None]:
+        """A TCP connection was accepted: (admitted, the pending connection to evict or None).
+        Refused (nothing counted) only above the per-peer cap."""
+        if not self.tcp.admit(ip, sys.maxsize, self.max_per_peer):
+            return False, None
+        victim = None
+        if len(self._stage) >= self.max_pending:
+            for stage in self._pending:
+                if stage:
+                    victim, _ = stage.popitem(last=False)
+                    del self._stage[victim]
+                    break
+        self._stage[conn] = SILENT
+        self._pending[SILENT][conn] = None
+        return True, victim
+
+    def advance(self, conn: object, stage: int) -> None:
+        """A pending connection got further (:data:`TALKING`, :data:`AUTHORIZING`)."""
+        now = self._stage.get(conn)
+        if now is not None and stage > now:
+            del self._pending[now][conn]
+            self._pending[stage][conn] = None
+            self._stage[conn] = stage
+
+    def is_pending(self, conn: object) -> bool:
+        return conn in self._stage
+
+    def promote(self, conn: object, control: bool) -> bool:
+        """Its handshake is accepted: count it open if there is room (for ``control``, up to
+        ``max_open``; else up to ``max_open - reserve``). False: no room, or it is no longer
+        pending (evicted or gone meanwhile); it stays pending until it closes."""
+        limit = self.max_open if control else self.max_open - self.reserve
+        stage = self._stage.get(conn)
+        if stage is None or len(self.opened) >= limit:
+            return False
+        del self._stage[conn]
+        del self._pending[stage][conn]
+        self.opened.add(conn)
+        return True
+
+    def leave(self, conn: object, ip: str) -> None:
+        """A connection :meth:`arrive` admitted has closed."""
+        self.tcp.release(ip)
+        stage = self._stage.pop(conn, None)
+        if stage is not None:
+            del self._pending[stage][conn]
+        self.opened.discard(conn)

@@ -5,7 +5,10 @@ The server never touches the daemon directly: it talks to it through the bridge
 tests and embedding) or in a process of its own (:mod:`host.api.process`, what ``ucr daemon``
 does, so that client load never competes with the control loop for the interpreter lock).
 
-Bounded by design: connections are capped (total and per peer) before any handshake work;
+Bounded by design: connections still in their opening handshake (pending) and accepted ones
+are capped apart (``host.api.guard.Admission``): a full pending cap evicts the oldest pending
+connection that got least far, so idle sockets cannot keep a client out, and only accepted
+(authenticated) connections count against the total and the slots kept for control tokens;
 what all connections hold of their clients' requests (frames read ahead, a frame being read, the
 request being answered) is counted and capped in total (``inbound_bytes``: above it the connection
 holding the most is closed), and frames are not compressed (permessage-deflate off: a 1 KiB
@@ -39,7 +42,6 @@ import ssl
 import threading
 from dataclasses import dataclass, field
 from http import HTTPStatus
-from pathlib import Path
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection, serve
@@ -53,15 +55,15 @@ from host.api.auth import (
     AuthConfigError,
     Backoff,
     Token,
-    check_private,
     check_token_text,
     find_token,
+    server_tls_context,
 )
 from host.api.auth import check_bind as _check_bind_policy
 from host.api.bridge import DaemonBridge, DaemonLink
 from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
-from host.api.guard import GuardConfigError, TcpCounts, WebGuard, is_loopback
+from host.api.guard import AUTHORIZING, TALKING, Admission, GuardConfigError, WebGuard, is_loopback
 from host.api.session import _peer, _peer_ip
 
 __all__ = [
@@ -75,6 +77,16 @@ __all__ = [
 ]
 
 log = logging.getLogger("ucr.api")
+
+
+class _Quiet(logging.LoggerAdapter):
+    """The logger of an evicted connection: its failed handshake is counted, not logged."""
+
+    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
+        pass
+
+
+_QUIET = _Quiet(logging.getLogger("websockets.server"), {})
 
 
 class ApiServerError(RuntimeError):
@@ -113,11 +125,14 @@ class ServerOptions:
     outbox_size: int = 256  # stream messages queued per client
     outbox_bytes: int = 4 * 1024 * 1024  # bytes queued per client
     global_outbox_bytes: int = 64 * 1024 * 1024  # bytes queued for all clients together
-    max_connections: int = 256  # TCP connections, handshaking or open
+    max_connections: int = 256  # connections whose handshake was accepted (authenticated)
     #: the last of those slots admit only control tokens (with tokens configured): viewers
     #: with a read token cannot take every slot and keep the operator out
     control_reserve: int = 16
-    max_per_peer: int = 32  # per remote address (loopback peers count only in the total)
+    #: TCP connections still in their opening handshake; when full, a new one evicts the
+    #: oldest that got least far (host.api.guard.Admission)
+    max_pending: int = 64
+    max_per_peer: int = 32  # per remote address (loopback peers count only in the totals)
     max_subscriptions: int = 16  # per connection
     max_queue: int = 2  # frames read ahead per connection
     inbound_bytes: int = 16 * 1024 * 1024  # request bytes all connections may hold (see _Capped)
@@ -183,7 +198,10 @@ class ApiServer:
         self._stop: asyncio.Event | None = None
         self._ready = threading.Event()
         self._start_error: BaseException | None = None
-        self._tcp = TcpCounts()
+        self._admission = Admission(
+            opts.max_connections, opts.max_pending, opts.max_per_peer, opts.control_reserve
+        )
+        self._tcp = self._admission.tcp
         self._conns: set[Any] = set()  # open TCP connections (the _Capped class below)
         self.inbound = 0  # request bytes the connections hold (frames read, being read, answered)
         self.inbound_peak = 0
@@ -196,6 +214,7 @@ class ApiServer:
             "errors": 0,
             "auth_failures": 0,
             "refused_connections": 0,
+            "evicted_pending": 0,
             "refused_handshakes": 0,
             "dropped": 0,
             "slow_closed": 0,
@@ -220,17 +239,10 @@ class ApiServer:
         )
 
     def _ssl_context(self) -> ssl.SSLContext:
-        cert, key = Path(str(self.opts.tls_cert)), Path(str(self.opts.tls_key))
         try:
-            check_private(key, "the TLS key")
-            ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-            ctx.minimum_version = ssl.TLSVersion.TLSv1_2
-            ctx.load_cert_chain(cert, key)
+            return server_tls_context(str(self.opts.tls_cert), str(self.opts.tls_key))
         except AuthConfigError as exc:
             raise ApiServerError(str(exc)) from None
-        except (OSError, ssl.SSLError) as exc:
-            raise ApiServerError(f"TLS: cannot load {cert} / {key}: {exc}") from None
-        return ctx
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -299,6 +311,7 @@ class ApiServer:
             **self.counters,
             "clients": len(sessions),
             "tcp_connections": self._tcp.total,
+            "pending_connections": self._admission.pending,
             "subscriptions": sum(len(s.subs) for s in sessions),
             "queued_bytes": self.outboxes.queued_bytes,
             "inbound_bytes": self.inbound,
@@ -381,8 +394,9 @@ class ApiServer:
 
     # ------------------------------------------------------------------ connection caps
     def _connection_class(self) -> type[ServerConnection]:
-        """ServerConnection that refuses TCP connections above the caps before any work, and
-        counts the request bytes it holds into :attr:`inbound` (see :meth:`_account`)."""
+        """ServerConnection that is admitted (:class:`host.api.guard.Admission`: per-peer cap,
+        pending cap with eviction) before any work, and counts the request bytes it holds into
+        :attr:`inbound` (see :meth:`_account`)."""
         srv = self
 
         class _Capped(ServerConnection):
@@ -393,10 +407,13 @@ class ApiServer:
 
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
                 ip = _peer_ip(transport.get_extra_info("peername"))
-                if not srv._tcp.admit(ip, srv.opts.max_connections, srv.opts.max_per_peer):
+                admitted, victim = srv._admission.arrive(self, ip)
+                if not admitted:
                     srv.counters["refused_connections"] += 1
                     transport.abort()
                     return
+                if victim is not None:  # the oldest pending one that got least far
+                    victim.ucr_evict()
                 self._ucr_ip = ip
                 srv._conns.add(self)
                 super().connection_made(transport)
@@ -406,13 +423,23 @@ class ApiServer:
                 if ip is None:
                     return  # refused in connection_made: nothing was set up
                 self._ucr_ip = None
-                srv._tcp.release(ip)
+                srv._admission.leave(self, ip)
                 srv._conns.discard(self)
                 srv.inbound -= self.ucr_held
                 self.ucr_held = 0
                 super().connection_lost(exc)
 
+            def ucr_evict(self) -> None:
+                """Close this pending connection now. Its handshake task ends as for any
+                connection lost in its handshake (so it unregisters itself: cancelling it
+                before its first step leaked it in the server's handlers), but without the
+                error and traceback websockets logs for that: one per evicted socket."""
+                srv.counters["evicted_pending"] += 1
+                self.logger = _QUIET
+                self.transport.abort()
+
             def data_received(self, data: bytes) -> None:
+                srv._admission.advance(self, TALKING)
                 super().data_received(data)
                 srv._account(self)
 
@@ -481,7 +508,9 @@ class ApiServer:
         back-off (per source and for all sources together, :class:`host.api.auth.Backoff`)
         meets only wrong ones. While it is on, every attempt it concerns first waits
         ``auth_hold_s`` (the valid ones too, so an early answer does not tell a guesser it was
-        wrong): guessing runs at most one guess per connection and hold."""
+        wrong): guessing runs at most one guess per connection and hold. An accepted handshake
+        is counted open (:meth:`_open`), which may still refuse it for lack of room."""
+        self._admission.advance(conn, AUTHORIZING)
         refusal = self.guard.check(request.path, request.headers)
         if refusal is not None:
             self.counters["refused_handshakes"] += 1
@@ -489,30 +518,15 @@ class ApiServer:
             return conn.respond(HTTPStatus(refusal.status), refusal.reason + "\n")
         if not self.opts.tokens:
             conn.ucr_token = None
-            return None
+            return self._open(conn, None)
         ip = _peer_ip(conn.remote_address)
         if self._backoff.blocked_for(ip) > 0 and self.opts.auth_hold_s > 0:
             self.counters["auth_backoff"] += 1
             await asyncio.sleep(self.opts.auth_hold_s)
         token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
         if token is not None:
-            free_for_all = self.opts.max_connections - self.opts.control_reserve
-            if token.scope != CONTROL and self._tcp.total > free_for_all:
-                self.counters["refused_connections"] += 1
-                log.warning(
-                    "API: refused %s (%s): the last %d connections are kept for control tokens",
-                    _peer(conn),
-                    token.label,
-                    self.opts.control_reserve,
-                )
-                response = conn.respond(
-                    HTTPStatus.SERVICE_UNAVAILABLE,
-                    "too many connections: the remaining ones are kept for control tokens\n",
-                )
-                response.headers["Retry-After"] = "5"
-                return response
             conn.ucr_token = token
-            return None
+            return self._open(conn, token)
         self.counters["auth_failures"] += 1
         wait = self._backoff.blocked_for(ip)
         if wait > 0:  # refused without counting again: the back-off grows once it has passed
@@ -529,6 +543,27 @@ class ApiServer:
             f" (back-off {backoff:.0f} s)" if backoff else "",
         )
         return conn.respond(HTTPStatus.UNAUTHORIZED, "missing or wrong API token\n")
+
+    def _open(self, conn: ServerConnection, token: Token | None) -> Response | None:
+        """Count an accepted handshake open (None), or the 503 to answer when there is no room:
+        all ``max_connections`` taken, or for a read token the first ``max_connections -
+        control_reserve`` (without tokens every client has control: no reserve)."""
+        control = token is None or token.scope == CONTROL
+        if self._admission.promote(conn, control):
+            return None
+        if not self._admission.is_pending(conn):  # evicted while its check waited: gone
+            return conn.respond(HTTPStatus.SERVICE_UNAVAILABLE, "evicted\n")
+        self.counters["refused_connections"] += 1
+        if control:
+            reason = "too many connections"
+        else:
+            reason = "too many connections: the remaining ones are kept for control tokens"
+        log.warning(
+            "API: refused %s%s: %s", _peer(conn), f" ({token.label})" if token else "", reason
+        )
+        response = conn.respond(HTTPStatus.SERVICE_UNAVAILABLE, reason + "\n")
+        response.headers["Retry-After"] = "5"
+        return response
 
 
 def start_server(

@@ -65,6 +65,60 @@ def test_the_envelope_comes_from_the_description(robot3):
     assert env.kappa_max == pytest.approx(kmax)
 
 
+def _with_interface_max(robot, kmax: float):
+    """``robot`` with every ``<ros2_control>`` kappa command interface ``max`` set to ``kmax``."""
+    import copy
+
+    out = copy.deepcopy(robot)
+    for block in out.ros2_control:
+        for joint in block.joints:
+            for itf in joint.command_interfaces:
+                if itf.name == "kappa":
+                    itf.params["max"] = str(kmax)
+    return out
+
+
+def test_the_envelope_is_the_files_effective_kappa_max_with_its_interface_max(tmp_path, robot3):
+    """The file's <ros2_control> kappa max (1.0) tightens its model kappa_max (3.3) for the host
+    (host.limits); an adopted segment reporting 3.3 gets 1.0, and that is reported."""
+    from host.topology import adopt_capped, envelope_from
+
+    tight = _with_interface_max(robot3, 1.0)
+    assert {lim.kappa_max for lim in bendable_limits(tight).values()} == {1.0}
+    env = envelope_from(tight)
+    assert env.kappa_max == pytest.approx(1.0)
+    out = tmp_path / "a.ucrdf"
+    robot, capped = adopt_capped([_desc(3.3, 5.0)], tight.name, out, env)
+    assert capped == ["segment: kappa_max 3.3 1/m capped to 1 1/m"]
+    for r in (robot, load(out)):
+        assert bendable_limits(r)["segment"].kappa_max == pytest.approx(1.0)
+
+
+def test_an_unset_rate_in_the_file_caps_adopted_segments_at_the_hosts_default(tmp_path, robot3):
+    """A file without kappa_rate_max runs at DEFAULT_KAPPA_RATE_MAX: an adopted segment
+    reporting 1000 1/m/s is capped to it, and that is reported."""
+    import copy
+
+    from host.limits import DEFAULT_KAPPA_RATE_MAX
+    from host.topology import adopt_capped, envelope_from
+
+    norate = copy.deepcopy(robot3)
+    for b in norate.bendables.values():
+        b.model.limits.kappa_rate_max = None
+    assert {lim.kappa_rate_max for lim in bendable_limits(norate).values()} == {
+        DEFAULT_KAPPA_RATE_MAX
+    }
+    env = envelope_from(norate)
+    assert env.kappa_rate_max == pytest.approx(DEFAULT_KAPPA_RATE_MAX)
+    out = tmp_path / "a.ucrdf"
+    robot, capped = adopt_capped([_desc(3.0, 1000.0)], norate.name, out, env)
+    assert capped == [
+        f"segment: kappa_rate_max 1000 1/m/s capped to {DEFAULT_KAPPA_RATE_MAX:g} 1/m/s"
+    ]
+    for r in (robot, load(out)):
+        assert bendable_limits(r)["segment"].kappa_rate_max == pytest.approx(DEFAULT_KAPPA_RATE_MAX)
+
+
 def test_adopted_file_goes_to_the_state_directory(tmp_path, monkeypatch):
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     assert adopted_path("/usr/share/ucr/robot.ucrdf", "x") == tmp_path / "robot.adopted.ucrdf"

@@ -5,6 +5,7 @@ the API server in front of the in-memory facade of test_api_protocol.py."""
 from __future__ import annotations
 
 import base64
+import gc
 import json
 import logging
 import os
@@ -454,22 +455,168 @@ def test_many_subscribers_cost_the_daemon_one_queue(stub, server):
 
 
 def test_connections_are_capped_in_total_and_per_peer(stub):
-    srv = ApiServer(stub, "127.0.0.1", 0, max_connections=8).start()
-    socks = []
+    """Idle sockets are pending: above max_pending the oldest is evicted; accepted connections
+    are capped at max_connections (503 above); capacity comes back when clients leave."""
+    from host.api.client import ApiConnectionError
+
+    srv = ApiServer(stub, "127.0.0.1", 0, max_connections=8, max_pending=4).start()
+    socks, clients = [], []
     try:
         for _ in range(30):
-            s = socket.create_connection(("127.0.0.1", srv.port), timeout=5)
-            socks.append(s)
-        assert wait_for(lambda: srv.stats()["refused_connections"] >= 20)
-        assert srv.stats()["tcp_connections"] <= 8
+            socks.append(socket.create_connection(("127.0.0.1", srv.port), timeout=5))
+        assert wait_for(lambda: srv.stats()["evicted_pending"] >= 26)
+        assert srv.stats()["pending_connections"] <= 4
+        clients = [connect(srv.url) for _ in range(8)]
+        with pytest.raises(ApiConnectionError, match="too many connections"):
+            connect(srv.url)
+        assert srv.stats()["clients"] == 8
+        for c in clients:
+            c.close()
         for s in socks:
             s.close()
         assert wait_for(lambda: srv.stats()["tcp_connections"] == 0)
         with connect(srv.url) as c:  # capacity comes back
             assert c.ping() < 2
+
+        def alive() -> int:  # the 26 evicted connections are not kept (in the server's
+            gc.collect()  # handlers); the 4 idle ones closed by this test are, by the log
+            return sum(type(o).__name__ == "_Capped" for o in gc.get_objects())  # capture
+
+        assert wait_for(lambda: alive() <= 4), alive()
     finally:
+        for c in clients:
+            c.close()
         for s in socks:
             s.close()
+        srv.stop()
+
+
+def test_admission_evicts_the_pending_connection_that_got_least_far_and_caps_each_peer():
+    from host.api.guard import AUTHORIZING, TALKING, Admission
+
+    adm = Admission(max_open=4, max_pending=3, max_per_peer=2, reserve=1)
+    assert adm.arrive("a", "127.0.0.1") == (True, None)
+    assert adm.arrive("b", "127.0.0.1") == (True, None)
+    assert adm.arrive("c", "127.0.0.1") == (True, None)
+    adm.advance("a", AUTHORIZING)  # oldest, but its request is being authorized
+    adm.advance("b", TALKING)
+    assert adm.arrive("d", "127.0.0.1") == (True, "c")  # silent ones go first
+    assert adm.arrive("e", "127.0.0.1") == (True, "d")
+    adm.advance("e", TALKING)
+    assert adm.arrive("f", "127.0.0.1") == (True, "b")  # then the oldest talking one
+    for conn in "bcd":
+        adm.leave(conn, "127.0.0.1")
+    assert adm.pending == 3
+    # open: 4 in all, the last one (reserve) only for control
+    assert adm.promote("a", control=False) and adm.promote("e", control=False)
+    assert adm.pending == 1
+    # a remote peer: at most 2 connections, pending and open together
+    assert adm.arrive("r1", "192.0.2.7") == (True, None)
+    assert adm.arrive("r2", "192.0.2.7") == (True, None)
+    assert adm.arrive("r3", "192.0.2.7") == (False, None)
+    assert adm.promote("r1", control=False)
+    assert not adm.promote("r2", control=False)  # the reserve
+    assert adm.promote("r2", control=True)
+    assert not adm.promote("f", control=True)  # all 4 taken
+    adm.leave("a", "127.0.0.1")
+    assert adm.promote("f", control=True)
+    assert not adm.promote("gone", control=True)  # evicted or closed meanwhile: never counted
+    assert len(adm.opened) == 4 and adm.pending == 0
+
+
+class _IdleFlood:
+    """``n`` idle TCP connections to ``port`` that never send a byte, each reopened as soon as
+    the server closes it (audit /tmp/audit_13/slots.py)."""
+
+    def __init__(self, port: int, n: int) -> None:
+        import threading
+
+        self.port = port
+        self.socks = [self._open() for _ in range(n)]
+        self.reopened = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._keep, daemon=True)
+        self._thread.start()
+
+    def _open(self) -> socket.socket | None:
+        try:
+            s = socket.create_connection(("127.0.0.1", self.port), timeout=2)
+        except OSError:
+            return None
+        s.setblocking(False)
+        return s
+
+    def _keep(self) -> None:
+        while not self._stop.wait(0.02):
+            for i, s in enumerate(self.socks):
+                try:
+                    if s is not None and s.recv(1) != b"":
+                        continue  # (the server never sends to an idle socket)
+                except BlockingIOError:
+                    continue
+                except OSError:
+                    pass
+                if s is not None:
+                    s.close()
+                self.socks[i] = self._open()
+                self.reopened += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        for s in self.socks:
+            if s is not None:
+                s.close()
+
+
+def test_an_idle_socket_flood_cannot_keep_a_control_client_out(stub):
+    """The audit's repro at the default limits: 300 tokenless idle sockets, reopened as the
+    server drops them; every control-token connection still gets in."""
+    from host.api.auth import CONTROL, READ, Token
+
+    tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
+    flood = _IdleFlood(srv.port, 300)
+    try:
+        time.sleep(1.0)
+        ok = 0
+        for _ in range(5):
+            with connect(srv.url, token=CONTROL_TOKEN, timeout=3) as c:
+                assert c.status()["state"]
+                ok += 1
+        assert ok == 5
+        assert srv.stats()["pending_connections"] <= srv.opts.max_connections - 16
+    finally:
+        flood.close()
+        srv.stop()
+
+
+def test_viewers_and_idle_sockets_together_cannot_take_the_control_reserve(stub):
+    """Read tokens fill what is free for all, idle tokenless sockets flood in: the last slots
+    still go to control tokens only, and idle sockets take none of them."""
+    from host.api.auth import CONTROL, READ, Token
+    from host.api.client import ApiConnectionError
+
+    tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens, max_connections=6, control_reserve=2)
+    srv.start()
+    flood = _IdleFlood(srv.port, 100)
+    viewers: list = []
+    try:
+        time.sleep(0.5)
+        viewers = [connect(srv.url, token=READ_TOKEN, timeout=3) for _ in range(4)]
+        with pytest.raises(ApiConnectionError, match="kept for control tokens"):
+            connect(srv.url, token=READ_TOKEN, timeout=3)
+        with connect(srv.url, token=CONTROL_TOKEN, timeout=3) as c1:
+            with connect(srv.url, token=CONTROL_TOKEN, timeout=3) as c2:
+                assert c1.ping() < 2 and c2.ping() < 2
+                with pytest.raises(ApiConnectionError, match="too many connections"):
+                    connect(srv.url, token=CONTROL_TOKEN, timeout=3)
+        assert flood.reopened > 0 and srv.stats()["evicted_pending"] > 0
+    finally:
+        for c in viewers:
+            c.close()
+        flood.close()
         srv.stop()
 
 

@@ -400,3 +400,73 @@ def test_the_protocol_matches_foxglove_sdk():
     assert sa["op"] == ua["op"] == "advertise" and strip(sa) == strip(ua)
     assert (sb["op"], sb["level"]) == (ub["op"], ub["level"]) == ("status", 2)
     assert sf == uf == struct.pack("<BIQ", 1, 3, 5) + data
+
+
+# -- TLS: wss:// with a cert and a private key, as the API -------------------------------------
+@pytest.fixture(scope="module")
+def tls_files(tmp_path_factory):
+    import shutil
+    import subprocess
+
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is not installed: cannot make a test certificate")
+    d = tmp_path_factory.mktemp("tls")
+    cert, key = d / "cert.pem", d / "key.pem"
+    subprocess.run([openssl, "req", "-x509", "-newkey", "ec", "-pkeyopt",
+                    "ec_paramgen_curve:P-256", "-nodes", "-days", "2", "-subj", "/CN=localhost",
+                    "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1", "-keyout", str(key),
+                    "-out", str(cert)], check=True, capture_output=True)  # fmt: skip
+    key.chmod(0o600)
+    return cert, key
+
+
+def test_tls_serves_wss_off_loopback_without_insecure_and_refuses_a_readable_key(
+    sink_factory, tls_files, tmp_path
+):
+    """--tls-cert/--tls-key: the server speaks wss:// (a plain ws:// handshake gets nowhere, the
+    token never crosses in clear), so a non-loopback bind needs no --insecure; the key file must
+    be private (the API's rule)."""
+    import shutil
+    import ssl
+
+    from interop.guard import GuardError
+
+    cert, key = tls_files
+    sink = sink_factory(host="0.0.0.0", token=TOKEN, tls_cert=str(cert), tls_key=str(key))
+    assert sink.url.startswith("wss://")
+    ctx = ssl.create_default_context(cafile=str(cert))
+    url = f"wss://127.0.0.1:{sink.port}"
+    with connect(url, subprotocols=PROTO, ssl=ctx, open_timeout=20,
+                 additional_headers={"Authorization": f"Bearer {TOKEN}"}) as ws:  # fmt: skip
+        assert "/robot_description" in _channels(ws)
+    with pytest.raises((WebSocketException, OSError)):  # plain ws:// to the TLS port
+        connect(f"ws://127.0.0.1:{sink.port}", subprotocols=PROTO, open_timeout=3,
+                additional_headers={"Authorization": f"Bearer {TOKEN}"}).close()  # fmt: skip
+    readable = tmp_path / "key.pem"
+    shutil.copy(key, readable)
+    readable.chmod(0o644)
+    with pytest.raises(GuardError, match="readable by others"):
+        sink_factory(host="127.0.0.1", tls_cert=str(cert), tls_key=str(readable))
+    with pytest.raises(GuardError, match="both"):
+        sink_factory(host="127.0.0.1", tls_cert=str(cert))
+
+
+def test_the_cli_takes_tls_options_for_every_foxglove_server(tls_files):
+    """`ucr foxglove`, `ucr replay` and `ucr record` take --tls-cert/--tls-key (sink_from_args)."""
+    import argparse
+
+    from interop.cli import register
+    from interop.foxglove import sink_from_args
+
+    cert, key = tls_files
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    for argv in (["foxglove"], ["replay", "x.mcap"], ["record", "-o", "x.mcap"]):
+        args = parser.parse_args([*argv, "--tls-cert", str(cert), "--tls-key", str(key)])
+        assert (args.tls_cert, args.tls_key) == (str(cert), str(key))
+    sink = sink_from_args("127.0.0.1", 0, args)
+    try:
+        assert sink.url.startswith("wss://127.0.0.1:")
+    finally:
+        sink.close()

@@ -1,4 +1,6 @@
-"""host/ucr-daemon.service: valid for systemd, unprivileged, sandboxed (issue 13, finding 6).
+"""host/ucr-daemon.service: valid for systemd, unprivileged, sandboxed (issue 13, finding 6);
+host/ucr-zenoh.service, the other unit the project installs, held to the same verify and
+exposure checks (it rated 3.2: no syscall filter, W+X memory allowed, the process tree visible).
 
 `systemd-analyze verify` runs against a scratch root holding this machine's system units, the
 unit, and an executable at the unit's ExecStart path (verify checks that it exists);
@@ -17,6 +19,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 UNIT = REPO / "host" / "ucr-daemon.service"
+ZENOH_UNIT = REPO / "host" / "ucr-zenoh.service"
+UNITS = pytest.mark.parametrize("unit", [UNIT, ZENOH_UNIT], ids=lambda u: u.name)
 MAX_EXPOSURE = 3.0
 
 pytestmark = pytest.mark.skipif(
@@ -25,9 +29,9 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-def service_section() -> dict[str, list[str]]:
+def service_section(unit: Path = UNIT) -> dict[str, list[str]]:
     section, out = None, {}
-    for line in UNIT.read_text().splitlines():
+    for line in unit.read_text().splitlines():
         line = line.strip()
         if not line or line.startswith(("#", ";")):
             continue
@@ -52,20 +56,21 @@ def exposure(unit: Path) -> tuple[float, str]:
     return float(m.group(1)), out
 
 
-def test_unit_passes_systemd_analyze_verify(tmp_path) -> None:
+@UNITS
+def test_unit_passes_systemd_analyze_verify(tmp_path, unit) -> None:
     root = tmp_path / "root"
     units = Path("/lib/systemd/system")
     if not (units / "sysinit.target").exists():
         pytest.skip(f"no system units in {units} to verify against")
     shutil.copytree(units, root / "usr" / "lib" / "systemd" / "system", symlinks=True)
     (root / "etc" / "systemd" / "system").mkdir(parents=True)
-    shutil.copy(UNIT, root / "etc" / "systemd" / "system" / UNIT.name)
-    exe = root / service_section()["ExecStart"][-1].split()[0].lstrip("/")
+    shutil.copy(unit, root / "etc" / "systemd" / "system" / unit.name)
+    exe = root / service_section(unit)["ExecStart"][-1].split()[0].lstrip("/")
     exe.parent.mkdir(parents=True)
     exe.write_text("#!/bin/sh\n")
     exe.chmod(0o755)
     proc = subprocess.run(
-        ["systemd-analyze", "verify", f"--root={root}", UNIT.name],
+        ["systemd-analyze", "verify", f"--root={root}", unit.name],
         capture_output=True,
         text=True,
         timeout=120,
@@ -76,10 +81,11 @@ def test_unit_passes_systemd_analyze_verify(tmp_path) -> None:
     )
 
 
-def test_unit_sandbox_rates_at_most_3_in_systemd_analyze_security() -> None:
-    """Today's unit rated 8.5 EXPOSED (ProtectSystem=full, no device, address-family or syscall
-    restrictions, no resource limits)."""
-    level, out = exposure(UNIT)
+@UNITS
+def test_unit_sandbox_rates_at_most_3_in_systemd_analyze_security(unit) -> None:
+    """The daemon's unit rated 8.5 EXPOSED (ProtectSystem=full, no device, address-family or
+    syscall restrictions, no resource limits); the Zenoh bridge's 3.2."""
+    level, out = exposure(unit)
     assert level <= MAX_EXPOSURE, f"exposure {level} > {MAX_EXPOSURE}:\n{out}"
 
 
@@ -113,6 +119,20 @@ def test_unit_allows_only_serial_devices_and_bounds_resources() -> None:
     assert allowed and all(re.fullmatch(r"char-tty(USB|ACM|AMA|S)", a) for a in allowed), allowed
     assert set(svc["RestrictAddressFamilies"][-1].split()) == {"AF_UNIX", "AF_INET", "AF_INET6"}
     assert any(v.startswith("@system-service") for v in svc["SystemCallFilter"])
+    for key in ("MemoryMax", "TasksMax", "LimitNOFILE"):
+        assert svc.get(key), f"no {key}"
+
+
+def test_the_zenoh_unit_keeps_what_zenoh_needs_and_filters_the_rest() -> None:
+    """Zenoh needs TCP/UDP over IPv4/IPv6, netlink (it reads the host's interfaces) and local
+    sockets (the journal); its native library runs without writable executable memory."""
+    svc = service_section(ZENOH_UNIT)
+    families = set(svc["RestrictAddressFamilies"][-1].split())
+    assert families == {"AF_UNIX", "AF_INET", "AF_INET6", "AF_NETLINK"}
+    assert svc["MemoryDenyWriteExecute"] == ["true"] and svc["ProtectProc"] == ["invisible"]
+    assert any(v.startswith("@system-service") for v in svc["SystemCallFilter"])
+    assert svc["User"] == ["ucr"] and svc["ProtectSystem"] == ["strict"]
+    assert "RemoveIPC" not in svc  # it would remove the daemon's (same user) IPC objects
     for key in ("MemoryMax", "TasksMax", "LimitNOFILE"):
         assert svc.get(key), f"no {key}"
 
