@@ -118,6 +118,7 @@ def load_config(config, driver, path="config.json"):
     import sys
 
     where = path
+    data = None
     try:
         names = os.listdir()
         if FILE not in names and _TMP in names:
@@ -133,8 +134,7 @@ def load_config(config, driver, path="config.json"):
 
         mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
     except (OSError, ValueError, TypeError, KeyError) as e:
-        cfg = config.Config(None, driver)
-        cfg.error = "%s rejected: %s" % (where, e)
+        cfg = config.refused(data, driver, "%s rejected: %s" % (where, e))
     if sys.implementation.name == "micropython":
         for m in ("calib_store", "protocol.cal_core"):
             sys.modules.pop(m, None)

@@ -79,6 +79,20 @@ _MAX_ANGLE = 50.0  # rad of servo travel from zero
 _MAX_TENDONS = 8
 
 
+RATE_MIN = 1e-3  # 1/m/s: the slowest kappa_rate_max (config.json and PARAM_SET)
+
+
+def kappa_limit_problem(v):
+    """Why ``v`` cannot be a kappa_max (1/m), or None: it must be > 0 and not round to 0 units
+    of 1e-4 1/m (KAPPA_SCALE), which the fixed-point path would run as 0 (config.json, PARAM_SET
+    and ``ucr check`` apply the same rule)."""
+    if not v > 0.0:
+        return "must be > 0 1/m, got %r" % (v,)
+    if v * KAPPA_SCALE < 0.5:  # int(v * KAPPA_SCALE + 0.5), _derive's rounding, would be 0
+        return "%r 1/m rounds to 0 units of 1e-4 1/m (at least 5e-05)" % (v,)
+    return None
+
+
 def _num(cfg, key, lo, hi):
     v = cfg[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -127,10 +141,11 @@ class Config:
         _num(cfg, "tendon_radius", 1e-4, 0.5)
         _num(cfg, "spool_radius", 1e-4, 0.15)
         _num(cfg, "kappa_max", 0.0, _MAX_KAPPA)
-        if not cfg["kappa_max"] > 0.0:
-            raise ValueError("kappa_max must be > 0 1/m, got %r" % (cfg["kappa_max"],))
+        why = kappa_limit_problem(cfg["kappa_max"])
+        if why:
+            raise ValueError("kappa_max %s" % why)
         if cfg["kappa_rate_max"] is not None:
-            _num(cfg, "kappa_rate_max", 1e-3, 10 * _MAX_KAPPA)
+            _num(cfg, "kappa_rate_max", RATE_MIN, 10 * _MAX_KAPPA)
         _num(cfg, "mass", 0.0, 1e3)
         _num(cfg, "backbone_radius", 0.0, 0.5)
         _num(cfg, "watchdog_ms", 10, 60000)
@@ -160,6 +175,11 @@ class Config:
         if isinstance(tk, bool) or not isinstance(tk, int) or not (_TICK_MIN <= tk <= _TICK_MAX):
             raise ValueError(
                 "tick_ms must be an int %d..%d (ms), got %r" % (_TICK_MIN, _TICK_MAX, tk)
+            )
+        if hw and hw < 4 * tk:
+            raise ValueError(
+                "hw_watchdog_ms %r is shorter than four ticks (tick_ms %d): it is fed once per "
+                "clean tick" % (hw, tk)
             )
         if cfg["watchdog_ms"] < 2 * tk:
             raise ValueError(
@@ -250,7 +270,6 @@ def _wiring(cfg, n):
     """Board and pin plan (protocol/boards.py, the rules ``ucr check`` applies too): refuse an
     impossible plan; fill the board's default pins into ``pins``, ``bus`` and ``pwm``."""
     import gc
-    import sys
 
     gc.collect()
     from protocol import boards
@@ -278,15 +297,8 @@ def _wiring(cfg, n):
     global PROFILE, PROFILE_NAME
     PROFILE = boards.profile(board)
     PROFILE_NAME = board
-    if sys.implementation.name == "micropython":
-        # the rules are needed once, at boot: free their ~15 KB (the HAL reads PROFILE)
-        sys.modules.pop("protocol.boards", None)
-        import protocol
-
-        if hasattr(protocol, "boards"):
-            del protocol.boards
-        del boards
-        gc.collect()
+    del boards
+    _drop_boards()
 
 
 def _e4(x):
@@ -303,6 +315,7 @@ def load(path="config.json", default_driver="emulated"):
             text = f.read()
     except OSError:
         return Config(None, default_driver)
+    data = None
     try:
         data = json.loads(text)
         cfg = Config(data, default_driver)
@@ -311,6 +324,60 @@ def load(path="config.json", default_driver="emulated"):
         mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
         return cfg
     except (ValueError, TypeError, KeyError) as e:
-        c = Config(None, default_driver)
-        c.error = "config.json rejected: %s" % (e,)
+        return refused(data, default_driver, "config.json rejected: %s" % (e,))
+
+
+def refused(data, default_driver, why):
+    """The configuration of a segment that refuses the one it was given (``data``, the parsed
+    config.json, or None): it never moves and ``error`` says ``why`` (DESCRIPTOR key 16, PARAM
+    16). It substitutes no defaults for what the configuration named: the chain keeps the
+    configured board and chain pins when they form a usable chain on that board (the board a
+    configuration without ``board`` means, ``protocol.boards.default_board``); otherwise no board
+    is named (``pins`` and ``board`` None) and the HAL uses the chip's own board, from its own
+    detection (``hal_esp32.own_pins``), never another chip's. ``main.build`` gives it no servo
+    driver that drives pins (``servos.OfflineBus``)."""
+    global PROFILE, PROFILE_NAME
+    c = Config(None, default_driver)
+    c.error = why
+    c.si["board"] = None
+    c.si["pins"] = None
+    if not isinstance(data, dict):
         return c
+    import gc
+
+    gc.collect()
+    try:
+        from protocol import boards
+
+        board = data.get("board")
+        if board is None:
+            board = boards.default_board(data.get("servo_driver") or default_driver)
+        pins = data.get("pins")
+        if isinstance(board, str) and (pins is None or isinstance(pins, dict)):
+            # the chain only: "emulated" servos make problems() check no bus and no PWM pins
+            found = boards.problems(board, pins, None, None, "emulated", [], 0)
+            if not found:
+                chain = boards.resolve(board, pins)[0]
+                chain["board"] = board
+                c.si["board"] = board
+                c.si["pins"] = chain
+                PROFILE = boards.profile(board)
+                PROFILE_NAME = board
+    except (ValueError, TypeError, KeyError, AttributeError):
+        pass  # a plan too broken to read: the chip's own board
+    _drop_boards()
+    return c
+
+
+def _drop_boards():
+    """Free the board rules (~15 KB) on the board: needed once, at boot (the HAL reads PROFILE)."""
+    import gc
+    import sys
+
+    if sys.implementation.name == "micropython":
+        sys.modules.pop("protocol.boards", None)
+        import protocol
+
+        if hasattr(protocol, "boards"):
+            del protocol.boards
+        gc.collect()

@@ -92,6 +92,41 @@ def chain_pins(chip_name, cfg_pins):
     return p
 
 
+def own_pins(chip_name=None):
+    """The chain plan of this chip's own stock board (protocol/boards.py: the profile of that
+    chip whose REPL is UART0), for a segment whose configured plan this chip cannot run
+    (``main.build``): it holds and says why, upstream at least. Where the stock board has no UART
+    left for the downstream (the C3), ``down_uart`` is None and the HAL opens no downstream."""
+    import gc
+
+    from protocol import boards
+
+    name = chip_name or chip()
+    for b in boards.NAMES:
+        prof = boards.BOARDS[b]
+        if prof["chip"] == name and prof["repl_uart"] is not None:
+            p = dict(prof["pins"])
+            p["board"] = b
+            del boards
+            gc.collect()
+            return p
+    raise ValueError("no board profile for the chip %s" % name)
+
+
+class NoPort:
+    """The downstream of a segment whose board has no UART for it (``own_pins`` on a C3):
+    nothing arrives, what is written is dropped."""
+
+    def any(self):
+        return 0
+
+    def readinto(self, buf, n=None):
+        return None
+
+    def write(self, buf, n=None):
+        return len(buf) if n is None else n
+
+
 def set_clock(chip_name, board):
     """Run the CPU at the board profile's clock (the classic ESP32's without a board named);
     return the clock in MHz, or 0 where the firmware cannot know the chip's and leaves it."""
@@ -130,21 +165,26 @@ class Hal:
             timeout=0,
             timeout_char=0,
         )
-        self.down = machine.UART(
-            p["down_uart"],
-            baudrate=p["baud"],
-            tx=p["down_tx"],
-            rx=p["down_rx"],
-            rxbuf=1024,
-            timeout=0,
-            timeout_char=0,
-        )
+        ports = [self.up]
+        if p["down_uart"] is None:
+            self.down = NoPort()  # own_pins on a chip with no UART left for it: upstream only
+        else:
+            self.down = machine.UART(
+                p["down_uart"],
+                baudrate=p["baud"],
+                tx=p["down_tx"],
+                rx=p["down_rx"],
+                rxbuf=1024,
+                timeout=0,
+                timeout_char=0,
+            )
+            ports.append(self.down)
         self.poller = select.poll()
-        self.poller.register(self.up, select.POLLIN)
-        self.poller.register(self.down, select.POLLIN)
+        for u in ports:
+            self.poller.register(u, select.POLLIN)
         # an rx irq wakes the main task out of its RTOS-tick sleep (machine_uart.c, >= 1.24)
         self.rx_irq = False
-        for u in (self.up, self.down):
+        for u in ports:
             try:
                 u.irq(handler=_on_rx, trigger=machine.UART.IRQ_RX)
                 self.rx_irq = True
@@ -182,7 +222,7 @@ class Hal:
         return m
 
     def servo_uart(self, b):
-        chain = [self.pins[k] for k in _CHAIN_PINS]
+        chain = [self.pins[k] for k in _CHAIN_PINS if self.pins[k] is not None]
         if (
             b["tx"] in chain
             or b["rx"] in chain

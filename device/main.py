@@ -4,9 +4,10 @@ Picks the HAL by platform, loads config.json (defaults when absent), builds serv
 and the segment coordinator, then runs forever (``Runner``): frames are handled as they arrive,
 the control tick runs every ``tick_ms`` (config.json, default 5 ms). An exception in either
 puts the segment in FAULT (``Segment.enter_fault``) and the loop goes on, so the chain keeps
-forwarding; the optional hardware watchdog (``wdt.py``) is fed only after a pass that raised
-nothing. The loop never reads stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends
-it and leaves the board (or ``micropython -i``) at the REPL.
+forwarding; the optional hardware watchdog (``wdt.py``) is fed only by a healthy pass: one that
+ran the control tick to its end and raised nothing (once per clean tick). The loop never reads
+stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends it and leaves the board (or
+``micropython -i``) at the REPL.
 """
 
 import os
@@ -96,24 +97,46 @@ def build(tick_ms=None):
     import servos
 
     gc.collect()
-    hal = halmod.Hal(cfg.si.get("pins"))
+    hal = _open_hal(halmod, cfg)
     driver = cfg.driver
     if halmod.PLATFORM == "unix" and driver != "emulated":
         # the unix port emulates the board: its servos, whatever their family, are simulated
         print("[main] servo_driver %r runs as 'emulated' on the unix port" % driver)
         driver = "emulated"
     try:
+        if cfg.error and driver != "emulated":
+            # a refused configuration: drive no pin it did not name (config.refused)
+            raise ValueError("not started: %s" % cfg.error)
         bus = servos.make(driver, cfg, hal)
     except Exception as e:  # noqa: BLE001 - any driver failure: keep the chain alive
         print("[main] servo driver %r failed: %s" % (cfg.driver, e))
         bus = servos.OfflineBus(cfg.n, str(e))
-        cfg.error = "servo driver %s failed: %s" % (cfg.driver, e)
+        if not cfg.error:
+            cfg.error = "servo driver %s failed: %s" % (cfg.driver, e)
     if hal.faults_spec:
         try:
             bus.set_faults(hal.faults_spec)
         except ValueError as e:
             print("[main] UCR_FAULTS ignored:", e)
     return hal, Segment(hal, cfg, bus, tick_ms or cfg.tick_ms)
+
+
+def _open_hal(halmod, cfg):
+    """The HAL on the configuration's board and chain pins. If this chip cannot run that plan
+    (config.json made for another board, or a refused configuration whose plan was unusable,
+    config.refused), the segment still reaches the host: on an ESP32 the HAL opens the chip's own
+    board (``hal_esp32.own_pins``, from the chip's detection) and the segment holds, ``error``
+    saying why (DESCRIPTOR key 16, PARAM 16). The emulated board refuses as it is (the
+    emulator shows why)."""
+    try:
+        return halmod.Hal(cfg.si.get("pins"))
+    except ValueError as e:
+        if halmod.PLATFORM == "unix":
+            raise
+        print("[main]", e)
+        if not cfg.error:
+            cfg.error = "config.json refused by this chip: %s" % (e,)
+    return halmod.Hal(halmod.own_pins())
 
 
 def _why(where, e):
@@ -150,12 +173,14 @@ class Runner:
         self.seg.enter_fault(code, _why(where, e))
 
     def once(self):
-        """Handle frames, run the tick when due, feed the watchdog after a clean pass; return
-        the ms to wait before the next pass (0: none)."""
+        """Handle frames, run the tick when due, feed the watchdog after a healthy pass (the
+        tick ran to its end and nothing in the pass raised); return the ms to wait before the
+        next pass (0: none)."""
         hal = self.hal
         seg = self.seg
         tick_ms = self.tick_ms
         healthy = self._poll()
+        ticked = False
         now = hal.ticks_ms()
         d = (now - self.next_t) & _TMASK
         if d < 0x20000000:  # the tick is due
@@ -165,6 +190,7 @@ class Runner:
             self.next_t = (self.next_t + tick_ms) & _TMASK
             try:
                 seg.tick(now)
+                ticked = True
             except KeyboardInterrupt:
                 raise
             except Exception as e:  # noqa: BLE001
@@ -179,7 +205,9 @@ class Runner:
                 # a frame completed at a relay point of the tick: handle it now, not after the
                 # wait (its bytes were read already, so no input would end the wait early)
                 healthy = self._poll() and healthy
-        if healthy and self.wdt is not None:
+        if ticked and healthy and self.wdt is not None:
+            # healthy: this pass ran the control tick to its end and nothing in the pass raised;
+            # a pass that only handled frames feeds nothing (every tick raising must starve it)
             self.wdt.feed()
         wait = (self.next_t - hal.ticks_ms()) & _TMASK
         return wait if 0 < wait <= tick_ms else 0

@@ -402,12 +402,17 @@ def set_param(self, pid, v):
         top = float(self.cfg.si["kappa_max"])
         if not num or not 0.0 < v <= top:
             raise ValueError("must be in (0, %g] 1/m (the flashed limit)" % top)
+        why = config.kappa_limit_problem(v)  # the rule config.json has: not 0 units
+        if why:
+            raise ValueError(why)
         self.kappa_max_si = float(v)
         self.mc.set_kappa_max(int(v * config.KAPPA_SCALE + 0.5))
     elif pid == _P_KAPPA_RATE_MAX:
         top = float(self.cfg.si["kappa_rate_max"])
-        if not num or not 0.0 < v <= top:
-            raise ValueError("must be in (0, %g] 1/m/s (the flashed limit)" % top)
+        if not num or not config.RATE_MIN <= v <= top:  # the rule config.json has
+            raise ValueError(
+                "must be in [%g, %g] 1/m/s (the flashed limit)" % (config.RATE_MIN, top)
+            )
         self.rate_max_si = float(v)
         self.mc.set_rate_max(int(v * config.KAPPA_SCALE + 0.5))
     elif pid == _P_SC:

@@ -1,11 +1,12 @@
 """Hardware watchdog (config ``hw_watchdog_ms``; 0 = off), fed only by a healthy loop.
 
-On an ESP32 it is ``machine.WDT``: if the loop stops completing clean passes (a hang, or an
-exception on every pass) for the timeout, the chip resets, and the next boot enters FAULT with
-code WDT_RESET (``machine.reset_cause()``). The unix port has no hardware watchdog, so the
-emulation provides the same contract: a thread watches the feed time and, when it expires, marks
-the reset in ``WDT_MARK`` (the board's "reset cause") and kills the process, which the emulator
-restarts as a board reboots.
+On an ESP32 it is ``machine.WDT``, fed by ``main.Runner`` once per clean control tick (a pass
+that ran the tick to its end and raised nothing; frames alone feed nothing): if the loop stops
+completing clean ticks (a hang, or a tick that raises every time) for the timeout, the chip
+resets, and the next boot enters FAULT with code WDT_RESET (``machine.reset_cause()``). The unix
+port has no hardware watchdog, so the emulation provides the same contract: a thread watches the
+feed time and, when it expires, marks the reset in ``WDT_MARK`` (the board's "reset cause") and
+kills the process, which the emulator restarts as a board reboots.
 """
 
 import sys

@@ -58,7 +58,9 @@ BOARDS = {
         "repl_uart": 0,
         "gpio": _r(0, 19) + _r(21, 23) + _r(25, 27) + _r(32, 39),
         "reserved": _ESP32_RESERVED,
-        "input_only": (34, 35, 36, 39),
+        # GPIO34..39 are inputs only (37/38 exist on some packages): the port refuses an output
+        # on every GPIO >= 34 (ports/esp32/machine_pin.c GPIO_FIRST_NON_OUTPUT)
+        "input_only": _r(34, 39),
         "strapping": (0, 2, 12),
         "pins": {
             "up_uart": 1,

@@ -4,7 +4,9 @@ Encoding rule (identical to ``cbor2.dumps(obj, canonical=True)``): shortest head
 length, definite lengths only, map keys sorted by their encoded bytes (length first, then
 bytewise), floats in the shortest of float16/float32/float64 that holds the value exactly
 (NaN -> f9 7e00). Supported types: int (|n| < 2**64), bool, None, float, str, bytes, list/tuple,
-dict. Decoding rejects tags, indefinite lengths, undefined/simple values, duplicate map keys,
+dict. Decoding (``loads`` and ``Reader`` alike) rejects ints and lengths outside the wire range
+(|n| < 2**30: a 4-byte argument >= 0x40000000, -2**30, any 8-byte argument; docs/protocol.md
+"Integer range"), tags, indefinite lengths, undefined/simple values, duplicate map keys,
 nesting deeper than ``MAX_DEPTH``, text that is not UTF-8 (checked by ``utf8_ok`` on both
 runtimes: MicroPython's ``bytes.decode`` does not validate) and trailing bytes, raising
 ``MalformedError``. The in-place ``Reader.skip`` applies the same rules to items it skips (map keys
@@ -509,13 +511,11 @@ class _Dec:
             return (buf[p] << 8) | buf[p + 1]
         if ai == 26:
             p = self.take(4)
+            if buf[p] >= 0x40:  # the wire's int range, as Reader.head: |n| < 2**30
+                raise MalformedError("CBOR int or length outside the wire range (2**30)")
             return (buf[p] << 24) | (buf[p + 1] << 16) | (buf[p + 2] << 8) | buf[p + 3]
         if ai == 27:
-            p = self.take(8)
-            v = 0
-            for i in range(8):
-                v = (v << 8) | buf[p + i]
-            return v
+            raise MalformedError("CBOR 8-byte argument (outside the wire range)")
         raise MalformedError("CBOR indefinite length or reserved additional info")
 
     def item(self, depth):
@@ -548,6 +548,8 @@ class _Dec:
         if major == 0:
             return n
         if major == 1:
+            if n == 0x3FFFFFFF:
+                raise MalformedError("CBOR int -2**30 outside the wire range")
             return -1 - n
         if major == 2 or major == 3:
             p = self.take(n)

@@ -209,9 +209,9 @@ class Flasher:
             self.close()
             raise FlashError(
                 f"the device on {port} did not answer like a MicroPython REPL within "
-                f"{connect_timeout:g} s ({exc}): is it running MicroPython (see "
-                "docs/flashing.md to install it) and not stuck? Is it the board's USB/REPL port "
-                "and not a chain port? Press its reset button and retry"
+                f"{connect_timeout:g} s of opening the port ({exc}): is it running MicroPython "
+                "(see docs/flashing.md to install it) and not stuck? Is it the board's USB/REPL "
+                "port and not a chain port? Press its reset button and retry"
             ) from exc
 
     def _enter_raw_repl(self, timeout: float) -> None:

@@ -62,6 +62,18 @@ def _below(value: float, bound: float) -> bool:
     return value < bound - 1e-9 * max(1.0, abs(bound))
 
 
+def kappa_resolution_problem(value: float, unit: str = "1/m") -> str | None:
+    """Why a positive curvature limit cannot run on a segment, or None: the wire and the
+    firmware count kappa in units of 1/KAPPA_SCALE (1e-4 1/m), and a limit rounding to 0 units
+    would be 0 there (device/config.py refuses it, and PARAM_SET)."""
+    if value * C.KAPPA_SCALE < 0.5:  # int(value * scale + 0.5), the firmware's rounding, is 0
+        return (
+            f"{value:g} {unit} rounds to 0 in the segment's fixed point (units of "
+            f"{1.0 / C.KAPPA_SCALE:g} {unit}): at least {0.5 / C.KAPPA_SCALE:g}"
+        )
+    return None
+
+
 def _did_you_mean(name: str, known: object) -> str:
     """`` (did you mean 'x'?)`` for the closest known name, or ''."""
     close = difflib.get_close_matches(name, [str(k) for k in known], n=1)  # type: ignore[attr-defined]
@@ -506,12 +518,19 @@ class _Checker:
         if not (math.isfinite(lim.kappa_max) and lim.kappa_max > 0):
             self.error(lline, f"{where}: kappa_max must be > 0 1/m, got {lim.kappa_max}")
             sound = False
+        elif why := kappa_resolution_problem(lim.kappa_max):
+            self.error(lline, f"{where}: kappa_max {why}")
+            sound = False
         if lim.kappa_rate_max is not None and not (
             math.isfinite(lim.kappa_rate_max) and lim.kappa_rate_max > 0
         ):
             self.error(
                 lline, f"{where}: kappa_rate_max must be > 0 1/m/s, got {lim.kappa_rate_max}"
             )
+        elif lim.kappa_rate_max is not None and (
+            why := kappa_resolution_problem(lim.kappa_rate_max, "1/m/s")
+        ):
+            self.error(lline, f"{where}: kappa_rate_max {why}")
         if not (math.isfinite(lim.phi_min) and math.isfinite(lim.phi_max)):
             self.error(lline, f"{where}: phi_min/phi_max must be finite")
             sound = False
@@ -933,6 +952,8 @@ class _Checker:
                 bound = bounds.get(iface.name)
                 limit_text = f"the model limits of {iface.name!r}"
                 self.interface_params(where, kind, iface, iline, bound, limit_text)
+                if kind == "command_interface" and iface.name == "kappa":
+                    self.kappa_command_max(where, iface, iline)
             return
         if name in robot.joints:
             joint = robot.joints[name]
@@ -967,6 +988,21 @@ class _Checker:
             f"(bendables: {_names(robot.bendables)}; joints: "
             f"{_names(j.name for j in robot.joints.values() if j.type != 'fixed')})",
         )
+
+    def kappa_command_max(self, where: str, iface: Interface, line: int) -> None:
+        """The rule host/limits.py applies to a bendable's kappa command max: > 0 (kappa is a
+        magnitude, commanded in [0, max]), and not below the wire's resolution."""
+        hi = iface.params.get("max")
+        if hi is None or isinstance(hi, str) or not math.isfinite(hi):
+            return  # reported by interface_params
+        label = f"{where}: command_interface 'kappa'"
+        lo = iface.params.get("min")
+        if isinstance(lo, (int, float)) and lo > hi:
+            return  # min > max: reported by interface_params
+        if hi <= 0:
+            self.error(line, f"{label}: param max must be > 0 1/m, got {hi}")
+        elif why := kappa_resolution_problem(float(hi)):
+            self.error(line, f"{label}: param max {why}")
 
     @staticmethod
     def _interfaces(cjoint: ControlJoint) -> list[tuple[str, Interface]]:

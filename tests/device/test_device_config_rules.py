@@ -124,6 +124,38 @@ R['k'] = [seg.kappa_max_si, vmkit.hexs(hal.up.take())]
     assert kmax > 3.0  # unchanged
 
 
+def test_a_kappa_limit_below_one_fixed_point_unit_is_refused_everywhere(vm):
+    """kappa_max 4e-5 1/m (and a PARAM_SET kappa_max / kappa_rate_max of 4e-5) rounded to 0 units
+    of 1e-4 1/m on the segment: accepted, then run as 0. The config, PARAM_SET and ``ucr check``
+    (tests/ucrdf_format/test_semantic_errors.py) refuse it."""
+    set_k = M.encode_param_set(3, 0, 1, 4e-5).hex()
+    set_r = M.encode_param_set(4, 0, 2, 4e-5).hex()
+    r = vm(
+        f"""
+import config
+try:
+    config.Config({{'kappa_max': 4e-5}})
+    R['cfg'] = None
+except ValueError as e:
+    R['cfg'] = str(e)
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+before = [seg.kappa_max_si, seg.rate_max_si, seg.mc.kappa_max, seg.mc.step_whole, seg.mc.step_frac]
+hal.up.feed(bytes.fromhex('{set_k}'))
+vmkit.run(hal, seg, 10)
+hal.up.feed(bytes.fromhex('{set_r}'))
+vmkit.run(hal, seg, 10)
+after = [seg.kappa_max_si, seg.rate_max_si, seg.mc.kappa_max, seg.mc.step_whole, seg.mc.step_frac]
+R['k'] = [before, after, vmkit.hexs(hal.up.take())]
+"""
+    )
+    assert r["cfg"] and "kappa_max" in r["cfg"] and "rounds to 0" in r["cfg"]
+    before, after, out = r["k"]
+    errs = [m for m in decode(out) if m["type"] == "ERROR"]
+    assert [e["name"] for e in errs] == ["BAD_VALUE", "BAD_VALUE"], errs
+    assert "kappa_max" in errs[0]["text"] and "kappa_rate_max" in errs[1]["text"]
+    assert after == before
+
+
 def test_a_rejected_config_never_runs_defaults_and_says_why(vm, tmp_path):
     bad = dict(SHORT, kappa_max=150.0)  # beyond the firmware's 100 1/m
     sync = M.encode_sync(1, 1, [(1.0, 0.0)], resume=True).hex()

@@ -256,6 +256,52 @@ def test_hardware_watchdog_resets_a_hung_segment_and_the_next_boot_reports_wdt_r
         os.close(s)
 
 
+def test_the_hardware_watchdog_is_fed_only_by_clean_ticks(vm):
+    """A pass that only handled frames fed the watchdog, so a tick raising every time (frames
+    arriving between ticks, as from a 200 Hz host) fed it 199 times in 200 ticks and the chip
+    never reset. Healthy = the pass ran the tick to its end and raised nothing."""
+    sync = M.encode_sync(1, 1, [(0.0, 0.0)]).hex()
+    r = vm(
+        f"""
+import main
+class Dog:
+    def __init__(self):
+        self.n = 0
+    def feed(self):
+        self.n += 1
+def drive(faults):
+    hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+    dog = Dog()
+    run = main.Runner(hal, seg, 5, dog)
+    if faults:
+        seg.bus.set_faults(faults)
+    for k in range(100):
+        hal.t += 5
+        run.once()                  # the tick
+        hal.up.feed(bytes.fromhex('{sync}'))
+        run.once()                  # a frame before the next tick is due
+        hal.up.discard()
+    return [dog.n, seg.fault_count]
+R['ok'] = drive(None)
+R['raising'] = drive('0:raise')
+import config
+try:
+    config.Config({{'hw_watchdog_ms': 100, 'tick_ms': 50, 'watchdog_ms': 200}})
+    R['slow'] = None
+except ValueError as e:
+    R['slow'] = str(e)
+""",
+        heap="4m",  # two segments in one VM
+    )
+    feeds, faults = r["ok"]
+    # once per clean tick (100, and the first pass's catch-up tick), not once per pass (200)
+    assert faults == 0 and feeds in (100, 101), feeds
+    feeds, faults = r["raising"]
+    assert faults >= 100 and feeds == 0
+    # fed once per tick, so the timeout must span a few ticks: config.json refuses less
+    assert r["slow"] and "shorter than four ticks" in r["slow"]
+
+
 def test_main_uses_the_protocol_fault_codes():
     """main.py keeps plain ints (a lighter boot); they must be the wire's FAULT codes."""
     import ast

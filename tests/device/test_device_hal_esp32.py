@@ -125,3 +125,95 @@ def test_the_cpu_runs_at_the_board_profiles_clock(hal, monkeypatch, chip, board,
 
     if board:
         assert boards.profile(board)["mhz"] == mhz
+
+
+# -- a configuration this chip cannot run (review of issue 11: "never substitute defaults") -------
+def _boot(hal, monkeypatch, tmp_path, chip, config):
+    """main.build on an ESP32 of ``chip`` with ``config`` as config.json: (UARTs opened as
+    (id, tx, rx), PWM pins driven, the segment)."""
+    import json
+
+    opened = []
+    pwm = []
+
+    class UART:
+        IRQ_RX = 1
+
+        def __init__(self, uid, **kw):
+            opened.append((uid, kw["tx"], kw["rx"]))
+
+        def irq(self, handler=None, trigger=0):
+            pass
+
+        def any(self):
+            return 0
+
+        def readinto(self, buf, n=None):
+            return None
+
+        def write(self, buf, n=None):
+            return n
+
+    class Poll:
+        def register(self, obj, mask):
+            pass
+
+    m = hal.machine
+    monkeypatch.setattr(m, "UART", UART, raising=False)
+    monkeypatch.setattr(m, "Pin", lambda n, *a, **k: n, raising=False)
+    monkeypatch.setattr(m, "PWM", lambda pin, **k: pwm.append(pin), raising=False)
+    monkeypatch.setattr(m, "freq", _Freq(), raising=False)
+    monkeypatch.setattr(m, "unique_id", lambda: b"\x01\x02\x03\x04\x05\x06", raising=False)
+    monkeypatch.setattr(hal.select, "poll", Poll)
+    monkeypatch.setattr(hal, "chip", lambda: chip)
+    for name in ("ticks_ms", "ticks_us"):
+        monkeypatch.setattr(hal.time, name, lambda: 0, raising=False)
+    monkeypatch.setattr(hal.time, "ticks_diff", lambda a, b: a - b, raising=False)
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    monkeypatch.chdir(tmp_path)
+    import main
+
+    monkeypatch.setattr(main, "_hal_module", lambda: hal)
+    _, seg = main.build()
+    return opened, pwm, seg
+
+
+_SERVOS = [{"id": i, "min_angle": -1.0, "max_angle": 1.0} for i in (1, 2, 3)]
+
+
+def test_a_rejected_config_keeps_its_board_and_chain_pins_and_holds(hal, monkeypatch, tmp_path):
+    """A C3 whose config.json is refused (kappa_max 0) rebuilt the plan for board 'esp32' and
+    died at boot ("names board 'esp32' ... this chip is an ESP32C3"): nothing reached the host."""
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32c3-usbrepl", "kappa_max": 0}
+    cfg.update(servos=_SERVOS, pins={"up_tx": 1, "up_rx": 3})
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32C3", cfg)
+    assert opened == [(1, 1, 3), (0, 21, 20)]  # the configured chain, not esp32's defaults
+    assert pwm == []  # a refused configuration drives no servo pin
+    assert seg.cfg.error.startswith("config.json rejected: kappa_max")
+    assert seg.status() & 0x21 == 0x21  # HOLD + UNCONFIGURED
+
+
+def test_a_rejected_config_on_a_classic_esp32_opens_the_configured_pins(hal, monkeypatch, tmp_path):
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32", "kappa_max": -1.0}
+    cfg.update(servos=_SERVOS, pins={"down_tx": 23, "down_rx": 22})
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32", cfg)
+    assert opened == [(1, 19, 18), (2, 23, 22)]  # not the default 17/16
+    assert pwm == [] and "kappa_max" in seg.cfg.error
+
+
+def test_a_plan_this_chip_cannot_run_falls_back_to_the_chips_own_board_and_says_why(
+    hal, monkeypatch, tmp_path
+):
+    # a valid configuration made for a classic ESP32, flashed on a C3
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32", "servos": _SERVOS}
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32C3", cfg)
+    assert opened == [(1, 5, 4)]  # the C3's own upstream; a stock C3 has no UART left downstream
+    assert pwm == []
+    assert "names board 'esp32'" in seg.cfg.error and "ESP32C3" in seg.cfg.error
+    assert seg.status() & 0x01  # HOLD
+    # a refused configuration whose plan is unusable (a stock C3 cannot chain): the chip's own
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32c3", "servos": _SERVOS}
+    (tmp_path / "b").mkdir()
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path / "b", "ESP32C3", cfg)
+    assert opened == [(1, 5, 4)] and pwm == []
+    assert seg.cfg.error.startswith("config.json rejected: board esp32c3")

@@ -69,6 +69,46 @@ R['s'] = [seg.armed, seg.hold, seg.wd_armed, seg.mc.tx, seg.dropped, vmkit.hexs(
     assert not armed and not hold and not wd_armed and tx == 0 and dropped == 1, name
 
 
+_BIG = {
+    "minus_2_30": b"\x3a\x3f\xff\xff\xff",
+    "plus_2_30": b"\x1a\x40\x00\x00\x00",
+    "uint64": b"\x1b\x00\x00\x00\x01\x00\x00\x00\x00",
+    "nint64": b"\x3b\x00\x00\x00\x01\x00\x00\x00\x00",
+}
+_SLOW = {}
+for _n, _b in _BIG.items():
+    # CLEAR_FAULT {9: big}; PARAM_SET {0: 2 (kappa_rate_max), 1: 1.0, 9: big};
+    # PARAM_GET {0: 2, 9: big}; PARAM_SET {0: 0 (watchdog_ms), 1: big}
+    _SLOW["clear_fault_" + _n] = encode_frame(BCAST, 0, 0x08, 7, b"\xa1\x09" + _b)
+    _SLOW["param_set_" + _n] = encode_frame(0, 0, 0x05, 7, b"\xa3\x00\x02\x01\xf9\x3c\x00\x09" + _b)
+    _SLOW["param_get_" + _n] = encode_frame(0, 0, 0x04, 7, b"\xa2\x00\x02\x09" + _b)
+    _SLOW["param_set_value_" + _n] = encode_frame(0, 0, 0x05, 7, b"\xa2\x00\x00\x01" + _b)
+
+
+@pytest.mark.parametrize("name", sorted(_SLOW))
+def test_slow_path_ints_outside_the_wire_range_are_malformed_and_nothing_runs(vm, name):
+    """PARAM_GET/SET and CLEAR_FAULT decode with cbor.loads: as strict as the in-place reader
+    (|n| < 2**30, no 8-byte ints), even under a key the segment ignores."""
+    frame = _SLOW[name].hex()
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+vmkit.run(hal, seg, 30)
+hal.up.discard()
+seg.fault_code = 1  # CLEAR_FAULT would clear it
+before = [seg.rate_max_si, seg.watchdog_ms]
+hal.up.feed(bytes.fromhex('{frame}'))
+vmkit.run(hal, seg, 50)
+R['s'] = [seg.fault_code, seg.dropped, before, [seg.rate_max_si, seg.watchdog_ms],
+          vmkit.hexs(hal.up.take())]
+"""
+    )
+    fault, dropped, before, after, out = r["s"]
+    msgs = [m for m in decode(out) if m["type"] not in ("STATE", "EVENT")]
+    assert [(m["type"], m["name"]) for m in msgs] == [("ERROR", "MALFORMED")], (name, msgs)
+    assert fault == 1 and dropped == 1 and after == before, name
+
+
 def test_valid_unknown_content_is_still_ignored(vm):
     """The same keys with valid content (8 levels, good UTF-8, distinct keys) are accepted."""
     ok = _sync_with(b"\xa2\x01\x81" + b"\x81" * 5 + b"\x80" + b"\x62\xc3\xa9\x00").hex()

@@ -90,6 +90,36 @@ def test_a_pin_used_twice_and_reserved_pins_are_refused() -> None:
     assert any("GPIO19 is the native USB" in m for m in _msgs("esp32s3", pins={"up_tx": 19}))
 
 
+def test_every_esp32_gpio_from_34_is_input_only_as_the_port_says() -> None:
+    """ports/esp32/machine_pin.c: GPIO_FIRST_NON_OUTPUT 34 on the ESP32 (37/38 exist on some
+    packages, inputs only); the S3 and C3 have no input-only GPIO (no such limit for them)."""
+    for g in (34, 35, 36, 37, 38, 39):
+        msgs = _msgs("esp32", pwm={"pins": [25, 26, g]}, driver="pwm")
+        assert msgs == [f"PWM servo 2: GPIO{g} is input-only on esp32"], msgs
+        assert _msgs("esp32", pins={"down_rx": g}) == []  # an input is fine
+    assert boards.profile("esp32")["input_only"] == tuple(range(34, 40))
+    for name in ("esp32s3", "esp32c3"):
+        assert boards.profile(name)["input_only"] == ()
+
+
+def test_ucr_check_refuses_pwm_on_gpio37_with_path_and_line(tmp_path) -> None:
+    text = ROBOT.read_text()
+    old = '<actuation type="tendon" count="3" radius="0.06" spool_radius="0.025" driver="emulated">'
+    assert old in text
+    new = (
+        old.replace('driver="emulated">', 'driver="pwm" board="esp32">')
+        + '\n        <pwm index="0" pin="37"/>\n        <pwm index="1" pin="38"/>'
+        + '\n        <pwm index="2" pin="27"/>'
+    )
+    path = tmp_path / "pwm37.ucrdf"
+    path.write_text(text.replace(old, new, 1))
+    line = next(i for i, s in enumerate(path.read_text().splitlines(), 1) if 'pin="37"' in s)
+    res = _ucr("check", str(path))
+    assert res.returncode != 0
+    out = res.stdout + res.stderr
+    assert f"{path}:{line}: " in out and "GPIO37 is input-only on esp32" in out, out
+
+
 def test_a_serial_servo_bus_needs_a_free_uart_and_unique_ids() -> None:
     msgs = _msgs("esp32", driver="feetech_sts", servo_ids=[1, 2, 3])
     assert any("no UART left for a serial servo bus" in m for m in msgs)

@@ -171,6 +171,61 @@ def test_a_chatty_device_that_is_no_repl_is_given_up_on_within_seconds() -> None
     assert elapsed < 15  # 5 s deadline + interpreter start-up, with margin for a loaded machine
 
 
+def test_a_device_that_only_prints_a_prompt_is_given_up_on_5_s_after_the_port_opens() -> None:
+    """`ucr flash` on a device printing ">>> " for ever gave up after 10-15 s though it said 5 s.
+    No retry or second probe: the 5 s run from the port's opening, once (the command's start-up
+    before it, loading and checking the robot file, comes on top: docs/flashing.md), and the
+    message says so."""
+    import os
+    import pty
+    import threading
+    import tty
+
+    m, s = pty.openpty()
+    tty.setraw(m)
+    tty.setraw(s)
+    stop = threading.Event()
+
+    def spew() -> None:
+        while not stop.is_set():
+            try:
+                os.write(m, b">>> ")
+            except OSError:
+                return
+            time.sleep(0.002)
+
+    def drain() -> None:
+        while not stop.is_set():
+            try:
+                os.read(m, 4096)
+            except OSError:
+                return
+
+    threads = [threading.Thread(target=f, daemon=True) for f in (spew, drain)]
+    for t in threads:
+        t.start()
+    opened: list[float] = []
+    real_init = SerialTransport.__init__
+
+    def counted(self, *a, **kw):
+        opened.append(time.monotonic())
+        real_init(self, *a, **kw)
+
+    try:
+        SerialTransport.__init__ = counted
+        with pytest.raises(FlashError) as info:
+            flash_mod.Flasher(os.ttyname(s), log=lambda _s: None)
+        gave_up = time.monotonic()
+    finally:
+        SerialTransport.__init__ = real_init
+        stop.set()
+        os.close(m)
+        os.close(s)
+    assert len(opened) == 1  # one attempt
+    assert 5.0 <= gave_up - opened[0] < 6.0, gave_up - opened[0]
+    assert "within 5 s of opening the port" in str(info.value)
+
+
 def _flash_cli(port: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [

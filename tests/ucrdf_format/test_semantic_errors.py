@@ -166,6 +166,40 @@ CASES = [
         1,
     ),
     (
+        # host/limits.py refuses it ("must be > 0"): ucr check must too (review of issue 11)
+        "kappa-command-max-zero",
+        '<param name="max">3.0</param>',
+        '<param name="max">0</param>',
+        "command_interface 'kappa': param max must be > 0 1/m, got 0",
+        '<command_interface name="kappa">',
+        1,
+    ),
+    (
+        # below one wire unit (1e-4 1/m): the segment would run it as 0
+        "kappa-command-max-below-resolution",
+        '<param name="max">3.0</param>',
+        '<param name="max">4e-05</param>',
+        "command_interface 'kappa': param max 4e-05 1/m rounds to 0",
+        '<command_interface name="kappa">',
+        1,
+    ),
+    (
+        "kappa-max-below-resolution",
+        'kappa_max="3.0"',
+        'kappa_max="4e-05"',
+        "kappa_max 4e-05 1/m rounds to 0 in the segment's fixed point",
+        "<limits",
+        1,
+    ),
+    (
+        "kappa-rate-max-below-resolution",
+        'kappa_rate_max="5.0"',
+        'kappa_rate_max="4e-05"',
+        "kappa_rate_max 4e-05 1/m/s rounds to 0 in the segment's fixed point",
+        "<limits",
+        1,
+    ),
+    (
         "interface-min-above-max",
         '<param name="min">0</param>',
         '<param name="min">2.5</param><param name="initial_value">0</param>',
