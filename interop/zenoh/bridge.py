@@ -27,7 +27,7 @@ from interop.topics import LATCHED, TOPICS, Message
 from interop.zenoh import rmw
 from interop.zenoh.node import GraphWatch, RmwNode, RmwPublisher
 
-DISTROS = ("jazzy", "kilted", "lyrical", "rolling")  # rmw_zenoh with RIHS01 type hashes
+DISTROS = rmw.DISTROS
 GLOBAL_TOPICS = ("/rosout",)  # ROS convention: every node logs to the one /rosout
 
 

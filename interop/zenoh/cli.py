@@ -109,7 +109,7 @@ def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
 
 def register(subparsers: Any) -> None:
     from host.client_common import add_connection_args, number_arg  # noqa: PLC0415 - fast --help
-    from interop.zenoh.bridge import DISTROS  # noqa: PLC0415 - no zenoh import there
+    from interop.zenoh.rmw import DISTROS  # noqa: PLC0415 - fast --help (no numpy, no zenoh)
 
     p = subparsers.add_parser(
         "zenoh",

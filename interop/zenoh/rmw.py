@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 from interop import ros2
 
+DISTROS = ("jazzy", "kilted", "lyrical", "rolling")  # rmw_zenoh with RIHS01 type hashes
+
 ADMIN_SPACE = "@ros2_lv"
 NODE, PUBLISHER, SUBSCRIPTION, SERVICE, CLIENT = "NN", "MP", "MS", "SS", "SC"
 GID_SIZE = 16

@@ -134,3 +134,19 @@ def test_install_advice_never_points_at_pypis_unrelated_ucr(monkeypatch) -> None
     monkeypatch.setattr(extras.os.path, "isfile", lambda _p: False)  # an installed wheel
     wheel = extras.install_command("record")
     assert "'ucr[record]'" not in wheel.split("(not")[0] and "another project" in wheel, wheel
+
+
+def test_building_the_command_line_imports_no_numpy_and_no_zenoh() -> None:
+    """Every ``ucr`` command builds the whole parser first: ``ucr zenoh``'s registration imported
+    the bridge (and with it numpy, ≈ 0.25 s here, seconds on a loaded Pi) for one tuple."""
+    code = (
+        "import sys\n"
+        "from tools.cli import build_parser\n"
+        "build_parser()\n"
+        "print(sorted(m for m in ('numpy', 'zenoh', 'interop.zenoh.bridge') if m in sys.modules))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
