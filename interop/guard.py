@@ -62,15 +62,18 @@ from host.api.auth import (
     find_token,
     server_tls_context,
 )
-from host.api.guard import GuardConfigError, TcpCounts, WebGuard
+from host.api.guard import AUTHORIZING, TALKING, Admission, GuardConfigError, WebGuard
 from interop import foxglove_protocol as P
 from interop import ros2
 
 log = logging.getLogger(__name__)
 SUBPROTOCOLS = P.SUBPROTOCOLS
 
-MAX_CONNECTIONS = 32  # TCP connections, handshaking or open (a few viewers is the use)
-MAX_PER_PEER = 8  # per non-loopback address (loopback peers count only in the total)
+MAX_CONNECTIONS = 32  # accepted WebSocket connections (a few viewers is the use)
+#: TCP connections still in their opening handshake; when full, a new one evicts the oldest that
+#: got least far (host.api.guard.Admission, as the API): idle sockets cannot keep a viewer out
+MAX_PENDING = 16
+MAX_PER_PEER = 8  # per non-loopback address, pending and open (loopback: only the totals)
 MAX_CLIENT_FRAME = 64 * 1024  # a client sends subscribe/unsubscribe: small JSON (the API's 64 KiB)
 DATA_BACKLOG = 1024  # messages queued per client (foxglove-sdk's default); oldest dropped
 DATA_BACKLOG_BYTES = 4 * 1024 * 1024  # bytes queued per client (the API's outbox)
@@ -188,12 +191,13 @@ class FoxgloveGuard:
         self.port: int | None = None
         self.refused = 0  # handshakes refused (guard rules, token, back-off, malformed)
         self.refused_connections = 0  # TCP connections over the caps
+        self.evicted_pending = 0  # connections closed in their handshake to make room
         self.connections = 0  # accepted WebSocket connections, ever
         self.invalid_messages = 0  # client messages answered with a status; frames too big
         self.dropped = 0  # data messages dropped for slow clients
         self.backoff = backoff if backoff is not None else Backoff()
         self.auth_hold_s = auth_hold_s
-        self._tcp = TcpCounts()
+        self._admission = Admission(MAX_CONNECTIONS, MAX_PENDING, MAX_PER_PEER)
         self._at_cap = False
         self._session = str(time.time_ns())
         self._lock = threading.Lock()  # channels, kept messages, clients and their queues
@@ -299,8 +303,9 @@ class FoxgloveGuard:
             await server.wait_closed()
 
     def _connection_class(self) -> type[ServerConnection]:
-        """ServerConnection that refuses TCP connections above the caps before any work (as the
-        API's server does)."""
+        """ServerConnection admitted before any work as the API's server admits them
+        (:class:`host.api.guard.Admission`: per-peer cap; pending cap with eviction of the
+        oldest pending connection that got least far; only accepted ones count in the total)."""
         guard = self
 
         class _Capped(ServerConnection):
@@ -308,13 +313,15 @@ class FoxgloveGuard:
 
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
                 ip = _peer_ip(transport.get_extra_info("peername"))
-                if not guard._tcp.admit(ip, MAX_CONNECTIONS, MAX_PER_PEER):
+                admitted, victim = guard._admission.arrive(self, ip)
+                if victim is not None:
+                    victim.ucr_evict()
+                if not admitted:
                     guard.refused_connections += 1
                     if not guard._at_cap:  # one line per episode, not one per connection
                         guard._at_cap = True
                         log.warning("Foxglove: refusing connections from %s: at most %d "
-                                    "(%d per address)", ip, MAX_CONNECTIONS,
-                                    MAX_PER_PEER)  # fmt: skip
+                                    "per address", ip, MAX_PER_PEER)  # fmt: skip
                     transport.abort()
                     return
                 self._ucr_ip = ip
@@ -325,9 +332,19 @@ class FoxgloveGuard:
                 if ip is None:
                     return  # refused in connection_made: nothing was set up
                 self._ucr_ip = None
-                guard._tcp.release(ip)
+                guard._admission.leave(self, ip)
                 guard._at_cap = False
                 super().connection_lost(exc)
+
+            def ucr_evict(self) -> None:
+                """Close this pending connection now, counted, without a log line each."""
+                guard.evicted_pending += 1
+                self.logger = _QUIET
+                self.transport.abort()
+
+            def data_received(self, data: bytes) -> None:
+                guard._admission.advance(self, TALKING)
+                super().data_received(data)
 
         return _Capped
 
@@ -342,12 +359,13 @@ class FoxgloveGuard:
         token always gets in; while the back-off is on for this address, every attempt first
         waits ``auth_hold_s`` (valid ones too: an early answer would tell a guesser it was
         wrong), and a wrong token gets 429 without being counted again."""
+        self._admission.advance(conn, AUTHORIZING)
         parts = urlsplit(request.path)
         refusal = self.web.check(parts.path, request.headers)
         if refusal is not None:
             return self._refuse(conn, HTTPStatus(refusal.status), refusal.reason)
         if not self.tokens:
-            return None
+            return self._open(conn)
         ip = _peer_ip(conn.remote_address)
         if self.backoff.blocked_for(ip) > 0 and self.auth_hold_s > 0:
             await asyncio.sleep(self.auth_hold_s)
@@ -356,7 +374,7 @@ class FoxgloveGuard:
             given = (parse_qs(parts.query).get("token") or [""])[0]
             header = f"Bearer {given}"
         if find_token(self.tokens, header) is not None:
-            return None
+            return self._open(conn)
         wait = self.backoff.blocked_for(ip)
         if wait > 0:  # counted, not logged (as the API)
             self.refused += 1
@@ -367,6 +385,18 @@ class FoxgloveGuard:
         backoff = self.backoff.failed(ip)
         return self._refuse(conn, HTTPStatus.UNAUTHORIZED, "missing or wrong token"
                             + (f" (back-off {backoff:.0f} s)" if backoff else ""))  # fmt: skip
+
+    def _open(self, conn: ServerConnection) -> Response | None:
+        """Count an accepted handshake open (None), or the 503 when all are taken."""
+        if self._admission.promote(conn, control=True):
+            return None
+        if not self._admission.is_pending(conn):  # evicted while its check waited: gone
+            return conn.respond(HTTPStatus.SERVICE_UNAVAILABLE, "evicted\n")
+        self.refused_connections += 1
+        response = self._refuse(conn, HTTPStatus.SERVICE_UNAVAILABLE,
+                                f"too many connections (at most {MAX_CONNECTIONS})")  # fmt: skip
+        response.headers["Retry-After"] = "5"
+        return response
 
     async def _handle(self, ws: ServerConnection) -> None:
         self.connections += 1
@@ -493,6 +523,16 @@ def _why(exc: BaseException | None) -> str:
         parts.append(text[0] if text else type(exc).__name__)
         exc = exc.__cause__
     return "; ".join(parts) or "invalid handshake"
+
+
+class _Quiet(logging.LoggerAdapter):
+    """The logger of an evicted connection: its failed handshake is counted, not logged."""
+
+    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
+        pass
+
+
+_QUIET = _Quiet(logging.getLogger("websockets.server"), {})
 
 
 class _HandshakeLog(logging.LoggerAdapter):

@@ -22,7 +22,7 @@ from host.api import schema
 from host.api.client import ApiAuthError, ApiError, connect
 from host.api.server import ApiServer, ApiServerError
 from host.config import ConfigError, load_config
-from tests.raw_http import read_head
+from tests.raw_http import IdleFlood, read_head
 
 # New modules are imported inside the tests that need them, so that every test here can also be
 # run against the code before issue 13 (and fail there on its own assertion).
@@ -524,51 +524,6 @@ def test_admission_evicts_the_pending_connection_that_got_least_far_and_caps_eac
     assert len(adm.opened) == 4 and adm.pending == 0
 
 
-class _IdleFlood:
-    """``n`` idle TCP connections to ``port`` that never send a byte, each reopened as soon as
-    the server closes it (audit /tmp/audit_13/slots.py)."""
-
-    def __init__(self, port: int, n: int) -> None:
-        import threading
-
-        self.port = port
-        self.socks = [self._open() for _ in range(n)]
-        self.reopened = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._keep, daemon=True)
-        self._thread.start()
-
-    def _open(self) -> socket.socket | None:
-        try:
-            s = socket.create_connection(("127.0.0.1", self.port), timeout=2)
-        except OSError:
-            return None
-        s.setblocking(False)
-        return s
-
-    def _keep(self) -> None:
-        while not self._stop.wait(0.02):
-            for i, s in enumerate(self.socks):
-                try:
-                    if s is not None and s.recv(1) != b"":
-                        continue  # (the server never sends to an idle socket)
-                except BlockingIOError:
-                    continue
-                except OSError:
-                    pass
-                if s is not None:
-                    s.close()
-                self.socks[i] = self._open()
-                self.reopened += 1
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        for s in self.socks:
-            if s is not None:
-                s.close()
-
-
 def test_an_idle_socket_flood_cannot_keep_a_control_client_out(stub):
     """The audit's repro at the default limits: 300 tokenless idle sockets, reopened as the
     server drops them; every control-token connection still gets in."""
@@ -576,7 +531,7 @@ def test_an_idle_socket_flood_cannot_keep_a_control_client_out(stub):
 
     tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
     srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
-    flood = _IdleFlood(srv.port, 300)
+    flood = IdleFlood(srv.port, 300)
     try:
         time.sleep(1.0)
         ok = 0
@@ -600,7 +555,7 @@ def test_viewers_and_idle_sockets_together_cannot_take_the_control_reserve(stub)
     tokens = (Token(READ_TOKEN, READ, "viewer"), Token(CONTROL_TOKEN, CONTROL, "operator"))
     srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens, max_connections=6, control_reserve=2)
     srv.start()
-    flood = _IdleFlood(srv.port, 100)
+    flood = IdleFlood(srv.port, 100)
     viewers: list = []
     try:
         time.sleep(0.5)

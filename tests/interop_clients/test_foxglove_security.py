@@ -22,7 +22,7 @@ from websockets.sync.client import connect
 from interop.foxglove import FoxgloveSink
 from interop.sinks import Fanout
 from interop.topics import Message
-from tests.raw_http import read_head
+from tests.raw_http import IdleFlood, read_head
 
 PROTO = ["foxglove.sdk.v1"]
 TOKEN = "s3cret-token-42-foxglove"
@@ -177,7 +177,7 @@ def test_a_frame_above_the_limit_closes_the_connection_before_it_is_read(sink_fa
 
 def test_connections_above_the_cap_are_refused(sink_factory):
     """Defect: nothing counted connections: 400 of 400 were accepted (1217 fds). Now at most
-    MAX_CONNECTIONS are open at once; one more is refused before its handshake, and a slot that
+    MAX_CONNECTIONS are open at once; one more is refused (503), and a slot that
     frees up is usable again."""
     from interop import guard as door
 
@@ -202,6 +202,25 @@ def test_connections_above_the_cap_are_refused(sink_factory):
     finally:
         for ws in held:
             ws.close()
+
+
+def test_an_idle_socket_flood_cannot_keep_a_viewer_out(sink_factory):
+    """Defect (the API's, found in its audit; the door counted the same way): idle TCP sockets
+    counted against the 32 connections before any handshake, so 40 of them, reopened as the
+    server dropped them after its 5 s handshake timeout, kept every viewer out. Now sockets in
+    their handshake are capped apart and a full pending cap evicts the oldest idle one."""
+    from interop import guard as door
+
+    sink = sink_factory(token=TOKEN)
+    url = f"{sink.url}/?token={TOKEN}"
+    flood = IdleFlood(sink.port, door.MAX_CONNECTIONS + 8)
+    try:
+        for _ in range(3):
+            with connect(url, subprotocols=PROTO, open_timeout=5) as ws:
+                assert _next_text(ws)["op"] == "serverInfo"
+        assert sink.guard.evicted_pending > 0
+    finally:
+        flood.close()
 
 
 def test_failed_tokens_back_off_with_429_and_a_valid_token_still_gets_in(sink_factory):
