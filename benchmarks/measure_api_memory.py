@@ -3,7 +3,8 @@ asserted (the machine may be shared; tests/host/test_api_abuse.py asserts the bo
 counting the buffers).
 
     .venv/bin/python benchmarks/measure_api_memory.py [--conns 200] [--frames 4]
-        [--deflate] [--subscribers 0] [--url URL --pid PID [--token-file FILE]]
+        [--deflate] [--subscribers 0] [--connection-flood 0]
+        [--url URL --pid PID [--token-file FILE]]
 
 ``--conns`` connections each send ``--frames`` text frames of 1 MiB (the frame size limit)
 with permessage-deflate offered (~1 KiB each on the wire when the server agrees), hold the
@@ -17,6 +18,11 @@ runs that server as it was before the review, with permessage-deflate (for the c
 ``--url``/``--pid`` measure a running daemon's API process instead (``pgrep -P <daemon pid>``).
 ``--subscribers N`` instead measures the outbound side: N clients subscribed to joint_states at
 100 Hz for 10 s, the server's CPU time and the bytes it wrote (with and without ``--deflate``).
+``--connection-flood N`` measures a connection flood instead: N connections opened at once, each
+sending 16 subscriptions (joint_states, transforms, events, topology at up to 1000 Hz) and never
+reading, held 6 s, then aborted; resident size before, during, 6 s in and 10 s after, with how
+many got through and the server's ``evicted_pending`` (docs/api.md "Memory after a connection
+flood").
 """
 
 from __future__ import annotations
@@ -91,6 +97,49 @@ async def _flood(url: str, headers: dict | None, frames: int, kib: int) -> str:
         await ws.close()
 
 
+async def _idle_subscriber(url: str, headers: dict | None, held: list) -> str:
+    """One connection of the flood: 16 subscriptions, then it never reads (kept in ``held``)."""
+    from websockets.asyncio.client import connect
+
+    try:
+        ws = await connect(url, additional_headers=headers, open_timeout=10, ping_interval=None)
+        for k in range(16):
+            kinds = ["joint_states", "transforms", "events", "topology"]
+            msg = {"id": k, "op": "subscribe", "kinds": kinds, "max_rate": 1000}
+            await ws.send(json.dumps(msg))
+    except Exception as exc:  # noqa: BLE001 - counted, as any outcome
+        return f"failed ({type(exc).__name__})"
+    held.append(ws)
+    return "open"
+
+
+def _connection_flood(url: str, headers: dict | None, pid: int, n: int, stats) -> None:
+    held: list = []
+    rss = [_status(pid, "VmRSS")]
+
+    async def run() -> list[str]:
+        got = await asyncio.gather(*(_idle_subscriber(url, headers, held) for _ in range(n)))
+        rss.append(_status(pid, "VmRSS"))
+        await asyncio.sleep(6)  # they do not read: slow consumers, closed by the server
+        rss.append(_status(pid, "VmRSS"))
+        for ws in held:
+            ws.transport.abort()
+        return got
+
+    results = asyncio.run(run())
+    time.sleep(10)
+    rss.append(_status(pid, "VmRSS"))
+    s = stats()
+    print(f"{n} connections opened at once, 16 subscriptions each, never reading: "
+          f"{dict(collections.Counter(results))}")  # fmt: skip
+    print("server RSS before {}, all opened {}, 6 s later {}, 10 s after closing {}".format(
+        *(_mib(k) for k in rss)))  # fmt: skip
+    if s:
+        print(f"server: evicted_pending {s.get('evicted_pending', '-')}, slow_closed "
+              f"{s.get('slow_closed', '-')}, "
+              f"refused_connections {s['refused_connections']}")  # fmt: skip
+
+
 async def _subscriber(url: str, headers: dict | None, seconds: float) -> tuple[int, int, bool]:
     """Messages and bytes (on the wire) a joint_states subscriber gets in ``seconds``, and
     whether the server agreed to permessage-deflate."""
@@ -125,6 +174,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--deflate", action="store_true", help="the server with permessage-deflate")
     ap.add_argument("--subscribers", type=int, default=0)
+    ap.add_argument("--connection-flood", type=int, default=0, metavar="N")
     ap.add_argument("--url")
     ap.add_argument("--pid", type=int)
     ap.add_argument("--token-file")
@@ -160,6 +210,9 @@ def main() -> int:
 
     try:
         before = _status(pid, "VmRSS")
+        if args.connection_flood:
+            _connection_flood(url, headers, pid, args.connection_flood, stats)
+            return 0
         if args.subscribers:
             cpu0 = _cpu_s(pid)
 
