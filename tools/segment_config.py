@@ -70,15 +70,21 @@ def validate(config: dict, where: str = "") -> dict:
     return config
 
 
-def _ms_param(robot: Robot, bendable: Bendable, name: str) -> int | None:
-    """Hardware param ``name`` (ucrdf/checks.py SEGMENT_MS_PARAMS) from the bendable's model
-    params, else a ros2_control hardware param; None when not given."""
-    value: object = bendable.model.params.get(name)
+def _hardware_param(robot: Robot, bendable: Bendable, name: str) -> str | None:
+    """Hardware param ``name`` from the bendable's model params, else a ros2_control hardware
+    param; None when not given."""
+    value = bendable.model.params.get(name)
     if value is None:
         for rc in robot.ros2_control:
             if name in rc.hardware_params:
-                value = rc.hardware_params[name]
-                break
+                return rc.hardware_params[name]
+    return value
+
+
+def _ms_param(robot: Robot, bendable: Bendable, name: str) -> int | None:
+    """Hardware param ``name`` (ucrdf/checks.py SEGMENT_MS_PARAMS) from the bendable's model
+    params, else a ros2_control hardware param; None when not given."""
+    value: object = _hardware_param(robot, bendable, name)
     if value is None:
         return None
     try:
@@ -131,6 +137,14 @@ def config_for(robot: Robot, bendable_name: str, *, emulated: bool = False) -> d
     tick = _ms_param(robot, bendable, "tick_ms")
     if tick is not None:
         config["tick_ms"] = tick
+    # safety keys only when the robot gives them: a config.json without them runs the
+    # firmware's defaults (no hardware watchdog, hold in FAULT), as flashed before they existed
+    hw_dog = _ms_param(robot, bendable, "hw_watchdog_ms")
+    if hw_dog is not None:
+        config["hw_watchdog_ms"] = hw_dog
+    action = _hardware_param(robot, bendable, "fault_action")
+    if action is not None:
+        config["fault_action"] = action
     config.update(_wiring(bendable_name, act))
     return validate(config, _where(robot, bendable.line))
 

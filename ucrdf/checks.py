@@ -113,7 +113,17 @@ JOINT_INTERFACES = ("position", "velocity", "acceleration", "effort")
 #: The hardware plugin of this project's segment chain, and the <hardware> params it takes (a
 #: param ``<bendable>/uid`` besides): name -> meaning (docs/ucrdf.md).
 SEGMENT_PLUGIN = "SoftRobotInterface"
-SEGMENT_PLUGIN_PARAMS = ("model", "port", "baudrate", "watchdog_ms", "tick_ms")
+SEGMENT_PLUGIN_PARAMS = (
+    "model",
+    "port",
+    "baudrate",
+    "watchdog_ms",
+    "tick_ms",
+    "hw_watchdog_ms",
+    "fault_action",
+)
+#: what a segment does with its servos in FAULT (device/config.py ``fault_action``)
+FAULT_ACTIONS = ("hold", "release")
 #: Lowest UART speed accepted for the ``baudrate`` hardware param (bit/s, as host/config.py).
 MIN_BAUDRATE = 1200
 
@@ -136,7 +146,10 @@ DEFAULT_TICK_MS = 5
 SEGMENT_MS_PARAMS: dict[str, tuple[int, int, bool, int]] = {
     "watchdog_ms": (10, 60000, False, DEFAULT_WATCHDOG_MS),
     "tick_ms": (2, 50, True, DEFAULT_TICK_MS),
+    # the board's hardware watchdog (machine.WDT): 0 = off, else 50..60000 ms
+    "hw_watchdog_ms": (0, 60000, True, 0),
 }
+HW_WATCHDOG_MIN_MS = 50  # device/config.py: an ESP32 watchdog shorter than this is refused
 
 
 def segment_ms_param(name: str, value: object) -> int:
@@ -151,6 +164,8 @@ def segment_ms_param(name: str, value: object) -> int:
         raise ValueError(f"{name} {ms:g} is outside {lo}..{hi} ms")
     if whole and ms != int(ms):
         raise ValueError(f"{name} {ms:g} is not a whole number of ms")
+    if name == "hw_watchdog_ms" and 0 < ms < HW_WATCHDOG_MIN_MS:
+        raise ValueError(f"{name} {ms:g} must be 0 (off) or {HW_WATCHDOG_MIN_MS}..{hi} ms")
     return int(round(ms))
 
 
@@ -833,14 +848,20 @@ class _Checker:
                         self.line((*ckey, "param", pname), cline),
                         f"{where}: hardware param {exc} (the segments could not run it)",
                     )
-            if len(flashed) == len(SEGMENT_MS_PARAMS):  # both valid: the watchdog spans 2 ticks
-                tick, dog = flashed["tick_ms"], flashed["watchdog_ms"]
-                if dog < 2 * tick:
-                    self.error(
-                        self.line((*ckey, "param", "watchdog_ms"), cline),
-                        f"{where}: hardware param watchdog_ms {dog} is shorter than two ticks "
-                        f"(tick_ms {tick}): the segments check it once per tick",
-                    )
+            tick = flashed.get("tick_ms")
+            dog, hw_dog = flashed.get("watchdog_ms"), flashed.get("hw_watchdog_ms")
+            if tick is not None and dog is not None and dog < 2 * tick:
+                self.error(
+                    self.line((*ckey, "param", "watchdog_ms"), cline),
+                    f"{where}: hardware param watchdog_ms {dog} is shorter than two ticks "
+                    f"(tick_ms {tick}): the segments check it once per tick",
+                )
+            if tick is not None and hw_dog and hw_dog < 4 * tick:
+                self.error(
+                    self.line((*ckey, "param", "hw_watchdog_ms"), cline),
+                    f"{where}: hardware param hw_watchdog_ms {hw_dog} is shorter than four ticks "
+                    f"(tick_ms {tick}): the segments feed it once per clean tick",
+                )
             for pname in control.hardware_params:
                 target, sep, _ = pname.rpartition("/")
                 if sep and target not in robot.bendables and target not in robot.joints:
@@ -911,6 +932,12 @@ class _Checker:
                     f"{where}: unknown hardware param {pname!r} for {SEGMENT_PLUGIN}"
                     f"{_did_you_mean(pname, SEGMENT_PLUGIN_PARAMS)} (known: "
                     f"{', '.join(SEGMENT_PLUGIN_PARAMS)}, <bendable>/uid)",
+                )
+            elif pname == "fault_action" and value not in FAULT_ACTIONS:
+                self.error(
+                    pline,
+                    f"{where}: hardware param fault_action must be one of "
+                    f"{', '.join(FAULT_ACTIONS)} (what the servos do in FAULT), got {value!r}",
                 )
             elif pname == "port" and (not value or any(c.isspace() for c in value)):
                 self.error(
