@@ -1,10 +1,15 @@
 """Screenshot of `ucr view` on the running demo, for the README (docs/img/view.png).
 
     .venv/bin/python tools/view_screenshot.py [--out docs/img/view.png] [--after 4]
+        [--timeout 120] [--what page|canvas]
 
 Starts `ucr demo --forever` (emulated chain, daemon, API and the view in its own process), opens
 the view's URL in headless Chromium (Debian's /usr/bin/chromium, software WebGL), bends the robot
 into a pose through the demo's API, photographs the page and stops the demo.
+
+Under load a software-rendering Chromium may take long to produce a frame: each photograph may
+take ``--timeout`` seconds (0: no limit), is tried again on the same page (not by restarting the
+demo), and if the whole page still cannot be photographed the 3D canvas alone is (said on stderr).
 """
 
 from __future__ import annotations
@@ -38,6 +43,32 @@ def pose(api_url: str, seconds: float) -> None:
         c.send_trajectory([{"time_from_start": seconds, "segments": POSE}])
 
 
+#: Photographs of the page tried before falling back to the canvas alone.
+SHOTS = 2
+
+
+def photograph(page, out: str, timeout_s: float, what: str = "page", shots: int = SHOTS) -> str:
+    """Write a PNG of the page (``what="page"``: the panel and the scene, as the README shows)
+    or of its 3D canvas alone to ``out``; returns what was photographed. Each try may take
+    ``timeout_s`` (0: no limit). When the page cannot be photographed in ``shots`` tries, the
+    canvas alone is (an element screenshot: the part Chromium still renders under load)."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout  # noqa: PLC0415
+
+    ms = max(0.0, timeout_s) * 1000.0
+    if what == "page":
+        for attempt in range(1, shots + 1):
+            try:
+                page.screenshot(path=out, timeout=ms, animations="disabled", caret="hide")
+                return "page"
+            except PlaywrightTimeout as exc:
+                first = str(exc).splitlines()[0] if str(exc) else "timeout"
+                said = f"page screenshot {attempt}/{shots} timed out ({timeout_s:g} s): {first}"
+                print(f"view_screenshot: {said}", file=sys.stderr)
+        print("view_screenshot: photographing the 3D canvas alone", file=sys.stderr)
+    page.locator("canvas").first.screenshot(path=out, timeout=ms)
+    return "canvas"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Up to three attempts: on a loaded machine the demo's own trajectory may abort (path
     tolerance), which ends the demo and its view."""
@@ -49,12 +80,24 @@ def main(argv: list[str] | None = None) -> int:
     return 1
 
 
-def shoot(argv: list[str] | None = None) -> int:
+def options(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "img" / "view.png"))
     ap.add_argument("--after", type=float, default=2.5, help="s to move into the pose")
     ap.add_argument("--chromium", default="/usr/bin/chromium")
-    args = ap.parse_args(argv)
+    ap.add_argument(
+        "--timeout", type=float, default=120.0,
+        help="s each screenshot may take (0: no limit; default 120)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--what", choices=("page", "canvas"), default="page",
+        help="the whole page (panel and scene, as in the README) or the 3D canvas alone",
+    )  # fmt: skip
+    return ap.parse_args(argv)
+
+
+def shoot(argv: list[str] | None = None) -> int:
+    args = options(argv)
     from playwright.sync_api import sync_playwright  # noqa: PLC0415 - dev tool
 
     demo = subprocess.Popen(
@@ -98,9 +141,9 @@ def shoot(argv: list[str] | None = None) -> int:
                 "document.querySelectorAll('[class*=Notification-root]').forEach(e => e.remove())"
             )
             Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=args.out)
+            shot = photograph(page, args.out, args.timeout, args.what)
             browser.close()
-        print(f"wrote {args.out}")
+        print(f"wrote {args.out} ({shot})")
         return 0
     except Exception:
         print("view_screenshot: the demo said:", *log[-4:], sep="\n  ", file=sys.stderr)

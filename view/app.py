@@ -163,6 +163,11 @@ class ViewApp:
         self.pushes = 0
         self.rate = 0.0
         self.latency_ms: collections.deque = collections.deque(maxlen=200)
+        self.last_sample = 0  # snap.sample_seq of the last sample counted in latency_ms
+        #: who sent the manual cFFC's input: "page" (this view's sliders), "other" (another API
+        #: client: gamepad/teleop), "" (not known: the takeover predates the view)
+        self.manual_owner = ""
+        self._ffc_seen = 0.0  # the last cFFC input observation used (its time asked)
         self.refusal = ""
         self.facts: dict[str, Any] = {}
         self.visual_problems: list[str] = []  # visuals that could not be drawn (shown)
@@ -180,6 +185,7 @@ class ViewApp:
                 self._rate_max,
                 lambda: bool(self.pages),  # the deadman counts pages with controls only
                 self._refused,
+                kappa_max=self._kappa_max,
             ).start()
         self.server.on_client_connect(self._client_connected)
         self.server.on_client_disconnect(self._client_gone)
@@ -206,6 +212,10 @@ class ViewApp:
         with self.source.lock:
             s = self.source.snap
             return {n: dict(v) for n, v in s.state.items() if s.valid.get(n, False)}
+
+    def _kappa_max(self, name: str) -> float:
+        m = self.model
+        return m.limits(name)[0] if m is not None and name in m.robot.bendables else math.inf
 
     def _rate_max(self, name: str) -> float:
         m = self.model
@@ -250,9 +260,19 @@ class ViewApp:
         peer = peer_address(conn) if conn is not None else "?"
         if not self.has_controls:
             return
+        mismatch = getattr(self.source.snap, "mismatch", "")
+        if mismatch:  # FILE is not the daemon's robot: no page moves it through this view
+            with self.lock:
+                self.viewers[client.client_id] = peer
+            try:
+                client.gui.add_markdown(f"**controls refused:** {mismatch}")
+            except Exception:  # noqa: BLE001, S110 - the page went away meanwhile
+                pass
+            _audit(client.client_id, peer, "connect", "robot file mismatch: view only")
+            return
         if self.page_token is not None:
             request = getattr(conn, "request", None)
-            if request is None or not self.gate.has_token(request.headers):
+            if request is None or not self.gate.has_token(request):
                 with self.lock:
                     self.viewers[client.client_id] = peer
                 try:
@@ -355,11 +375,20 @@ class ViewApp:
         kappa, phi = float(k.value), math.radians(float(p.value))
         if isinstance(self.source, OfflineSource):
             self.source.set_target(name, kappa, phi)
+        elif self._mismatch_refused("slider"):
+            return
         elif self.driver is not None:
             self.refusal = ""
             _audit(page.id, page.peer, "slider",
                    f"{name} κ {kappa:.2f} 1/m φ {math.degrees(phi):.0f}°")  # fmt: skip
             self.driver.set_target(name, kappa, phi)
+
+    def _mismatch_refused(self, what: str) -> bool:
+        """Refuse ``what`` while the FILE given is not the daemon's robot (shown, logged)."""
+        mismatch = getattr(self.source.snap, "mismatch", "")
+        if mismatch:
+            self._refused(f"{what} refused: {mismatch}")
+        return bool(mismatch)
 
     def _stop_clicked(self, event: Any) -> None:
         page = self._page_of(event)
@@ -418,6 +447,8 @@ class ViewApp:
     def _gizmo(self, event: Any) -> None:
         if self._page_of(event) is None or self.planner is None:
             return
+        if self._mismatch_refused("IK plan"):
+            return
         target = np.asarray(event.target.position, dtype=float)
         res = self.planner.plan(target, self._measured())
         self._show_plan(target, res)
@@ -451,6 +482,8 @@ class ViewApp:
         ``page``: the page client that asked (audited)."""
         src = self.source
         if self.planner is None or not isinstance(src, LiveSource):
+            return
+        if self._mismatch_refused("move"):
             return
         with src.lock:
             present = list(src.snap.present)
@@ -623,13 +656,49 @@ class ViewApp:
         )
         head = "**daemon:**" if self.live else "**check errors:**"
         errors = f"{head}<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
+        if getattr(snap, "mismatch", ""):
+            errors = f"**robot file mismatch:** {snap.mismatch}" + (
+                f"<br/>{errors}" if errors else ""
+            )
         if self.visual_problems:
             errors += "<br/>**visuals:** " + "<br/>".join(self.visual_problems)
         self.g_errors.content = errors
         if self.live:
-            self.g_control.content = _who(snap.control, self.driver) + (
+            self.g_control.content = _who(snap.control, self.driver, self.manual_owner) + (
                 f"<br/>**refused:** {self.refusal}" if self.refusal else ""
             )
+
+    def _whose_input(self, control: dict) -> None:
+        """Who holds the manual control now (``manual_owner``), from the daemon's status (a cFFC
+        holds a manual takeover) and when its latest input was set (``ffc_input``): one of this
+        view's inputs, or another client's. Another client's input while the sliders stream
+        overrides the page: the sliders stop (no zero input sent over the other's) and the clash
+        is shown under refused."""
+        driver = self.driver
+        assert driver is not None
+        if not control.get("manual"):
+            self.manual_owner = ""
+            driver.owns_control = False
+            return
+        seen = control.get("ffc_input")
+        if not seen or seen[2] <= self._ffc_seen:
+            return  # nothing new (no input now: whoever sent the last one keeps control)
+        self._ffc_seen = seen[2]
+        if driver.sent_at(seen[0], seen[1]):
+            self.manual_owner = "page"
+            driver.owns_control = True
+            return
+        self.manual_owner = "other"
+        driver.owns_control = False
+        driver.forget_setpoints()  # the other client moved the cFFC's setpoint
+        if driver.targets:
+            why = (
+                "page slider input overridden: another client (gamepad/teleop) is streaming "
+                "ffc.input to the same cFFC; the sliders stopped (hand back or wait, then move "
+                "a slider again)"
+            )
+            driver.halt(why, send_zero=False)
+            self._refused(why)
 
     def _run(self) -> None:
         t_rate, n_rate = time.monotonic(), 0
@@ -652,6 +721,11 @@ class ViewApp:
                 if self.driver.targets:
                     self.driver.halt("daemon disconnected")
                 self.driver.owns_control = False  # a restarted daemon has no takeover of ours
+                self.driver.forget_setpoints()
+            if self.driver is not None and getattr(snap, "mismatch", "") and self.driver.targets:
+                self.driver.halt("the robot file does not match the daemon's robot")
+            if self.driver is not None:
+                self._whose_input(snap.control)
             try:
                 with self.lock:
                     if robot is not None:
@@ -663,8 +737,11 @@ class ViewApp:
                             self._update(snap)
                             self.pushes += 1
                             n_rate += 1
-                            if snap.t_daemon or snap.t_received:
-                                t0 = snap.t_daemon if self.live else snap.t_received
+                            t0 = snap.t_daemon if self.live else snap.t_received
+                            if snap.sample_seq != self.last_sample and t0:
+                                # a new sample (a daemon message's stamp, an offline slider
+                                # move): its age; a file reload or a reconnect is none
+                                self.last_sample = snap.sample_seq
                                 age = time.monotonic() - t0
                                 self.latency_ms.append(age * 1e3)
                                 self.g_stamp.content = f"sample: {(time.time() - age) * 1e3:.1f}"
@@ -710,12 +787,17 @@ def _solver(model: SceneModel):
     return IKSolver(model.kin, model.tip_link)
 
 
-def _who(control: dict, driver: SliderDriver | None) -> str:
-    """One line: who commands the robot now, and why."""
+def _who(control: dict, driver: SliderDriver | None, owner: str = "") -> str:
+    """One line: who commands the robot now, and why (``owner``: who sent the manual cFFC's
+    latest input, see ViewApp._whose_input)."""
     active, manual, goals = (control.get(k, []) for k in ("active", "manual", "goals"))
     if manual:
-        mine = driver is not None and driver.owns_control
-        who = "this view's page sliders" if mine else "gamepad/teleop"
+        if not owner and driver is not None and driver.owns_control:
+            owner = "page"  # our input just took over (the next status poll confirms it)
+        who = {
+            "page": "this view's page sliders",
+            "other": "another API client (gamepad/teleop)",
+        }.get(owner, "a manual source (gamepad/teleop)")
         line = f"**control:** {who} via {', '.join(manual)} (manual takeover; trajectories wait)"
     elif goals:
         line = f"**control:** trajectory {', '.join(goals)} ({', '.join(active)})"

@@ -1,10 +1,16 @@
 """Moving the robot from the page, always through the daemon's arbitration.
 
 Sliders: the page is a manual source. A κ/φ slider sets a target; :class:`SliderDriver` streams
-cFFC inputs (``ffc.input``, the same op a gamepad uses) that steer the measured curvature vector
-towards it, so the arbitration, slew limits and the daemon's deadman apply unchanged. It streams
-only while a page is connected and the sliders were touched in the last ``idle_s``; when it stops
-it sends one zero input (the daemon's deadman would stop the robot anyway 0.3 s later).
+cFFC inputs (``ffc.input``, the same op a gamepad uses), so the arbitration, slew limits and the
+daemon's deadman apply unchanged. The cFFC integrates a setpoint from the stick deflection
+(host/controllers/ffc.py) and the segments follow it with a lag, so the driver steers that
+setpoint, not the lagging measurement: it integrates the setpoint from the inputs it sent, as the
+cFFC does (:class:`SetpointModel`), and bounds each deflection so that the setpoint could not pass
+the target even if that input stayed in force until the cFFC's deadman (:data:`HORIZON_S`). So the
+robot never goes past a slider target, and stops at or before it whenever the inputs end (page
+closed, view killed). It streams only while a page is connected and the sliders were touched in
+the last ``idle_s``; when it stops it sends one zero input (the daemon's deadman would stop the
+robot anyway 0.3 s later).
 
 Tip gizmo: :class:`MovePlanner` solves IK (:mod:`ucrdf.ik`) for the dragged target, keeps the
 reachable solution for the page to show, and on request sends it as one trajectory.
@@ -12,6 +18,7 @@ reachable solution for the page to show, and on request sends it as one trajecto
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
 import time
@@ -22,32 +29,78 @@ import numpy as np
 
 from ucrdf.ik import IKResult, IKSolver
 
-#: Time constant (s) of the slider servo: deflection = error / (rate_max * TAU).
-TAU_S = 0.25
-#: cFFC defaults (host/controllers/ffc.py): deadzone (fraction of full deflection), gain.
+#: cFFC defaults (host/controllers/ffc.py): deadzone (fraction of full deflection); its gain is
+#: at most 1, so ``kappa_rate_max`` is the fastest a deflection moves the setpoint.
 FFC_DEADZONE = 0.05
-#: Curvature-vector error (1/m) accepted as "arrived".
+#: How long one input can stay in force: the cFFC's deadman (0.3 s) plus a loop period and
+#: margin. The setpoint speed is at most (distance to target) / HORIZON_S.
+HORIZON_S = 0.35
+#: Smallest deflection sent above the deadzone (so the cFFC does move the setpoint).
+MIN_ABOVE_DEADZONE = 0.005
+#: Distance (1/m) of the modelled setpoint to the target accepted as "arrived".
 ARRIVED = 0.02
+#: After this long (s) without a moving input the segments have caught up with the setpoint:
+#: the next move starts the model from the measured state again.
+SETTLE_S = 1.0
+#: Seconds of our own inputs kept to tell them from another client's (:meth:`SliderDriver.sent_at`).
+SENT_MEMORY_S = 5.0
 
 
 def deflection(
-    target: tuple[float, float], measured: tuple[float, float], rate_max: float
-) -> tuple[float, float]:
-    """cFFC stick deflection (unit disc) steering ``measured`` (kx, ky) towards ``target``.
-
-    Proportional with time constant TAU_S; never inside the cFFC deadzone while the error is
-    above ARRIVED (or the segment would stop short of the target)."""
-    ex, ey = target[0] - measured[0], target[1] - measured[1]
+    target: tuple[float, float], setpoint: tuple[float, float], rate_max: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``(stick deflection, setpoint rate)`` steering the cFFC's ``setpoint`` (kx, ky) to
+    ``target``: the rate (1/m/s, the cFFC's for that deflection with its default deadzone and
+    gain 1) is at most the distance over :data:`HORIZON_S`, so the setpoint cannot pass the
+    target while that input is in force; zero within :data:`ARRIVED`."""
+    ex, ey = target[0] - setpoint[0], target[1] - setpoint[1]
     err = math.hypot(ex, ey)
     if err <= ARRIVED or not math.isfinite(rate_max) or rate_max <= 0:
-        return (0.0, 0.0)
-    mag = min(1.0, err / (rate_max * TAU_S))
-    mag = max(mag, FFC_DEADZONE + 0.03)
-    return (ex / err * mag, ey / err * mag)
+        return (0.0, 0.0), (0.0, 0.0)
+    speed = min(rate_max, err / HORIZON_S)
+    mag = FFC_DEADZONE + (1.0 - FFC_DEADZONE) * speed / rate_max
+    mag = min(1.0, max(mag, FFC_DEADZONE + MIN_ABOVE_DEADZONE))
+    speed = rate_max * (mag - FFC_DEADZONE) / (1.0 - FFC_DEADZONE)  # what the cFFC does with it
+    ux, uy = ex / err, ey / err
+    return (ux * mag, uy * mag), (ux * speed, uy * speed)
 
 
 def kvec(kappa: float, phi: float) -> tuple[float, float]:
     return (kappa * math.cos(phi), kappa * math.sin(phi))
+
+
+class SetpointModel:
+    """The cFFC's commanded curvature vector per segment, integrated from the inputs the driver
+    sent (``kx += rate * dt``, each input in force until the next one or for at most
+    :data:`HORIZON_S`, clamped radially at ``kappa_max``) and started from the measured state.
+    An upper bound of how far the setpoint went: the cFFC's gain is at most 1."""
+
+    def __init__(self) -> None:
+        self.at: dict[str, list[float]] = {}
+        self.rates: dict[str, tuple[float, float]] = {}
+        self.t = -math.inf
+
+    def advance(self, now: float, kappa_max: Callable[[str], float]) -> None:
+        dt = min(max(0.0, now - self.t), HORIZON_S)
+        for name, (rx, ry) in self.rates.items():
+            c = self.at.get(name)
+            if c is None or not (rx or ry):
+                continue
+            c[0] += rx * dt
+            c[1] += ry * dt
+            kmax = kappa_max(name)
+            r = math.hypot(c[0], c[1])
+            if math.isfinite(kmax) and r > kmax > 0:
+                c[0], c[1] = c[0] * kmax / r, c[1] * kmax / r
+        self.t = now
+
+    def sent(self, now: float, rates: dict[str, tuple[float, float]]) -> None:
+        self.rates = dict(rates)  # the cFFC replaces the whole input: others get zero rate
+        self.t = now
+
+    def forget(self) -> None:
+        self.at.clear()
+        self.rates = {}
 
 
 class SliderDriver:
@@ -62,10 +115,12 @@ class SliderDriver:
         report: Callable[[str], None],
         rate_hz: float = 25.0,
         idle_s: float = 10.0,
+        kappa_max: Callable[[str], float] | None = None,
     ):
         self.client = client
         self.measured = measured
         self.rate_max = rate_max
+        self.kappa_max = kappa_max or (lambda _name: math.inf)
         self.page_open = page_open
         self.report = report
         self.period = 1.0 / rate_hz
@@ -73,11 +128,16 @@ class SliderDriver:
         self.targets: dict[str, tuple[float, float]] = {}
         self.lock = threading.Lock()
         self.t_touch = -math.inf
+        self.t_moving = -math.inf  # last moving input sent
         self.streaming = False  # last input we sent was non-zero
         self.owns_control = False  # our input took over (we hand back before a move)
         self.sent = 0
         self.last_names: list[str] = []
         self.stopped_reason = ""
+        self.model = SetpointModel()
+        #: (start, end) monotonic times of our recent ffc.input calls: the daemon set each
+        #: input in between (told apart from another client's, see sent_at)
+        self.calls: collections.deque = collections.deque(maxlen=int(rate_hz * SENT_MEMORY_S) + 8)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ucr-view-sliders", daemon=True)
 
@@ -96,8 +156,22 @@ class SliderDriver:
             self.t_touch = time.monotonic()
             self.stopped_reason = ""
 
-    def halt(self, reason: str) -> None:
-        """Forget the targets and send one zero input: the robot holds where it is."""
+    def forget_setpoints(self) -> None:
+        """Another source moved the cFFC's setpoint (or the daemon restarted): the next input
+        starts the model from the measured state again."""
+        with self.lock:
+            self.model.forget()
+
+    def sent_at(self, earliest: float, latest: float, slack: float = 0.002) -> bool:
+        """Whether the daemon's latest cFFC input, set between ``earliest`` and ``latest`` (our
+        monotonic clock), can be one of ours."""
+        with self.lock:
+            calls = list(self.calls)
+        return any(s - slack <= latest and earliest <= e + slack for s, e in calls)
+
+    def halt(self, reason: str, send_zero: bool = True) -> None:
+        """Forget the targets and send one zero input: the robot holds where it is (without
+        ``send_zero``: another client's input is in force, ours is not sent over it)."""
         with self.lock:
             names = list(self.targets) or list(self.last_names)
             self.targets.clear()
@@ -105,47 +179,83 @@ class SliderDriver:
             was = self.streaming
             self.streaming = False
             self.stopped_reason = reason
-        if was and names:
-            try:
-                self.client.ffc_input({n: (0.0, 0.0) for n in names})
-            except Exception as exc:  # noqa: BLE001 - the deadman stops it anyway
-                self.report(f"zero input not sent ({exc}); the daemon's deadman stops the robot")
+            self.model.advance(time.monotonic(), self.kappa_max)
+            self.model.sent(time.monotonic(), {})
+        if was and names and send_zero:
+            self._send({n: (0.0, 0.0) for n in names}, report=True)
 
-    def _run(self) -> None:
-        while not self._stop.wait(self.period):
-            with self.lock:
-                targets = dict(self.targets)
-                idle = time.monotonic() - self.t_touch > self.idle_s
-            if not targets:
-                continue
-            if not self.page_open():
-                self.halt("page closed")
-                continue
-            if idle:
-                self.halt(f"no slider input for {self.idle_s:g} s")
-                continue
-            meas = self.measured()
-            rates: dict[str, tuple[float, float]] = {}
+    def _send(self, rates: dict[str, tuple[float, float]], report: bool = False) -> Any:
+        call = [time.monotonic(), math.inf]  # in flight: any later input may be this one
+        with self.lock:
+            self.calls.append(call)
+        try:
+            return self.client.ffc_input(rates)
+        except Exception as exc:  # noqa: BLE001 - the deadman stops it anyway
+            if report:
+                self.report(f"zero input not sent ({exc}); the daemon's deadman stops the robot")
+                return None
+            raise
+        finally:
+            call[1] = time.monotonic()
+
+    def step(self) -> None:
+        """One tick: the next input towards the targets (none when nothing is to be done)."""
+        with self.lock:
+            targets = dict(self.targets)
+            idle = time.monotonic() - self.t_touch > self.idle_s
+        if not targets:
+            return
+        if not self.page_open():
+            self.halt("page closed")
+            return
+        if idle:
+            self.halt(f"no slider input for {self.idle_s:g} s")
+            return
+        meas = self.measured()
+        now = time.monotonic()
+        deflections: dict[str, tuple[float, float]] = {}
+        rates: dict[str, tuple[float, float]] = {}
+        with self.lock:
+            model = self.model
+            model.advance(now, self.kappa_max)
+            if now - self.t_moving > SETTLE_S:
+                model.forget()  # settled: the segments are where the setpoint is
             for name, tgt in targets.items():
                 m = meas.get(name)
                 if m is None:
-                    continue
-                rates[name] = deflection(tgt, kvec(m["kappa"], m["phi"]), self.rate_max(name))
-            moving = any(r != (0.0, 0.0) for r in rates.values())
-            if not moving and not self.streaming:
-                continue
-            if not rates:
-                continue
-            self.last_names = list(rates)
-            try:
-                reply = self.client.ffc_input(rates)  # all zero once arrived: it stops there
-                self.sent += 1
-                if moving or reply.get("takeover"):
-                    self.owns_control = True  # the cFFC moves on our input
-                self.streaming = moving
-            except Exception as exc:  # noqa: BLE001 - refused: show why, stop streaming
-                self.halt(f"refused: {exc}")
-                self.report(f"slider input refused: {exc}")
+                    continue  # no valid state: not moved (zero rate)
+                c = model.at.setdefault(name, list(kvec(m["kappa"], m["phi"])))
+                deflections[name], rates[name] = deflection(tgt, (c[0], c[1]), self.rate_max(name))
+        moving = any(r != (0.0, 0.0) for r in deflections.values())
+        if not deflections or (not moving and not self.streaming):
+            return
+        self.last_names = list(deflections)
+        try:
+            reply = self._send(deflections)  # all zero once arrived: it stops there
+        except Exception as exc:  # noqa: BLE001 - refused: show why, stop streaming
+            with self.lock:
+                self.model.forget()
+            self.halt(f"refused: {exc}")
+            self.report(f"slider input refused: {exc}")
+            return
+        with self.lock:
+            if isinstance(reply, dict) and reply.get("takeover"):
+                # the cFFC was (re)activated by this input: it started from the measured state
+                self.model.forget()
+                for name, m in meas.items():
+                    if name in rates:
+                        self.model.at[name] = list(kvec(m["kappa"], m["phi"]))
+            self.model.sent(now, rates)
+            if moving:
+                self.t_moving = now
+        self.sent += 1
+        if moving or (isinstance(reply, dict) and reply.get("takeover")):
+            self.owns_control = True  # the cFFC moves on our input
+        self.streaming = moving
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            self.step()
 
 
 class MovePlanner:

@@ -11,14 +11,16 @@ anything refused gets HTTP 403 before the WebSocket opens. viser offers no hook 
 The same wrapper bounds what a page client may cost (:data:`MAX_FRAME_BYTES` per message,
 :data:`MAX_CONNECTIONS` page WebSockets without the page token, :data:`MAX_PER_ADDRESS` from one
 remote address) and carries the page's credential (:class:`PageToken`): a secret made at each
-start and printed in the view's URL (``?token=…``, as Jupyter does), exchanged for a cookie that
-the page's WebSocket presents; only a page client holding it gets controls.
+start and printed in the view's URL (``?token=…``, as Jupyter does), exchanged for a path holding
+it (``/t/<secret>/``, never a cookie: cookies reach every port of a host) that the page's
+WebSocket presents in its own path; only a page client presenting it gets controls.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import hmac
 import http
 import io
@@ -160,41 +162,48 @@ class PageToken:
     """The page's credential for controls: a random secret made at each start of the view.
 
     It is printed in the view's URL (``http://127.0.0.1:PORT/?token=…``). A request for the page
-    carrying it in its query is redirected to the same page without it, with a cookie holding it
-    (``HttpOnly``, ``SameSite=Strict``, named after the port: ``ucr_view_PORT``); the page's
-    WebSocket then presents the cookie. Compared in constant time."""
+    carrying it in its query is redirected to the page under a path that holds it
+    (:attr:`page_path`, ``/t/<secret>/``); viser's page opens its WebSocket on the URL it was
+    loaded from (``ws://127.0.0.1:PORT/t/<secret>``), so the WebSocket presents it in its request
+    path. Never in a cookie: a browser sends a host's cookies to every port of that host (another
+    local web server on 127.0.0.1 would receive it), while a path is sent only to the server it
+    names. Compared in constant time."""
 
     QUERY = "token"
+    PREFIX = "/t/"
 
     def __init__(self, secret: str | None = None) -> None:
         self.secret = secret or secrets.token_urlsafe(32)
-        self.port = 0  # set once the server is bound (the cookie is named after it)
+        self.port = 0  # set once the server is bound
 
     @property
-    def cookie(self) -> str:
-        return f"ucr_view_{self.port}"
+    def page_path(self) -> str:
+        """The page with controls: its WebSocket's path is this without the final ``/``."""
+        return f"{self.PREFIX}{self.secret}/"
 
     def matches(self, value: str) -> bool:
         return hmac.compare_digest(value.encode(), self.secret.encode())
 
-    def presented(self, headers: Any) -> bool:
-        """Whether the request carries the token in its cookie."""
-        for line in _all(headers, "Cookie"):
-            for part in line.split(";"):
-                name, eq, value = part.strip().partition("=")
-                if eq and name == self.cookie and self.matches(value.strip().strip('"')):
-                    return True
-        return False
+    def split(self, path: str) -> tuple[str, str] | None:
+        """``(secret given, rest of the path)`` for a path under :data:`PREFIX` (the query
+        dropped; rest ``""`` without a final slash), else None."""
+        path = path.partition("?")[0]
+        if not path.startswith(self.PREFIX):
+            return None
+        given, slash, rest = path[len(self.PREFIX) :].partition("/")
+        return given, slash + rest
 
-    def set_cookie(self) -> str:
-        return f"{self.cookie}={self.secret}; Path=/; HttpOnly; SameSite=Strict"
+    def presented(self, request: Any) -> bool:
+        """Whether a request (the page's WebSocket) carries the token in its path."""
+        parts = self.split(str(getattr(request, "path", "") or ""))
+        return parts is not None and parts[1] in ("", "/") and self.matches(parts[0])
 
 
 class PageGate:
-    """What the page server admits besides the Host/Origin guard: the page token's cookie (see
-    :class:`PageToken`), and a cap on page WebSockets without it (:data:`MAX_CONNECTIONS`,
-    :data:`MAX_PER_ADDRESS`). ``guard`` is set once the port is known; until then everything is
-    refused."""
+    """What the page server admits besides the Host/Origin guard: the page token (in the
+    WebSocket's path, see :class:`PageToken`), and a cap on page WebSockets without it
+    (:data:`MAX_CONNECTIONS`, :data:`MAX_PER_ADDRESS`). ``guard`` is set once the port is known;
+    until then everything is refused."""
 
     def __init__(
         self,
@@ -214,8 +223,9 @@ class PageGate:
             self.token.port = guard.port
         self.guard = guard
 
-    def has_token(self, headers: Any) -> bool:
-        return self.token is not None and self.token.presented(headers)
+    def has_token(self, request: Any) -> bool:
+        """Whether a page WebSocket's request presents the page token (in its path)."""
+        return self.token is not None and self.token.presented(request)
 
     @property
     def open_without_token(self) -> int:
@@ -226,7 +236,7 @@ class PageGate:
         headers = request.headers
         if str(headers.get("Upgrade", "")).lower() != "websocket":
             return self._page_request(connection, request, log)
-        if self.has_token(headers):
+        if self.has_token(request):
             return None  # the operator's page: never locked out by a crowd of viewers
         ip = _peer_ip(connection)
         same = sum(1 for v in self._open.values() if v == ip)
@@ -252,24 +262,56 @@ class PageGate:
             self._open.pop(connection, None)
 
     def _page_request(self, connection: Any, request: Any, log: Callable[[str], None]) -> Any:
-        """A plain HTTP request: ``?token=`` is exchanged for the cookie (redirect without it)."""
+        """A plain HTTP request. ``?token=`` is answered with a redirect to the page under the
+        token's path (a wrong one: to the plain page, view only, logged); a request under that
+        path is served as the same path without it (``/t/<secret>/`` is viser's ``/``), with
+        ``Referrer-Policy: no-referrer``; a wrong secret there gets 404. Returns the Response,
+        ``None`` (viser serves the request as it is) or a rewritten request for viser."""
         if self.token is None:
             return None
         parts = urlsplit(request.path)
         query = parse_qsl(parts.query, keep_blank_values=True)
         given = [v for k, v in query if k == PageToken.QUERY]
-        if not given:
-            return None
         rest = urlencode([(k, v) for k, v in query if k != PageToken.QUERY])
-        response = connection.respond(http.HTTPStatus.FOUND, "")
-        # always the page itself ("/"): a path such as //evil.example would be another site
-        response.headers["Location"] = "/" + (f"?{rest}" if rest else "")
-        response.headers["Cache-Control"] = "no-store"
-        if all(self.token.matches(v) for v in given):
-            response.headers["Set-Cookie"] = self.token.set_cookie()
-        else:
-            log(f"a page request from {peer_address(connection)} had a wrong token: view only")
-        return response
+        if given:
+            response = connection.respond(http.HTTPStatus.FOUND, "")
+            right = all(self.token.matches(v) for v in given)
+            if not right:
+                log(f"a page request from {peer_address(connection)} had a wrong token: view only")
+            # always this server's own page: a path such as //evil.example would be another site
+            where = self.token.page_path if right else "/"
+            response.headers["Location"] = where + (f"?{rest}" if rest else "")
+            response.headers["Cache-Control"] = "no-store"
+            response.headers["Referrer-Policy"] = "no-referrer"
+            return response
+        under = self.token.split(request.path)
+        if under is None:
+            return None
+        secret, path = under
+        if not self.token.matches(secret):
+            log(f"a page request from {peer_address(connection)} had a wrong token path: 404")
+            return connection.respond(http.HTTPStatus.NOT_FOUND, "NOT FOUND\n")
+        if not path:  # /t/<secret>: the page's relative URLs need the final slash
+            response = connection.respond(http.HTTPStatus.FOUND, "")
+            loc = self.token.page_path + (f"?{parts.query}" if parts.query else "")
+            response.headers["Location"] = loc
+            response.headers["Cache-Control"] = "no-store"
+            response.headers["Referrer-Policy"] = "no-referrer"
+            return response
+        return _Rewritten(path + (f"?{parts.query}" if parts.query else ""))
+
+
+class _Rewritten(str):
+    """The path viser is to serve instead of the request's (under the page token's path)."""
+
+
+def _secret_page_headers(response: Any) -> Any:
+    """The page under the token's path: never cached, never named in a Referer."""
+    headers = getattr(response, "headers", None)
+    if headers is not None:
+        headers["Cache-Control"] = "no-store"
+        headers["Referrer-Policy"] = "no-referrer"
+    return response
 
 
 _patch_lock = threading.Lock()
@@ -300,6 +342,10 @@ def guarded_viser(factory: Callable[[], Any], gate: PageGate, log: Callable[[str
                 body = f"403 Forbidden: {why}\n".encode()
                 return Response(http.HTTPStatus.FORBIDDEN, "Forbidden", Headers(), body)
             answer = gate.admit(connection, request, log)
+            if isinstance(answer, _Rewritten):  # the page under the token's path
+                rewritten = dataclasses.replace(request, path=str(answer))
+                served = inner(connection, rewritten) if inner is not None else None
+                return _secret_page_headers(served)
             if answer is not None:
                 return answer
             return inner(connection, request) if inner is not None else None

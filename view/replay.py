@@ -90,4 +90,5 @@ class ReplaySource:
                 s.status[seg] = "ok" if ok else "fault"
             s.t_received = time.monotonic()
             s.seq += 1
+            s.sample_seq += 1  # a recorded sample: the latency figure counts it
             self.messages += 1

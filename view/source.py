@@ -39,11 +39,14 @@ class Snapshot:
     status: dict[str, str] = field(default_factory=dict)  # ok | clamped | fault | missing
     t_daemon: float = 0.0
     t_received: float = 0.0  # our monotonic clock when it arrived
-    seq: int = 0  # bumps with every joint state
+    seq: int = 0  # bumps with every change (joint state, file reload, connection, topology)
+    sample_seq: int = 0  # bumps with every sample: a daemon joint state / an offline slider move
     topology_seq: int = 0  # bumps with every topology change
     control: dict[str, Any] = field(default_factory=dict)  # from status(): who controls
     errors: list[str] = field(default_factory=list)  # file problems (offline) / connection
     connected: bool = False
+    #: why the FILE given does not describe the daemon's robot ("" when it does): no controls
+    mismatch: str = ""
 
 
 class OfflineSource:
@@ -120,6 +123,7 @@ class OfflineSource:
             self.snap.state[name] = {"kappa": kappa, "phi": phi}
             self.snap.t_received = time.monotonic()
             self.snap.seq += 1
+            self.snap.sample_seq += 1
 
     def _run(self) -> None:
         while not self._stop.wait(self.poll_s):
@@ -246,7 +250,11 @@ class LiveSource:
 
     # -- topology ------------------------------------------------------------------------------
     def _topology_locked_refresh(self) -> None:
-        topo = self.client.topology()
+        """Ask the daemon for its topology and apply it (the robot file read if not yet)."""
+        self._apply_topology(self.client.topology())
+
+    def _apply_topology(self, topo: dict) -> None:
+        """The daemon's topology (a ``topology`` reply or push): which segments are present."""
         path = self._robot_file or topo.get("file")
         robot = self.robot
         errors: list[str] = []
@@ -259,6 +267,7 @@ class LiveSource:
                 robot = load(path)
             except UcrdfError as exc:
                 raise RuntimeError(str(exc)) from None
+        mismatch = self._mismatch(robot, topo)
         with self.lock:
             s = self.snap
             if self.robot is None:
@@ -271,6 +280,40 @@ class LiveSource:
             s.present = [n for n in topo.get("controlled", []) if n in robot.bendables]
             s.errors = errors
             s.topology_seq += 1
+            s.seq += 1
+            self._recolour(time.monotonic())
+            said, s.mismatch = s.mismatch, mismatch
+        if mismatch and mismatch != said:
+            log.warning("%s", mismatch)
+        elif said and not mismatch:
+            log.warning("%s matches the daemon's robot again: controls back", self._robot_file)
+
+    def _mismatch(self, robot: Any, topo: dict) -> str:
+        """Why the FILE given (``ucr view FILE``) is not the daemon's robot; "" if it is (or
+        none was given). Compared: the robot's name and its bendables in chain order with the
+        daemon's ``topology`` (``robot``, ``expected``), unless both name the same file."""
+        if not self._robot_file:
+            return ""
+        theirs = topo.get("file")
+        try:
+            if theirs and Path(theirs).resolve() == Path(self._robot_file).resolve():
+                return ""
+        except OSError:
+            pass
+        from host.topology import chain_bendables  # noqa: PLC0415 - only with a FILE
+
+        ours = chain_bendables(robot)
+        expected = list(topo.get("expected") or [])
+        name = topo.get("robot")
+        if ours == expected and (not name or name == robot.name):
+            return ""
+        return (
+            f"{self._robot_file} is not the daemon's robot: the daemon runs {name!r} "
+            f"({theirs or 'file not named'}; bendables {', '.join(expected) or 'none'}), the "
+            f"file describes {robot.name!r} (bendables {', '.join(ours) or 'none'}). Controls "
+            "refused (view only): run `ucr view` without FILE to use the daemon's own file, or "
+            "give the file the daemon runs."
+        )
 
     # -- streams -------------------------------------------------------------------------------
     def _stream(self, client: Any, lost: threading.Event) -> None:
@@ -288,11 +331,20 @@ class LiveSource:
                     elif kind == "event":
                         self._on_event(msg)
                     elif kind == "topology":
-                        self._topo_dirty = True  # refreshed by the status thread (may retry)
+                        self._on_topology(msg)
         except StopIteration:
             self._lost(ConnectionError("subscription closed"), lost)
         except (ConnectionError, ApiError, OSError) as exc:
             self._lost(exc, lost)
+
+    def _on_topology(self, msg: dict) -> None:
+        """A topology push carries the whole topology: applied at once, so the scene is
+        rebuilt on its next update (the status thread retries if this fails)."""
+        try:
+            self._apply_topology(msg)
+        except Exception:  # noqa: BLE001 - refreshed by the status thread instead
+            log.debug("topology push not applied; the status poll refreshes it", exc_info=True)
+            self._topo_dirty = True
 
     def _lost(self, exc: BaseException, lost: threading.Event | None = None) -> None:
         if self._stop.is_set():
@@ -319,6 +371,7 @@ class LiveSource:
             s.t_daemon = float(msg.get("t", 0.0))
             s.t_received = now
             s.seq += 1
+            s.sample_seq += 1
             self._recolour(now)
 
     def _on_event(self, msg: dict) -> None:
@@ -367,10 +420,33 @@ class LiveSource:
                     self._topology_locked_refresh()
                 except ApiError:  # rebuilding right now: try again on the next poll
                     self._topo_dirty = True
+            manual = list(st.get("manual_control") or [])
+            ffc = self._ffc_input(client, manual) if manual else None
             with self.lock:
                 self._faults = set(st.get("faults") or {})
                 c = self.snap.control
                 c["active"] = st.get("active_controllers", [])
-                c["manual"] = st.get("manual_control", [])
+                c["manual"] = manual
                 c["goals"] = st.get("running_goals", [])
                 c["state"] = st.get("state", "")
+                c["ffc_input"] = ffc
+
+    @staticmethod
+    def _ffc_input(client: Any, manual: list[str]) -> tuple[float, float, float] | None:
+        """When the manual cFFC's latest input was set, on our monotonic clock: ``(earliest,
+        latest, asked)`` from its ``input_age_s`` (``controllers.list``: the daemon describes it
+        between our request and its reply); None when it has no input now (none for longer than
+        its deadman) or it cannot be read. Who sent that input is told by the view
+        (``SliderDriver.sent_at``): the daemon does not say which client a manual source is."""
+        t_ask = time.monotonic()
+        try:
+            ctrls = client.controllers()
+        except Exception:  # noqa: BLE001 - not known this time
+            return None
+        t_got = time.monotonic()
+        for c in ctrls if isinstance(ctrls, list) else []:
+            if isinstance(c, dict) and c.get("name") in manual and c.get("type") == "ffc":
+                age = c.get("input_age_s")
+                if isinstance(age, int | float):
+                    return (t_ask - age - 0.001, t_got - age + 0.001, t_got)
+        return None

@@ -111,13 +111,11 @@ class _Conn:
 
 
 class _Request:
-    def __init__(self, cookie: str | None = None):
+    def __init__(self, path: str = "/"):
         from websockets.datastructures import Headers
 
-        self.path = "/"
+        self.path = path
         self.headers = Headers({"Upgrade": "websocket", "Host": "192.0.2.2:8080"})
-        if cookie:
-            self.headers["Cookie"] = cookie
 
 
 def test_the_cap_per_remote_address_and_the_operators_page():
@@ -139,9 +137,9 @@ def test_the_cap_per_remote_address_and_the_operators_page():
         assert all(gate.admit(_Conn("127.0.0.1"), _Request(), said.append) is None
                    for _ in range(local))  # fmt: skip
         assert gate.admit(_Conn("127.0.0.1"), _Request(), said.append)[0] == 503  # the total
-        operator = _Request(cookie=f"other=1; {token.cookie}={token.secret}")
+        operator = _Request(f"/t/{token.secret}")
         assert gate.admit(_Conn("127.0.0.1"), operator, said.append) is None
-        wrong = _Request(cookie=f"{token.cookie}={token.secret[:-1]}x")
+        wrong = _Request(f"/t/{token.secret[:-1]}x")
         assert gate.admit(_Conn("127.0.0.1"), wrong, said.append)[0] == 503
         remote[0].closed.set()  # one leaves
         await asyncio.sleep(0.05)
@@ -251,9 +249,11 @@ def test_a_page_client_cannot_open_visers_share_tunnel(offline_app, monkeypatch,
         raw.close()
 
 
-def test_the_token_in_the_url_is_exchanged_for_a_cookie_on_the_page_itself():
-    """?token= right: a redirect to the page ("/", never a //other-site path) with the cookie;
-    wrong: the same redirect without a cookie (view only), logged."""
+def test_the_token_in_the_url_is_exchanged_for_a_path_on_the_page_itself():
+    """?token= right: a redirect to the page under the token's path (on this server: never a
+    //other-site path), no cookie (a cookie reaches every port of the host); wrong: a redirect
+    to the plain page (view only), logged. Under the path, viser is asked for the page itself;
+    a wrong secret there is 404."""
     from websockets.datastructures import Headers
     from websockets.http11 import Response
 
@@ -275,12 +275,17 @@ def test_the_token_in_the_url_is_exchanged_for_a_cookie_on_the_page_itself():
     said: list[str] = []
     assert gate.admit(Conn(), Get("/"), said.append) is None  # the page itself: viser serves it
     ok = gate.admit(Conn(), Get(f"//evil.example/?darkMode&token={token.secret}"), said.append)
-    assert ok.status_code == 302 and ok.headers["Location"] == "/?darkMode="
-    assert ok.headers["Set-Cookie"] == (
-        f"ucr_view_8080={token.secret}; Path=/; HttpOnly; SameSite=Strict"
-    )
+    assert ok.status_code == 302 and ok.headers["Location"] == f"/t/{token.secret}/?darkMode="
+    assert "Set-Cookie" not in ok.headers and ok.headers["Referrer-Policy"] == "no-referrer"
     assert said == []
     bad = gate.admit(Conn(), Get("/?token=guess"), said.append)
     assert bad.status_code == 302 and bad.headers["Location"] == "/"
     assert "Set-Cookie" not in bad.headers
     assert said == ["a page request from 127.0.0.1:40001 had a wrong token: view only"]
+    assert gate.admit(Conn(), Get(f"/t/{token.secret}/?darkMode"), said.append) == "/?darkMode"
+    assert gate.admit(Conn(), Get(f"/t/{token.secret}"), said.append).status_code == 302
+    assert gate.admit(Conn(), Get("/t/guess/"), said.append).status_code == 404
+    assert said[-1] == "a page request from 127.0.0.1:40001 had a wrong token path: 404"
+    assert token.presented(Get(f"/t/{token.secret}"))
+    assert token.presented(Get(f"/t/{token.secret}/"))
+    assert not token.presented(Get(f"/t/{token.secret}/x")) and not token.presented(Get("/"))

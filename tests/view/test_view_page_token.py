@@ -1,6 +1,8 @@
 """The live view's page moves hardware, so its controls need a credential (security review item 4):
 the view prints a URL with a secret made at each start (``?token=…``, as Jupyter does); the page
-opened from it gets a cookie its WebSocket presents and has controls. Any other page client (a
+opened from it is redirected to a path holding it (``/t/<secret>/``), its WebSocket presents it
+in its own path and the page has controls (never a cookie: a browser sends cookies to every port
+of the host). Any other page client (a
 browser tab on the plain URL, a local process speaking viser's protocol) gets the scene and a line
 saying why it has no controls, and cannot move the robot. Every motion command from a page is in
 the view's audit log with that page client's id and address."""
@@ -99,8 +101,8 @@ def test_a_page_without_the_token_is_view_only_and_cannot_move_the_robot(rig, li
 
 
 def test_the_printed_url_gives_controls_and_each_page_command_is_audited(rig, live_view, browser):
-    """The URL the view prints works: its token is exchanged for a cookie (and leaves the address
-    bar), the page has controls, and a slider set there is audited with that page's id/peer."""
+    """The URL the view prints works: its token is exchanged for the page's path (no cookie), the
+    page has controls, and a slider set there is audited with that page's id/peer."""
     _, daemon, _ = rig
     with _Audit() as audit:
         ctx = browser.new_context(viewport={"width": 1000, "height": 700})
@@ -108,11 +110,9 @@ def test_the_printed_url_gives_controls_and_each_page_command_is_audited(rig, li
             pg = ctx.new_page()
             pg.goto(live_view.url)
             pg.get_by_text("tubes: 3").wait_for(timeout=60000)
-            assert "token" not in pg.url, pg.url  # redirected to the page without it
-            cookies = {c["name"]: c for c in ctx.cookies()}
-            cookie = cookies[f"ucr_view_{live_view.port}"]
-            assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
-            assert cookie["value"] == live_view.page_token.secret
+            assert "token=" not in pg.url, pg.url  # redirected to the page under its path
+            assert pg.url.startswith(f"{live_view.page_url}t/{live_view.page_token.secret}/")
+            assert ctx.cookies() == []
             pg.get_by_role("button", name="Stop (hold)").wait_for(timeout=20000)
             assert pg.get_by_text("view only:").count() == 0
             box = pg.locator("input[inputmode='decimal'], input[type='number']").nth(0)
@@ -130,6 +130,55 @@ def test_the_printed_url_gives_controls_and_each_page_command_is_audited(rig, li
         finally:
             ctx.close()
             _settle(daemon, live_view)
+
+
+def test_the_page_secret_never_reaches_another_local_web_server(rig, live_view, browser):
+    """Defect (audit 15.1): the secret was a cookie (``ucr_view_PORT``); cookies are not scoped by
+    port, so the browser sent it to every other web server on 127.0.0.1. Now it travels only in
+    the page's path: another port's server, reached from a tab of the same browser and by the
+    view's own page (an image, a fetch with credentials), never receives it."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    seen: list[str] = []
+
+    class Other(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 - http.server's name
+            seen.append(f"{self.requestline}\n{self.headers}")
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.end_headers()
+            self.wfile.write(b"another local app")
+
+        def log_message(self, *args) -> None:
+            pass
+
+    other = ThreadingHTTPServer(("127.0.0.1", 0), Other)
+    threading.Thread(target=other.serve_forever, daemon=True).start()
+    there = f"http://127.0.0.1:{other.server_port}"
+    secret = live_view.page_token.secret
+    ctx = browser.new_context(viewport={"width": 1000, "height": 700})
+    try:
+        pg = ctx.new_page()
+        pg.goto(live_view.url)
+        pg.get_by_role("button", name="Stop (hold)").wait_for(timeout=60000)  # the token works
+        pg.evaluate("(u) => fetch(u, {credentials: 'include', mode: 'no-cors'})", f"{there}/f")
+        pg.evaluate("(u) => { const i = new Image(); i.src = u; document.body.append(i); }",
+                    f"{there}/img")  # fmt: skip
+        tab = ctx.new_page()
+        tab.goto(f"{there}/tab")
+        assert wait_for(lambda: len(seen) >= 3, 20), seen
+        assert not [s for s in seen if secret in s], seen
+        # a reload keeps the controls (the path holds the token)
+        pg.reload()
+        pg.get_by_role("button", name="Stop (hold)").wait_for(timeout=60000)
+        tab.goto(f"{there}/again")
+        assert wait_for(lambda: len(seen) >= 4, 20), seen
+        assert not [s for s in seen if secret in s], seen
+    finally:
+        ctx.close()
+        other.shutdown()
+        other.server_close()
 
 
 def test_the_demo_prints_the_url_that_gives_controls(rig, browser):

@@ -82,12 +82,25 @@ def test_rigid_visuals_come_from_the_ucrdf():
 
 
 def test_slider_deflection_points_at_the_target_and_never_stalls_in_the_deadzone():
-    ux, uy = deflection((1.0, 0.0), (0.0, 0.0), 5.0)
+    (ux, uy), _ = deflection((1.0, 0.0), (0.0, 0.0), 5.0)
     assert uy == 0.0 and 0 < ux <= 1.0
-    assert deflection((3.0, 0.0), (-3.0, 0.0), 5.0) == (1.0, 0.0)
-    small = deflection((0.1, 0.0), (0.0, 0.0), 5.0)
+    assert deflection((3.0, 0.0), (-3.0, 0.0), 5.0) == ((1.0, 0.0), (5.0, 0.0))
+    small, _ = deflection((0.1, 0.0), (0.0, 0.0), 5.0)
     assert FFC_DEADZONE < math.hypot(*small) <= 1.0
-    assert deflection((0.5, 0.5), (0.5, 0.5 + ARRIVED / 2), 5.0) == (0.0, 0.0)
+    assert deflection((0.5, 0.5), (0.5, 0.5 + ARRIVED / 2), 5.0) == ((0.0, 0.0), (0.0, 0.0))
+
+
+def test_slider_deflection_cannot_carry_the_setpoint_past_the_target():
+    """Whatever the distance, the setpoint rate that deflection gives the cFFC (default deadzone,
+    gain 1), held for as long as one input can stay in force, stops at or before the target."""
+    from view.control import HORIZON_S
+
+    for d in (0.021, 0.05, 0.2, 1.0, 1.75, 3.0, 6.0):
+        (ux, uy), (rx, ry) = deflection((d, 0.0), (0.0, 0.0), 5.0)
+        mag = math.hypot(ux, uy)
+        cffc = 5.0 * (min(mag, 1.0) - FFC_DEADZONE) / (1.0 - FFC_DEADZONE)  # ffc.rate_of
+        assert math.isclose(cffc, math.hypot(rx, ry), rel_tol=1e-9)
+        assert cffc * HORIZON_S <= d + 1e-12, d
 
 
 def test_guard_allows_loopback_page_and_refuses_rebinding_and_cross_site():

@@ -45,13 +45,13 @@ class RawPage:
               "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 0.35],
               "up_direction": [0.0, 0.0, 1.0]}  # fmt: skip
 
-    def __init__(self, port: int, cookie: str | None = None, host: str = "127.0.0.1"):
+    def __init__(self, port: int, path: str = "/", host: str = "127.0.0.1"):
+        """``path``: the WebSocket's path (the page token's, ``/t/<secret>``, for controls)."""
         import viser
         from websockets.sync.client import connect
 
-        headers = {"Cookie": cookie} if cookie else None
-        self.ws = connect(f"ws://{host}:{port}/", subprotocols=[f"viser-v{viser.__version__}"],
-                          additional_headers=headers, max_size=None, open_timeout=30)  # fmt: skip
+        self.ws = connect(f"ws://{host}:{port}{path}", subprotocols=[f"viser-v{viser.__version__}"],
+                          max_size=None, open_timeout=30)  # fmt: skip
         self.seen: list[dict] = []
         self.send(self.CAMERA)  # viser counts a client as connected after its first camera pose
 

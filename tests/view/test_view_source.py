@@ -1,0 +1,184 @@
+"""The view's sources and figures without a browser or a chain: a topology push is applied at
+once (not by the 0.2 s status poll), the latency figure counts only real samples, and the slider
+drive never lets the cFFC's setpoint pass a target (a simulated cFFC and lagging segment)."""
+
+from __future__ import annotations
+
+import math
+import queue
+import shutil
+import threading
+import time
+
+import pytest
+from view_helpers import ROBOT, wait_for
+
+pytestmark = pytest.mark.timeout(120)
+NAMES = ["segment_1", "segment_2", "segment_3"]
+
+
+class _Sub:
+    def __init__(self, q: queue.Queue) -> None:
+        self.q = q
+
+    def __enter__(self) -> _Sub:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+    def get(self, timeout: float) -> dict | None:
+        try:
+            return self.q.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+
+class _Daemon:
+    """An API client whose daemon pushes what the test puts in ``pushes``; its ``status`` never
+    answers (so only the push can tell the view about a hot-plug)."""
+
+    def __init__(self) -> None:
+        self.pushes: queue.Queue = queue.Queue()
+        self.topo = {"robot": "softrobot3", "file": str(ROBOT), "expected": NAMES,
+                     "controlled": list(NAMES)}  # fmt: skip
+
+    def topology(self) -> dict:
+        return dict(self.topo)
+
+    def status(self) -> dict:
+        raise RuntimeError("no status in this test")
+
+    def controllers(self) -> list:
+        return []
+
+    def subscribe(self, kinds, max_rate=None) -> _Sub:
+        return _Sub(self.pushes)
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_topology_push_rebuilds_the_scene_on_the_next_update(monkeypatch):
+    """Defect (audit 15.5): a topology push only marked the topology dirty and the 0.2 s status
+    poll thread fetched it again, so a hot-plug showed 56-210 ms late (or never, while status
+    does not answer). Now the push itself is applied and the next scene update rebuilds."""
+    pytest.importorskip("viser", reason="the view extra (viser) is not installed")
+    import view.source as vs
+    from view.app import ViewApp
+
+    daemon = _Daemon()
+    monkeypatch.setattr(vs, "connect", lambda *a, **k: daemon)
+    src = vs.LiveSource("ws://127.0.0.1:9", None).start()
+    app = ViewApp(src, port=0, control=False, always_update=True).start()
+    try:
+        assert wait_for(lambda: app.facts.get("tubes") == NAMES, 10), app.facts
+        daemon.pushes.put({"kind": "topology", **daemon.topo, "controlled": NAMES[:2]})
+        t_push = time.monotonic()
+        assert wait_for(lambda: src.snap.present == NAMES[:2], 2.0), src.snap.present
+        assert wait_for(lambda: app.facts.get("tubes") == NAMES[:2], 2.0), app.facts
+        assert time.monotonic() - t_push < 1.0
+        assert "missing:segment_3" in app.nodes and src.snap.status["segment_3"] == "missing"
+    finally:
+        app.stop()
+
+
+def test_the_latency_figure_counts_only_real_samples(tmp_path):
+    """Defect (audit 15.6): every snapshot change counted as a latency sample aged from the last
+    slider move, so saving the file offline showed "slider→page 3544.8 ms (p50)". Now only a
+    slider move's own effect (offline) or a daemon message's stamp (live) is a sample."""
+    pytest.importorskip("viser", reason="the view extra (viser) is not installed")
+    from view.app import ViewApp
+    from view.source import OfflineSource
+
+    robot = tmp_path / "robot.ucrdf"
+    shutil.copy(ROBOT, robot)
+    src = OfflineSource(robot, poll_s=0.05).start()
+    app = ViewApp(src, port=0, always_update=True).start()
+    try:
+        assert wait_for(lambda: app.model is not None and app.pushes > 0, 10)
+        assert list(app.latency_ms) == []  # the file's first load is no sample
+        src.set_target("segment_1", 1.0, 0.0)
+        assert wait_for(lambda: len(app.latency_ms) == 1, 5)
+        time.sleep(0.6)
+        pushes = app.pushes
+        robot.write_text(robot.read_text() + "\n")  # a save: reloaded, redrawn
+        assert wait_for(lambda: src.snap.robot_version == 2 and app.pushes > pushes, 5)
+        time.sleep(0.3)
+        assert len(app.latency_ms) == 1, list(app.latency_ms)
+        assert app.latency_ms[0] < 500, list(app.latency_ms)
+    finally:
+        app.stop()
+
+
+class _SimulatedFfc:
+    """The daemon's cFFC (host/controllers/ffc.py: deadzone 0.05, gain 1, deadman 0.3 s,
+    kappa_max clamp) at 100 Hz and a segment following its setpoint with a first-order lag."""
+
+    def __init__(self, rate_max: float, kappa_max: float, lag_s: float = 0.25) -> None:
+        self.rate_max, self.kappa_max, self.lag_s = rate_max, kappa_max, lag_s
+        self.cmd = [0.0, 0.0]
+        self.meas = [0.0, 0.0]
+        self.u: tuple[float, float] | None = None
+        self.t_u = -math.inf
+        self.peak = 0.0
+        self.lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def ffc_input(self, rates: dict) -> dict:
+        with self.lock:
+            self.u = tuple(rates.get("segment_1", (0.0, 0.0)))
+            self.t_u = time.monotonic()
+        return {"accepted": True, "takeover": None}
+
+    def _run(self) -> None:
+        dt = 0.01
+        while not self._stop.wait(dt):
+            with self.lock:
+                u = self.u if time.monotonic() - self.t_u <= 0.3 else None
+                mag = math.hypot(*u) if u else 0.0
+                if u and mag > 0.05:
+                    k = self.rate_max * (min(mag, 1.0) - 0.05) / 0.95 / mag
+                    x, y = self.cmd[0] + u[0] * k * dt, self.cmd[1] + u[1] * k * dt
+                    r = math.hypot(x, y)
+                    if r > self.kappa_max:
+                        x, y = x * self.kappa_max / r, y * self.kappa_max / r
+                    self.cmd = [x, y]
+                a = dt / self.lag_s
+                self.meas = [m + (c - m) * a for m, c in zip(self.meas, self.cmd, strict=True)]
+                self.peak = max(self.peak, self.meas[0])
+
+    def measured(self) -> dict:
+        with self.lock:
+            kx, ky = self.meas
+        return {"segment_1": {"kappa": math.hypot(kx, ky), "phi": math.atan2(ky, kx)}}
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(1)
+
+
+def test_the_slider_drive_never_lets_the_setpoint_pass_the_target():
+    """Defect (audit 15.2), on a simulated cFFC and lagging segment: the drive steered the
+    measurement, so the cFFC's setpoint ran past the target (to kappa_max) and the segment
+    followed it. Now neither the setpoint nor the segment passes the target, and the segment
+    gets there."""
+    from view.control import SliderDriver
+
+    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31)
+    driver = SliderDriver(sim, sim.measured, lambda _n: 5.0, lambda: True, lambda _w: None).start()
+    try:
+        driver.set_target("segment_1", 3.0, 0.0)
+        peak_cmd = 0.0
+        end = time.monotonic() + 3.5
+        while time.monotonic() < end:
+            peak_cmd = max(peak_cmd, sim.cmd[0])
+            time.sleep(0.005)
+        assert peak_cmd <= 3.0 + 1e-6, peak_cmd
+        assert sim.peak <= 3.0 + 1e-6, sim.peak
+        assert abs(sim.meas[0] - 3.0) < 0.05, sim.meas
+    finally:
+        driver.close()
+        sim.stop()
