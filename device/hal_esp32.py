@@ -113,6 +113,20 @@ def own_pins(chip_name=None):
     raise ValueError("no board profile for the chip %s" % name)
 
 
+def _chain_uart(p, side):
+    """The chain's ``side`` ("up" or "down") UART of pin plan ``p`` (see Hal: rxbuf and the
+    zero timeouts)."""
+    return machine.UART(
+        p[side + "_uart"],
+        baudrate=p["baud"],
+        tx=p[side + "_tx"],
+        rx=p[side + "_rx"],
+        rxbuf=1024,
+        timeout=0,
+        timeout_char=0,
+    )
+
+
 class NoPort:
     """The downstream of a segment whose board has no UART for it (``own_pins`` on a C3):
     nothing arrives, what is written is dropped."""
@@ -156,28 +170,12 @@ class Hal:
         # "rx_timeout < 1"), so bytes are readable as they arrive, which cut-through forwarding
         # needs; with the driver's default threshold (120 bytes) a short frame would be readable
         # only after its end plus an idle time
-        self.up = machine.UART(
-            p["up_uart"],
-            baudrate=p["baud"],
-            tx=p["up_tx"],
-            rx=p["up_rx"],
-            rxbuf=1024,
-            timeout=0,
-            timeout_char=0,
-        )
+        self.up = _chain_uart(p, "up")
         ports = [self.up]
         if p["down_uart"] is None:
             self.down = NoPort()  # own_pins on a chip with no UART left for it: upstream only
         else:
-            self.down = machine.UART(
-                p["down_uart"],
-                baudrate=p["baud"],
-                tx=p["down_tx"],
-                rx=p["down_rx"],
-                rxbuf=1024,
-                timeout=0,
-                timeout_char=0,
-            )
+            self.down = _chain_uart(p, "down")
             ports.append(self.down)
         self.poller = select.poll()
         for u in ports:

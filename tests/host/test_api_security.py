@@ -9,9 +9,7 @@ import gc
 import json
 import logging
 import os
-import shutil
 import socket
-import subprocess
 import time
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from host.api.client import ApiAuthError, ApiError, connect
 from host.api.server import ApiServer, ApiServerError
 from host.config import ConfigError, load_config
 from tests.raw_http import IdleFlood, read_head
+from tests.tls_files import self_signed
 
 # New modules are imported inside the tests that need them, so that every test here can also be
 # run against the code before issue 13 (and fail there on its own assertion).
@@ -202,37 +201,7 @@ def test_cli_refuses_a_token_on_the_command_line(capsys):
 
 @pytest.fixture(scope="module")
 def tls_files(tmp_path_factory):
-    openssl = shutil.which("openssl")
-    if openssl is None:
-        pytest.skip("openssl is not installed: cannot make a test certificate")
-    d = tmp_path_factory.mktemp("tls")
-    cert, key = d / "cert.pem", d / "key.pem"
-    subprocess.run(
-        [
-            openssl,
-            "req",
-            "-x509",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:P-256",
-            "-nodes",
-            "-days",
-            "2",
-            "-subj",
-            "/CN=localhost",
-            "-addext",
-            "subjectAltName=DNS:localhost,IP:127.0.0.1",
-            "-keyout",
-            str(key),
-            "-out",
-            str(cert),
-        ],
-        check=True,
-        capture_output=True,
-    )
-    key.chmod(0o600)
-    return cert, key
+    return self_signed(tmp_path_factory.mktemp("tls"))
 
 
 def test_wss_with_configured_cert_and_key(stub, tls_files):

@@ -23,6 +23,7 @@ from interop.foxglove import FoxgloveSink
 from interop.sinks import Fanout
 from interop.topics import Message
 from tests.raw_http import IdleFlood, read_head
+from tests.tls_files import self_signed
 
 PROTO = ["foxglove.sdk.v1"]
 TOKEN = "s3cret-token-42-foxglove"
@@ -424,20 +425,7 @@ def test_the_protocol_matches_foxglove_sdk():
 # -- TLS: wss:// with a cert and a private key, as the API -------------------------------------
 @pytest.fixture(scope="module")
 def tls_files(tmp_path_factory):
-    import shutil
-    import subprocess
-
-    openssl = shutil.which("openssl")
-    if openssl is None:
-        pytest.skip("openssl is not installed: cannot make a test certificate")
-    d = tmp_path_factory.mktemp("tls")
-    cert, key = d / "cert.pem", d / "key.pem"
-    subprocess.run([openssl, "req", "-x509", "-newkey", "ec", "-pkeyopt",
-                    "ec_paramgen_curve:P-256", "-nodes", "-days", "2", "-subj", "/CN=localhost",
-                    "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1", "-keyout", str(key),
-                    "-out", str(cert)], check=True, capture_output=True)  # fmt: skip
-    key.chmod(0o600)
-    return cert, key
+    return self_signed(tmp_path_factory.mktemp("tls"))
 
 
 def test_tls_serves_wss_off_loopback_without_insecure_and_refuses_a_readable_key(
