@@ -224,7 +224,9 @@ def run(args: Any) -> int:
                 session, args.domain_id, namespace, args.node_name,
                 action if args.enable_commands else None,
             )  # fmt: skip
-            found = [describe_clash(k, args.domain_id) for k in watch.current()]
+            # a node of the same name first (the clearer clash), whichever token came first
+            keys = sorted(watch.current(), key=lambda k: rmw.parse_node_token(k) is None)
+            found = [describe_clash(k, args.domain_id) for k in keys]
         except Exception as exc:  # noqa: BLE001 - zenoh.ZError: the check itself failed
             found = []
             print(f"ucr zenoh: warning: could not look for a node of the same name: {exc}",
