@@ -16,8 +16,10 @@ It is the only listener: no other server runs behind it, so nothing bypasses the
   (:class:`host.api.auth.Backoff`, in the API's order): after a few failures a wrong token gets
   429 (``Retry-After``), while a valid one always gets in.
 
-Limits: at most :data:`MAX_CONNECTIONS` TCP connections (handshaking or open;
-:data:`MAX_PER_PEER` per non-loopback address), refused beyond that before any work; a client
+Limits: at most :data:`MAX_CONNECTIONS` accepted connections (503 beyond) and
+:data:`MAX_PENDING` still in their opening handshake (a new one evicts the oldest that got least
+far: ``host.api.guard.Admission``, the API's rule); :data:`MAX_PER_PEER` per non-loopback
+address, pending and accepted, refused beyond that before any work; a client
 frame above :data:`MAX_CLIENT_FRAME` closes the connection (1009) before it is read; per client
 at most :data:`DATA_BACKLOG` messages / :data:`DATA_BACKLOG_BYTES` wait to be sent (the oldest
 are dropped, counted), and a client that leaves :data:`CONTROL_BACKLOG` replies unread is closed.
@@ -62,7 +64,15 @@ from host.api.auth import (
     find_token,
     server_tls_context,
 )
-from host.api.guard import AUTHORIZING, TALKING, Admission, GuardConfigError, WebGuard
+from host.api.guard import (
+    AUTHORIZING,
+    REFUSING,
+    TALKING,
+    VERIFIED,
+    Admission,
+    GuardConfigError,
+    WebGuard,
+)
 from interop import foxglove_protocol as P
 from interop import ros2
 
@@ -367,13 +377,16 @@ class FoxgloveGuard:
         if not self.tokens:
             return self._open(conn)
         ip = _peer_ip(conn.remote_address)
-        if self.backoff.blocked_for(ip) > 0 and self.auth_hold_s > 0:
-            await asyncio.sleep(self.auth_hold_s)
         header = request.headers.get("Authorization", "")
         if not header.lower().startswith("bearer "):
             given = (parse_qs(parts.query).get("token") or [""])[0]
             header = f"Bearer {given}"
-        if find_token(self.tokens, header) is not None:
+        valid = find_token(self.tokens, header) is not None
+        # while it waits out the hold: a valid one is evicted last, a wrong one first
+        self._admission.advance(conn, VERIFIED if valid else REFUSING)
+        if self.backoff.blocked_for(ip) > 0 and self.auth_hold_s > 0:
+            await asyncio.sleep(self.auth_hold_s)
+        if valid:
             return self._open(conn)
         wait = self.backoff.blocked_for(ip)
         if wait > 0:  # counted, not logged (as the API)

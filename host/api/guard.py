@@ -224,7 +224,9 @@ class TcpCounts:
 
 
 #: how far a pending connection got with its opening handshake (see :class:`Admission`)
-SILENT, TALKING, AUTHORIZING = 0, 1, 2
+#: (in the order they are evicted in; :data:`REFUSING`: its token was found wrong, it only waits
+#: out the back-off's hold before its refusal)
+REFUSING, SILENT, TALKING, AUTHORIZING, VERIFIED = 0, 1, 2, 3, 4
 
 
 class Admission:
@@ -234,10 +236,14 @@ class Admission:
     the token passed: :meth:`promote`), then *open*. The two are capped apart:
 
     - pending: ``max_pending``. A new connection is never refused for it: when it is full, the
-      oldest pending connection that got least far is evicted (closed) instead: first those that
-      sent nothing yet, then those that sent part of a request, last those whose request is
-      being authorized. A real client sends its request at once and finishes in milliseconds;
-      an idle or trickling socket never does, so a flood of them only evicts itself.
+      oldest pending connection that got least far is evicted (closed) instead: first those
+      whose token was found wrong and that only wait out the token back-off's hold before their
+      refusal (:data:`REFUSING`), then those that sent nothing yet, then those that sent part of
+      a request, then those whose request is being authorized, last those whose token was found
+      valid and that wait out the hold (:data:`VERIFIED`): a flood of wrong tokens, each held,
+      evicts only itself. A real client sends its request at once and finishes in
+      milliseconds; an idle or trickling socket never does, so a flood of them only evicts
+      itself.
     - open: ``max_open`` in all; the last ``reserve`` of them only for control
       (``promote(conn, control=True)``). Connections that have not authenticated never count
       here, so they cannot use up the slots kept for control.
@@ -249,7 +255,7 @@ class Admission:
         self.max_open, self.max_pending = max_open, max(1, max_pending)
         self.max_per_peer, self.reserve = max_per_peer, reserve
         self.tcp = TcpCounts()
-        self._pending: tuple[OrderedDict, ...] = (OrderedDict(), OrderedDict(), OrderedDict())
+        self._pending: tuple[OrderedDict, ...] = tuple(OrderedDict() for _ in range(VERIFIED + 1))
         self._stage: dict[object, int] = {}
         self.opened: set[object] = set()
 
@@ -274,9 +280,10 @@ class Admission:
         return True, victim
 
     def advance(self, conn: object, stage: int) -> None:
-        """A pending connection got further (:data:`TALKING`, :data:`AUTHORIZING`)."""
+        """A pending connection got further (:data:`TALKING`, :data:`AUTHORIZING`), or its token
+        was checked (:data:`VERIFIED`, :data:`REFUSING`: set whatever the stage was)."""
         now = self._stage.get(conn)
-        if now is not None and stage > now:
+        if now is not None and (stage > now or stage in (REFUSING, VERIFIED)) and stage != now:
             del self._pending[now][conn]
             self._pending[stage][conn] = None
             self._stage[conn] = stage

@@ -63,7 +63,16 @@ from host.api.auth import check_bind as _check_bind_policy
 from host.api.bridge import DaemonBridge, DaemonLink
 from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
-from host.api.guard import AUTHORIZING, TALKING, Admission, GuardConfigError, WebGuard, is_loopback
+from host.api.guard import (
+    AUTHORIZING,
+    REFUSING,
+    TALKING,
+    VERIFIED,
+    Admission,
+    GuardConfigError,
+    WebGuard,
+    is_loopback,
+)
 from host.api.session import _peer, _peer_ip
 
 __all__ = [
@@ -520,10 +529,12 @@ class ApiServer:
             conn.ucr_token = None
             return self._open(conn, None)
         ip = _peer_ip(conn.remote_address)
+        token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
+        # while it waits out the hold: a valid one is evicted last, a wrong one first
+        self._admission.advance(conn, REFUSING if token is None else VERIFIED)
         if self._backoff.blocked_for(ip) > 0 and self.opts.auth_hold_s > 0:
             self.counters["auth_backoff"] += 1
             await asyncio.sleep(self.opts.auth_hold_s)
-        token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
         if token is not None:
             conn.ucr_token = token
             return self._open(conn, token)

@@ -493,6 +493,75 @@ def test_admission_evicts_the_pending_connection_that_got_least_far_and_caps_eac
     assert len(adm.opened) == 4 and adm.pending == 0
 
 
+def test_admission_evicts_wrong_tokens_waiting_out_the_hold_first_and_valid_ones_last():
+    from host.api.guard import AUTHORIZING, REFUSING, VERIFIED, Admission
+
+    adm = Admission(max_open=8, max_pending=3, max_per_peer=8)
+    for conn in "abc":
+        adm.arrive(conn, "127.0.0.1")
+        adm.advance(conn, AUTHORIZING)
+    adm.advance("a", VERIFIED)  # the oldest, with a valid token, waiting out the hold
+    adm.advance("c", REFUSING)  # the newest, with a wrong one
+    assert adm.arrive("d", "127.0.0.1") == (True, "c")  # the refused one goes first
+    assert adm.arrive("e", "127.0.0.1") == (True, "d")  # then the silent newcomer
+    adm.advance("e", AUTHORIZING)
+    assert adm.arrive("f", "127.0.0.1") == (True, "b")  # then one being authorized
+    assert adm.promote("a", control=True)
+
+
+def _handshake(port: int, token: str) -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", port), timeout=5)
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall(
+        (
+            f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            f"Authorization: Bearer {token}\r\n\r\n"
+        ).encode()
+    )
+    return s
+
+
+def test_a_wrong_token_flood_during_the_back_off_cannot_keep_a_valid_token_out(stub):
+    """Defect (review of the pending cap): while the token back-off is on, every handshake
+    waits 1 s before its answer; wrong-token handshakes held that way (~100/s) filled the
+    pending cap and evicted the valid client waiting beside them: 0 of 5 got in. Now a wrong
+    token waiting out its hold is evicted first, a valid one last."""
+    import threading
+
+    srv = ApiServer(stub, "127.0.0.1", 0, token=CONTROL_TOKEN).start()
+    stop = threading.Event()
+    held: list[socket.socket] = []
+
+    def flood() -> None:
+        while not stop.is_set():
+            try:
+                held.append(_handshake(srv.port, "wrong-token-wrong-token"))
+                del held[:-300]
+            except OSError:
+                pass
+            time.sleep(0.008)
+
+    for _ in range(4):  # the back-off on
+        with _handshake(srv.port, "wrong-token-wrong-token") as s:
+            read_head(s)
+    thread = threading.Thread(target=flood, daemon=True)
+    thread.start()
+    try:
+        time.sleep(1.5)
+        ok = 0
+        for _ in range(3):
+            with _handshake(srv.port, CONTROL_TOKEN) as s:
+                ok += read_head(s).startswith(b"HTTP/1.1 101")
+        assert ok == 3 and srv.stats()["evicted_pending"] > 0
+    finally:
+        stop.set()
+        thread.join(5)
+        for s in held:
+            s.close()
+        srv.stop()
+
+
 def test_an_idle_socket_flood_cannot_keep_a_control_client_out(stub):
     """The audit's repro at the default limits: 300 tokenless idle sockets, reopened as the
     server drops them; every control-token connection still gets in."""
