@@ -186,6 +186,7 @@ class ViewApp:
                 lambda: bool(self.pages),  # the deadman counts pages with controls only
                 self._refused,
                 kappa_max=self._kappa_max,
+                clamped=self._clamped,
             ).start()
         self.server.on_client_connect(self._client_connected)
         self.server.on_client_disconnect(self._client_gone)
@@ -212,6 +213,11 @@ class ViewApp:
         with self.source.lock:
             s = self.source.snap
             return {n: dict(v) for n, v in s.state.items() if s.valid.get(n, False)}
+
+    def _clamped(self, name: str) -> bool:
+        """Whether the segment reports clamping its setpoints (its status colour: clamped)."""
+        with self.source.lock:
+            return self.source.snap.status.get(name) == "clamped"
 
     def _kappa_max(self, name: str) -> float:
         m = self.model

@@ -39,9 +39,17 @@ HORIZON_S = 0.35
 MIN_ABOVE_DEADZONE = 0.005
 #: Distance (1/m) of the modelled setpoint to the target accepted as "arrived".
 ARRIVED = 0.02
-#: After this long (s) without a moving input the segments have caught up with the setpoint:
-#: the next move starts the model from the measured state again.
+#: After this long (s) without a moving input, a segment whose measured state has reached the
+#: modelled setpoint (within :data:`CAUGHT_UP`), or has stood still (within :data:`STEADY`) for
+#: :data:`STEADY_S` without reporting clamped setpoints, starts the model from the measured state
+#: again: it follows its setpoint, so the setpoint is where it stands (the model is only an upper
+#: bound of the cFFC's travel). A segment still moving towards the setpoint (a firmware slower
+#: than the file's rate) or held by its own limits keeps the model: restarting from a lagging
+#: measurement would carry the setpoint past the target.
 SETTLE_S = 1.0
+CAUGHT_UP = 0.05  # 1/m
+STEADY = 0.01  # 1/m
+STEADY_S = 0.5
 #: Seconds of our own inputs kept to tell them from another client's (:meth:`SliderDriver.sent_at`).
 SENT_MEMORY_S = 5.0
 
@@ -102,6 +110,20 @@ class SetpointModel:
         self.at.clear()
         self.rates = {}
 
+    def settle(self, measured: dict[str, dict[str, float]], at_rest: Callable[[str], bool]) -> None:
+        """No moving input for :data:`SETTLE_S`: drop the modelled setpoint of each segment whose
+        measured state has reached it or that is ``at_rest`` (standing still, not clamped): the
+        next move starts from the measurement. Keep the others (still lagging or held: their
+        setpoint is the model's, not the measurement)."""
+        self.rates = {}
+        for name, c in list(self.at.items()):
+            m = measured.get(name)
+            if m is None:
+                continue
+            mx, my = kvec(m["kappa"], m["phi"])
+            if math.hypot(c[0] - mx, c[1] - my) <= CAUGHT_UP or at_rest(name):
+                del self.at[name]
+
 
 class SliderDriver:
     """Streams cFFC inputs towards the slider targets (see module docstring)."""
@@ -116,9 +138,14 @@ class SliderDriver:
         rate_hz: float = 25.0,
         idle_s: float = 10.0,
         kappa_max: Callable[[str], float] | None = None,
+        clamped: Callable[[str], bool] | None = None,
     ):
         self.client = client
         self.measured = measured
+        #: whether a segment reports clamping its setpoints (held by its own limits)
+        self.clamped = clamped or (lambda _name: False)
+        #: per segment: (measured vector, since when it stayed within STEADY of it)
+        self.still: dict[str, tuple[tuple[float, float], float]] = {}
         self.rate_max = rate_max
         self.kappa_max = kappa_max or (lambda _name: math.inf)
         self.page_open = page_open
@@ -155,6 +182,13 @@ class SliderDriver:
             self.targets[name] = kvec(kappa, phi)
             self.t_touch = time.monotonic()
             self.stopped_reason = ""
+
+    def _at_rest(self, now: float) -> Callable[[str], bool]:
+        def at_rest(name: str) -> bool:
+            last = self.still.get(name)
+            return last is not None and now - last[1] >= STEADY_S and not self.clamped(name)
+
+        return at_rest
 
     def forget_setpoints(self) -> None:
         """Another source moved the cFFC's setpoint (or the daemon restarted): the next input
@@ -218,8 +252,14 @@ class SliderDriver:
         with self.lock:
             model = self.model
             model.advance(now, self.kappa_max)
+            for name, m in meas.items():
+                v = kvec(m["kappa"], m["phi"])
+                last = self.still.get(name)
+                if last is None or math.hypot(v[0] - last[0][0], v[1] - last[0][1]) > STEADY:
+                    self.still[name] = (v, now)
             if now - self.t_moving > SETTLE_S:
-                model.forget()  # settled: the segments are where the setpoint is
+                # the segments that caught up, or stand still unclamped, restart from there
+                model.settle(meas, self._at_rest(now))
             for name, tgt in targets.items():
                 m = meas.get(name)
                 if m is None:
