@@ -273,6 +273,11 @@ class PageGate:
         query = parse_qsl(parts.query, keep_blank_values=True)
         given = [v for k, v in query if k == PageToken.QUERY]
         rest = urlencode([(k, v) for k, v in query if k != PageToken.QUERY])
+        under = self.token.split(request.path)
+        query_kept = parts.query
+        if given and under is not None and self.token.matches(under[0]):
+            given = []  # already on the page with controls: a stale ?token= does not take it away
+            query_kept = rest
         if given:
             response = connection.respond(http.HTTPStatus.FOUND, "")
             right = all(self.token.matches(v) for v in given)
@@ -284,7 +289,6 @@ class PageGate:
             response.headers["Cache-Control"] = "no-store"
             response.headers["Referrer-Policy"] = "no-referrer"
             return response
-        under = self.token.split(request.path)
         if under is None:
             return None
         secret, path = under
@@ -293,12 +297,12 @@ class PageGate:
             return connection.respond(http.HTTPStatus.NOT_FOUND, "NOT FOUND\n")
         if not path:  # /t/<secret>: the page's relative URLs need the final slash
             response = connection.respond(http.HTTPStatus.FOUND, "")
-            loc = self.token.page_path + (f"?{parts.query}" if parts.query else "")
+            loc = self.token.page_path + (f"?{query_kept}" if query_kept else "")
             response.headers["Location"] = loc
             response.headers["Cache-Control"] = "no-store"
             response.headers["Referrer-Policy"] = "no-referrer"
             return response
-        return _Rewritten(path + (f"?{parts.query}" if parts.query else ""))
+        return _Rewritten(path + (f"?{query_kept}" if query_kept else ""))
 
 
 class _Rewritten(str):

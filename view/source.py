@@ -291,15 +291,12 @@ class LiveSource:
     def _mismatch(self, robot: Any, topo: dict) -> str:
         """Why the FILE given (``ucr view FILE``) is not the daemon's robot; "" if it is (or
         none was given). Compared: the robot's name and its bendables in chain order with the
-        daemon's ``topology`` (``robot``, ``expected``), unless both name the same file."""
+        daemon's ``topology`` (``robot``, ``expected``), always: the daemon's file path names a
+        file on the daemon's machine, relative to its working directory, which the same path here
+        need not be."""
         if not self._robot_file:
             return ""
         theirs = topo.get("file")
-        try:
-            if theirs and Path(theirs).resolve() == Path(self._robot_file).resolve():
-                return ""
-        except OSError:
-            pass
         from host.topology import chain_bendables  # noqa: PLC0415 - only with a FILE
 
         ours = chain_bendables(robot)

@@ -231,3 +231,23 @@ def test_a_segment_lagging_for_seconds_never_restarts_the_model_past_the_target(
     finally:
         driver.close()
         sim.stop()
+
+
+def test_the_robot_file_check_compares_contents_not_a_path_named_by_the_daemon(tmp_path):
+    """Defect (review): when the daemon's topology named a relative file path, the view
+    resolved it in its own working directory: another file of the same name there counted as the
+    daemon's very file, and the name and bendables were never compared (controls allowed for the
+    wrong robot). Now they are always compared."""
+    import types
+
+    from ucrdf.parser import load
+    from view.source import LiveSource
+
+    two = ROBOT.parent / "softrobot2.ucrdf"
+    me = types.SimpleNamespace(_robot_file=str(two))
+    robot = load(two)
+    theirs = {"file": str(two), "robot": "softrobot3", "expected": ["segment_1", "segment_2",
+              "segment_3"]}  # fmt: skip
+    assert "is not the daemon's robot" in LiveSource._mismatch(me, robot, theirs)
+    same = {"file": "elsewhere.ucrdf", "robot": robot.name, "expected": ["segment_1", "segment_2"]}
+    assert LiveSource._mismatch(me, robot, same) == ""
