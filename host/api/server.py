@@ -39,7 +39,9 @@ import logging
 import math
 import socket
 import ssl
+import sys
 import threading
+import time
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from typing import Any
@@ -96,6 +98,39 @@ class _Quiet(logging.LoggerAdapter):
 
 
 _QUIET = _Quiet(logging.getLogger("websockets.server"), {})
+
+
+class _HandshakeLog(logging.LoggerAdapter):
+    """The ``websockets`` server's logger: a failed opening handshake (a client that reset or
+    sent no valid request) is counted (``failed_handshakes``) and summed up in one warning line
+    at most every :data:`HANDSHAKE_LOG_S` seconds, never a traceback each: a client aborting
+    handshakes in a loop cannot fill the journal. Everything else goes to
+    ``websockets.server`` unchanged."""
+
+    def __init__(self, server: ApiServer) -> None:
+        super().__init__(logging.getLogger("websockets.server"), {})
+        self.server = server
+        self._said_at = -math.inf
+        self._unsaid = 0
+
+    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
+        if msg == "opening handshake failed":
+            self.server.counters["failed_handshakes"] += 1
+            self._unsaid += 1
+            now = time.monotonic()
+            if now - self._said_at >= HANDSHAKE_LOG_S:
+                exc = sys.exc_info()[1]
+                log.warning("API: %d opening handshake(s) failed (the last: %s: %s)",
+                            self._unsaid, type(exc).__name__ if exc else "?", exc)  # fmt: skip
+                self._said_at, self._unsaid = now, 0
+            return
+        super().log(level, msg, *args, **kwargs)
+
+    def process(self, msg: Any, kwargs: Any) -> tuple[Any, Any]:
+        return msg, kwargs  # keep the connection's own ``extra``
+
+
+HANDSHAKE_LOG_S = 10.0
 
 
 class ApiServerError(RuntimeError):
@@ -224,6 +259,7 @@ class ApiServer:
             "auth_failures": 0,
             "refused_connections": 0,
             "evicted_pending": 0,
+            "failed_handshakes": 0,
             "refused_handshakes": 0,
             "dropped": 0,
             "slow_closed": 0,
@@ -370,6 +406,7 @@ class ApiServer:
             ping_interval=20,
             ping_timeout=20,
             server_header="ucr-api",
+            logger=_HandshakeLog(self),
             ssl=self._ssl,
         ) as server:
             # once bound: a failed start leaves the link alone

@@ -732,3 +732,24 @@ def test_audit_lines_name_the_client_program_each_connection_declares(stub, audi
     assert "client='ucr python client' op=" in sends[1]
     # quoted when it is not a plain word, at most 64 characters (HTTP allows no line break)
     assert f"client='x op=fake {'A' * 54}' op=" in sends[2]
+
+
+def test_failed_handshakes_are_counted_and_summed_up_not_logged_with_a_traceback_each(stub, caplog):
+    """Defect (review): each client that reset or sent garbage in its handshake was logged at
+    ERROR with a full traceback (629 tracebacks for ~600 aborts): a loop of them fills the
+    journal. Now they are counted and summed up in one line at most every 10 s."""
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    try:
+        with caplog.at_level(logging.INFO):
+            for _ in range(30):
+                with socket.create_connection(("127.0.0.1", srv.port), timeout=5) as s:
+                    s.sendall(b"NOT HTTP AT ALL\r\n\r\n")
+                    read_head(s)
+            assert wait_for(lambda: srv.stats()["failed_handshakes"] == 30)
+            with connect(srv.url) as c:  # and the server still serves
+                assert c.status()["state"]
+        lines = [r for r in caplog.records if "handshake" in r.getMessage()]
+        assert 1 <= len(lines) <= 2, [r.getMessage() for r in lines]
+        assert not any(r.exc_info for r in caplog.records)
+    finally:
+        srv.stop()
