@@ -125,6 +125,8 @@ def load_config(config, driver, path="config.json"):
             os.rename(_TMP, FILE)  # a replace interrupted after the remove (write_file)
         with open(path) as f:
             data = json.loads(f.read())
+        if not isinstance(data, dict):
+            raise ValueError("not a JSON object")
         where = FILE
         base = merge(data)
         where = path
@@ -133,7 +135,8 @@ def load_config(config, driver, path="config.json"):
         import mechanism
 
         mechanism.Mechanism(cfg, 5)  # geometry must fit the fixed-point scheme too
-    except (OSError, ValueError, TypeError, KeyError) as e:
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as e:
+        # (AttributeError: a config.json that is JSON but not an object, e.g. a list)
         cfg = config.refused(data, driver, "%s rejected: %s" % (where, e))
     if sys.implementation.name == "micropython":
         for m in ("calib_store", "protocol.cal_core"):

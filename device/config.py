@@ -162,7 +162,7 @@ class Config:
             raise ValueError("model must be a string")
         if cfg["sc"] not in ("direct", "p_slew"):
             raise ValueError("sc must be 'direct' or 'p_slew', got %r" % (cfg["sc"],))
-        if cfg["servo_driver"] not in ("emulated", "pwm", "feetech_sts", "feetech_scs"):
+        if cfg["servo_driver"] not in _DRIVERS:
             raise ValueError("unknown servo_driver %r" % (cfg["servo_driver"],))
         if cfg["fault_action"] not in ("hold", "release"):
             raise ValueError(
@@ -354,19 +354,48 @@ def refused(data, default_driver, why):
             board = boards.default_board(data.get("servo_driver") or default_driver)
         pins = data.get("pins")
         if isinstance(board, str) and (pins is None or isinstance(pins, dict)):
+            servo = _servo_pins(boards, board, data, default_driver)
+            c.si["servo_pins"] = servo  # never a chain UART on them (hal_esp32.Hal avoid)
             # the chain only: "emulated" servos make problems() check no bus and no PWM pins
             found = boards.problems(board, pins, None, None, "emulated", [], 0)
             if not found:
                 chain = boards.resolve(board, pins)[0]
-                chain["board"] = board
-                c.si["board"] = board
-                c.si["pins"] = chain
-                PROFILE = boards.profile(board)
-                PROFILE_NAME = board
+                if not [k for k in _CHAIN_KEYS if chain.get(k) in servo]:
+                    chain["board"] = board
+                    c.si["board"] = board
+                    c.si["pins"] = chain
+                    PROFILE = boards.profile(board)
+                    PROFILE_NAME = board
     except (ValueError, TypeError, KeyError, AttributeError):
         pass  # a plan too broken to read: the chip's own board
     _drop_boards()
     return c
+
+
+_CHAIN_KEYS = ("up_tx", "up_rx", "down_tx", "down_rx")
+_DRIVERS = ("emulated", "pwm", "feetech_sts", "feetech_scs")
+
+
+def _servo_pins(boards, board, data, default_driver):
+    """The pins a refused configuration's servos are wired to (its ``pwm``/``bus`` over the
+    board's defaults, for its ``servo_driver``; both kinds when the driver is unknown): UART
+    bytes on one would drive that servo."""
+    drv = data.get("servo_driver") or default_driver
+    bus, pwm = data.get("bus"), data.get("pwm")
+    _, b, pw = boards.resolve(
+        board, None, bus if isinstance(bus, dict) else None, pwm if isinstance(pwm, dict) else None
+    )
+    out = []
+    if drv == "emulated":
+        return out
+    if drv != "pwm" or drv not in _DRIVERS:  # a serial bus (or unknown: both kinds)
+        if b:
+            out += [b.get("tx"), b.get("rx")]
+    if drv == "pwm" or drv not in _DRIVERS:
+        servos = data.get("servos")
+        # one PWM pin per servo, the first of the list (all of it when the count is unknown)
+        out += list(pw)[: len(servos)] if isinstance(servos, list) and servos else list(pw)
+    return [x for x in out if isinstance(x, int) and not isinstance(x, bool)]
 
 
 def _drop_boards():

@@ -113,6 +113,23 @@ def own_pins(chip_name=None):
     raise ValueError("no board profile for the chip %s" % name)
 
 
+def _avoiding(p, avoid):
+    """Chain plan ``p`` without a UART on any pin in ``avoid`` (servo signal pins: UART bytes
+    on one would drive that servo): a downstream on one is dropped (``down_uart`` None: the
+    segment is the tip); an upstream on one is a ValueError (the segment cannot reach the host
+    without driving a servo, so it stays silent)."""
+    if p["up_tx"] in avoid or p["up_rx"] in avoid:
+        raise ValueError(
+            "the upstream UART's pins %d/%d are servo pins of config.json: not opened"
+            % (p["up_tx"], p["up_rx"])
+        )
+    if p["down_uart"] is not None and (p["down_tx"] in avoid or p["down_rx"] in avoid):
+        p = dict(p)
+        p["down_uart"] = None
+        p["down_tx"] = p["down_rx"] = None
+    return p
+
+
 def _chain_uart(p, side):
     """The chain's ``side`` ("up" or "down") UART of pin plan ``p`` (see Hal: rxbuf and the
     zero timeouts)."""
@@ -157,9 +174,11 @@ class Hal:
     platform = PLATFORM
     default_driver = DEFAULT_DRIVER
 
-    def __init__(self, cfg_pins=None):
+    def __init__(self, cfg_pins=None, avoid=()):
         name = chip()
         p = chain_pins(name, cfg_pins)
+        if avoid:  # a refused configuration's servo pins (config.refused): never a chain UART
+            p = _avoiding(p, avoid)
         self.pins = p
         self.tick_us = TICK_US
         if p.get("board"):

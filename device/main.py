@@ -128,7 +128,10 @@ def _open_hal(halmod, cfg):
     board (``hal_esp32.own_pins``, from the chip's detection) and the segment holds, ``error``
     saying why (DESCRIPTOR key 16, PARAM 16). The emulated board refuses as it is (the
     emulator shows why)."""
+    avoid = cfg.si.get("servo_pins") or ()
     try:
+        if avoid:
+            return halmod.Hal(cfg.si.get("pins"), avoid)
         return halmod.Hal(cfg.si.get("pins"))
     except ValueError as e:
         if halmod.PLATFORM == "unix":
@@ -136,7 +139,7 @@ def _open_hal(halmod, cfg):
         print("[main]", e)
         if not cfg.error:
             cfg.error = "config.json refused by this chip: %s" % (e,)
-    return halmod.Hal(halmod.own_pins())
+    return halmod.Hal(halmod.own_pins(), avoid)
 
 
 def _why(where, e):

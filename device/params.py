@@ -43,6 +43,8 @@ from protocol.constants import (
 )
 from protocol.frame import frame_into
 
+_WIRE_MAX = 0x3FFFFFFF  # the wire's int range: |n| < 2**30 (docs/protocol.md "Integer range")
+
 # parameter ids (PARAM_GET / PARAM_SET); names and units in docs/firmware.md
 _P_WATCHDOG_MS = const(0)
 _P_KAPPA_MAX = const(1)
@@ -315,6 +317,10 @@ def param_request(self, t, raw, pe, seq):
     except Exception as e:  # noqa: BLE001 - any refused value is answered, never escapes poll()
         self._error(seq, ERR_BAD_VALUE, t, "%s: %s" % (PARAM_NAMES[pid], e))
         return
+    if isinstance(value, int) and not -_WIRE_MAX <= value <= _WIRE_MAX:
+        # a counter past the wire's int range (frames_ok passes 2**30 after ~12 days at 1000
+        # frames/s): reported modulo 2**30, as the host's decoder refuses larger ints
+        value &= _WIRE_MAX
     self._reply(T_PARAM_VALUE, seq, {0: pid, 1: value})
 
 

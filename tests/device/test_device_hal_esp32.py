@@ -217,3 +217,45 @@ def test_a_plan_this_chip_cannot_run_falls_back_to_the_chips_own_board_and_says_
     opened, pwm, seg = _boot(hal, monkeypatch, tmp_path / "b", "ESP32C3", cfg)
     assert opened == [(1, 5, 4)] and pwm == []
     assert seg.cfg.error.startswith("config.json rejected: board esp32c3")
+
+
+def test_a_refused_config_never_opens_a_chain_uart_on_one_of_its_servo_pins(
+    hal, monkeypatch, tmp_path
+):
+    """Defect (review): a refused config kept its chain after checking it alone, so a downstream
+    TX on GPIO25, the first PWM servo's default pin, was opened: UART bytes on a servo's signal
+    wire. Now the kept chain must avoid the config's servo pins, else the board's own is used."""
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32", "servos": _SERVOS}
+    cfg["pins"] = {"down_tx": 25}
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32", cfg)
+    assert opened == [(1, 19, 18), (2, 17, 16)] and pwm == []
+    assert seg.cfg.error.startswith("config.json rejected")
+
+
+def test_a_refused_config_whose_servos_sit_on_the_chain_pins_opens_no_uart_on_them(
+    hal, monkeypatch, tmp_path
+):
+    """PWM servos wired to the default chain pins (19, 17): no upstream is possible without
+    driving one, so the segment opens none and stays silent (saying why on its console)."""
+    cfg = {"name": "s", "servo_driver": "pwm", "board": "esp32", "servos": _SERVOS}
+    cfg["pwm"] = {"pins": [19, 26, 27]}
+    with pytest.raises(ValueError, match="servo pins"):
+        _boot(hal, monkeypatch, tmp_path, "ESP32", cfg)
+    cfg["pwm"] = {"pins": [17, 26, 27]}  # only the downstream's: the segment is the tip
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32", cfg)
+    assert opened == [(1, 19, 18)] and pwm == []
+
+
+def test_a_calibration_beside_a_config_json_that_is_not_an_object_is_refused_not_a_crash(
+    hal, monkeypatch, tmp_path
+):
+    """Defect (review): with calibration.json present, a config.json holding a JSON list made
+    the merge raise AttributeError, which escaped main.build: the chain was dead, no reason."""
+    import json
+
+    (tmp_path / "calibration.json").write_text(
+        json.dumps({"version": 1, "servos": [{"zero_offset": 0.0, "direction": 1}] * 3})
+    )
+    opened, pwm, seg = _boot(hal, monkeypatch, tmp_path, "ESP32", [1, 2])
+    assert opened == [(1, 19, 18), (2, 17, 16)] and pwm == []
+    assert seg.cfg.error.startswith("config.json rejected")

@@ -195,3 +195,33 @@ R['s'] = [seg.mc.tx, vmkit.hexs(hal.up.take())]
     assert abs(tx - 30000 * math.cos(1.0)) <= 3  # it applied entry 1 (3 1/m), not entry 0
     st = [m for m in decode(out) if m["type"] == "STATE"]
     assert st and st[0]["position"] == 0 and st[0]["applied_position"] == 1
+
+
+def test_a_counter_past_the_wire_range_is_reported_modulo_2_30(vm):
+    """Defect (review): frames_ok is never reset; past 2**30 (~12 days at 1000 frames/s) its
+    PARAM_VALUE carried an int the host's decoder (now strict, |n| < 2**30) refuses, so every
+    PARAM_GET of it failed. Counters are now reported modulo 2**30; the array counter wraps
+    negative at 2**31, which the same mask keeps consistent."""
+    get = encode_frame(0, 0, 0x04, 7, b"\xa1\x00\x06").hex()  # PARAM_GET frames_ok
+    r = vm(
+        f"""
+hal, seg = vmkit.make({{'watchdog_ms': 60000}})
+vmkit.run(hal, seg, 5)
+out = []
+for ok in (2**30 + 5, -(2**31) + 7):
+    seg.rd_up.st[3] = ok  # protocol.frame _OK
+    seg.rd_dn.st[3] = 0
+    hal.up.discard()
+    hal.up.feed(bytes.fromhex('{get}'))
+    vmkit.run(hal, seg, 5)
+    out.append(vmkit.hexs(hal.up.take()))
+R['s'] = out
+"""
+    )
+    values = []
+    for out in r["s"]:
+        msgs = [m for m in decode(out) if m["type"] == "PARAM_VALUE"]
+        assert len(msgs) == 1, decode(out)
+        values.append(msgs[0]["value"])
+    # (+1 each: the PARAM_GET frame itself was counted before the reply)
+    assert values == [6, (-(2**31) + 8) & (2**30 - 1)]
