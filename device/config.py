@@ -353,9 +353,11 @@ def refused(data, default_driver, why):
         if board is None:
             board = boards.default_board(data.get("servo_driver") or default_driver)
         pins = data.get("pins")
-        if isinstance(board, str) and (pins is None or isinstance(pins, dict)):
+        servo = []
+        if isinstance(board, str):
             servo = _servo_pins(boards, board, data, default_driver)
             c.si["servo_pins"] = servo  # never a chain UART on them (hal_esp32.Hal avoid)
+        if isinstance(board, str) and (pins is None or isinstance(pins, dict)):
             # the chain only: "emulated" servos make problems() check no bus and no PWM pins
             found = boards.problems(board, pins, None, None, "emulated", [], 0)
             if not found:

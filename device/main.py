@@ -128,7 +128,9 @@ def _open_hal(halmod, cfg):
     board (``hal_esp32.own_pins``, from the chip's detection) and the segment holds, ``error``
     saying why (DESCRIPTOR key 16, PARAM 16). The emulated board refuses as it is (the
     emulator shows why)."""
-    avoid = cfg.si.get("servo_pins") or ()
+    # a refused configuration's servo pins: never a chain UART on them (real boards only: the
+    # unix port's "pins" are pseudo-terminals)
+    avoid = () if halmod.PLATFORM == "unix" else cfg.si.get("servo_pins") or ()
     try:
         if avoid:
             return halmod.Hal(cfg.si.get("pins"), avoid)
