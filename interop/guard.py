@@ -66,6 +66,7 @@ from host.api.auth import (
 )
 from host.api.guard import (
     AUTHORIZING,
+    QUIET_LOG,
     REFUSING,
     TALKING,
     VERIFIED,
@@ -349,7 +350,7 @@ class FoxgloveGuard:
             def ucr_evict(self) -> None:
                 """Close this pending connection now, counted, without a log line each."""
                 guard.evicted_pending += 1
-                self.logger = _QUIET
+                self.logger = QUIET_LOG
                 self.transport.abort()
 
             def data_received(self, data: bytes) -> None:
@@ -536,16 +537,6 @@ def _why(exc: BaseException | None) -> str:
         parts.append(text[0] if text else type(exc).__name__)
         exc = exc.__cause__
     return "; ".join(parts) or "invalid handshake"
-
-
-class _Quiet(logging.LoggerAdapter):
-    """The logger of an evicted connection: its failed handshake is counted, not logged."""
-
-    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
-        pass
-
-
-_QUIET = _Quiet(logging.getLogger("websockets.server"), {})
 
 
 class _HandshakeLog(logging.LoggerAdapter):

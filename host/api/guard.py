@@ -20,6 +20,7 @@ Foxglove bridge use this module too; docs/api.md describes the rules.
 from __future__ import annotations
 
 import ipaddress
+import logging
 import socket
 import sys
 from collections import OrderedDict
@@ -311,3 +312,14 @@ class Admission:
         if stage is not None:
             del self._pending[stage][conn]
         self.opened.discard(conn)
+
+
+class _Quiet(logging.LoggerAdapter):
+    """The logger of an evicted connection: its failed handshake is counted, not logged."""
+
+    def log(self, level: int, msg: object, *args: object, **kwargs: object) -> None:
+        pass
+
+
+#: the ``logger`` an :class:`Admission` server gives a connection it evicts (API, Foxglove door)
+QUIET_LOG = _Quiet(logging.getLogger("websockets.server"), {})

@@ -67,6 +67,7 @@ from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
 from host.api.guard import (
     AUTHORIZING,
+    QUIET_LOG,
     REFUSING,
     TALKING,
     VERIFIED,
@@ -88,16 +89,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("ucr.api")
-
-
-class _Quiet(logging.LoggerAdapter):
-    """The logger of an evicted connection: its failed handshake is counted, not logged."""
-
-    def log(self, level: int, msg: object, *args: object, **kwargs: Any) -> None:
-        pass
-
-
-_QUIET = _Quiet(logging.getLogger("websockets.server"), {})
 
 
 class _HandshakeLog(logging.LoggerAdapter):
@@ -481,7 +472,7 @@ class ApiServer:
                 before its first step leaked it in the server's handlers), but without the
                 error and traceback websockets logs for that: one per evicted socket."""
                 srv.counters["evicted_pending"] += 1
-                self.logger = _QUIET
+                self.logger = QUIET_LOG
                 self.transport.abort()
 
             def data_received(self, data: bytes) -> None:
