@@ -66,13 +66,13 @@ from host.api.auth import (
 )
 from host.api.guard import (
     AUTHORIZING,
-    QUIET_LOG,
     REFUSING,
-    TALKING,
     VERIFIED,
     Admission,
     GuardConfigError,
     WebGuard,
+    admitted_connections,
+    peer_ip,
 )
 from interop import foxglove_protocol as P
 from interop import ros2
@@ -319,43 +319,21 @@ class FoxgloveGuard:
         oldest pending connection that got least far; only accepted ones count in the total)."""
         guard = self
 
-        class _Capped(ServerConnection):
-            _ucr_ip: str | None = None
+        def refused(ip: str) -> None:
+            guard.refused_connections += 1
+            if not guard._at_cap:  # one line per episode, not one per connection
+                guard._at_cap = True
+                log.warning("Foxglove: refusing connections from %s: at most %d per address",
+                            ip, MAX_PER_PEER)  # fmt: skip
 
-            def connection_made(self, transport: asyncio.BaseTransport) -> None:
-                ip = _peer_ip(transport.get_extra_info("peername"))
-                admitted, victim = guard._admission.arrive(self, ip)
-                if victim is not None:
-                    victim.ucr_evict()
-                if not admitted:
-                    guard.refused_connections += 1
-                    if not guard._at_cap:  # one line per episode, not one per connection
-                        guard._at_cap = True
-                        log.warning("Foxglove: refusing connections from %s: at most %d "
-                                    "per address", ip, MAX_PER_PEER)  # fmt: skip
-                    transport.abort()
-                    return
-                self._ucr_ip = ip
-                super().connection_made(transport)
+        def evicted() -> None:
+            guard.evicted_pending += 1
 
-            def connection_lost(self, exc: Exception | None) -> None:
-                ip = self._ucr_ip
-                if ip is None:
-                    return  # refused in connection_made: nothing was set up
-                self._ucr_ip = None
-                guard._admission.leave(self, ip)
+        admitted = admitted_connections(ServerConnection, guard._admission, refused, evicted)
+
+        class _Capped(admitted):  # type: ignore[misc, valid-type]
+            def ucr_gone(self) -> None:
                 guard._at_cap = False
-                super().connection_lost(exc)
-
-            def ucr_evict(self) -> None:
-                """Close this pending connection now, counted, without a log line each."""
-                guard.evicted_pending += 1
-                self.logger = QUIET_LOG
-                self.transport.abort()
-
-            def data_received(self, data: bytes) -> None:
-                guard._admission.advance(self, TALKING)
-                super().data_received(data)
 
         return _Capped
 
@@ -377,7 +355,7 @@ class FoxgloveGuard:
             return self._refuse(conn, HTTPStatus(refusal.status), refusal.reason)
         if not self.tokens:
             return self._open(conn)
-        ip = _peer_ip(conn.remote_address)
+        ip = peer_ip(conn.remote_address)
         header = request.headers.get("Authorization", "")
         if not header.lower().startswith("bearer "):
             given = (parse_qs(parts.query).get("token") or [""])[0]
@@ -520,13 +498,6 @@ def _bind_refusal(host: str, has_token: bool) -> str:
     return (f"{where} without TLS: the token would cross the network in clear. Give "
             "--tls-cert FILE --tls-key FILE (key mode 0600), add --insecure on a trusted "
             "network, or bind 127.0.0.1 and use an SSH tunnel.")  # fmt: skip
-
-
-def _peer_ip(addr: Any) -> str:
-    try:
-        return str(addr[0])
-    except Exception:  # noqa: BLE001 - unknown transports share one bucket
-        return "?"
 
 
 def _why(exc: BaseException | None) -> str:

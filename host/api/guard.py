@@ -24,8 +24,9 @@ import logging
 import socket
 import sys
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 from urllib.parse import urlsplit
 
 
@@ -323,3 +324,70 @@ class _Quiet(logging.LoggerAdapter):
 
 #: the ``logger`` an :class:`Admission` server gives a connection it evicts (API, Foxglove door)
 QUIET_LOG = _Quiet(logging.getLogger("websockets.server"), {})
+
+
+def peer_ip(addr: Any) -> str:
+    """The IP of a peer address (``(host, port, …)``); "?" for unknown transports, which then
+    share one bucket."""
+    try:
+        return str(addr[0])
+    except Exception:  # noqa: BLE001
+        return "?"
+
+
+def admitted_connections(
+    base: type, admission: Admission, refused: Callable[[str], None], evicted: Callable[[], None]
+) -> type:
+    """``base`` (a websockets ``ServerConnection`` class) admitted by ``admission`` before any
+    work, as every listener of the project admits them (the API server, the Foxglove door): above
+    the per-peer cap the TCP connection is aborted (``refused(ip)``); a connection that makes room
+    evicts the oldest pending one that got least far (``evicted()`` counts it); bytes received
+    move a pending connection to :data:`TALKING`. Subclasses add their own bookkeeping in
+    :meth:`ucr_admitted` and :meth:`ucr_gone`; ``ucr_ip`` is None for a connection not (or no
+    longer) admitted."""
+
+    class Admitted(base):  # type: ignore[misc, valid-type]
+        ucr_ip: str | None = None
+
+        def connection_made(self, transport: Any) -> None:
+            ip = peer_ip(transport.get_extra_info("peername"))
+            admitted, victim = admission.arrive(self, ip)
+            if victim is not None:  # the oldest pending one that got least far
+                victim.ucr_evict()
+            if not admitted:
+                refused(ip)
+                transport.abort()
+                return
+            self.ucr_ip = ip
+            self.ucr_admitted()
+            super().connection_made(transport)
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            ip = self.ucr_ip
+            if ip is None:
+                return  # refused in connection_made: nothing was set up
+            self.ucr_ip = None
+            admission.leave(self, ip)
+            self.ucr_gone()
+            super().connection_lost(exc)
+
+        def ucr_admitted(self) -> None:
+            """Admitted, before the handshake starts (a subclass's bookkeeping)."""
+
+        def ucr_gone(self) -> None:
+            """Closed after it was admitted (a subclass's bookkeeping)."""
+
+        def ucr_evict(self) -> None:
+            """Close this pending connection now. Its handshake task ends as for any connection
+            lost in its handshake (so it unregisters itself: cancelling it before its first step
+            leaked it in the server's handlers), but without the error and traceback websockets
+            logs for that: one per evicted socket."""
+            evicted()
+            self.logger = QUIET_LOG
+            self.transport.abort()
+
+        def data_received(self, data: bytes) -> None:
+            admission.advance(self, TALKING)
+            super().data_received(data)
+
+    return Admitted

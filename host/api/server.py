@@ -67,16 +67,16 @@ from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
 from host.api.guard import (
     AUTHORIZING,
-    QUIET_LOG,
     REFUSING,
-    TALKING,
     VERIFIED,
     Admission,
     GuardConfigError,
     WebGuard,
+    admitted_connections,
     is_loopback,
+    peer_ip,
 )
-from host.api.session import _peer, _peer_ip
+from host.api.session import _peer
 
 __all__ = [
     "ApiServer",
@@ -436,47 +436,28 @@ class ApiServer:
         :attr:`inbound` (see :meth:`_account`)."""
         srv = self
 
-        class _Capped(ServerConnection):
-            _ucr_ip: str | None = None
+        def refused(_ip: str) -> None:
+            srv.counters["refused_connections"] += 1
+
+        def evicted() -> None:
+            srv.counters["evicted_pending"] += 1
+
+        admitted = admitted_connections(ServerConnection, srv._admission, refused, evicted)
+
+        class _Capped(admitted):  # type: ignore[misc, valid-type]
             ucr_held = 0  # request bytes this connection holds, as counted in srv.inbound
             ucr_handling = 0  # length of the request its handler is answering
             ucr_shed = False  # closed for holding the most when all held too much
 
-            def connection_made(self, transport: asyncio.BaseTransport) -> None:
-                ip = _peer_ip(transport.get_extra_info("peername"))
-                admitted, victim = srv._admission.arrive(self, ip)
-                if not admitted:
-                    srv.counters["refused_connections"] += 1
-                    transport.abort()
-                    return
-                if victim is not None:  # the oldest pending one that got least far
-                    victim.ucr_evict()
-                self._ucr_ip = ip
+            def ucr_admitted(self) -> None:
                 srv._conns.add(self)
-                super().connection_made(transport)
 
-            def connection_lost(self, exc: Exception | None) -> None:
-                ip = self._ucr_ip
-                if ip is None:
-                    return  # refused in connection_made: nothing was set up
-                self._ucr_ip = None
-                srv._admission.leave(self, ip)
+            def ucr_gone(self) -> None:
                 srv._conns.discard(self)
                 srv.inbound -= self.ucr_held
                 self.ucr_held = 0
-                super().connection_lost(exc)
-
-            def ucr_evict(self) -> None:
-                """Close this pending connection now. Its handshake task ends as for any
-                connection lost in its handshake (so it unregisters itself: cancelling it
-                before its first step leaked it in the server's handlers), but without the
-                error and traceback websockets logs for that: one per evicted socket."""
-                srv.counters["evicted_pending"] += 1
-                self.logger = QUIET_LOG
-                self.transport.abort()
 
             def data_received(self, data: bytes) -> None:
-                srv._admission.advance(self, TALKING)
                 super().data_received(data)
                 srv._account(self)
 
@@ -488,7 +469,7 @@ class ApiServer:
                 """Request bytes held now: the bytes read and not yet parsed into frames (a
                 frame being read), the frames read ahead, the fragments of a message being
                 assembled and the request the handler is answering."""
-                if self._ucr_ip is None:
+                if self.ucr_ip is None:
                     return 0
                 protocol = self.protocol
                 held = len(protocol.reader.buffer) + (protocol.current_size or 0)
@@ -556,7 +537,7 @@ class ApiServer:
         if not self.opts.tokens:
             conn.ucr_token = None
             return self._open(conn, None)
-        ip = _peer_ip(conn.remote_address)
+        ip = peer_ip(conn.remote_address)
         token = find_token(self.opts.tokens, request.headers.get("Authorization", ""))
         # while it waits out the hold: a valid one is evicted last, a wrong one first
         self._admission.advance(conn, REFUSING if token is None else VERIFIED)

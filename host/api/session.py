@@ -109,13 +109,6 @@ def _agent(ws: Any) -> str:
     return str(agent)[:64]
 
 
-def _peer_ip(addr: Any) -> str:
-    try:
-        return str(addr[0])
-    except Exception:  # noqa: BLE001 - unknown transports share one bucket
-        return "?"
-
-
 def _is_loopback_ip(ip: str) -> bool:
     try:
         return ipaddress.ip_address(ip).is_loopback
