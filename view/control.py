@@ -27,14 +27,15 @@ from typing import Any
 
 import numpy as np
 
+from host.controllers.ffc import FeedForwardController
 from ucrdf.ik import IKResult, IKSolver
 
 #: cFFC defaults (host/controllers/ffc.py): deadzone (fraction of full deflection); its gain is
 #: at most 1, so ``kappa_rate_max`` is the fastest a deflection moves the setpoint.
-FFC_DEADZONE = 0.05
+FFC_DEADZONE = FeedForwardController.defaults["deadzone"]
 #: How long one input can stay in force: the cFFC's deadman (0.3 s) plus a loop period and
 #: margin. The setpoint speed is at most (distance to target) / HORIZON_S.
-HORIZON_S = 0.35
+HORIZON_S = FeedForwardController.defaults["deadman_timeout"] + 0.05
 #: Smallest deflection sent above the deadzone (so the cFFC does move the setpoint).
 MIN_ABOVE_DEADZONE = 0.005
 #: Distance (1/m) of the modelled setpoint to the target accepted as "arrived".

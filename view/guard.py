@@ -279,34 +279,33 @@ class PageGate:
             given = []  # already on the page with controls: a stale ?token= does not take it away
             query_kept = rest
         if given:
-            response = connection.respond(http.HTTPStatus.FOUND, "")
             right = all(self.token.matches(v) for v in given)
             if not right:
                 log(f"a page request from {peer_address(connection)} had a wrong token: view only")
             # always this server's own page: a path such as //evil.example would be another site
             where = self.token.page_path if right else "/"
-            response.headers["Location"] = where + (f"?{rest}" if rest else "")
-            response.headers["Cache-Control"] = "no-store"
-            response.headers["Referrer-Policy"] = "no-referrer"
-            return response
+            return _redirect(connection, where + (f"?{rest}" if rest else ""))
         if under is None:
             return None
         secret, path = under
         if not self.token.matches(secret):
             log(f"a page request from {peer_address(connection)} had a wrong token path: 404")
             return connection.respond(http.HTTPStatus.NOT_FOUND, "NOT FOUND\n")
+        tail = f"?{query_kept}" if query_kept else ""
         if not path:  # /t/<secret>: the page's relative URLs need the final slash
-            response = connection.respond(http.HTTPStatus.FOUND, "")
-            loc = self.token.page_path + (f"?{query_kept}" if query_kept else "")
-            response.headers["Location"] = loc
-            response.headers["Cache-Control"] = "no-store"
-            response.headers["Referrer-Policy"] = "no-referrer"
-            return response
-        return _Rewritten(path + (f"?{query_kept}" if query_kept else ""))
+            return _redirect(connection, self.token.page_path + tail)
+        return _Rewritten(path + tail)
 
 
 class _Rewritten(str):
     """The path viser is to serve instead of the request's (under the page token's path)."""
+
+
+def _redirect(connection: Any, location: str) -> Any:
+    """302 to ``location`` (this server's own path), with :func:`_secret_page_headers`."""
+    response = connection.respond(http.HTTPStatus.FOUND, "")
+    response.headers["Location"] = location
+    return _secret_page_headers(response)
 
 
 def _secret_page_headers(response: Any) -> Any:
