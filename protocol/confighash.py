@@ -7,6 +7,10 @@ be tight, so it compiles only this. ``protocol/calibration.py`` re-exports both 
 from protocol.constants import DEFAULT_KAPPA_RATE_MAX
 
 _HASH_MASK = 0x3FFFFFFF  # 30 bits: every wire int stays below 2**30
+# The safety keys and the firmware's defaults for them (device/config.py DEFAULTS): hashed only
+# where a configuration differs from the default, so one without them (as every configuration
+# flashed before they existed) keeps its hash.
+_SAFETY = (("watchdog_ms", 200), ("tick_ms", 5), ("hw_watchdog_ms", 0), ("fault_action", "hold"))
 
 
 def _q(x, scale):
@@ -20,7 +24,8 @@ def config_text(cfg):
     """Canonical text of the hashed part of a configuration dict (config.json keys, SI).
 
     Lengths in um, angles in 1e-4 rad, curvature in 1e-4 1/m; servos with the firmware's defaults
-    filled in (id = index, zero 0, direction 1, range -pi..pi)."""
+    filled in (id = index, zero 0, direction 1, range -pi..pi); then the safety keys (watchdog,
+    tick, hardware watchdog in whole ms; fault action) that differ from the firmware's defaults."""
     rate = cfg.get("kappa_rate_max")
     if rate is None:
         rate = DEFAULT_KAPPA_RATE_MAX
@@ -47,6 +52,10 @@ def config_text(cfg):
                 _q(s.get("max_angle", 3.141592653589793), 10000),
             )
         )
+    for key, default in _SAFETY:
+        v = cfg.get(key)
+        if v is not None and v != default:
+            parts.append("%s=%s" % (key, v) if isinstance(v, str) else "%s=%d" % (key, _q(v, 1)))
     return ";".join(parts)
 
 

@@ -42,3 +42,23 @@ def test_ucr_check_and_the_firmware_share_the_tick_and_watchdog_defaults():
     )
     tick, dog = (int(x) for x in out.split("@@", 1)[1].split())
     assert (tick, dog) == (SEGMENT_MS_PARAMS["tick_ms"][3], SEGMENT_MS_PARAMS["watchdog_ms"][3])
+
+
+def test_the_configuration_hash_leaves_out_exactly_the_firmwares_safety_defaults():
+    """protocol/confighash.py hashes watchdog_ms, tick_ms, hw_watchdog_ms and fault_action only
+    where they differ from the defaults the firmware runs (so a config.json without them hashes
+    as before): its table must be the firmware's DEFAULTS, or a segment running all defaults
+    would hash differently from the host's reading of the same robot file."""
+    from protocol.confighash import _SAFETY
+    from ucrdf.checks import SEGMENT_MS_PARAMS
+
+    keys = [k for k, _ in _SAFETY]
+    out = run_code(
+        "import config\nc = config.Config(None)\n"
+        f"print('@@', ' '.join(str(c.si[k]) for k in {keys!r}))\n"
+    )
+    firmware = out.split("@@", 1)[1].split()
+    assert firmware == [str(v) for _, v in _SAFETY]
+    for key, default in _SAFETY:
+        if key in SEGMENT_MS_PARAMS:
+            assert SEGMENT_MS_PARAMS[key][3] == default, key

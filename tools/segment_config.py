@@ -18,9 +18,9 @@ from ucrdf.checks import (
     DEFAULT_WATCHDOG_MS,
     firmware_refusal,
     segment_config,
-    segment_ms_param,
+    segment_hardware_params,
 )
-from ucrdf.model import Actuation, Bendable, Robot
+from ucrdf.model import Actuation, Robot
 
 __all__ = ["DEFAULT_KAPPA_RATE_MAX", "DEFAULT_WATCHDOG_MS", "SegmentConfigError", "config_for"]
 
@@ -70,29 +70,6 @@ def validate(config: dict, where: str = "") -> dict:
     return config
 
 
-def _hardware_param(robot: Robot, bendable: Bendable, name: str) -> str | None:
-    """Hardware param ``name`` from the bendable's model params, else a ros2_control hardware
-    param; None when not given."""
-    value = bendable.model.params.get(name)
-    if value is None:
-        for rc in robot.ros2_control:
-            if name in rc.hardware_params:
-                return rc.hardware_params[name]
-    return value
-
-
-def _ms_param(robot: Robot, bendable: Bendable, name: str) -> int | None:
-    """Hardware param ``name`` (ucrdf/checks.py SEGMENT_MS_PARAMS) from the bendable's model
-    params, else a ros2_control hardware param; None when not given."""
-    value: object = _hardware_param(robot, bendable, name)
-    if value is None:
-        return None
-    try:
-        return segment_ms_param(name, value)
-    except ValueError as exc:
-        raise SegmentConfigError(str(exc)) from None
-
-
 def config_for(robot: Robot, bendable_name: str, *, emulated: bool = False) -> dict:
     """The configuration dict (SI units, contract keys) of bendable ``bendable_name``.
 
@@ -132,19 +109,14 @@ def config_for(robot: Robot, bendable_name: str, *, emulated: bool = False) -> d
         raise SegmentConfigError(
             f"bendable {bendable_name!r}: {len(act.servos)} servos for {len(act.angles)} tendons"
         )
-    watchdog = _ms_param(robot, bendable, "watchdog_ms")
-    config = segment_config(bendable, DEFAULT_WATCHDOG_MS if watchdog is None else watchdog)
-    tick = _ms_param(robot, bendable, "tick_ms")
-    if tick is not None:
-        config["tick_ms"] = tick
-    # safety keys only when the robot gives them: a config.json without them runs the
+    # the safety keys only when the robot gives them: a config.json without them runs the
     # firmware's defaults (no hardware watchdog, hold in FAULT), as flashed before they existed
-    hw_dog = _ms_param(robot, bendable, "hw_watchdog_ms")
-    if hw_dog is not None:
-        config["hw_watchdog_ms"] = hw_dog
-    action = _hardware_param(robot, bendable, "fault_action")
-    if action is not None:
-        config["fault_action"] = action
+    try:
+        params = segment_hardware_params(robot, bendable)
+    except ValueError as exc:
+        raise SegmentConfigError(str(exc)) from None
+    config = segment_config(bendable, params.pop("watchdog_ms", DEFAULT_WATCHDOG_MS))
+    config.update(params)
     config.update(_wiring(bendable_name, act))
     return validate(config, _where(robot, bendable.line))
 

@@ -169,6 +169,38 @@ def segment_ms_param(name: str, value: object) -> int:
     return int(round(ms))
 
 
+def segment_hardware_params(robot: Robot, b: Bendable) -> dict:
+    """The segment keys the robot's hardware params give bendable ``b``, only those it gives:
+    ``watchdog_ms``, ``tick_ms``, ``hw_watchdog_ms`` (int ms) and ``fault_action``, each from the
+    bendable's model params, else from a ros2_control ``<hardware>`` param. ValueError with the
+    reason for a value the firmware could not run. ``ucr flash`` writes them into config.json and
+    ``ucr doctor`` hashes them as the segment does (protocol/confighash.py)."""
+    out: dict = {}
+    for name in (*SEGMENT_MS_PARAMS, "fault_action"):
+        value = b.model.params.get(name)
+        if value is None:
+            value = next(
+                (
+                    rc.hardware_params[name]
+                    for rc in robot.ros2_control
+                    if name in rc.hardware_params
+                ),
+                None,
+            )
+        if value is None:
+            continue
+        if name != "fault_action":
+            out[name] = segment_ms_param(name, value)
+        elif value in FAULT_ACTIONS:
+            out[name] = value
+        else:
+            raise ValueError(
+                f"fault_action must be one of {', '.join(FAULT_ACTIONS)} (what the servos do in "
+                f"FAULT), got {value!r}"
+            )
+    return out
+
+
 def segment_config(b: Bendable, watchdog_ms: int = DEFAULT_WATCHDOG_MS) -> dict:
     """The segment configuration (``config.json`` contract, SI units) of bendable ``b`` with a
     tendon actuation; the one mapping from U(C)RDF to firmware keys (tools/segment_config.py

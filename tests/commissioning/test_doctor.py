@@ -342,3 +342,38 @@ def test_the_text_report_counts_positions_from_one_like_the_rest_of_the_cli() ->
     daemon's messages and docs/daemon.md count positions from 1."""
     text = doctor.format_text([doctor.Finding("firmware", "ok", "firmware 0.1.0", position=0)])
     assert text.splitlines()[0] == "[ok  ] position 1 firmware: firmware 0.1.0"
+
+
+def test_doctor_sees_a_segment_flashed_with_other_safety_params(tmp_path: Path) -> None:
+    """The safety params of the U(C)RDF (watchdog_ms, tick_ms, hw_watchdog_ms, fault_action) are
+    part of the configuration hash: a segment flashed before the robot file set
+    `hw_watchdog_ms` (or with another tick) is a stale flash, and one flashed from this file is
+    not. Before, the hash covered geometry and servos only, and `ucr doctor` said "ok"."""
+    from host.doctor_config import check_config_hash
+    from protocol import calibration as cal
+    from tools.segment_config import config_for
+
+    text = (REPO / "robots" / "softrobot3.ucrdf").read_text()
+    marker = '<param name="watchdog_ms">200</param>'
+    assert marker in text
+    robot_file = tmp_path / "r.ucrdf"
+    robot_file.write_text(
+        text.replace(
+            marker,
+            marker + '<param name="hw_watchdog_ms">2000</param>'
+            '<param name="tick_ms">10</param><param name="fault_action">release</param>',
+        )
+    )
+    robot = load(robot_file)
+    fresh = config_for(robot, "segment_1")  # what `ucr flash` writes from this file
+    assert fresh["hw_watchdog_ms"] == 2000 and fresh["fault_action"] == "release"
+    desc = {"position": 0, "servo_driver": fresh["servo_driver"]}
+    (ok,) = check_config_hash(str(robot_file), [{**desc, "config_hash": cal.config_hash(fresh)}])
+    assert ok.level == "ok", ok
+    for key in ("hw_watchdog_ms", "tick_ms", "fault_action"):
+        old = {k: v for k, v in fresh.items() if k != key}  # flashed before the file said so
+        (stale,) = check_config_hash(
+            str(robot_file), [{**desc, "config_hash": cal.config_hash(old)}]
+        )
+        assert stale.level == "error" and "stale flash" in stale.fix, (key, stale)
+        assert "watchdog, tick or fault action" in stale.message

@@ -177,6 +177,27 @@ SPECS = [
         {},
     ),
     (
+        "config_hash_safety",
+        "configuration hash with the safety keys away from their defaults (hashed after the servos)",
+        "config_hash",
+        [
+            {
+                "length": 0.316,
+                "tendon_angles": [0.0, 2.0943951023931953, 4.1887902047863905],
+                "tendon_radius": 0.06,
+                "spool_radius": 0.025,
+                "kappa_max": 3.313916301255056,
+                "servo_driver": "pwm",
+                "watchdog_ms": 150,
+                "tick_ms": 10,
+                "hw_watchdog_ms": 2000,
+                "fault_action": "release",
+            }
+        ],
+        {},
+        {},
+    ),
+    (
         "state_3t",
         "STATE of a segment with 3 servos",
         "encode_state",
