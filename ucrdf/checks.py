@@ -150,6 +150,9 @@ SEGMENT_MS_PARAMS: dict[str, tuple[int, int, bool, int]] = {
     "hw_watchdog_ms": (0, 60000, True, 0),
 }
 HW_WATCHDOG_MIN_MS = 50  # device/config.py: an ESP32 watchdog shorter than this is refused
+#: A hardware watchdog at least this long (ms) leaves room for the slowest frame handling, a
+#: calibration being stored (docs/firmware.md "Hardware watchdog"); ``ucr check`` warns below it.
+HW_WATCHDOG_STORE_MS = 1000
 
 
 def segment_ms_param(name: str, value: object) -> int:
@@ -293,9 +296,31 @@ def check(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
 def warnings(robot: Robot, lines: LineTable | None = None) -> list[Diagnostic]:
     """What ``ucr check`` warns about in a usable description: a tendon actuation without
     ``<servo>`` elements, whose segment ``ucr flash`` refuses (its servo ids and calibration are
-    unknown, and none are invented)."""
+    unknown, and none are invented); a hardware watchdog shorter than HW_WATCHDOG_STORE_MS, which
+    may reset a segment while it stores a calibration (docs/firmware.md "Hardware watchdog")."""
     lines = lines or {}
     out = []
+    given = [(("bendable", n, "param"), b.model.params, b.line) for n, b in robot.bendables.items()]
+    given += [
+        (("ros2_control", i, "param"), rc.hardware_params, rc.line)
+        for i, rc in enumerate(robot.ros2_control)
+    ]
+    for key, params, fallback in given:
+        try:
+            ms = segment_ms_param("hw_watchdog_ms", params.get("hw_watchdog_ms", 0))
+        except ValueError:  # an error of check()
+            continue
+        if 0 < ms < HW_WATCHDOG_STORE_MS:
+            out.append(
+                Diagnostic(
+                    robot.source or "<robot>",
+                    lines.get((*key, "hw_watchdog_ms"), fallback),
+                    f"warning: hardware param hw_watchdog_ms {ms} is below "
+                    f"{HW_WATCHDOG_STORE_MS} ms: storing a calibration is estimated to take "
+                    "150-390 ms on an ESP32 plus the flash erase, and may reset the segment "
+                    "(it reboots in FAULT WDT_RESET)",
+                )
+            )
     for b in robot.bendables.values():
         act = b.actuation
         if act is None or not act.angles or act.servos:

@@ -81,3 +81,21 @@ def test_what_the_firmware_would_refuse_is_a_check_error_at_its_line(
     assert "Traceback" not in result.stderr
     with pytest.raises(SegmentConfigError):  # ucr flash refuses it too
         config_for(load(path, check=False), "segment_2")
+
+
+def test_a_hardware_watchdog_too_short_for_a_calibration_store_is_a_check_warning(
+    tmp_path,
+) -> None:
+    """docs/firmware.md: storing a calibration takes an estimated 150-390 ms on an ESP32 plus the
+    flash erase, so a hw_watchdog_ms under 1000 may reset the segment mid-store. `ucr check`
+    accepted 100 without a word; now it warns at the param's line (exit code still 0)."""
+    lines = ROBOT.read_text().splitlines()
+    line = lines.index(next(x for x in lines if ANCHOR in x)) + 1
+    short = _check(_robot(tmp_path, '<param name="hw_watchdog_ms">100</param>'))
+    assert short.returncode == 0, short.stderr
+    assert f"r.ucrdf:{line}: warning: hardware param hw_watchdog_ms 100 is below 1000 ms" in (
+        short.stderr
+    )
+    for extra in ('<param name="hw_watchdog_ms">2000</param>', ""):
+        fine = _check(_robot(tmp_path, extra))
+        assert fine.returncode == 0 and "hw_watchdog_ms" not in fine.stderr, fine.stderr
