@@ -375,6 +375,15 @@ def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
                 f"the power of {cmp.expected[found]} (a segment that does not answer cuts the "
                 "chain there)"
             )
+            if found and descs[found - 1].get("config_error"):
+                # a refused segment may open no downstream UART (its pins unknown, or a board
+                # whose one free UART is upstream, e.g. an esp32c3): the cut may be its own
+                fix = (
+                    f"{last} refused its configuration ({descs[found - 1]['config_error']}) and "
+                    "may not forward the chain beyond itself: fix and reflash it first "
+                    f"(`ucr flash ... --segment {cmp.expected[found - 1]}`); if the chain is still "
+                    f"cut, {fix}"
+                )
         elif d.kind == "count":
             fix = "add the extra segment(s) to the U(C)RDF, or let `ucr daemon --adopt` write one"
         else:

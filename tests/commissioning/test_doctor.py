@@ -377,3 +377,22 @@ def test_doctor_sees_a_segment_flashed_with_other_safety_params(tmp_path: Path) 
         )
         assert stale.level == "error" and "stale flash" in stale.fix, (key, stale)
         assert "watchdog, tick or fault action" in stale.message
+
+
+def test_a_short_chain_ending_at_a_refused_segment_names_the_refusal_before_the_cable() -> None:
+    """A segment that refused its configuration may open no downstream UART (an esp32c3 whose one
+    free UART is upstream, or pins it cannot trust): `ucr doctor` blamed only the cable and the
+    next segment's power for the missing rest of the chain."""
+    from host.doctor_checks import check_robot
+    from host.topology import chain_bendables
+
+    robot_file = REPO / "robots" / "softrobot3.ucrdf"
+    robot = load(robot_file)
+    names = chain_bendables(robot)
+    first = {**config_for(robot, names[0]), "name": names[0], "position": 0}
+    refused = {**first, "config_error": "board esp32c3: no UART is left for the downstream UART"}
+    (cut,) = [f for f in check_robot(str(robot_file), [refused]) if "missing" in f.message]
+    assert cut.fix.startswith("position 1 refused its configuration (board esp32c3: no UART")
+    assert f"--segment {names[0]}" in cut.fix and "cable from position 1 to position 2" in cut.fix
+    (plain,) = [f for f in check_robot(str(robot_file), [first]) if "missing" in f.message]
+    assert "refused" not in plain.fix
