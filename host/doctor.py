@@ -134,6 +134,7 @@ def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
 def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = None) -> list[Finding]:
     """All checks in order; stops early where later checks cannot run (no port, no answer)."""
     from host.link import ChainLink, LinkError  # noqa: PLC0415
+    from host.link_frames import ProtocolVersionError  # noqa: PLC0415
 
     findings = [check_port(port)]
     if findings[-1].level == "error":
@@ -162,6 +163,19 @@ def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = Non
         for _ in range(3):
             try:
                 descs = link.discover(timeout=1.0)
+            except ProtocolVersionError as exc:  # a segment answers, in another version
+                findings.append(
+                    Finding(
+                        "protocol",
+                        "error",
+                        str(exc),
+                        "reflash it: `ucr flash --port <its USB port> --robot <robot> "
+                        "--segment <name>` (the segments before it answered in this host's "
+                        "version)",
+                        exc.position,
+                    )
+                )
+                return findings
             except LinkError:
                 descs = []
             if descs:

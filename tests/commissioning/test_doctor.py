@@ -16,6 +16,7 @@ import pytest
 
 from host import doctor
 from host.link import ChainLink, LinkError
+from protocol import constants as C
 from tools.emulator import EmulatedChain
 from tools.mpvm import REPO
 from tools.segment_config import config_for
@@ -396,3 +397,18 @@ def test_a_short_chain_ending_at_a_refused_segment_names_the_refusal_before_the_
     assert f"--segment {names[0]}" in cut.fix and "cable from position 1 to position 2" in cut.fix
     (plain,) = [f for f in check_robot(str(robot_file), [first]) if "missing" in f.message]
     assert "refused" not in plain.fix
+
+
+def test_doctor_names_a_segment_of_another_protocol_version_not_the_wiring(tmp_path: Path) -> None:
+    """Issue 14 audit: `ucr doctor` took the descriptor of a segment speaking another protocol
+    version for silence ("no segment answers DISCOVER", check power and wiring, then a baud scan),
+    where `ucr daemon` on the same port says to reflash it with `ucr flash`."""
+    from tests.chain.chain_helpers import protocol_speaking
+
+    other = protocol_speaking(tmp_path, C.VERSION_MAX + 1)
+    with EmulatedChain(1, protocol_dir=other, config_for=_configs()[:1]) as chain:
+        findings = _run(chain.host_port)
+    errs = _errors(findings, "protocol")
+    assert errs and "ucr flash" in errs[0].message, doctor.format_text(findings)
+    assert errs[0].position == 0 and "reflash" in errs[0].fix
+    assert not [f for f in findings if f.check in ("chain", "baud")], doctor.format_text(findings)
