@@ -4,6 +4,7 @@ frames still reach every segment (docs/protocol.md section 6, "Cut-through")."""
 
 from __future__ import annotations
 
+import math
 import time
 
 from host.link import LinkError
@@ -13,6 +14,19 @@ P_CRC_ERRORS = 7
 P_FRAMING_ERRORS = 8
 N = 3
 CYCLES = 400
+SETPOINTS = [(0.5, 0.25), (1.0, -0.5), (1.5, 1.0)]  # kappa 1/m, phi rad; constant throughout
+
+
+def _only_sent_setpoints_applied(got: list[dict]) -> None:
+    """Every reported pose lies on the way from rest (kappa 0) to the segment's own setpoint: a
+    corrupted SYNC that kept its cycle bytes but was executed would show another kappa or phi
+    (the cycle echo alone cannot tell, the setpoints being constant)."""
+    for s in got:
+        k_sp, phi_sp = SETPOINTS[s["position"]]
+        assert -1e-3 <= s["kappa"] <= 1.02 * k_sp + 1e-3, s
+        if s["kappa"] > 0.05:  # a slew from rest keeps phi near the setpoint's (the emulated
+            off = math.remainder(s["phi"] - phi_sp, 2 * math.pi)  # servos lag by ~0.04 rad)
+            assert abs(off) < 0.1, s
 
 
 def _params(link, pos: int) -> tuple[int, int]:
@@ -34,7 +48,7 @@ def _counters_after_clean_traffic(link) -> list[tuple[int, int]]:
 def _fuzz(link, chain, k: int, direction: str, seed: int):
     """SYNC cycles with link ``k`` corrupting bytes in ``direction``; returns (sent cycles,
     states received) after the corruption was switched off again."""
-    sps = [(0.5, 0.25), (1.0, -0.5), (1.5, 1.0)]
+    sps = SETPOINTS
     sent: set[int] = set()
     got: list[dict] = []
     chain.set_link(k, corrupt_rate=0.004, direction=direction, seed=seed)
@@ -64,6 +78,7 @@ def test_corrupted_bytes_in_relayed_frames_are_dropped_downstream_and_never_exec
         assert all(s["cycle"] in sent for s in got)  # no STATE answers a SYNC never sent
         assert all(s["applied_position"] == s["position"] for s in got)  # no corrupted hop
         assert len(got) > CYCLES  # clean cycles still served
+        _only_sent_setpoints_applied(got)
         # (2) STATEs corrupted between segment 2 and 1 on their way up: relayed by segments 1
         # and 0, the host drops them (framing errors), never accepts one with a bad CRC
         host_before = link.stats
@@ -73,3 +88,4 @@ def test_corrupted_bytes_in_relayed_frames_are_dropped_downstream_and_never_exec
         assert host_after["crc_errors"] == host_before["crc_errors"]
         assert all(s["cycle"] in sent for s in got)
         assert all(s["applied_position"] == s["position"] for s in got)
+        _only_sent_setpoints_applied(got)
