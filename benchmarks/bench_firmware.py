@@ -26,8 +26,14 @@ from protocol import messages as M  # noqa: E402
 from tools import mpvm  # noqa: E402
 
 VM_SETUP = """
-import gc, json, time, micropython
+import gc, json, sys, time, micropython
+gc.collect()
 import vmkit
+gc.collect()
+import config
+gc.collect()
+import segment  # before the configuration, as main.build does: the import's peak on a clean heap
+gc.collect()
 hal, seg = vmkit.make({{'watchdog_ms': 60000, 'servo_driver': '{driver}'}})
 SYNC = bytes.fromhex('{sync}')
 STATE = bytes.fromhex('{state}')
@@ -269,7 +275,10 @@ micropython.heap_unlock()
 gc.collect()
 R['heap_free'] = gc.mem_free()
 R['heap_used'] = gc.mem_alloc()
-print('@@' + json.dumps(R))
+# streamed: the text in one piece needs a free block that a fragmented heap may lack
+sys.stdout.write('@@')
+json.dump(R, sys.stdout)
+print()
 """
 
 # The test ports' calls, in a VM run of their own (their code must not change the heap
@@ -354,7 +363,11 @@ for rnd in range(ROUNDS - 1):  # rounds, the best per figure (ROUNDS in VM_SETUP
 R['harness_us'] = C.pop('harness')
 R['empty_call_us'] = C.pop('empty')
 R['port_cost'] = C
-print('@@' + json.dumps(R))
+gc.collect()  # the heap is the board's budget: room for the JSON text
+# streamed: the text in one piece needs a free block that a fragmented heap may lack
+sys.stdout.write('@@')
+json.dump(R, sys.stdout)
+print()
 """
 
 

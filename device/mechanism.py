@@ -201,6 +201,8 @@ class Mechanism:
 
     def update(self):
         """One cycle: slew (kx, ky) towards the target, compute servo targets; return clamp bits."""
+        if _fast:
+            return _fast.update(self)  # all of it in machine code
         flags = 0
         dx = self.tx - self.cx
         dy = self.ty - self.cy
@@ -261,28 +263,26 @@ class Mechanism:
     def measure(self, positions):
         """Servo positions (raw, 1e-4 rad, array) -> tendon lengths, (kx, ky), kappa, phi."""
         if _fast:
-            _fast.measure(self, positions)  # the loop below in machine code: sets mx, my
-            sx = self.mx
-            sy = self.my
-        else:
-            qb = self.q_b
-            qi = self.q_i
-            sx = 0
-            sy = 0
-            for i in range(self.n):
-                rel = positions[i] - self.zero[i]
-                if rel < self.mlo[i]:
-                    rel = self.mlo[i]
-                elif rel > self.mhi[i]:
-                    rel = self.mhi[i]
-                a = rel if self.dir[i] > 0 else -rel
-                self.joint[i] = a
-                dl = -mulq(a, self.spool_back, qb)
-                self.tendon[i] = self.length_um + dl
-                sx += mulq(-dl, self.ix[i], qi)
-                sy += mulq(-dl, self.iy[i], qi)
-            self.mx = sx
-            self.my = sy
+            _fast.measure(self, positions)  # all of it in machine code
+            return
+        qb = self.q_b
+        qi = self.q_i
+        sx = 0
+        sy = 0
+        for i in range(self.n):
+            rel = positions[i] - self.zero[i]
+            if rel < self.mlo[i]:
+                rel = self.mlo[i]
+            elif rel > self.mhi[i]:
+                rel = self.mhi[i]
+            a = rel if self.dir[i] > 0 else -rel
+            self.joint[i] = a
+            dl = -mulq(a, self.spool_back, qb)
+            self.tendon[i] = self.length_um + dl
+            sx += mulq(-dl, self.ix[i], qi)
+            sy += mulq(-dl, self.iy[i], qi)
+        self.mx = sx
+        self.my = sy
         if -_PHI_HOLD_EPS < sx < _PHI_HOLD_EPS and -_PHI_HOLD_EPS < sy < _PHI_HOLD_EPS:
             # about straight: kappa from the larger component, phi held
             ax = sx if sx >= 0 else -sx

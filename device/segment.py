@@ -86,6 +86,11 @@ try:  # the receive step in one call (rx is _RXBUF bytes, rout _RXBUF + 8: withi
 except Exception:  # no viper emitter: FrameReader.scan and Relay.feed
     _scan_relay = None
 
+try:  # the usual SYNC in one call (protocol.device.decode_sync's machine-code step)
+    from protocol._fast import sync_entry as _sync_entry
+except Exception:  # no viper emitter: pd.decode_sync alone
+    _sync_entry = None
+
 try:
     from protocol._fast import move as _move
 except Exception:  # no viper emitter: the same copy in bytecode
@@ -114,7 +119,6 @@ _PEND = const(252)  # own upstream frames held while a relayed frame is half sen
 _RELAY_SILENCE_MS = const(3)
 _LOAD_WINDOW_MS = const(1000)  # CPU load measured over windows this long
 _T_CALIBRATE = const(0x09)  # protocol.constants T_CALIBRATE (device/calib.py handles it)
-_FWD_DOWN = const(2)  # protocol.device.FWD_DOWN (a const of another module is a lookup)
 
 
 # Elapsed time: ``(a - b) & _TMASK`` is the ms from the past stamp ``b`` to ``a`` (stamps wrap at
@@ -167,6 +171,12 @@ class Segment:
         self.raw = bytearray(MAX_FRAME)
         self.wire = bytearray(MAX_ENCODED + 8)
         self.sync_out = [0, 0, 0, 0]
+        # pd.state_frame's machine-code builder where the port has it (pd checked it against
+        # the bytecode encoder at import) and the buffers hold a STATE of n servos
+        sw = pd._state_wire
+        if sw is None or 26 + 2 * cfg.n > MAX_FRAME or 28 + 2 * cfg.n > MAX_ENCODED + 8:
+            sw = None
+        self._state_wire = sw
         # counters
         self.dropped = 0  # good CRC but not acceptable (direction, flags, version, malformed)
         self.events_lost = 0
@@ -293,7 +303,24 @@ class Segment:
 
     def _send_state(self, cycle, seq):
         mc = self.mc
-        end = pd.state_frame(  # one machine-code call inside where the port has the emitter
+        if self._state_wire is not None:  # pd.state_frame's machine-code call, made here
+            self._up(
+                self._state_wire(
+                    self.raw,
+                    self.wire,
+                    seq,
+                    cycle,
+                    self.now,
+                    mc.kappa,
+                    mc.phi,
+                    self.status() | self.position << 8,
+                    mc.joint,
+                    self.n,
+                    _CRC_TABLE,
+                )
+            )
+            return
+        end = pd.state_frame(
             self.raw,
             self.wire,
             seq,
@@ -436,13 +463,19 @@ class Segment:
             )
             return
         hop = r.hop
-        rt = pd.route(flags, hop)
-        if rt & 3 == _FWD_DOWN and not self.rl_dn.relayed:
+        # pd.route and pd.next_hop written out (FLAG_UP is excluded above): a link-local frame
+        # is ours only; a broadcast is ours and goes on with hop + 1; an addressed frame is ours
+        # at hop 0, else it goes on with hop - 1
+        if flags & FLAG_LOCAL:
+            self._process(r, flags, hop)
+            return
+        bc = flags & FLAG_BCAST
+        if (bc or hop) and not self.rl_dn.relayed:
             # store-and-forward what was not relayed (addressed frames); payload bytes intact
-            end = forward_into(r.raw, r.raw_len, pd.next_hop(flags, hop), self.wire)
+            end = forward_into(r.raw, r.raw_len, (hop + 1) & 0xFF if bc else hop - 1, self.wire)
             self.hal.down.write(self.wire, end)
             r.raw[2] = hop  # restore our view of the header (CRC no longer needed)
-        if rt & 4:
+        if bc or not hop:
             self._process(r, flags, hop)
 
     def _from_down(self, r):
@@ -470,7 +503,13 @@ class Segment:
             if flags & FLAG_BCAST:
                 self.position = hop
             out = self.sync_out
-            res = pd.decode_sync(raw, HEADER_LEN, pe, self.position, out)
+            # the usual encoding in one machine-code call (pd.decode_sync's first step, called
+            # here directly: HEADER_LEN <= pe <= len(raw) holds for every frame the reader
+            # completes); anything else, or no emitter: the general decoder
+            pos = self.position
+            res = -1 if _sync_entry is None else _sync_entry(raw, HEADER_LEN, pe, pos, out)
+            if res < 0:
+                res = pd.decode_sync(raw, HEADER_LEN, pe, pos, out)
             if res < 0:
                 self.dropped += 1
                 self._error(seq, ERR_MALFORMED, t, "malformed SYNC")
@@ -611,11 +650,17 @@ class Segment:
         mc = self.mc
         # relay points (docs/firmware.md "Forwarding inside a tick") between phases of about
         # equal length: servo read + fault checks, measure, MC update, SC step + command
+        hal = self.hal
+        # each relay point is ``relay_point()`` written out (a call per point cost the tick more)
         bus.poll(now)
         self._faults(now)
-        self.relay_point()
+        m = hal.rx_any()
+        if m:
+            self._pump(hal.ticks_ms(), True, m)
         mc.measure(bus.pos)
-        self.relay_point()
+        m = hal.rx_any()
+        if m:
+            self._pump(hal.ticks_ms(), True, m)
         if self.wd_armed and not self.wd_tripped:
             if ((now - self.last_feed) & _TMASK) > self.watchdog_ms:
                 self.wd_tripped = True
@@ -624,7 +669,9 @@ class Segment:
             self._stop_moving()
         if self.moving:
             f = mc.update()
-            self.relay_point()
+            m = hal.rx_any()
+            if m:
+                self._pump(hal.ticks_ms(), True, m)
             bus.command(self.sc.step(mc.servo_target), now)
             if bus.saturated:
                 f |= CLAMP_SERVO  # output clipped (PWM pulse range): pos holds the achieved angle
@@ -632,10 +679,12 @@ class Segment:
             self.clamp_pending |= f
         elif bus.enabled:
             bus.command(mc.servo_target, now)  # keep holding the measured position
-        self.relay_point()
+        m = hal.rx_any()
+        if m:
+            self._pump(hal.ticks_ms(), True, m)
         bus.request(now)
         self.service(now)
-        us = self.hal.ticks_diff(self.hal.ticks_us(), t0)
+        us = hal.ticks_diff(hal.ticks_us(), t0)
         self.cycle_us = us
         if us > self.cycle_us_max:
             self.cycle_us_max = us

@@ -58,10 +58,19 @@ class PwmBus(ServoBus):
         allocation on every command."""
         self.pwm = [self.hal.pwm(pin, self.freq) for pin in self.pins[: self.n]]
 
-    def _send(self, targets, now_ms):
+    def command(self, targets, now_ms):
+        # ServoBus.command with _send in it (a call less per tick); attributes bound once
+        self.enabled = True
         if self.pwm is None:
             self._outputs()
         h = self.half
+        centre = self.centre_ns
+        k256 = self.k256
+        lo = self.min_ns
+        hi = self.max_ns
+        pulse = self.pulse_ns
+        pwm = self.pwm
+        pos = self.pos
         sat = False
         for i in range(self.n):
             raw = targets[i]
@@ -71,15 +80,21 @@ class PwmBus(ServoBus):
             elif raw < -h:
                 raw = -h
                 sat = True
-            ns = self.centre_ns + ((raw * self.k256 + 128) >> 8)
-            if ns < self.min_ns:
-                ns = self.min_ns
-            elif ns > self.max_ns:
-                ns = self.max_ns
-            self.pulse_ns[i] = ns
-            self.pwm[i].duty_ns(ns)
-            self.pos[i] = raw  # what the pulse asks for: the achieved angle
+            ns = centre + ((raw * k256 + 128) >> 8)
+            if ns < lo:
+                ns = lo
+            elif ns > hi:
+                ns = hi
+            pulse[i] = ns
+            pwm[i].duty_ns(ns)
+            pos[i] = raw  # what the pulse asks for: the achieved angle
         self.saturated = sat
+
+    def _send(self, targets, now_ms):
+        self.command(targets, now_ms)  # (ServoBus's contract; command does it all)
+
+    def poll(self, now_ms):
+        pass  # open loop: pos is the last command, no faults observable (no _refresh call)
 
     def _release(self):
         if self.pwm is not None:

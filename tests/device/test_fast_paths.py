@@ -246,13 +246,37 @@ _MECH_CONFIGS = [
             {"zero_offset": 1.1, "direction": 1, "min_angle": -0.3, "max_angle": 0.3},
         ],
     },
+    # fixed-point shifts on every side of 16 (the written-out products' three branches):
+    # q_i = 12, q_t = 16, q_t = 15
+    {
+        "length": 0.02,
+        "tendon_radius": 0.001,
+        "spool_radius": 0.005,
+        "kappa_max": 5.0,
+        "servos": [{"min_angle": -0.3, "max_angle": 0.3}] * 3,
+    },
+    {
+        "length": 2.0,
+        "tendon_radius": 0.08,
+        "spool_radius": 0.15,
+        "kappa_max": 1.0,
+        "servos": [{"min_angle": -0.5, "max_angle": 0.5}] * 3,
+    },
+    {
+        "length": 2.0,
+        "tendon_radius": 0.2,
+        "spool_radius": 0.15,
+        "kappa_max": 1.0,
+        "servos": [{"min_angle": -0.5, "max_angle": 0.5}] * 3,
+    },
 ]
 
 
 def test_machine_code_mechanism_loops_give_the_bytecode_loops_integers(vm):
-    """device/mech_fast.py (Mechanism.measure's loop, _servo_targets) against the bytecode loops:
-    the same joint angles, tendon lengths, curvature, servo targets and clamp bit, for positions
-    inside and far outside the ranges and curvature vectors up to beyond kappa_max."""
+    """device/mech_fast.py (Mechanism.measure, _servo_targets, update) against the bytecode
+    paths: the same joint angles, tendon lengths, curvature, servo targets, slew state and
+    clamp bits, for positions inside and far outside the ranges, curvature vectors up to beyond
+    kappa_max, and slew steps from below one unit per tick to beyond the distance left."""
     import json
 
     r = vm(
@@ -276,7 +300,7 @@ for c in json.loads({json.dumps(json.dumps(_MECH_CONFIGS))}):
             m.measure(pos)
             res.append([list(m.joint), list(m.tendon), m.mx, m.my, m.kappa, m.phi])
         if res[0] != res[1]:
-            bad.append(['measure', list(pos), res])
+            len(bad) < 3 and bad.append(['measure', list(pos), res])
         km = 2 * cfg.kappa_max
         m.cx = random.randint(-km, km)
         m.cy = random.randint(-km, km)
@@ -286,7 +310,26 @@ for c in json.loads({json.dumps(json.dumps(_MECH_CONFIGS))}):
             f = m._servo_targets()
             res.append([f, list(m.tendon_cmd), list(m.servo_target)])
         if res[0] != res[1]:
-            bad.append(['targets', m.cx, m.cy, res])
+            len(bad) < 3 and bad.append(['targets', m.cx, m.cy, res])
+        # the slew (update): from the same state, near and far targets, rate flag on and off
+        m.set_rate_max(random.choice([1, 7, 333, 10000, 2000000]))
+        s0 = [random.randint(-km, km) for _ in range(4)]
+        if k % 3 == 0:
+            s0[2] = s0[0] + random.randint(-5, 5)
+            s0[3] = s0[1] + random.randint(-5, 5)
+        acc0 = random.randint(0, 999)
+        ex0 = random.random() < 0.5
+        res = []
+        for use in (fast, None):
+            mechanism._fast = use
+            m.tx, m.ty, m.cx, m.cy = s0
+            m.step_acc = acc0
+            m.rate_excess = ex0
+            f = m.update()
+            res.append([f, m.cx, m.cy, m.step_acc, m.rate_excess, list(m.tendon_cmd),
+                        list(m.servo_target)])
+        if res[0] != res[1]:
+            len(bad) < 3 and bad.append(['update', s0, acc0, ex0, res])
     mechanism._fast = fast
 R['bad'] = bad[:3]
 """,

@@ -178,7 +178,7 @@ SPECS = [
     ),
     (
         "config_hash_safety",
-        "configuration hash with the safety keys away from their defaults (hashed after the servos)",
+        "configuration hash with the safety keys off their defaults (hashed after the servos)",
         "config_hash",
         [
             {
