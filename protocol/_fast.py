@@ -219,6 +219,11 @@ def sync_entry(buf, start: int, end: int, position: int, out) -> int:
     p += ln
     if p > end or ln % 5:
         return -2
+    e = q  # every entry: a hold marker is exactly 80 00 00 00 00 (else the frame is malformed)
+    while e < p:
+        if b[e] == 0x80 and b[e + 1] == 0 and b[e + 2] == 0 and (b[e + 3] | b[e + 4]) != 0:
+            return -2
+        e += 5
     resume = 0
     if h == 0xA3:
         if p + 2 != end or b[p] != 2:
@@ -239,10 +244,7 @@ def sync_entry(buf, start: int, end: int, position: int, out) -> int:
         ph = (b[q + 3] << 8) | b[q + 4]
         if ph & 0x8000:
             ph -= 0x10000
-        if k == -0x800000:  # SP_HOLD
-            if ph:
-                return -2  # the hold marker is exactly 80 00 00 00 00: malformed
-        else:
+        if k != -0x800000:  # not SP_HOLD (whose phi bytes are 0: checked above)
             out[1] = k
             out[2] = ph
             rc = 1

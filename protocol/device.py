@@ -61,10 +61,11 @@ def decode_sync(buf, start, end, position, out):
     """Decode SYNC ``{0: cycle, 1: packed setpoints, 2: resume?}`` for segment ``position``.
 
     Fills ``out`` (a list of >= 4 ints): [SYNC_CYCLE] cycle, [SYNC_KAPPA] kappa (1e-4 1/m),
-    [SYNC_PHI] phi (1e-4 rad), [SYNC_RESUME] 1 if key 2 is true/1 else 0. Key 1 is a byte
-    string of SP_LEN bytes per position (kappa int24, phi int16, big-endian); returns OK when
-    the entry for ``position`` is present, HOLD when the string is too short or the entry is
-    the hold marker, MALFORMED otherwise (out is then undefined). Unknown keys are skipped.
+    [SYNC_PHI] phi (1e-4 rad), [SYNC_RESUME] 1 if key 2 is true/1 else 0 (any other value is
+    MALFORMED). Key 1 is a byte string of SP_LEN bytes per position (kappa int24, phi int16,
+    big-endian); returns OK when the entry for ``position`` is present, HOLD when the string is
+    too short or the entry is the hold marker, MALFORMED otherwise, including a hold marker with
+    non-zero phi bytes in any position's entry (out is then undefined). Unknown keys are skipped.
     The usual encoding is decoded by one machine-code call where the port has the viper emitter
     (``protocol._fast.sync_entry``, the same results); anything else is decoded here.
     """
@@ -98,6 +99,11 @@ def decode_sync(buf, start, end, position, out):
             r.pos = q + ln
             if ln % SP_LEN:
                 return MALFORMED  # whole entries only
+            e = q  # every entry's hold marker is exactly 80 00 00 00 00, not only ours
+            while e < r.pos:
+                if buf[e] == 0x80 and not (buf[e + 1] | buf[e + 2]) and buf[e + 3] | buf[e + 4]:
+                    return MALFORMED
+                e += SP_LEN
             q += SP_LEN * position
             if q + SP_LEN <= r.pos:
                 b0 = buf[q]
@@ -119,8 +125,8 @@ def decode_sync(buf, start, end, position, out):
             m = r.head()
             if m == 7 and (r.arg == 20 or r.arg == 21):
                 out[SYNC_RESUME] = 1 if r.arg == 21 else 0
-            elif m == 0:
-                out[SYNC_RESUME] = 1 if r.arg else 0
+            elif m == 0 and r.arg < 2:  # true (or 1) / false (or 0) only
+                out[SYNC_RESUME] = r.arg
             else:
                 return MALFORMED
         elif not r.skip(1):

@@ -42,6 +42,11 @@ def _frames():
     out["discover_bad_utf8"] = encode_frame(BCAST, 0, 0x01, 7, b"\xa1\x09\x62\xc3\x28")
     out["hold_too_deep"] = encode_frame(BCAST, 0, 0x06, 7, b"\xa1\x09" + b"\x81" * 8 + b"\x80")
     out["heartbeat_dup_keys"] = encode_frame(BCAST, 0, 0x03, 7, b"\xa3\x00\x01\x14\x00\x14\x00")
+    # issue 14 audit: the hold marker is exactly 80 00 00 00 00 in every entry, not only in the
+    # segment's own (the host's decoder refuses the whole frame); resume is false/true/0/1 only
+    entries = b"\x00\x75\x30\x0b\xb8" + b"\x80\x00\x00\x00\x01"  # ours, then a bad hold
+    out["other_entry_bad_hold"] = encode_frame(BCAST, 0, 0x02, 7, b"\xa2\x00\x01\x01\x4a" + entries)
+    out["resume_2"] = encode_frame(BCAST, 0, 0x02, 7, _HEAD + b"\x02\x02")  # {..., 2: 2}
     return out
 
 
@@ -225,3 +230,19 @@ R['s'] = out
         values.append(msgs[0]["value"])
     # (+1 each: the PARAM_GET frame itself was counted before the reply)
     assert values == [6, (-(2**31) + 8) & (2**30 - 1)]
+
+
+@pytest.mark.parametrize("name", ["other_entry_bad_hold", "resume_2"])
+def test_the_general_sync_decoder_is_as_strict_as_the_machine_code_one(name):
+    """protocol.device.decode_sync without the viper step (CPython here; a port without the
+    emitter, or an encoding the step leaves to it): the same frames are MALFORMED for every
+    position, not only for the one whose entry is bad."""
+    from protocol import device as D
+
+    payload = bytearray(decode_frame(FRAMES[name]).payload)
+    assert D._sync_entry is None  # CPython: the general decoder decides
+    for position in (0, 1, 2):
+        out = [0, 0, 0, 0]
+        assert D.decode_sync(payload, 0, len(payload), position, out) == D.MALFORMED, position
+    ok = bytearray(_HEAD[:1].replace(b"\xa3", b"\xa2") + _HEAD[1:])  # {0: 1, 1: (3, 0.3)}
+    assert D.decode_sync(ok, 0, len(ok), 0, [0, 0, 0, 0]) == D.OK
