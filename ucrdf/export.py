@@ -25,9 +25,11 @@ links so that, in the straight pose, their total mass, centre of mass and inerti
 the segment's exactly. Limits of the pseudo-rigid joints: velocity = kappa_rate_max times the
 largest rate of that joint's angle per unit curvature-vector rate (:func:`joint_rate_gains`, about
 h = l/N since a subdivision bends by kappa * h), effort = EI * kappa_max (the backbone's bending
-moment at full bend, the same at every joint of a constant-curvature arc); 0 (URDF: not given)
-when the U(C)RDF lacks the rate limit or the stiffness. Generated names that clash with the
-robot's own links or joints are refused with a clear error.
+moment at full bend, the same at every joint of a constant-curvature arc) for the rx/ry joints
+and the twist joint alike (the model has no torsion bound of its own; 0 would be a real limit of
+0 for ros2_control). 0 when the U(C)RDF lacks the rate limit or the stiffness: ros2_control reads
+that as a real limit of 0 too (docs/kinematics.md, "Joint limits"). Generated names that clash
+with the robot's own links or joints are refused with a clear error.
 """
 
 from __future__ import annotations
@@ -127,12 +129,37 @@ def _tensor(i) -> np.ndarray:
     return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], dtype=float)
 
 
-def _physical(i: np.ndarray) -> bool:
+#: Rounding slack of the inertia split, relative to the largest principal moment of the tensors
+#: involved (the segment's I_c and the spread J): a tensor sum of that size is exact to ~1e-16.
+_INERTIA_RTOL = 1e-12
+
+
+def _largest_moment(i: np.ndarray) -> float:
+    return float(np.abs(np.linalg.eigvalsh(i)).max())
+
+
+def _physical(i: np.ndarray, scale: float) -> bool:
     """An inertia tensor a rigid body can have: symmetric, eigenvalues >= 0 and each at most the
-    sum of the other two (triangle inequality)."""
+    sum of the other two (triangle inequality), up to _INERTIA_RTOL times ``scale`` (the largest
+    principal moment of the tensors ``i`` was computed from: never an absolute slack, which would
+    accept -1e-13 kg m^2 for a tensor whose moments are 1e-13)."""
     eig = np.linalg.eigvalsh(i)
-    tol = 1e-12 * max(1.0, float(np.abs(eig).max()))
+    tol = _INERTIA_RTOL * scale
     return bool(eig.min() >= -tol and eig.max() <= eig.sum() - eig.max() + tol)
+
+
+def _clamp_psd(i: np.ndarray) -> np.ndarray:
+    """``i`` with every principal moment below _INERTIA_RTOL times the largest (negative ones come
+    from rounding, or from the INERTIA_SLACK the U(C)RDF check allows) raised to that floor, so
+    that an eigensolver reading the written tensor back (its own rounding is ~1e-16 of the largest
+    moment) still finds every moment >= 0; unchanged when none is below it (and the zero tensor
+    stays 0). The diagonal of the result, sums of lambda_k v_jk^2 >= 0, is >= 0 too."""
+    eig, vec = np.linalg.eigh(i)
+    floor = _INERTIA_RTOL * float(np.abs(eig).max())
+    if eig.min() >= floor:
+        return i
+    out = (vec * np.maximum(eig, floor)) @ vec.T
+    return (out + out.T) / 2.0
 
 
 def distribute_inertial(
@@ -146,7 +173,11 @@ def distribute_inertial(
     J = s^2 * m h^2 (N^2 - 1)/12 to the inertia about x and y (parallel axes), so each link gets
     (I_c - J)/N about its own centre of mass and the sum is I_c exactly. s = 1 (point masses
     where the subdivisions are) unless I_c - J would not be a physical inertia (a segment thinner
-    in its inertia than its own length implies): then s shrinks until it is (s = 0 is always)."""
+    in its inertia than its own length implies): then s shrinks until it is (s = 0 is always).
+    "Physical" is judged with a slack relative to the tensors (_INERTIA_RTOL), and a principal
+    moment left negative by rounding is raised to a floor of _INERTIA_RTOL times the largest
+    (:func:`_clamp_psd`), so every link's moments and diagonal are >= 0 (a segment with a mass but
+    no inertia gives s = 0 and links of inertia exactly 0)."""
     n = subdivisions
     m = inertial.mass
     c = np.array(inertial.origin.xyz, dtype=float)
@@ -156,15 +187,18 @@ def distribute_inertial(
     spread = np.array([(k + 0.5) * h - length / 2 for k in range(n)])
     lateral = np.diag([1.0, 1.0, 0.0])
     j_full = m * h * h * (n * n - 1) / 12.0 * lateral
+    i_c = (i_c + i_c.T) / 2.0
+    scale_c = _largest_moment(i_c)
+    scale_j = _largest_moment(j_full)
     s = 1.0
     for _ in range(60):
-        if _physical(i_c - s * s * j_full):
+        if _physical(i_c - s * s * j_full, max(scale_c, s * s * scale_j)):
             break
         s *= 0.5
     else:
         s = 0.0
     own = (i_c - s * s * j_full) / n
-    own = (own + own.T) / 2.0
+    own = _clamp_psd((own + own.T) / 2.0)
     return [(c + s * dz * np.array([0.0, 0.0, 1.0]), own) for dz in spread]
 
 
@@ -360,7 +394,7 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
         else:
             _joint_el(root, f"{b.name}_prb_end", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
             _joint_el(root, f"{b.name}_prb_twist", "continuous", tw_link, b.child, axis=(0, 0, 1),
-                      limit={"effort": 0.0, "velocity": rate * g_twist})  # fmt: skip
+                      limit={"effort": effort, "velocity": rate * g_twist})  # fmt: skip
     return etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="utf-8").decode()
 
 
