@@ -54,6 +54,14 @@ def _usage_error(command: str, args: argparse.Namespace) -> str | None:
         given = [o for o, on in (("--go", args.go), ("--measured", args.measured)) if on]
         if given:
             return f"{' and '.join(given)} only with --execute (re-running the recorded motion)"
+    if command == "record" and args.foxglove_port is None and args.foxglove_host is None:
+        serve = [o for o, on in (("--serve-token-file", args.serve_token_file),
+                                 ("--tls-cert", args.tls_cert), ("--tls-key", args.tls_key),
+                                 ("--insecure", args.insecure),
+                                 ("--allow-origin", args.allow_origin)) if on]  # fmt: skip
+        if serve:
+            return (f"{', '.join(serve)} only with a Foxglove server (--foxglove-port P or "
+                    "--foxglove-host H)")  # fmt: skip
     return None
 
 
@@ -179,11 +187,11 @@ def register(subparsers: Any) -> None:
         default=None,
         help="also serve the same data live to Foxglove on this port",
     )
-    p.add_argument("--foxglove-host", default="127.0.0.1", help="address of that server "
-                   f"({OFF_LOOPBACK})")  # fmt: skip
+    p.add_argument("--foxglove-host", default=None, help="address of that server "
+                   f"({OFF_LOOPBACK}); alone it serves on port 8766")  # fmt: skip
     _serve(p)
     _common(p)
-    p.set_defaults(func=_guard("record", _record))
+    p.set_defaults(func=_guard("record", _record, p))
 
     p = subparsers.add_parser(
         "replay", help="play an MCAP recording into Foxglove, or re-run its motion (--execute)",

@@ -12,6 +12,7 @@ source uses too.
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from interop.sinks import Fanout, channels_of
-from interop.topics import TOPICS, CommandedGoals, RobotTopics, commanded
+from interop.topics import TOPICS, CommandedGoals, Message, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load
 
@@ -114,6 +115,7 @@ class LiveFeed:
         self.goal_period = goal_period
         self._offset: float | None = None  # wall - daemon monotonic (s)
         self._goals: dict[str, dict] = {}
+        self._topology_changed = False
         self.dropped = 0
 
     def _t_ns(self, t_daemon: float | None) -> int:
@@ -128,7 +130,9 @@ class LiveFeed:
             self._offset = (now - local) if same_clock else (now - t_daemon)
         return int((t_daemon + self._offset) * 1e9)
 
-    def _poll_goals(self, status: dict) -> None:
+    def _poll_goals(self, status: dict) -> list[Message]:
+        """The goal messages of this poll: each goal newly running, each goal that ended."""
+        out: list[Message] = []
         running = set(status.get("running_goals") or [])
         for gid in running - set(self._goals):
             try:
@@ -136,7 +140,7 @@ class LiveFeed:
             except Exception:  # noqa: BLE001 - gone already: the result poll reports it
                 continue
             self._goals[gid] = st
-            self.out.publish(self.topics.goal(st, self._t_ns(None), done=False))
+            out.append(self.topics.goal(st, self._t_ns(None), done=False))
         for gid in list(self._goals):
             if gid in running:
                 continue
@@ -147,7 +151,46 @@ class LiveFeed:
             if not st.get("done", True) and st.get("state") in ("running", "pending"):
                 continue
             del self._goals[gid]
-            self.out.publish(self.topics.goal(st, self._t_ns(None), done=True))
+            out.append(self.topics.goal(st, self._t_ns(None), done=True))
+        return out
+
+    def _poll(self, halt: threading.Event, results: queue.SimpleQueue) -> None:
+        """The polls (status and goals every ``goal_period``, segment diagnostics and loop
+        statistics every ``status_period``), in their own thread: each is a round trip to the
+        daemon, and made in the publishing loop they held back the joint states (drained late
+        in a burst). Their messages (or the exception that ended the polls) go to ``results``,
+        which the publishing loop, the only writer, empties."""
+        next_status = 0.0
+        topology: dict | None = None
+        while not halt.is_set():
+            now = time.monotonic()
+            try:
+                status = self.client.status()
+                msgs = self._poll_goals(status)
+                if now >= next_status:
+                    next_status = next_due(next_status, self.status_period, now)
+                    if topology is None or self._topology_changed:
+                        self._topology_changed = False
+                        topology = self.client.topology()
+                    t_ns = self._t_ns(None)
+                    msgs.append(self.topics.segments(status, topology, t_ns))
+                    msgs.append(self.topics.loop_stats(self.client.loop_stats(), t_ns))
+            except Exception as exc:  # noqa: BLE001 - raised again in the publishing loop
+                results.put(exc)
+                return
+            for m in msgs:
+                results.put(m)
+            halt.wait(self.goal_period)
+
+    def _publish_polled(self, results: queue.SimpleQueue) -> None:
+        while True:
+            try:
+                item = results.get_nowait()
+            except queue.Empty:
+                return
+            if isinstance(item, Exception):
+                raise item
+            self.out.publish(item)
 
     def run(
         self,
@@ -162,54 +205,64 @@ class LiveFeed:
             advertise(channels_of(TOPICS))
         for m in self.topics.static_messages(self._t_ns(None)):
             self.out.publish(m)
-        next_viz = next_status = next_goal = 0.0
-        topology: dict | None = None
+        next_viz = 0.0  # on the joint states' own clock (their stamps)
+        results: queue.SimpleQueue = queue.SimpleQueue()
+        halt = threading.Event()
+        poller = threading.Thread(target=self._poll, args=(halt, results), name="ucr-feed-poll",
+                                  daemon=True)  # fmt: skip
         with self.client.subscribe(
             ["joint_states", "events", "topology"], max_rate=self.js_rate, buffer=4096
         ) as sub:
-            while not stop.is_set():
-                now = time.monotonic()
-                if duration is not None and now - t0 >= duration:
-                    break
-                msg = sub.get(timeout=0.05)
-                if msg is not None:
-                    kind = msg.get("kind")
-                    t_ns = self._t_ns(msg.get("t"))
-                    if kind == "joint_states":
-                        self.out.publish(self.topics.joint_states(msg, t_ns))
-                        if now >= next_viz:
-                            next_viz = next_due(next_viz, self.viz_period, now)
-                            self.out.publish(self.topics.tf(msg, t_ns))
-                            self.out.publish(self.topics.arcs(msg, t_ns))
-                    elif kind in ("event", "topology"):
-                        for m in self.topics.event(msg, t_ns):
-                            self.out.publish(m)
-                        whole, lost = self.goals_commanded.feed(msg)
-                        for ev in lost:
-                            for m in self.topics.event(ev, t_ns):
-                                self.out.publish(m)
-                        if whole is not None:
-                            cmd = commanded(whole, self.topics.root, t_ns)
-                            if cmd is not None:
-                                self.out.publish(cmd)
-                        if kind == "topology":
-                            topology = None  # re-read with the next status poll
-                if now >= next_goal:
-                    next_goal = next_due(next_goal, self.goal_period, now)
-                    status = self.client.status()
-                    self._poll_goals(status)
-                    if now >= next_status:
-                        next_status = next_due(next_status, self.status_period, now)
-                        if topology is None:
-                            topology = self.client.topology()
-                        t_ns = self._t_ns(None)
-                        self.out.publish(self.topics.segments(status, topology, t_ns))
-                        self.out.publish(self.topics.loop_stats(self.client.loop_stats(), t_ns))
-                self.out.tick()
-                if on_tick is not None:
-                    on_tick()
+            poller.start()
+            try:
+                while not stop.is_set():
+                    now = time.monotonic()
+                    if duration is not None and now - t0 >= duration:
+                        break
+                    msg = sub.get(timeout=0.05)
+                    if msg is not None:
+                        next_viz = self._publish_stream(msg, next_viz)
+                    self._publish_polled(results)
+                    self.out.tick()
+                    if on_tick is not None:
+                        on_tick()
+            finally:
+                halt.set()
+                poller.join(timeout=30.0)  # a poll waits for its reply at most the API timeout
+            self._publish_polled(results)
             t_ns = self._t_ns(None)
             for ev in self.goals_commanded.finish():
                 for m in self.topics.event(ev, t_ns):
                     self.out.publish(m)
             self.dropped = sub.dropped_local + sub.dropped_server
+
+    def _publish_stream(self, msg: dict, next_viz: float) -> float:
+        """Publish one message of the daemon's stream; returns when /tf is due next.
+
+        /tf and /ucr/arcs are due by the joint state's own time (its stamp, the daemon's
+        clock), not by when the loop gets to it: a backlog drained in a burst yields the /tf of
+        every sample that was due, 1/viz_rate apart in stamp time, as when it came on time."""
+        kind = msg.get("kind")
+        t = msg.get("t")
+        t_ns = self._t_ns(t)
+        if kind == "joint_states":
+            self.out.publish(self.topics.joint_states(msg, t_ns))
+            at = float(t) if isinstance(t, int | float) else time.monotonic()
+            if at >= next_viz:
+                next_viz = next_due(next_viz, self.viz_period, at)
+                self.out.publish(self.topics.tf(msg, t_ns))
+                self.out.publish(self.topics.arcs(msg, t_ns))
+        elif kind in ("event", "topology"):
+            for m in self.topics.event(msg, t_ns):
+                self.out.publish(m)
+            whole, lost = self.goals_commanded.feed(msg)
+            for ev in lost:
+                for m in self.topics.event(ev, t_ns):
+                    self.out.publish(m)
+            if whole is not None:
+                cmd = commanded(whole, self.topics.root, t_ns)
+                if cmd is not None:
+                    self.out.publish(cmd)
+            if kind == "topology":
+                self._topology_changed = True  # re-read with the next status poll
+        return next_viz

@@ -2,9 +2,9 @@
 open without ucr (ROS 2 schemas, ``ros2msg`` schema text, CDR messages; docs/recording.md).
 
 The file is written with the ``mcap`` library: zstd-compressed chunks, closed at least every
-``flush_interval`` seconds (and at ``chunk_size`` bytes), so a recorder killed mid-run (SIGKILL,
-power loss) leaves a file readable up to its last closed chunk; a clean stop (Ctrl-C, SIGTERM,
-``--duration``) writes the summary and index as well.
+``flush_interval`` seconds (and at ``chunk_size`` bytes) and fsynced then, so a recorder killed
+mid-run (SIGKILL, power loss) leaves a file readable up to its last closed chunk; a clean stop
+(Ctrl-C, SIGTERM, ``--duration``) writes the summary and index as well.
 """
 
 from __future__ import annotations
@@ -79,6 +79,8 @@ class McapSink:
         self.t_first: int | None = None
         self.t_last: int | None = None
         self.closed = False
+        self.fsyncs = 0  # chunks made durable, and the time that took (s): docs/recording.md
+        self.fsync_s = 0.0
 
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
         cid = self._channels.get(topic)
@@ -111,9 +113,14 @@ class McapSink:
             self.flush()
 
     def flush(self) -> None:
-        """Close the current chunk now (compressed, indexed, on disk)."""
+        """Close the current chunk now (compressed, indexed) and fsync it: on the disk, not
+        only in the OS's cache, so it survives a power cut as well as a killed recorder."""
         self._next_flush = time.monotonic() + self.flush_interval
-        self._writer.flush()
+        self._writer.flush()  # writes the chunk and flushes the Python buffer to the OS
+        t = time.perf_counter()
+        os.fsync(self._file.fileno())
+        self.fsync_s += time.perf_counter() - t
+        self.fsyncs += 1
 
     @property
     def bytes_written(self) -> int:
@@ -125,6 +132,8 @@ class McapSink:
         self.closed = True
         try:
             self._writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())  # the summary too: a power cut after a clean stop
         finally:
             self._file.close()
 
@@ -177,6 +186,20 @@ def output_refusal(path: str | os.PathLike[str], overwrite: bool) -> str | None:
     return None
 
 
+#: The port of ``ucr record --foxglove-host H`` without ``--foxglove-port`` (``ucr foxglove``'s).
+DEFAULT_FOXGLOVE_PORT = 8766
+
+
+def foxglove_address(args: Any) -> tuple[str, int | None]:
+    """(host, port) of the Foxglove server ``ucr record`` also runs; port None: no server.
+    ``--foxglove-host`` alone serves on the default port (8766, as ``ucr foxglove``)."""
+    host = getattr(args, "foxglove_host", None)
+    port = getattr(args, "foxglove_port", None)
+    if port is None and host is not None:
+        port = DEFAULT_FOXGLOVE_PORT
+    return host or "127.0.0.1", port
+
+
 def run(args: Any) -> int:
     """The ``ucr record`` command."""
     stop = threading.Event()
@@ -199,6 +222,13 @@ def run(args: Any) -> int:
     try:
         robot, text = robot_for(client, args.robot)
         topics = RobotTopics(robot, text, args.subdivisions)
+        host, port = foxglove_address(args)
+        if port is not None:  # before the file: a refused address or port leaves no file behind
+            from interop.foxglove import sink_from_args  # noqa: PLC0415 - only when asked
+
+            fox = sink_from_args(host, port, args)
+            sinks.append(fox)
+            print(f"ucr: Foxglove WebSocket server on {fox.url}", file=sys.stderr, flush=True)
         try:
             sink = McapSink(args.output, compression=args.compression,
                             flush_interval=args.flush_interval,
@@ -206,13 +236,7 @@ def run(args: Any) -> int:
         except FileExistsError:
             print(f"ucr: {output_refusal(args.output, False)}", file=sys.stderr)
             return 1
-        sinks.append(sink)
-        if args.foxglove_port is not None:
-            from interop.foxglove import sink_from_args  # noqa: PLC0415 - only when asked
-
-            fox = sink_from_args(args.foxglove_host, args.foxglove_port, args)
-            sinks.append(fox)
-            print(f"ucr: Foxglove WebSocket server on {fox.url}", file=sys.stderr, flush=True)
+        sinks.insert(0, sink)
         out = Fanout(sinks)
         progress = Progress(sink)
         feed = LiveFeed(client, topics, out, viz_rate=args.viz_rate)

@@ -12,6 +12,7 @@ is checked against the robot file first.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import signal
@@ -209,7 +210,9 @@ def play(
     """Write every message to ``sinks`` at ``rate`` x recorded speed (0: as fast as possible).
     Returns the number of messages; ``report`` says whether the file ended early and what was
     skipped. First (``advertise``) the recording's channels are advertised to the sinks that
-    advertise (:func:`advertise_recording`)."""
+    advertise (:func:`advertise_recording`). A negative or non-finite ``rate`` is a ValueError."""
+    if not (math.isfinite(rate) and rate >= 0):
+        raise ValueError(f"rate must be a finite number >= 0 (0: as fast as possible), got {rate}")
     out = Fanout(sinks)
     if advertise:
         advertise_recording(path, sinks)
@@ -379,8 +382,52 @@ def _check_point(
     return min(max(kappa, 0.0), lim.kappa_max)
 
 
-def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
-    """The recorded goals, each waypoint checked against ``robot``; None if none recorded."""
+Pose = dict[str, tuple[float, float]]  # bendable -> (kx, ky) 1/m
+
+
+def _vector(kappa: float, phi: float) -> tuple[float, float]:
+    return kappa * math.cos(phi), kappa * math.sin(phi)
+
+
+def measured_pose_at(states: list[tuple[float, dict[str, tuple[float, float]]]], t: float) -> Pose:
+    """(kx, ky) per bendable of the last recorded joint state at or before ``t`` (s, the
+    stamps' clock); the first one if the recording starts (< 0.5 s) after ``t``; else empty."""
+    i = bisect.bisect_right([s for s, _ in states], t) - 1
+    if i < 0:
+        if not states or states[0][0] - t > 0.5:
+            return {}
+        i = 0
+    return {name: _vector(k, p) for name, (k, p) in states[i][1].items()}
+
+
+def _position_at(path: list[tuple[float, float, float]], t: float) -> tuple[float, float]:
+    """(kx, ky) at ``t`` along a goal's path [(t, kx, ky), ...] (its start, then its waypoints),
+    linear between the points, held at its ends."""
+    if t <= path[0][0]:
+        return path[0][1], path[0][2]
+    for (ta, xa, ya), (tb, xb, yb) in zip(path, path[1:], strict=False):
+        if t <= tb:
+            f = (t - ta) / (tb - ta) if tb > ta else 1.0
+            return xa + f * (xb - xa), ya + f * (yb - ya)
+    return path[-1][1], path[-1][2]
+
+
+def _fastest(plan: Plan, name: str, a: tuple[float, float, float], b: tuple[float, float, float]):
+    """Record the mean rate (1/m/s) from ``a`` to ``b`` (each (t s, kx, ky)) of ``name``."""
+    if b[0] > a[0]:
+        speed = math.hypot(b[1] - a[1], b[2] - a[2]) / (b[0] - a[0])
+        plan.fastest[name] = max(plan.fastest.get(name, 0.0), speed)
+
+
+def commanded_plan(path: str | Path, robot: Any, here: Pose | None = None) -> Plan | None:
+    """The recorded goals, each waypoint checked against ``robot``; None if none recorded.
+
+    Rates (``fastest``, and the kappa_rate_max notes) are measured as the daemon runs a goal:
+    from where the robot is when the goal starts to its first waypoint (the lead-in), then
+    waypoint to waypoint. Where the robot is at a goal's start: for the first goal ``here``
+    (the live pose, when known) or else the recorded /joint_states at that time; for a later
+    goal the previous goal's path at that time (a goal that replaced a running one starts from
+    where that one had got to)."""
     report = ReadReport()
     goals = recorded_goals(path, report)
     if not goals:
@@ -388,12 +435,18 @@ def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
     t0 = goals[0][0]
     plan = Plan(source="commanded", notes=report.warnings(path))
     lims = _limits(robot)
-    prev: dict[str, tuple[float, float, float]] = {}
-    for t_goal, points in goals:
+    states = recorded_joint_states(path, ReadReport())  # its warnings are in report already
+    paths: dict[str, list[tuple[float, float, float]]] = {}  # the last goal's path per bendable
+    for i, (t_goal, points) in enumerate(goals):
+        start = t_goal - t0
+        pose = here if i == 0 and here is not None else measured_pose_at(states, t_goal)
+        current = {n: [(start, *xy)] for n, xy in pose.items()}
+        for n, p in paths.items():  # the previous goal's path where it has one
+            current[n] = [(start, *_position_at(p, start))]
         checked = []
         for pt in points:
             t = pt["time_from_start"]
-            when = f"in the goal at {t_goal - t0:.2f} s, waypoint {t:.2f} s"
+            when = f"in the goal at {start:.2f} s, waypoint {t:.2f} s"
             segs = {}
             for name, v in pt["segments"].items():
                 kappa = _check_point(robot, lims, name, v["kappa"], v["phi"], when)
@@ -401,19 +454,17 @@ def commanded_plan(path: str | Path, robot: Any) -> Plan | None:
                 segs[name] = {"kappa": kappa, "phi": phi}
                 if name not in plan.segments:
                     plan.segments.append(name)
-                kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
                 lo, hi = plan.kappa_range.get(name, (kappa, kappa))
                 plan.kappa_range[name] = (min(lo, kappa), max(hi, kappa))
                 plan.start.setdefault(name, (kappa, phi))
                 plan.end[name] = (kappa, phi)
-                at = t_goal - t0 + t
-                if name in prev and at > prev[name][0]:
-                    pt_, px, py = prev[name]
-                    speed = math.hypot(kx - px, ky - py) / (at - pt_)
-                    plan.fastest[name] = max(plan.fastest.get(name, 0.0), speed)
-                prev[name] = (at, kx, ky)
+                point = (start + t, *_vector(kappa, phi))
+                if name in current:
+                    _fastest(plan, name, current[name][-1], point)
+                current.setdefault(name, []).append(point)
             checked.append({"time_from_start": t, "segments": segs})
-        plan.goals.append((t_goal - t0, checked))
+        paths.update(current)
+        plan.goals.append((start, checked))
         plan.points += checked
     last_start, last = plan.goals[-1]
     plan.duration = last_start + last[-1]["time_from_start"]
@@ -433,11 +484,16 @@ def _rate_notes(plan: Plan, lims: dict[str, BendableLimits]) -> None:
 
 
 def make_plan(
-    path: str | Path, robot: Any, sample_period: float = 0.1, lead_in: float = 2.0
+    path: str | Path,
+    robot: Any,
+    sample_period: float = 0.1,
+    lead_in: float = 2.0,
+    here: Pose | None = None,
 ) -> Plan:
     """Waypoints from the recorded joint states, checked against ``robot`` (a parsed U(C)RDF):
     every bendable must exist, κ within [0, kappa_max], φ within its range; rates above
-    kappa_rate_max are reported (the daemon stretches such a goal: ``retimed``)."""
+    kappa_rate_max are reported (the daemon stretches such a goal: ``retimed``), the lead-in
+    from ``here`` (the live pose, when known) included."""
     report = ReadReport()
     states = recorded_joint_states(path, report)
     if not states:
@@ -453,7 +509,7 @@ def make_plan(
     lims = _limits(robot)
     t0 = states[0][0]
     last_t = -math.inf
-    prev: dict[str, tuple[float, float, float]] = {}
+    prev = {n: (t0 - lead_in, *xy) for n, xy in (here or {}).items()}  # the lead-in's start
     for i, (t, s) in enumerate(states):
         if t - last_t < sample_period - 1e-9 and i != len(states) - 1:
             continue
@@ -463,23 +519,43 @@ def make_plan(
             kappa = _check_point(
                 robot, lims, name, kappa, phi, f"at t = {t - t0:.2f} s", measured=True
             )
-            kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
+            kx, ky = _vector(kappa, phi)
             seg_pts[name] = {"kx": kx, "ky": ky}
             lo, hi = plan.kappa_range.get(name, (kappa, kappa))
             plan.kappa_range[name] = (min(lo, kappa), max(hi, kappa))
             plan.start.setdefault(name, (kappa, phi))
             plan.end[name] = (kappa, phi)
             if name in prev:
-                pt, px, py = prev[name]
-                if t > pt:
-                    speed = math.hypot(kx - px, ky - py) / (t - pt)
-                    plan.fastest[name] = max(plan.fastest.get(name, 0.0), speed)
+                _fastest(plan, name, prev[name], (t, kx, ky))
             prev[name] = (t, kx, ky)
         plan.points.append({"time_from_start": lead_in + (t - t0), "segments": seg_pts})
     plan.duration = plan.points[-1]["time_from_start"]
     plan.goals = [(0.0, plan.points)]
     _rate_notes(plan, lims)
     return plan
+
+
+def live_pose(client: Any, timeout: float = 2.0) -> Pose | None:
+    """(kx, ky) per bendable of the robot now (one joint state from the daemon), for checking
+    the rate of the first goal's lead-in; None if none comes within ``timeout`` s."""
+    try:
+        with client.subscribe(["joint_states"], buffer=4) as sub:
+            deadline = time.monotonic() + timeout
+            while (left := deadline - time.monotonic()) > 0:
+                msg = sub.get(timeout=left)
+                if msg is not None and msg.get("kind") == "joint_states":
+                    break
+            else:
+                return None
+    except (ApiError, OSError):
+        return None
+    pose: Pose = {}
+    valid = msg.get("valid") or []
+    for i, name in enumerate(msg.get("names") or []):
+        k, p = msg["kappa"][i], msg["phi"][i]
+        if k is not None and p is not None and (i >= len(valid) or valid[i]):
+            pose[name] = _vector(float(k), float(p))
+    return pose
 
 
 def describe(plan: Plan) -> str:
@@ -543,12 +619,14 @@ def execute(args: Any) -> int:
         else:
             client = connect_daemon(args)
             robot, _ = robot_for(client, None)
-        plan = None if getattr(args, "measured", False) else commanded_plan(args.file, robot)
+        here = live_pose(client) if client is not None else None  # the lead-in's start
+        measured = getattr(args, "measured", False)
+        plan = None if measured else commanded_plan(args.file, robot, here)
         if plan is None:
-            if not getattr(args, "measured", False):
+            if not measured:
                 print("no commanded trajectory in the recording (/ucr/trajectory/commanded): "
                       "re-running the measured motion (/joint_states)")  # fmt: skip
-            plan = make_plan(args.file, robot, args.sample_period, args.lead_in)
+            plan = make_plan(args.file, robot, args.sample_period, args.lead_in, here)
         print(describe(plan))
         if not args.go:
             print("dry run: nothing moved (add --go to run it on the robot)")
@@ -614,7 +692,8 @@ def run(args: Any) -> int:
             print("ucr: nothing to play into (--no-foxglove without --view)", file=sys.stderr)
             return 2
         advertise_recording(args.file, sinks)  # before a client connects (--wait-client)
-        print(f"ucr: replaying {args.file} at {args.rate:g}x", file=sys.stderr, flush=True)
+        speed = f"at {args.rate:g}x" if args.rate > 0 else "as fast as possible (--rate 0)"
+        print(f"ucr: replaying {args.file} {speed}", file=sys.stderr, flush=True)
         if args.wait_client > 0:
             time.sleep(args.wait_client)
         report = ReadReport()

@@ -104,6 +104,10 @@ def test_the_recording_sink_refuses_a_file_that_appeared_meanwhile(tmp_path):
         (["record", "-o", "r.mcap", "--subdivisions", "0"], "argument --subdivisions: must be"),
         (["foxglove", "--duration", "0"], "argument --duration: must be > 0 s"),
         (["foxglove", "--viz-rate", "-5"], "argument --viz-rate: must be > 0 Hz"),
+        (["record", "-o", "r.mcap", "--insecure"], "--insecure only with a Foxglove server"),
+        (["record", "-o", "r.mcap", "--tls-cert", "c.pem", "--tls-key", "k.pem"],
+         "--tls-cert, --tls-key only with a Foxglove server"),
+        (["record", "-o", "r.mcap", "--allow-origin", "https://x"], "--allow-origin only with"),
     ],
 )  # fmt: skip
 def test_impossible_option_values_are_usage_errors(tmp_path, argv, message):

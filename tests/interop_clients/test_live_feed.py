@@ -118,3 +118,82 @@ def test_no_burst_of_tf_after_a_pause(monkeypatch):
     assert min(gaps) > JS_PERIOD + 1e-6, min(gaps)  # never on two joint states in a row
     after = [t for t in tf if t >= 3.1]
     assert len(after) == pytest.approx((6.0 - 3.1) * 20, abs=2)
+
+
+class _BurstStream(_Stream):
+    """Joint states stamped every 20 ms of the daemon's clock ("t"), delivered in bursts: the
+    recorder gets to them ``burst`` at a time (a backlog drained at once), its own clock
+    advancing only between bursts."""
+
+    def __init__(self, clock: _Clock, burst: int) -> None:
+        super().__init__(clock)
+        self.burst, self.n = burst, 0
+
+    def get(self, timeout: float):
+        if self.n % self.burst == 0:
+            self.clock.t += JS_PERIOD * self.burst
+        self.n += 1
+        return {"kind": "joint_states", "t": 5000.0 + JS_PERIOD * self.n}
+
+
+class _StampedTopics(_Topics):
+    def __getattr__(self, name):  # the stamp (ns) each message was made for
+        return lambda msg, t_ns=0, *rest: Message(name, "", {"t": msg.get("t")}, t_ns)
+
+
+class _StampOut(_Out):
+    def publish(self, m: Message) -> None:
+        self.sent.append((m.topic, (m.msg or {}).get("t")))
+
+
+def test_tf_is_due_by_the_joint_states_stamp_when_a_backlog_is_drained(monkeypatch):
+    """Issue 16 audit: /tf was gated on the recorder's clock when it processed a joint state,
+    so a backlog drained in a burst gave one /tf for the whole burst (80-140 ms holes in /tf
+    and /ucr/arcs while /joint_states flowed). By the samples' stamps, a burst yields the /tf
+    of every sample that was due: 40/60 ms apart in stamp time, 20 Hz."""
+    clock = _Clock()
+    monkeypatch.setattr(live, "time", SimpleNamespace(monotonic=clock.monotonic, time=time.time))
+    out = _StampOut(clock)
+    feed = live.LiveFeed(_Daemon(_BurstStream(clock, burst=6)), _StampedTopics(), out,
+                         viz_rate=20.0)  # fmt: skip
+    feed.run(threading.Event(), duration=6.0)
+    for topic in ("tf", "arcs"):
+        stamps = [t for name, t in out.sent if name == topic]
+        gaps = [round(b - a, 6) for a, b in zip(stamps, stamps[1:], strict=False)]
+        assert len(stamps) == pytest.approx(6.0 * 20, abs=3), (topic, len(stamps))
+        assert set(gaps) <= {0.04, 0.06}, (topic, sorted(set(gaps)))
+
+
+class _RealStream(_Stream):
+    """A joint state every 20 ms of real time."""
+
+    def __init__(self) -> None:
+        self.next = time.monotonic()
+
+    def get(self, timeout: float):
+        self.next += JS_PERIOD
+        time.sleep(max(0.0, self.next - time.monotonic()))
+        return {"kind": "joint_states"}
+
+
+class _SlowDaemon(_Daemon):
+    def status(self) -> dict:
+        time.sleep(0.4)  # a loaded daemon answering a poll
+        return {"running_goals": []}
+
+
+def test_slow_status_polls_do_not_hold_back_the_joint_states():
+    """Issue 16 audit: the status, goal and statistics polls ran in the publishing loop, so
+    each round trip held the joint states back (written in a burst up to 228 ms late). They
+    run in their own thread now: a 0.4 s poll leaves the joint states flowing."""
+    t_real: list[float] = []
+
+    class Out(_Out):
+        def publish(self, m: Message) -> None:
+            if m.topic == "joint_states":
+                t_real.append(time.monotonic())
+
+    feed = live.LiveFeed(_SlowDaemon(_RealStream()), _Topics(), Out(None), status_period=0.5)
+    feed.run(threading.Event(), duration=3.0)
+    gaps = sorted(b - a for a, b in zip(t_real, t_real[1:], strict=False))
+    assert len(t_real) > 100 and gaps[-3] < 0.2, gaps[-5:]  # a hiccup of the machine aside

@@ -252,3 +252,76 @@ def test_joint_state_velocities_are_the_rate_of_the_recorded_positions(recording
     p = list(js[0].name).index("segment_1/phi")
     assert math.isnan(js[1].velocity[p]) or js[1].position[i] >= 0.02
     assert math.isfinite(js[-1].velocity[p]) and abs(js[-1].velocity[p]) < 0.5
+
+
+def test_a_refused_foxglove_server_leaves_no_file_behind(rig, tmp_path):
+    """Issue 16 audit: `ucr record` created the MCAP before it checked the Foxglove options or
+    bound the port, so a refused address (no token) or a port in use exited 1 leaving an empty
+    file, and the retry was refused because that file "exists"."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from .conftest import REPO
+
+    url = rig.url
+    env = {k: v for k, v in os.environ.items() if k != "UCR_FOXGLOVE_TOKEN"}
+
+    def record(*extra: str) -> tuple[int, str]:
+        path = tmp_path / "stub.mcap"
+        res = subprocess.run(
+            [sys.executable, "-m", "tools.cli", "record", "-o", str(path), "--url", url,
+             "--robot", str(ROBOT_FILE), "--duration", "2", *extra],
+            cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert not path.exists(), (extra, res.stderr)
+        return res.returncode, res.stderr
+
+    code, err = record("--foxglove-port", "0", "--foxglove-host", "192.0.2.2")  # no token
+    assert code == 1 and "token" in err and "Traceback" not in err, err
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        code, err = record("--foxglove-port", str(busy.getsockname()[1]))
+        assert code == 1 and "Traceback" not in err, err
+
+
+def test_every_closed_chunk_is_fsynced(tmp_path, monkeypatch):
+    """Issue 16 audit: the docs promised a file that survives a power cut, but a closed chunk
+    was only handed to the OS (no fsync): it could still be lost from the page cache."""
+    import os
+
+    from interop import record
+    from interop.sinks import Fanout
+    from interop.topics import RobotTopics
+    from ucrdf.parser import load
+
+    synced: list[int] = []
+    real = os.fsync
+    monkeypatch.setattr(record.os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+    sink = record.McapSink(tmp_path / "r.mcap", flush_interval=0.0)
+    fd = sink._file.fileno()
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    js = {"t": 0.0, "names": ["segment_1"], "kappa": [1.0], "phi": [0.0]}
+    size = len(synced)
+    Fanout([sink]).publish(topics.joint_states(js, 1_700_000_000_000_000_000))
+    assert len(synced) > size and set(synced) == {fd}  # the chunk just closed is on disk
+    sink.close()
+    assert len(synced) >= 2  # the summary of a clean stop too
+
+
+def test_foxglove_host_alone_serves_on_the_default_port_and_serve_options_need_a_server():
+    """Issue 16 audit: `--foxglove-host H` without `--foxglove-port` was silently ignored (no
+    server, no word); now it serves on 8766 (as `ucr foxglove`). The Foxglove door's options
+    without any server are a usage error (test_cli.py)."""
+    from interop.record import foxglove_address
+    from tools.cli import build_parser
+
+    def address(*extra: str):
+        return foxglove_address(build_parser().parse_args(["record", "-o", "r.mcap", *extra]))
+
+    assert address() == ("127.0.0.1", None)
+    assert address("--foxglove-host", "0.0.0.0") == ("0.0.0.0", 8766)
+    assert address("--foxglove-port", "9000") == ("127.0.0.1", 9000)
+    assert address("--foxglove-host", "::1", "--foxglove-port", "0") == ("::1", 0)

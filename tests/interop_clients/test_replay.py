@@ -583,3 +583,93 @@ def test_a_replay_client_gets_every_message_of_every_topic(tmp_path, summary):
         gate.open.set()
         sink.close()
     assert got == want
+
+
+def _goals_and_states(path, goals: list[tuple[float, dict]], states: list[tuple[float, list]]):
+    """A recording of goal events at given times (s) and /joint_states (t s, κ of segment_1..3,
+    φ 0) at given times, written as `ucr record` writes them (interop.live.LiveFeed)."""
+    from interop.record import McapSink
+    from interop.sinks import Fanout
+    from interop.topics import CommandedGoals, RobotTopics, commanded
+    from ucrdf.parser import load
+
+    topics = RobotTopics(load(ROBOT_FILE), "", 4)
+    sink = McapSink(path)
+    out = Fanout([sink])
+    parts = CommandedGoals()
+    t0 = 1_700_000_000_000_000_000
+    items = [(t, "js", k) for t, k in states] + [(t, "goal", g) for t, g in goals]
+    for i, (t, what, v) in enumerate(sorted(items, key=lambda x: x[0])):
+        when = t0 + round(t * 1e9)
+        if what == "js":
+            js = {"t": t, "names": JOINTS, "kappa": list(v), "phi": [0.0] * 3}
+            out.publish(topics.joint_states(js, when))
+            continue
+        ev = {"kind": "event", "event": "goal_accepted", "goal": f"jtc-{i}", "joints": JOINTS, **v}
+        whole, _ = parts.feed(ev)
+        for m in topics.event(ev, when):
+            out.publish(m)
+        out.publish(commanded(whole, topics.root, when))
+    sink.close()
+
+
+def test_the_dry_run_checks_each_goals_rate_from_where_the_robot_is_when_it_starts(tmp_path):
+    """Issue 16 audit: a goal's rate was measured from the previous goal's last waypoint *time*
+    (4 s earlier: κ 1 -> 3 in 0.2 s showed 0.697 1/m/s, no kappa_rate_max note), a goal that
+    replaced a running one showed "fastest 0", and no goal's lead-in (from where the robot is
+    when it starts to its first waypoint) was checked."""
+    from interop.replay import commanded_plan, describe, make_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    rest = [(0.1 * i, [0.0, 0.0, 0.0]) for i in range(3)]
+    # the audit's repro: segment_3 to κ 1 in 1 s; 4 s later to κ 3 in 0.2 s (10 1/m/s)
+    fast = tmp_path / "fast.mcap"
+    _goals_and_states(fast, [
+        (0.2, {"waypoints": [[1.0, [[0, 0], [0, 0], [1.0, 0]]]]}),
+        (5.2, {"waypoints": [[0.2, [[0, 0], [0, 0], [3.0, 0]]]]}),
+    ], rest)  # fmt: skip
+    plan = commanded_plan(fast, robot)
+    assert plan.fastest["segment_3"] == pytest.approx(10.0)
+    text = describe(plan)
+    assert "segment_3: recorded rate 10 1/m/s exceeds kappa_rate_max 5" in text, text
+
+    # a goal replacing a running one starts from where that one had got to (κ 1 at 1 s)
+    replaced = tmp_path / "replaced.mcap"
+    _goals_and_states(replaced, [
+        (0.2, {"waypoints": [[2.0, [[2.0, 0], [0, 0], [0, 0]]]]}),
+        (1.2, {"waypoints": [[0.5, [[0.0, 0], [0, 0], [0, 0]]]]}),
+    ], rest)  # fmt: skip
+    plan = commanded_plan(replaced, robot)
+    assert plan.fastest["segment_1"] == pytest.approx(2.0)  # κ 1 -> 0 in 0.5 s
+
+    # the first goal's lead-in: from the recorded pose at its start (κ 0), or the live pose
+    lead = tmp_path / "lead.mcap"
+    _goals_and_states(lead, [(0.2, {"waypoints": [[0.5, [[3.0, 0], [0, 0], [0, 0]]]]})], rest)
+    plan = commanded_plan(lead, robot)
+    assert plan.fastest["segment_1"] == pytest.approx(6.0)
+    assert "segment_1: recorded rate 6 1/m/s exceeds kappa_rate_max 5" in describe(plan)
+    plan = commanded_plan(lead, robot, here={"segment_1": (2.5, 0.0)})
+    assert plan.fastest["segment_1"] == pytest.approx(1.0) and not plan.notes
+
+    # the measured motion: its lead-in from the live pose, when known
+    measured = tmp_path / "measured.mcap"
+    _measured(measured, [3.0, 3.0])
+    plan = make_plan(measured, robot, lead_in=0.4, here={"segment_1": (0.0, 0.0)})
+    assert plan.fastest["segment_1"] == pytest.approx(7.5)
+    assert "segment_1: recorded rate 7.5 1/m/s exceeds kappa_rate_max 5" in describe(plan)
+
+
+def test_rate_zero_says_as_fast_as_possible_and_impossible_rates_are_refused(tmp_path):
+    """Issue 16 audit: `ucr replay --rate 0` (documented: as fast as possible) printed
+    "replaying … at 0x"; play() itself took a negative or infinite rate."""
+    from interop.replay import play
+
+    path = tmp_path / "r.mcap"
+    _chunked(path, 5)
+    code, _, err = _ucr_run("replay", str(path), "--port", "0", "--rate", "0")
+    assert code == 0 and f"replaying {path} as fast as possible" in err and " 0x" not in err, err
+    for bad in (-1.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="rate must be"):
+            play(path, [], rate=bad)
+    assert play(path, [], rate=0) == 5
