@@ -17,8 +17,17 @@ import json
 from pathlib import Path
 from typing import Any
 
-from host.client_common import add_connection_args, deg, kap, say_error, with_client
+from host.client_common import (
+    add_connection_args,
+    deg,
+    kap,
+    number_arg,
+    say_error,
+    with_client,
+)
 from host.client_motion import cmd_move, cmd_teleop, cmd_trajectory
+
+SECONDS = number_arg(float, 0.0, False, " s")  # a finite number of s > 0
 
 
 # --------------------------------------------------------------------------- registration
@@ -80,7 +89,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--segment", required=True, help="bendable name (see `ucr status`)")
     p.add_argument("--kappa", type=float, required=True, help="curvature K, 1/m (>= 0)")
     p.add_argument("--phi", type=float, default=0.0, help="bending-plane angle P, degrees (0)")
-    p.add_argument("--duration", type=float, default=2.0, help="time to get there T, s (2)")
+    p.add_argument("--duration", type=SECONDS, default=2.0, help="time to get there T, s (2; > 0)")
     p.add_argument("--no-wait", action="store_true", help="print the goal id and return at once")
     p.set_defaults(func=cmd_move)
 

@@ -47,6 +47,15 @@ def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> Non
     )
 
 
+def bound_text(kind: type, low: float, low_ok: bool, unit: str = "") -> str:
+    """What ``number_arg`` accepts, as its message says it: ``must be a finite number of s > 0``
+    (infinity is > 0, so a float bound names finiteness too); an int: ``must be >= 1``."""
+    bound = f"{'>=' if low_ok else '>'} {low:g}"
+    if kind is int:
+        return f"must be {bound}{unit}"
+    return f"must be a finite number{' of' + unit if unit else ''} {bound}"
+
+
 def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
     """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``); an
     impossible value is a usage error (exit 2) naming the bound."""
@@ -57,9 +66,7 @@ def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
         except ValueError:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
         if not math.isfinite(v) or v < low or (v == low and not low_ok):
-            raise argparse.ArgumentTypeError(
-                f"must be {'>=' if low_ok else '>'} {low:g}{unit}, got {text}"
-            )
+            raise argparse.ArgumentTypeError(f"{bound_text(kind, low, low_ok, unit)}, got {text}")
         return v
 
     parse.__name__ = kind.__name__  # argparse names the type in its own messages

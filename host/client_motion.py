@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from host.client_common import CliError, say_error, with_client
+from host.client_common import CliError, bound_text, say_error, with_client
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -88,8 +88,8 @@ def cmd_move(args: argparse.Namespace) -> int:
     if args.kappa < 0:
         say_error("--kappa must be >= 0 1/m (bend the other way with --phi + 180)")
         return 2
-    if not math.isfinite(args.duration) or args.duration <= 0:
-        say_error("--duration must be > 0 s")
+    if not math.isfinite(args.duration) or args.duration <= 0:  # argparse refuses it first
+        say_error(f"--duration {bound_text(float, 0.0, False, ' s')}, got {args.duration}")
         return 2
     if not math.isfinite(args.phi):
         say_error("--phi must be a number of degrees")
@@ -101,7 +101,27 @@ def cmd_move(args: argparse.Namespace) -> int:
             "segments": {args.segment: {"kappa": args.kappa, "phi": phi}},
         }
     ]
-    return with_client(args, lambda c: _send(c, points, None, args.no_wait))
+
+    def body(c: Any) -> int:
+        _check_segment(c.topology(), args.segment)
+        return _send(c, points, None, args.no_wait)
+
+    return with_client(args, body)
+
+
+def _check_segment(topo: dict, segment: str) -> None:
+    """Refuse a segment the robot does not have, naming its bendables, before the daemon would
+    (its answer points at "trajectory point 0", a point ``ucr move`` never showed)."""
+    known = [n for n in topo.get("expected") or [] if isinstance(n, str)]
+    controlled = [n for n in topo.get("controlled") or [] if isinstance(n, str)]
+    robot = topo.get("robot") or "the robot"
+    if known and segment not in known:
+        raise CliError(f"unknown segment {segment!r}: {robot}'s bendables are {', '.join(known)}")
+    if segment in known and segment not in controlled:
+        raise CliError(
+            f"segment {segment!r} is not controlled now (controlled: "
+            f"{', '.join(controlled) or 'none'}; `ucr status` shows why)"
+        )
 
 
 def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:

@@ -34,15 +34,16 @@ class Difference:
     """One way the chain differs from the description. ``blocking`` ones stop a start."""
 
     kind: str  # count | model | geometry | limits | identity | name
-    position: int | None
+    position: int | None  # 0-based chain index (None: the whole chain, e.g. a count)
     bendable: str | None
     message: str
     blocking: bool = True
 
     def as_dict(self) -> dict[str, Any]:
+        """As the API shows it: ``position`` counted from 1, like the message ("position 1")."""
         return {
             "kind": self.kind,
-            "position": self.position,
+            "position": None if self.position is None else self.position + 1,
             "bendable": self.bendable,
             "message": self.message,
             "blocking": self.blocking,

@@ -48,7 +48,7 @@ from host.controllers.trajectory import (
     StaleGoalError,
     quintic_coeffs,
 )
-from host.controllers.waypoints import parse_waypoints
+from host.controllers.waypoints import distinct, parse_waypoints
 
 __all__ = [
     "CurvatureTrajectory",
@@ -133,10 +133,11 @@ class JointTrajectoryController(Controller):
             tol = self.goal_tolerance
             if dev[worst] <= tol:
                 return  # the path passes near where they are: the goal takes them on
+            err_txt, tol_txt = distinct(dev[worst], tol)  # never "0.050 > 0.050"
             self._goal.finish(
                 "aborted",
                 f"link loss: {worst} measured again after a gap in its states, "
-                f"{dev[worst]:.3f} 1/m from the goal's path (> tolerance {tol:.3f} 1/m); "
+                f"{err_txt} 1/m from the goal's path (> tolerance {tol_txt} 1/m); "
                 "held where measured",
                 cause="link_loss",
                 segment=worst,
@@ -328,12 +329,13 @@ class JointTrajectoryController(Controller):
                 worst = max(errs, key=errs.get)
                 g.max_error = max(g.max_error, errs[worst])
                 if self.path_tolerance > 0 and errs[worst] > self.path_tolerance:
+                    err_txt, tol_txt = distinct(errs[worst], self.path_tolerance)
                     self._abort_holding(
                         g,
                         state,
                         desired,
-                        f"path tolerance violated on {worst}: error {errs[worst]:.3f} 1/m > "
-                        f"tolerance {self.path_tolerance:.3f} 1/m at t = {tau:.2f} s",
+                        f"path tolerance violated on {worst}: error {err_txt} 1/m > "
+                        f"tolerance {tol_txt} 1/m at t = {tau:.2f} s",
                         cause="path_tolerance",
                         segment=worst,
                         error=errs[worst],
@@ -351,12 +353,13 @@ class JointTrajectoryController(Controller):
         unseen = [j for j in self.joints if j not in errs]
         if over:
             worst = max(over, key=over.get)
+            err_txt, tol_txt = distinct(over[worst], self.goal_tolerance)
             self._abort_holding(
                 g,
                 state,
                 desired,
                 f"goal tolerance not reached {self.goal_time_tolerance:.2f} s after the end: "
-                f"{worst} error {over[worst]:.3f} 1/m > tolerance {self.goal_tolerance:.3f} 1/m",
+                f"{worst} error {err_txt} 1/m > tolerance {tol_txt} 1/m",
                 cause="goal_tolerance",
                 segment=worst,
                 error=over[worst],
@@ -369,7 +372,7 @@ class JointTrajectoryController(Controller):
                 desired,
                 f"link loss: no valid state from {', '.join(unseen)} "
                 f"{self.goal_time_tolerance:.2f} s after the end, so the goal tolerance "
-                f"({self.goal_tolerance:.3f} 1/m) could not be checked",
+                f"({self.goal_tolerance:g} 1/m) could not be checked",
                 cause="link_loss",
                 segment=unseen[0],
                 tolerance=self.goal_tolerance,

@@ -115,3 +115,53 @@ def test_aborts_from_the_daemon_parts_name_their_cause(ctx):
         g = jtc.send_goal([{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 0.3}}}])
         jtc.abort_active(reason)
         assert jtc.status_of(g.id)["abort"]["cause"] == cause, reason
+
+
+def _state(names: list[str], t: float, kx1: float) -> RobotState:
+    """segment_1 measured at (kx1, 0), the others at rest; all valid."""
+    kx = [kx1 if n == "segment_1" else 0.0 for n in names]
+    ky = [0.0] * len(names)
+    return RobotState(
+        t, list(names), kx, ky, [abs(x) for x in kx], [0.0] * len(names),
+        [True] * len(names), [True] * len(names),
+    )  # fmt: skip
+
+
+def _shown_pair(reason: str) -> tuple[float, float]:
+    """The (error, tolerance) a reason shows, whichever of the three phrasings it uses."""
+    m = re.search(r"error ([\d.e+-]+) 1/m > tolerance ([\d.e+-]+) 1/m", reason) or re.search(
+        r"([\d.e+-]+) 1/m from the goal's path \(> tolerance ([\d.e+-]+) 1/m\)", reason
+    )
+    assert m, reason
+    return float(m[1]), float(m[2])
+
+
+@pytest.mark.parametrize("kind", ["path_tolerance", "goal_tolerance", "link_loss"])
+def test_an_error_just_over_its_tolerance_reads_larger_than_it(ctx, kind):
+    """Audit of issue 12: ``.3f`` showed an error of tolerance + 1e-5 as "0.050 > 0.050"."""
+    tol = 0.05
+    params = {
+        "path_tolerance": tol if kind == "path_tolerance" else 0.0,
+        "goal_tolerance": tol,
+        "goal_time_tolerance": 0.2,
+    }
+    jtc = JointTrajectoryController("jtc", params, ctx)
+    names = ctx.names
+    jtc.on_activate(RobotState.zeros(names, 0.0))
+    g = jtc.send_goal([{"time_from_start": 0.5, "segments": {"segment_1": {"kappa": 0.0}}}], 0.0)
+    off = tol + 1e-5  # the goal holds segment_1 at 0: measured here, its error is exactly this
+    if kind == "link_loss":
+        jtc.update(RobotState.zeros(names, 0.0), DT)
+        jtc.adopt_measured(["segment_1"], _state(names, DT, off))
+    else:
+        t = 0.0
+        while t <= 1.0 and jtc.status_of(g.id)["state"] != "aborted":
+            jtc.update(_state(names, t, off), DT)
+            t += DT
+    st = jtc.status_of(g.id)
+    ab = coherent(st)
+    assert ab["cause"] == kind and ab["segment"] == "segment_1"
+    assert ab["error"] == pytest.approx(off) and ab["tolerance"] == tol
+    err, shown_tol = _shown_pair(st["reason"])
+    assert err > shown_tol, st["reason"]
+    assert shown_tol == tol, st["reason"]  # the tolerance as configured, not rounded

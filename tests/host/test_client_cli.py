@@ -142,8 +142,9 @@ def test_move_refused_by_the_daemon_exits_1_with_its_reason(capsys, url):
 def test_move_checks_its_arguments_before_connecting(capsys):
     rc, _, err = run(capsys, "move", "--segment", "s1", "--kappa", "-1", "--url", free_url())
     assert rc == 2 and "--kappa must be >= 0" in err
-    rc, _, err = run(capsys, "move", "--segment", "s1", "--kappa", "1", "--duration", "0")
-    assert rc == 2 and "--duration" in err
+    with pytest.raises(SystemExit) as ei:  # a usage error, before any connection
+        run(capsys, "move", "--segment", "s1", "--kappa", "1", "--duration", "0")
+    assert ei.value.code == 2 and "--duration" in capsys.readouterr().err
 
 
 TRAJ_YAML = """\
@@ -208,6 +209,17 @@ def test_a_timeout_that_cannot_work_is_a_usage_error(capsys, value):
         ucr(["status", "--timeout", value])
     assert ei.value.code == 2
     assert "--timeout" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option", ["--duration", "--timeout"])
+@pytest.mark.parametrize("value", ["1e400", "inf", "0", "-1"])
+def test_move_names_finiteness_in_its_seconds_bounds(capsys, option, value):
+    """Audit of issue 12: `--duration 1e400` said "must be > 0 s" (infinity is > 0)."""
+    with pytest.raises(SystemExit) as ei:
+        ucr(["move", "--segment", "s1", "--kappa", "1", option, value, "--url", free_url()])
+    assert ei.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith(f"argument {option}: must be a finite number of s > 0, got {value}"), err
 
 
 def test_wss_to_a_daemon_without_tls_says_tls_failed(capsys, url):
@@ -284,3 +296,18 @@ def test_controllers_list_and_switch(capsys, url):
     assert rc == 1 and "unknown controller 'nope'" in err
     rc, _, err = run(capsys, "controllers", "switch", "--url", url)
     assert rc == 2
+
+
+def test_move_to_an_unknown_segment_names_the_robots_bendables(capsys, url):
+    """Audit of issue 12: `ucr move --segment segment_9` answered "trajectory point 0: …"."""
+    rc, _, err = run(capsys, "move", "--url", url, "--segment", "segment_9", "--kappa", "1")
+    assert rc == 1
+    assert err.strip() == "ucr: unknown segment 'segment_9': stub's bendables are s1"
+    assert "trajectory point" not in err
+
+
+def test_move_to_a_segment_not_controlled_now_says_so(capsys, url, monkeypatch):
+    topo = {"robot": "stub", "expected": ["s1", "s2"], "controlled": ["s1"]}
+    monkeypatch.setattr(FacadeStub, "topology", lambda self: topo)
+    rc, _, err = run(capsys, "move", "--url", url, "--segment", "s2", "--kappa", "1")
+    assert rc == 1 and "segment 's2' is not controlled now (controlled: s1;" in err

@@ -57,6 +57,12 @@ def test_emulate_robot_with_control_socket_and_sigterm(tmp_path) -> None:
             lines.append(line.strip())
         host = lines[0].removeprefix("host port: ")
         assert [ln.split(":")[0] for ln in lines[1:4]] == ["segment 1", "segment 2", "segment 3"]
+        # the segment directory names the number the line starts with (seg1 for segment 1)
+        assert [re.search(r" dir \S*/(seg\d+) ", ln)[1] for ln in lines[1:4]] == [
+            "seg1",
+            "seg2",
+            "seg3",
+        ]
         with ChainLink(host) as link:
             end = time.monotonic() + 15
             descs: list = []

@@ -215,6 +215,28 @@ def test_control_positions_count_from_one_like_segment_names(echo_chain) -> None
     assert execute(chain, f"unplug {chain.n + 1}").startswith("error: position must be 1..")
 
 
+def test_segment_directories_count_from_one_like_the_printout(echo_chain) -> None:
+    """`ucr emulate` prints "segment 1: … dir …/seg1": the directory names the same number."""
+    chain, _ = echo_chain
+    assert [chain.segment_dir(k).name for k in range(chain.n)] == ["seg1", "seg2"]
+
+
+def test_a_kept_workdir_of_0_based_directories_is_reused_as_it_is(tmp_path) -> None:
+    """--keep on a workdir made before the 1-based names (seg0, seg1) reuses each flash for the
+    segment it was made for, never the neighbour's."""
+    fw = tmp_path / "fw"
+    fw.mkdir()
+    (fw / "main.py").write_text(ECHO_MAIN)
+    work = tmp_path / "work"
+    for k in range(2):
+        (work / f"seg{k}").mkdir(parents=True)
+        (work / f"seg{k}" / "main.py").write_text(ECHO_MAIN.replace("echo up", f"old{k} up"))
+    with EmulatedChain(2, work, firmware_dir=fw, protocol_dir=None, reuse_dirs=True) as chain:
+        assert [chain.segment_dir(k).name for k in range(2)] == ["seg0", "seg1"]
+        assert "old0 up" in (chain.segment_dir(0) / "main.py").read_text()
+    assert not (work / "seg2").exists()
+
+
 def test_bad_arguments_are_refused(tmp_path) -> None:
     with pytest.raises(EmulatorError):
         EmulatedChain(0)

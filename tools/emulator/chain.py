@@ -218,11 +218,12 @@ def _baud_gate(end: PtyEnd, baud: int, feed: Callable[[bytes, float], None] | No
 class EmulatedChain:
     """``n`` emulated segments behind one host port. Use as a context manager.
 
-    Parameters: ``workdir`` (segment directories go to ``workdir/seg<k>``; default a temporary
-    directory removed on close), ``firmware_dir`` (default ``device/``), ``protocol_dir`` (default
-    ``protocol/``), ``config_for`` (position -> config dict or None for firmware defaults; or a
-    list), ``faults_for`` (position -> UCR_FAULTS spec), ``uids`` (hex ids; default random but
-    stable for the chain's life), ``heap`` (``-X heapsize``; default the board's heap budget),
+    Parameters: ``workdir`` (segment directories go to ``workdir/seg<N>``, N counted from 1;
+    default a temporary directory removed on close), ``firmware_dir`` (default ``device/``),
+    ``protocol_dir`` (default ``protocol/``), ``config_for`` (position -> config dict or None for
+    firmware defaults; or a list), ``faults_for`` (position -> UCR_FAULTS spec), ``uids`` (hex
+    ids; default random but stable for the chain's life), ``heap`` (``-X heapsize``; default the
+    board's heap budget),
     ``reuse_dirs`` (keep existing segment directories, e.g. flashed ones, instead of
     repopulating), ``seed`` (corruption RNG), ``board`` (run every segment as this board; default
     each configuration's ``board``, else esp32), ``timing`` (the board's timing model: RTOS-tick
@@ -299,8 +300,12 @@ class EmulatedChain:
     ) -> None:
         self.workdir.mkdir(parents=True, exist_ok=True)
         prefix = secrets.token_hex(4)
+        # Directories count from 1 like everything a user reads ("segment 1: … dir …/seg1"). A
+        # --keep workdir made before (seg0, seg1, …: 0-based) keeps its names, so a reused flash
+        # never lands on the neighbouring segment.
+        first = 0 if reuse_dirs and (self.workdir / "seg0").is_dir() else 1
         for k in range(n):
-            seg_dir = self.workdir / f"seg{k}"
+            seg_dir = self.workdir / f"seg{k + first}"
             uid = uids[k] if uids is not None else f"{prefix}{k:04x}"
             if not (reuse_dirs and (seg_dir / "main.py").is_file()):
                 populate_segment_dir(
