@@ -94,7 +94,11 @@ class Session:
         try:
             self.link.hold(self.position)
         finally:
-            audit.info("calibrate: HOLD segment %d (%s) by the operator", self.position, self.uid)
+            audit.info(
+                "calibrate: HOLD segment at position %d (%s) by the operator",
+                self.position + 1,
+                self.uid,
+            )
 
     def resume(self) -> None:
         self._stop.clear()
@@ -163,7 +167,12 @@ class Session:
     def move(self, kappa: float, phi: float) -> dict:
         """Bend to (kappa 1/m, phi rad) and wait until there (the segment limits and slews)."""
         self.setpoint = (float(kappa), float(phi))
-        audit.info("calibrate: segment %d setpoint kappa=%.4f phi=%.4f", self.position, kappa, phi)
+        audit.info(
+            "calibrate: segment at position %d setpoint kappa=%.4f phi=%.4f",
+            self.position + 1,
+            kappa,
+            phi,
+        )
         return self.settle()
 
     def apply(self, zeros: list[float], dirs: list[int]) -> None:
@@ -172,7 +181,12 @@ class Session:
         self.link.hold(self.position)
         got = self.calibration(cal.ACTION_APPLY, zeros, dirs)
         self.zeros, self.dirs = got["zero_offsets"], got["directions"]
-        audit.info("calibrate: segment %d applied zeros=%s dirs=%s", self.position, zeros, dirs)
+        audit.info(
+            "calibrate: segment at position %d applied zeros=%s dirs=%s",
+            self.position + 1,
+            zeros,
+            dirs,
+        )
 
     def identify(self, kappa: float = 0.5, times: int = 2) -> None:
         """A small wiggle (bend one way, the other, straight) to see which segment this is."""
@@ -284,7 +298,12 @@ class Session:
         got = self.calibration(cal.ACTION_PERSIST, self.zeros, self.dirs)
         if not got["stored"]:
             raise CalibrationError("the segment did not confirm the stored calibration")
-        audit.info("calibrate: segment %d persisted %s %s", self.position, self.zeros, self.dirs)
+        audit.info(
+            "calibrate: segment at position %d persisted %s %s",
+            self.position + 1,
+            self.zeros,
+            self.dirs,
+        )
         self.say(
             "persist: stored on the segment: zeros "
             + ", ".join(f"{z:+.4f}" for z in got["zero_offsets"])

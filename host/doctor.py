@@ -242,7 +242,12 @@ def register(subparsers: Any) -> None:
 def cmd_doctor(args: argparse.Namespace) -> int:
     findings = run(args.port, args.baud, args.robot, args.seconds)
     if args.json:
-        print(json.dumps([asdict(f) for f in findings], indent=1))
+        # positions counted from 1, as in the text report and everywhere else a user sees them
+        out = [asdict(f) for f in findings]
+        for f in out:
+            if f["position"] is not None:
+                f["position"] += 1
+        print(json.dumps(out, indent=1))
     else:
         print(format_text(findings))
     return 1 if any(f.level == "error" for f in findings) else 0

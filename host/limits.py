@@ -88,7 +88,9 @@ def bendable_limits(robot: Any) -> dict[str, BendableLimits]:
         for key, v in (("kappa_max", lim.kappa_max), ("kappa_rate_max", rate)):
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 # a robot built in code skips `ucr check`: the daemon refuses it here too
-                raise ConfigError(src, f"bendable[{name}].limits.{key}", f"must be > 0, got {v!r}")
+                raise ConfigError(
+                    src, f"bendable[{name}].limits.{key}", f"must be a finite number > 0, got {v!r}"
+                )
         bl = BendableLimits(
             name=name,
             length=b.length,

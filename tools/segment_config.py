@@ -96,7 +96,9 @@ def config_for(robot: Robot, bendable_name: str, *, emulated: bool = False) -> d
         )
     for what, v in (("tendon radius", act.radius), ("spool radius", act.spool_radius)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise SegmentConfigError(f"bendable {bendable_name!r}: {what} must be > 0 m, got {v!r}")
+            raise SegmentConfigError(
+                f"bendable {bendable_name!r}: {what} must be a finite number of m > 0, got {v!r}"
+            )
     if not act.servos and not emulated:
         raise SegmentConfigError(
             f"bendable {bendable_name!r} declares no <servo>: its servo ids, zero offsets, "

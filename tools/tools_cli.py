@@ -200,8 +200,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     control = None
     try:
-        if args.cpu_factor is not None and not (args.cpu_factor >= 1.0):
-            return _error(f"--cpu-factor must be >= 1, got {args.cpu_factor}")
+        if args.cpu_factor is not None and not (1.0 <= args.cpu_factor < float("inf")):
+            return _error(f"--cpu-factor must be a finite number >= 1, got {args.cpu_factor}")
         with EmulatedChain(
             n,
             args.workdir,
