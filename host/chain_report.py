@@ -67,7 +67,8 @@ def rebuild_message(names: list[str], cut: dict[str, Any] | None, cmp: Compariso
     msg = f"now {len(names)} segment(s): {', '.join(names)}"
     if cut:
         msg += (
-            f"; chain cut after {cut['after']} ({label(cut['after_position'])}): "
+            # after_position is 1-based (as topology() shows it); label() takes the index
+            f"; chain cut after {cut['after']} ({label(cut['after_position'] - 1)}): "
             f"{', '.join(cut['lost'])} unreachable"
         )
     extra = [d.message for d in cmp.differences if d.blocking and d.kind != "count"]

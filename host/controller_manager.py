@@ -4,13 +4,17 @@ command interfaces, activates/deactivates/switches them, and runs the active one
 A switch is atomic: it is checked completely (names, claims after the switch) before anything
 changes, and a conflict names the interface and the controller holding it. After a topology change
 ``rebuild`` recreates every controller for the new robot and re-activates the ones that were
-active (each commanding controller holds the measured position on activation).
+active (each commanding controller holds the measured position on activation). A running
+trajectory goal that moves none of the segments the change concerns (``affected``) is carried
+over to the rebuilt controller and runs on; every other goal is aborted with the cause and
+segment the caller gives (never a cause guessed from the reason's words).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import time
 from typing import Any
 
 from host.controllers import controller_class
@@ -21,8 +25,11 @@ from host.controllers.base import (
     ControllerError,
     RobotState,
 )
+from host.controllers.trajectory import GoalStart
 
 log = logging.getLogger("ucr.controllers")
+# a cycle later than this many periods after the last one is a pause: timed motions are shifted
+PAUSE_CYCLES = 3.0
 
 
 class SwitchError(ControllerError):
@@ -37,6 +44,7 @@ class ControllerManager:
         self.ctx = ctx
         self.controllers: dict[str, Controller] = {}
         self.failed: dict[str, str] = {}
+        self.last_aborted: list[str] = []  # goals the last rebuild aborted
         self._load()
 
     def _load(self) -> None:
@@ -116,7 +124,11 @@ class ControllerManager:
                 holder[itf] = n
         stopped = [n for n in stop if self.controllers[n].active]
         for n in stopped:
-            self.controllers[n].on_deactivate(reason or f"controller {n!r} stopped by switch")
+            why = reason or f"controller {n!r} stopped by switch"
+            abort = getattr(self.controllers[n], "abort_active", None)
+            if abort is not None:
+                abort(why, cause="stopped")  # its goal ends with that cause, not a guessed one
+            self.controllers[n].on_deactivate(why)
         started = [n for n in start if not self.controllers[n].active]
         for n in started:
             self.controllers[n].on_activate(state)
@@ -124,26 +136,125 @@ class ControllerManager:
             log.info("controllers switched: started %s, stopped %s", started, stopped)
         return {"started": started, "stopped": stopped}
 
-    def rebuild(self, ctx: ControllerContext, state: RobotState, reason: str) -> list[str]:
-        """Recreate every controller for a new robot; re-activate those that were active."""
+    def rebuild(
+        self,
+        ctx: ControllerContext,
+        state: RobotState,
+        reason: str,
+        *,
+        cause: str = "stopped",
+        segment: str | None = None,
+        affected: set[str] | None = None,
+    ) -> list[str]:
+        """Recreate every controller for a new robot; re-activate those that were active.
+
+        ``affected``: the segments the change concerns (lost, replaced, rebooted). A running
+        goal that moves none of them and none that the new robot lacks is carried over to the
+        rebuilt controller (its path continues, no jump: the segments it moves were commanded
+        along it until now); ``None``: every goal ends. The goals that end are aborted with
+        ``reason``, ``cause`` and ``segment``; their ids are in :attr:`last_aborted`."""
+        now = time.monotonic()
         was_active = self.active_names()
-        for n in was_active:
-            self.controllers[n].on_deactivate(reason)
-        self.ctx = ctx
-        self._load()
-        started = []
-        for n in was_active:
-            if n in self.controllers:
-                try:
-                    self.switch([n], [], state, reason)
-                    started.append(n)
-                except SwitchError as exc:
-                    log.error("after rebuild, %s stays inactive: %s", n, exc)
+        carried: dict[str, tuple[Any, Any, list[str]]] = {}
+        kept: set[str] = set()
+        self.last_aborted: list[str] = []
+        started: list[str] = []
+        try:
+            for n in was_active:
+                c = self.controllers[n]
+                g = getattr(c, "current_goal", None)
+                tr = getattr(g, "trajectory", None)
+                if g is None:
+                    pass
+                elif (
+                    affected is not None
+                    and tr is not None
+                    and not tr.moving(list(c.joints), now) & (set(affected) | self._gone(c, ctx))
+                ):
+                    g.carried = True
+                    carried[n] = (g, tr, list(c.joints))
+                elif c.abort_active(reason, cause=cause, segment=segment):
+                    self.last_aborted.append(g.id)
+            for n in was_active:
+                self.controllers[n].on_deactivate(reason)
+            self.ctx = ctx
+            self._load()
+            for n in was_active:
+                if n in self.controllers:
+                    try:
+                        self.switch([n], [], state, reason)
+                        started.append(n)
+                    except SwitchError as exc:
+                        log.error("after rebuild, %s stays inactive: %s", n, exc)
+            for n, (g, tr, joints) in carried.items():
+                if self._carry(n, g, tr, joints, state, set(affected or ())):
+                    kept.add(n)
+        finally:  # whatever was raised, every goal can end again: not carried is aborted
+            for n, (g, _, _) in carried.items():
+                g.carried = False
+                if n not in kept:
+                    g.finish("aborted", reason, cause=cause, segment=segment)
+                    self.last_aborted.append(g.id)
         return started
 
+    @staticmethod
+    def _gone(c: Controller, ctx: ControllerContext) -> set[str]:
+        """Joints of ``c`` that the new robot (``ctx``) does not have."""
+        return {j for j in c.joints if j not in ctx.limits}
+
+    def _carry(
+        self,
+        name: str,
+        goal: Any,
+        traj: Any,
+        joints: list[str],
+        state: RobotState,
+        affected: set[str],
+    ) -> bool:
+        """Install ``goal`` (path ``traj`` over ``joints``) on the rebuilt controller ``name``,
+        its path mapped onto that controller's joints. A joint that holds where measured (the
+        rebuilt controller's hold, ``snap.p``) for the rest of the goal: one new to the path,
+        one the change concerns (``affected``: rebooted, swapped, behind the change — the goal
+        only held it still, and its old value is stale: docs/daemon.md "No motion without a
+        command"), and one the path holds still that was not measured at the rebuild. False
+        when it cannot run there. The path keeps its time base: the first cycle after the
+        rebuild shifts it by the pause (:meth:`update`)."""
+        c = self.controllers.get(name)
+        if c is None or not c.active or not hasattr(c, "install_goal"):
+            return False
+        now = time.monotonic()
+        try:
+            snap = c.goal_snapshot(now)
+            moving = traj.moving(joints, now)
+            index = {n: i for i, n in enumerate(state.names)}
+            unmeasured = {j for j in c.joints if j not in index or not state.valid[index[j]]}
+            held = (set(c.joints) & affected) | (unmeasured - moving)
+            path = traj.remapped(joints, list(c.joints), snap.p, held)
+            accepted = goal.t_accepted
+            start = GoalStart(now, snap.p, snap.v, snap.a, snap.generation, at_rest=False)
+            c.install_goal(goal, path, start, now)
+            goal.t_accepted = accepted
+        except ControllerError as exc:
+            log.warning("goal %s not carried over the rebuild: %s", goal.id, exc)
+            return False
+        log.info("goal %s carried over the rebuild (it moves none of the segments concerned)",
+                 goal.id)  # fmt: skip
+        return True
+
     # -- cycle -------------------------------------------------------------------------------
-    def update(self, state: RobotState, dt: float) -> Commands:
-        """Run every active controller; merge commands (claims guarantee no overlap)."""
+    def update(self, state: RobotState, dt: float, period: float | None = None) -> Commands:
+        """Run every active controller; merge commands (claims guarantee no overlap).
+
+        ``period``: the loop's period. A cycle that comes more than ``PAUSE_CYCLES`` periods
+        after the last (a rebuild, a rediscovery, a failed rejoin, a stalled host) shifts the
+        time base of every timed motion by the excess (``shift_time``): during the pause the
+        segments sat at their last setpoint, so the path continues from there, without a step;
+        the goal's time tolerance window is shifted with it."""
+        if period is not None and period > 0 and dt > PAUSE_CYCLES * period:
+            for c in self.controllers.values():
+                shift = getattr(c, "shift_time", None)
+                if c.active and shift is not None:
+                    shift(dt - period)
         out: Commands = {}
         for c in self.controllers.values():
             if not c.active:

@@ -23,6 +23,7 @@ controller update, never while waiting on the bus.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import queue
@@ -215,7 +216,7 @@ class Daemon:
         self.topo.stopping = True
         self.loop.stop()
         self._publisher.stop()
-        self.motion.abort_goals("daemon stopping")
+        self.motion.abort_goals("daemon stopping", "stopped")
         if hold and self.topo.link is not None:
             try:
                 self.topo.link.hold()
@@ -243,20 +244,24 @@ class Daemon:
         hwi = topo.hwi
         try:
             hwi.read()
-            events = topo.link.events()
+            events = topo.take_events() + topo.link.events()
         except OSError as exc:
             topo.link_lost(exc)
             return None
         if not hwi.exchange_probed and hwi.exchanges:
             self.usable_rate.observe(hwi, topo.link, now)
+        if hwi.exchange_probed:
+            topo.note_probe(bool(hwi.extra_states), now)
         state = robot_state_from(hwi, now)
-        reason = self.supervisor.check(hwi, state, events, topo.descriptors)
+        sup = self.supervisor
+        # a rejoin (only what lies beyond the tip) waits for the hysteresis (docs/daemon.md
+        # "Rejoin by itself"); meanwhile the chain is controlled as it is and probed again
+        ready = functools.partial(topo.rejoin_ready, now)  # (probed) -> bool
+        reason = sup.check(hwi, state, events, topo.descriptors, rejoin_ready=ready)
         if reason is not None:
             stalls = topo.stalls
             missing = [i for i, m in enumerate(hwi.missing) if m > 0]
-            topo.hotplug(
-                reason, now, verify=self.supervisor.silent, position=self.supervisor.position
-            )
+            topo.hotplug(reason, now, verify=sup.silent, position=sup.position, rejoin=sup.rejoin)
             if topo.hwi is not hwi:
                 self.usable_rate.reset()
             elif topo.stalls > stalls and missing:
@@ -279,7 +284,7 @@ class Daemon:
         nominal = abs(period - self.period) < 1e-9
         timeout = self.reply_timeout if nominal else REPLY_SHARE * period
         self.loop.set_period(period, keep_counts=True)  # timing windows restart at the new period
-        self.supervisor.period = period
+        self.supervisor.period = self.motion.period = period
         self.topo.reply_timeout = timeout
         self.topo.gap_cycles = gap_cycles(period, self.cfg.watchdog)
         hwi = self.topo.hwi

@@ -84,9 +84,20 @@ class Motion:
         self._t_last = time.monotonic()
 
     # -- called by the topology follower and the loop ----------------------------------------
-    def build(self, ctx: ControllerContext, state: RobotState, reason: str) -> None:
+    def build(
+        self,
+        ctx: ControllerContext,
+        state: RobotState,
+        reason: str,
+        *,
+        cause: str = "stopped",
+        segment: str | None = None,
+        affected: set[str] | None = None,
+    ) -> list[str]:
         """Controllers for a new HWI (caller holds the lock): built once, then rebuilt, holding
-        the measured ``state``; a manual takeover outlives a rebuild."""
+        the measured ``state``; a manual takeover outlives a rebuild. A goal that moves none of
+        the ``affected`` segments runs on (``None``: every goal ends); the others are aborted
+        with ``reason``, ``cause`` and ``segment``. Returns the ids of the goals aborted."""
         self.state = state
         if self.cm is None:
             cm = ControllerManager(self.cfg.controllers, ctx)
@@ -95,9 +106,10 @@ class Motion:
             except SwitchError as exc:
                 raise DaemonError(f"{self.cfg.source}: active: {exc}") from None
             self.cm = cm  # only once it runs: a retried start() builds it afresh
-        else:
-            self.cm.rebuild(ctx, state, reason)
-            self.arb.prune(self.cm)
+            return []
+        self.cm.rebuild(ctx, state, reason, cause=cause, segment=segment, affected=affected)
+        self.arb.prune(self.cm)
+        return list(self.cm.last_aborted)
 
     def update(self, hwi: HardwareInterface, state: RobotState, now: float) -> None:
         """One control update: active controllers → the HWI's command interfaces."""
@@ -109,7 +121,7 @@ class Motion:
                 for c in self.cm.controllers.values():
                     if c.active:
                         c.adopt_measured(hwi.first_measured, state)
-            cmds = self.cm.update(state, dt)
+            cmds = self.cm.update(state, dt, self.period)  # a pause shifts timed motions
             for name, (kx, ky) in cmds.items():
                 if name in hwi.limits:
                     hwi.set_curvature(name, kx, ky)
@@ -117,25 +129,37 @@ class Motion:
     def rehold(self, state: RobotState, msg: str, segments: list[str] | None = None) -> None:
         """Segments held on their own: abort goals, controllers hold the measured state."""
         with self.lock:
-            self.abort_goals(msg, "segment_fault", (segments or [None])[0])
-            self.cm.rebuild(self.cm.ctx, state, msg)
+            segment = (segments or [None])[0]
+            self.abort_goals(msg, "segment_fault", segment)
+            self.cm.rebuild(self.cm.ctx, state, msg, cause="segment_fault", segment=segment)
 
     def abort_goals(
-        self, reason: str, cause: str | None = None, segment: str | None = None
+        self,
+        reason: str,
+        cause: str | None = None,
+        segment: str | None = None,
+        only: set[str] | None = None,
     ) -> list[str]:
         """Abort the running goal of every active controller; returns their ids. ``cause``:
         one of ``host.controllers.trajectory.ABORT_CAUSES`` (default: inferred from the reason);
-        ``segment``: the segment it concerns, if one."""
+        ``segment``: the segment it concerns, if one; ``only``: abort only the goals that move
+        one of these segments (a topology change elsewhere leaves the others running)."""
         out = []
+        now = time.monotonic()
         with self.lock:
             if self.cm is None:
                 return out
             for c in self.cm.controllers.values():
                 abort = getattr(c, "abort_active", None)
-                if c.active and abort is not None:
-                    gid = abort(reason, cause=cause, segment=segment)
-                    if gid:
-                        out.append(gid)
+                if not c.active or abort is None:
+                    continue
+                if only is not None:
+                    tr = getattr(getattr(c, "current_goal", None), "trajectory", None)
+                    if tr is not None and not tr.moving(list(c.joints), now) & set(only):
+                        continue
+                gid = abort(reason, cause=cause, segment=segment)
+                if gid:
+                    out.append(gid)
         return out
 
     # -- read by the facade ------------------------------------------------------------------

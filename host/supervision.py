@@ -103,6 +103,7 @@ class Supervisor:
         self._rehold = rehold
         self.silent = False  # the last reason was silence (no event): verify before aborting
         self.position: int | None = None  # 0-based index of the segment the last reason concerns
+        self.rejoin = False  # the last reason lies only beyond the tip (a segment rejoins)
         # segments in FAULT: name -> {position, code, name, text}
         self.faults: dict[str, dict[str, Any]] = {}
 
@@ -112,11 +113,22 @@ class Supervisor:
         state: RobotState,
         events: list[dict],
         descriptors: list[dict],
+        rejoin_ready: Callable[[bool], bool] | None = None,
     ) -> str | None:
-        """Return a reason when the topology changed; handle unexpected HOLDs."""
+        """Return a reason when the topology changed; handle unexpected HOLDs.
+
+        What lies only beyond the tip (a probe answered there, DOWNSTREAM_UP from the tip, a
+        BOOT beyond it) is a *rejoin* (:attr:`rejoin`), taken only when no other reason came in
+        the same cycle and ``rejoin_ready(probed)`` agrees (hysteresis, docs/daemon.md "Rejoin
+        by itself"; ``probed``: a probe answered). A deferred rejoin suppresses nothing else:
+        a BOOT, a cut or a misaddressed STATE in the same batch is the reason, and the
+        unexpected-HOLD re-hold runs."""
         reason = None
         self.silent = False
         self.position = None
+        self.rejoin = False
+        tip = len(hwi.names)
+        beyond: tuple[str, int] | None = None  # the first rejoin reason (reason, position)
         for ev in events:
             name = ev.get("name", "")
             extra = {"text": ev["text"]} if "text" in ev else {}
@@ -132,8 +144,12 @@ class Supervisor:
             if name == "FAULT":
                 self._note_fault(hwi, ev)
             if reason is None and is_news(name, ev.get("position"), descriptors):
-                reason = f"{name} from {label(ev.get('position'))}"
-                self.position = _concerned(name, ev.get("position"))
+                why = f"{name} from {label(ev.get('position'))}"
+                at = _concerned(name, ev.get("position"))
+                if at != tip:
+                    reason, self.position = why, at
+                elif beyond is None:
+                    beyond = (why, at)
         self._track_faults(hwi)
         if reason is None:
             reason = self._misaddressed(hwi)
@@ -146,20 +162,22 @@ class Supervisor:
                 reason = f"no STATE from {names} for {limit} cycles"
                 self.silent = True
                 self.position = silent[0]
-        if reason is None and getattr(hwi, "extra_states", None):
-            tip = hwi.names[-1] if hwi.names else "the host"
-            reason = f"{len(hwi.extra_states)} segment(s) answer beyond {tip} (rejoin)"
-            self.position = len(hwi.names)
-        if reason is None and hwi.raw_states and descriptors:
-            tip = hwi.raw_states[-1]
+        probed = bool(getattr(hwi, "extra_states", None))
+        if reason is None and beyond is None and probed:
+            last = hwi.names[-1] if hwi.names else "the host"
+            beyond = (f"{len(hwi.extra_states)} segment(s) answer beyond {last} (rejoin)", tip)
+        if reason is None and beyond is None and hwi.raw_states and descriptors:
+            st = hwi.raw_states[-1]
             known_tip = descriptors[len(hwi.names) - 1]
             if (
-                tip is not None
-                and "DOWNSTREAM" in tip["status"]
+                st is not None
+                and "DOWNSTREAM" in st["status"]
                 and known_tip.get("downstream_present") is False
             ):
-                reason = f"a segment answers downstream of {hwi.names[-1]}"
-                self.position = len(hwi.names)
+                beyond = (f"a segment answers downstream of {hwi.names[-1]}", tip)
+        if reason is None and beyond is not None and (rejoin_ready is None or rejoin_ready(probed)):
+            reason, self.position = beyond
+            self.rejoin = True
         if reason is None:
             held = [
                 hwi.names[i]

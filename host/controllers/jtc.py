@@ -18,7 +18,13 @@ Limits (decided here, documented in docs/controllers.md):
   pieces that would exceed it (retiming); the status reports the new duration.
 Tolerances (1/m, Euclidean in (kx, ky)): ``path_tolerance`` while moving (0 disables), and
 ``goal_tolerance`` within ``goal_time_tolerance`` s after the end. A violation aborts the goal
-with a reason and holds the measured position.
+with a reason and holds the measured position. A pause of the loop (a rebuild, a rediscovery)
+shifts the time base of the running motion by the pause (``shift_time``), so a path continues
+where the segments sat, and the goal's time tolerance window is not spent during the pause.
+
+One piece: the desired motion (path, lead-in, hold, generation) and the goal's lifecycle and
+tolerance checks change together under one invariant, no jump in the command, so they stay in
+one class.
 """
 
 from __future__ import annotations
@@ -312,6 +318,16 @@ class JointTrajectoryController(Controller):
             self._clamped += clamped
             out[j] = (kx, ky)
         return out
+
+    def shift_time(self, pause: float) -> None:
+        """The loop paused ``pause`` s beyond its period (the segments sat at their last
+        setpoint): the running motion (path, lead-in, stop ramp) continues from where it was,
+        its time base and the goal's time tolerance window shifted by the pause."""
+        if pause <= 0.0 or (self._traj is None and self._lead_in is None):
+            return
+        for tr in {id(t): t for t in (self._traj, self._lead_in) if t is not None}.values():
+            tr.t0 += pause
+        self._generation += 1  # a goal built from the unshifted motion would begin with a jump
 
     # -- internals ---------------------------------------------------------------------------
     def _check_goal(self, g: Goal, state: RobotState, desired: list[list[float]], t: float) -> None:

@@ -7,6 +7,7 @@ trajectory request and its fate. How waypoints become a path is described in
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from typing import Any
 
@@ -194,6 +195,49 @@ class CurvatureTrajectory:
         a = c @ np.array([0.0, 0.0, 2.0, 6 * s, 12 * s2, 20 * s3])
         return p, v, a
 
+    def moving(self, joints: list[str], t: float) -> set[str]:
+        """The joints (named in the order of the path's columns) this path moves at or after
+        ``t``: a joint whose every knot is where the path starts, with no starting velocity or
+        acceleration, is held still (a goal that names only other segments); before the path's
+        start (a lead-in still running) every joint counts as moved."""
+        if t < self.t0:
+            return set(joints)
+        P = self.positions
+        still = (np.abs(P - P[0]) <= 1e-12).all(axis=(0, 2))
+        still &= (np.asarray(self.v0) == 0).all(axis=1) & (np.asarray(self.a0) == 0).all(axis=1)
+        return {j for j, s in zip(joints, still.tolist(), strict=True) if not s}
+
+    def remapped(
+        self,
+        joints: list[str],
+        new_joints: list[str],
+        hold: np.ndarray,
+        held: set[str] | frozenset[str] = frozenset(),
+    ) -> Any:
+        """The same timed path over ``new_joints`` (a rebuilt controller's bendables): the
+        columns of joints in both are copied; a joint new to the path, or named in ``held``,
+        holds ``hold[k]`` (its row in ``new_joints`` order) for the whole path. Times are
+        unchanged."""
+        idx = {j: i for i, j in enumerate(joints) if j not in held}
+        m1, J = self.positions.shape[0], len(new_joints)
+        P = np.empty((m1, J, 2))
+        C = np.zeros((self.coeffs.shape[0], J, 2, 6))
+        v0, a0 = np.zeros((J, 2)), np.zeros((J, 2))
+        rate = np.ones(J)
+        for k, j in enumerate(new_joints):
+            i = idx.get(j)
+            if i is None:
+                P[:, k] = hold[k]
+                C[:, k, :, 0] = hold[k]
+                continue
+            P[:, k], C[:, k] = self.positions[:, i], self.coeffs[:, i]
+            v0[k], a0[k], rate[k] = self.v0[i], self.a0[i], self.rate_max[i]
+        out = copy.copy(self)
+        out.positions, out.coeffs, out.v0, out.a0, out.rate_max = P, C, v0, a0, rate
+        out.final = P[-1]
+        out._final_list = out.final.tolist()
+        return out
+
 
 class StaleGoalError(ControllerError):
     """A goal built outside the daemon lock no longer fits: the controller's motion changed (or
@@ -241,6 +285,9 @@ class Goal:
         # for an aborted goal: {"cause", "segment", "error" (1/m or None), "tolerance" (1/m or
         # None)} — the error, when given, is a measured finite value above the tolerance
         self.abort: dict[str, Any] | None = None
+        # True while a rebuild carries the goal from one controller instance to the next
+        # (host/controller_manager.py): the old instance's deactivation must not end it
+        self.carried = False
 
     def finish(
         self,
@@ -252,6 +299,8 @@ class Goal:
         error: float | None = None,
         tolerance: float | None = None,
     ) -> None:
+        if self.carried:
+            return  # being handed to the rebuilt controller: it runs on
         if self.state not in TERMINAL_STATES:
             self.state, self.reason = state, reason
             if state == "aborted":

@@ -236,7 +236,7 @@ def test_unplug_tip_mid_trajectory_aborts_holds_rebuilds_and_plug_back(ready, ch
         for n in NAMES[:2]:
             assert abs(after[n]["kappa"] - before[n]["kappa"]) < 0.01
         topo = d.topology()
-        assert topo["cut"] == {"after_position": 1, "after": "segment_2", "lost": ["segment_3"]}
+        assert topo["cut"] == {"after_position": 2, "after": "segment_2", "lost": ["segment_3"]}
         # controllable again: a 2-segment goal runs, a segment_3 goal is refused
         with pytest.raises(ControllerError, match="'segment_3' is not commanded"):
             d.send_trajectory([{"time_from_start": 0.5, "segments": {"segment_3": {"kappa": 1}}}])
@@ -260,7 +260,7 @@ def test_unplug_middle_segment_reports_the_chain_cut(ready, chain):
         assert wait_for(lambda: d.status()["segments"] == ["segment_1"], 3.0)
         cut = d.topology()["cut"]
         assert cut == {
-            "after_position": 0,
+            "after_position": 1,  # 1-based, as every position a user sees
             "after": "segment_1",
             "lost": ["segment_2", "segment_3"],
         }

@@ -81,7 +81,7 @@ def test_exchanges_held_up_in_the_daemons_own_process_do_not_slow_the_loop():
 
 def test_chain_report_words_a_cut_and_a_rate_the_chain_cannot_carry():
     cmp = SimpleNamespace(differences=[])
-    cut = {"after": "segment_1", "after_position": 0, "lost": ["segment_2", "segment_3"]}
+    cut = {"after": "segment_1", "after_position": 1, "lost": ["segment_2", "segment_3"]}
     msg = rebuild_message(["segment_1"], cut, cmp)
     assert msg == (
         "now 1 segment(s): segment_1; chain cut after segment_1 (position 1): "
