@@ -95,6 +95,7 @@ class ChainLink(_FramePlumbing):
             "events": 0,
             "events_dropped": 0,
         }
+        self._init_timing()
         self._thread = threading.Thread(target=self._read_loop, name="ucr-link-reader", daemon=True)
         self._thread.start()
 
@@ -126,7 +127,10 @@ class ChainLink(_FramePlumbing):
         """Broadcast DISCOVER; descriptors in chain order (with ``position``).
 
         Stops as soon as the tip (``downstream_present`` false) and every position before it have
-        answered, else after ``timeout`` s with the contiguous answers from position 0. Raises
+        answered, else after ``timeout`` s with the contiguous answers from position 0: never
+        longer than ``timeout``, also on a line measured slow (a caller that may wait as long
+        as the descriptors need there asks for :meth:`discover_need_s`; one that must keep the
+        segments fed retries: the next try goes on collecting the answers still due). Raises
         :class:`LinkError` if a segment's answer is missing between others (a lost reply).
 
         A segment speaking another protocol version raises :class:`ProtocolVersionError`; with
@@ -137,7 +141,7 @@ class ChainLink(_FramePlumbing):
         with self._call_lock:
             with self._cond:  # a rediscovery ends every pipelined cycle still open
                 self._pipelined.clear()
-            col = self._send(C.FLAG_BCAST, 0, C.T_DISCOVER, {}, (C.T_DESCRIPTOR,))
+            col = self._discover_send()  # or the one still collecting on a slow line
             tip: list[int] = []
 
             def done(c: _Collector) -> bool:
@@ -151,7 +155,7 @@ class ChainLink(_FramePlumbing):
                     return all(i in c.replies for i in range(min(c.errors)))
                 return bool(tip) and all(i in c.replies for i in range(min(tip) + 1))
 
-            self._wait(col, timeout, done)
+            col = self._discover_wait(col, timeout, done)
             self.version_refusal = None
             try:
                 self._refuse_other_versions(col)
@@ -233,7 +237,9 @@ class ChainLink(_FramePlumbing):
             try:
                 st = M.decode_state(frame.payload, pos)
                 if st["cycle"] != cycle:
-                    self._counters["stale"] += 1
+                    with self._cond:
+                        self._counters["stale"] += 1
+                        self._late(pos)
                     states.append(None)
                     continue
                 length, spool = self._geometry.get(pos, (None, None))

@@ -3,16 +3,33 @@
 Fed once per cycle with which positions answered the last exchange and how long it took, it keeps
 a short window and decides the *usable* period: when replies from some position keep missing
 (loss: a reply later than the reply time counts as missing), the loop slows down (period ×2,
-never slower than half the segments' watchdog); once every position has answered every exchange
-for ``recover_s`` at the lower rate, the loop tries the nominal rate again.
-A return that fails at once doubles the clean time asked for next (up to 12 s): a link that
-stays bad is not probed at full rate over and over.
+never slower than the floor that keeps the segments' watchdogs fed); once every position has
+answered every exchange, each within the nominal rate's reply time, for ``recover_s`` (and
+RECOVER_MIN_EXCHANGES exchanges) at the lower rate, the loop tries the nominal rate again.
+A return that fails at once (within RECOVER_FAIL_S) doubles the clean time asked for next (up
+to RECOVER_MAX_S): a link that stays bad is not probed at full rate over and over; a return
+that holds RECOVER_HOLD_S resets it, so the next slow spell returns as promptly as the first.
+Exchanges that all fit the lowered rate's reply time but not the nominal one's for ``recover_s``
+climb to the rate they need (``eased``, :meth:`LinkHealth._ease`): a link partly restored is
+used at what it now carries, and one reported too slow is no longer (``too_slow`` cleared).
 
 One rule slows the loop, on either path (:meth:`LinkHealth.observe` every cycle,
 :meth:`LinkHealth.stall` after a silent stretch that found the same chain): a position missed
-≥ DEGRADE_LOSS of the exchanges in the window *and* at least DEGRADE_LATE replies arrived late
-meanwhile (the caller counts them since that position began to miss, never from longer ago).
-The stall path only does not wait for a full window.
+≥ DEGRADE_LOSS of the exchanges in the window *and* its replies arrived late: at least
+DEGRADE_LATE, and at least DEGRADE_LATE_SHARE of its misses (late replies are counted per
+exchange in the window, per position when the link tells them apart; the stall path counts
+them since that position began to miss, never from longer ago). The stall path only does not
+wait for a full window. At the floor rate a link that is still slow is *too slow*: reported
+once (``too_slow``), the rate cannot go lower.
+
+Loss without late replies (a corrupting link, frames dropped) is *lossy*, never slowed for —
+a lower rate would not bring those replies back: a position missing ≥ LOSSY_LOSS of a full
+window, with fewer than DEGRADE_LATE late replies, for a window's worth of exchanges in a row
+(time for late replies to come) or while the link receives garbled frames (:meth:`garbled`),
+is reported once (``lossy``, which link, its loss) until
+its loss is below LOSSY_CLEAR, its link leaves the chain or the chain is rebuilt
+(``loss_cleared``, ``reason``); supervision (gap rule, rejoin) handles
+the missing replies.
 
 Positions in what it reports (``position``, ``link``) count from 1, like every position a user
 sees (:mod:`host.positions`): ``link`` k is the cable into the k-th segment. The ``loss`` list
@@ -30,7 +47,27 @@ from typing import Any
 DEGRADE_WINDOW = 30  # cycles looked at for loss (a burst of host load is shorter)
 DEGRADE_LOSS = 0.6  # a position missing in this share of the window, with at least
 DEGRADE_LATE = 3  # this many replies arriving late meanwhile, degrades the link
-RECOVER_S = 1.5  # clean time at the lower rate before trying the nominal rate again (s)
+RECENT = 10  # at the floor, the last exchanges must still miss as much: not a backlog draining
+#: ... and late replies for at least this share of its misses: a slow link's replies arrive
+#: late, a corrupting link's never arrive (a lossy link, reported, never slowed for)
+DEGRADE_LATE_SHARE = 0.5
+#: a position missing this share of a full window, its replies not late, is a lossy link
+LOSSY_LOSS = 0.2
+LOSSY_CLEAR = 0.05  # ... until its loss over a full window is below this
+GARBLED_S = 1.0  # garbled frames this recent make missing replies lost ones at once (s)
+RECOVER_S = 1.0  # clean time at the lower rate before trying the nominal rate again (s)
+RECOVER_MIN_EXCHANGES = 10  # ... and at least this many clean exchanges
+#: a lowered rate whose exchanges all fit its reply time, the last not the nominal one's, for
+#: RECOVER_S climbs to the rate they need with this to spare (``eased``) ...
+EASE_SPARE = 1.25
+EASE_STEP = 0.8  # ... when that period is below this share of the current one
+RECOVER_MAX_S = 12.0  # the back-off of returns that fail at once stops here (s)
+#: a return to the nominal rate followed by a slow link this soon failed at once (the link
+#: was not good enough for the nominal rate yet): the clean time asked for next doubles (s)
+RECOVER_FAIL_S = 1.0
+#: a return to the nominal rate that holds this long (no slow link meanwhile) was good: the
+#: back-off starts again from RECOVER_S (a later slow spell is a new one) (s)
+RECOVER_HOLD_S = 5.0
 #: An exchange that returned this much later than its reply timeout was held up in this process
 #: (a garbage collection or another thread holding the interpreter lock delays the link reader
 #: and the loop alike), not on the link: its misses say nothing about the link (s).
@@ -51,10 +88,21 @@ class LinkHealth:
         self.recover_s = RECOVER_S
         self._answered: deque[tuple[bool, ...]] = deque(maxlen=DEGRADE_WINDOW)
         self._misses: list[int] = []  # per position: exchanges in the window it did not answer
+        self._late_win: deque[tuple[int, ...]] = deque(maxlen=DEGRADE_WINDOW)
+        self._late: list[int] = []  # per position: its late replies over the window
+        self._late_prev: list[int] | None = None  # the link's last late-reply reading
+        self._late_seen: object = None  # ... the very object read (a repeated one adds none)
         self._latency: deque[float] = deque(maxlen=50)
         self._clean_since: float | None = None
-        self._late_seen: int | None = None
+        self._clean_n = 0
+        self._fit_since: float | None = None  # complete exchanges within the current reply time
+        self._fit_n, self._fit_max = 0, 0.0  # ... how many, the longest of them (s)
+        self._cleared: dict[str, Any] | None = None  # a loss_cleared change not returned yet
+        self._lossy_n = 0  # exchanges in a row that looked lossy
+        self._garbled_at: float | None = None  # when the link last received garbled frames
         self._t_restored: float | None = None
+        self.lossy: dict[str, Any] | None = None  # the lossy link reported, while it is
+        self.too_slow: dict[str, Any] | None = None  # the link too slow for the floor rate
         self.degradations = 0
         self.host_stalls = 0  # exchanges left out: held up in this process (HOST_STALL_S)
         self._host_stall_at: float | None = None  # when the last one was seen
@@ -65,98 +113,264 @@ class LinkHealth:
         return self.period > self.nominal * 1.001
 
     def reset(self) -> None:
-        """Forget the window (a rebuild changes the chain)."""
+        """Forget the window and the lossy link reported (a rebuild changes the chain: its
+        loss is measured again, reported again if it stays); the ``loss_cleared`` change comes
+        with the next :meth:`observe`."""
+        self._forget()
+        if self.lossy is not None:
+            self._cleared = self._loss_cleared("rebuilt")
+
+    def _loss_cleared(self, reason: str) -> dict[str, Any]:
+        """Clear the lossy link reported; the change that says so (``reason``: why)."""
+        lossy, self.lossy = self.lossy or {}, None
+        change = {"period": self.period, "change": "loss_cleared", "reason": reason}
+        change.update(self._measured(lossy.get("position", 1) - 1, 0.0))
+        if "segment" in lossy:
+            change["segment"] = lossy["segment"]
+        return change
+
+    def _forget(self) -> None:
+        """Forget the window (the rate or the chain changed)."""
         self._answered.clear()
         self._misses = []
+        self._late_win.clear()
+        self._late = []
+        self._late_prev = None
         self._latency.clear()
         self._clean_since = None
+        self._clean_n = 0
+        self._fit_since = None
+        self._lossy_n = 0
 
     def observe(
         self,
         answered: list[bool],
         exchange_s: float,
         now: float,
-        late_replies: Callable[[], int] = lambda: 1,
+        late_replies: Callable[[], int | list[int]] = lambda: 1,
         reply_timeout: float | None = None,
     ) -> dict[str, Any] | None:
         """One cycle: ``answered[i]`` whether position i answered; ``exchange_s`` how long
         the exchange waited; ``late_replies()`` a running count of replies that came after
-        their exchange ended (asked only when replies miss). Missing replies that do arrive
-        late mean a slow link: slowing down helps. Missing replies that never come (a cut, a
-        corrupting link) are reported in the loss figures and left to supervision. An exchange
-        with misses that returned more than HOST_STALL_S after ``reply_timeout`` (s) was held up
-        in this process: it is left out (counted in ``host_stalls``), not taken for the link's.
+        their exchange ended — per position (a list) when the link tells them apart, else one
+        total, counted for the first position missing (asked only while replies miss).
+        Missing replies that arrive late mean a slow link: slowing down helps. Missing
+        replies that never come (a cut, a corrupting link) make a lossy link: reported
+        (``lossy``), left to supervision. An exchange with misses that returned more than
+        HOST_STALL_S after ``reply_timeout`` (s) was held up in this process: it is left out
+        (counted in ``host_stalls``), not taken for the link's.
         Returns a change ``{"period", "change", ...}`` or None."""
         if not answered:
             return None
-        if (
-            reply_timeout is not None
-            and exchange_s > reply_timeout + HOST_STALL_S
-            and not all(answered)
-        ):
+        if self.lossy is not None and self.lossy["position"] > len(answered):
+            self._cleared = None
+            return self._loss_cleared("left_chain")  # its link is not in the chain now
+        if self._cleared is not None:
+            change, self._cleared = self._cleared, None
+            if change["position"] > len(answered):
+                change["reason"] = "left_chain"
+            return change
+        complete = all(answered)
+        if reply_timeout is not None and exchange_s > reply_timeout + HOST_STALL_S and not complete:
             self.host_stalls += 1
             self._host_stall_at = now
             return None
         if self._answered and len(self._answered[-1]) != len(answered):
             self.reset()
-        self._push(tuple(answered))
-        if all(answered):
+        late = self._late_now(answered, complete, late_replies)
+        self._push(tuple(answered), late)
+        if complete:
             self._latency.append(exchange_s)
         loss = self.loss()
         worst = max(range(len(loss)), key=loss.__getitem__)
-        lossy = len(self._answered) == DEGRADE_WINDOW and loss[worst] >= DEGRADE_LOSS
-        late = 0
-        if lossy:
-            count = late_replies()
-            if self._late_seen is None:
-                self._late_seen = count
-            late = count - self._late_seen
-        else:
-            self._late_seen = None
-        if lossy and late >= DEGRADE_LATE and self.period < self.min_period * 0.999:
-            # the first position whose replies miss: the slow link is the one into it (or, for
-            # a throughput limit, one before it whose own replies still fit)
-            first = next(i for i, x in enumerate(loss) if x >= loss[worst] / 2)
-            return self._degrade(first, loss[worst], now)
+        full = len(self._answered) == DEGRADE_WINDOW
+        # the first position whose replies miss: the slow link is the one into it (or, for
+        # a throughput limit, one before it whose own replies still fit: see usable_rate)
+        first = next(i for i, x in enumerate(loss) if x >= loss[worst] / 2)
+        if full and loss[worst] >= DEGRADE_LOSS:
+            floor = self.period >= self.min_period * 0.999
+            if not floor and self._slow(first):
+                return self._degrade(first, loss[worst], now)
+            # at the floor any late replies say slow (a throughput limit below the floor's
+            # needs drops more and more of them: the link's queue overflows) — unless the
+            # misses are dying out (a backlog from the faster rate draining)
+            if floor and self.too_slow is None and self._late[first] >= DEGRADE_LATE:
+                recent = list(self._answered)[-RECENT:]
+                if sum(not a[first] for a in recent) >= DEGRADE_LOSS * len(recent):
+                    return self.too_slow_now(first, loss[worst])
+        change = self._lossy(full, loss, first, worst, now)
+        if change is not None:
+            return change
         if not self.degraded:
+            if self._t_restored is not None and now - self._t_restored >= RECOVER_HOLD_S:
+                self._t_restored = None  # the return held: the next one is prompt again
+                self.recover_s = RECOVER_S
             return None
-        clean = len(self._answered) == DEGRADE_WINDOW and max(loss) == 0.0
-        if not clean:
+        # clean: every position answered, within the nominal rate's reply time
+        if not complete or exchange_s > self.reply_share * self.period:
+            self._clean_since = self._fit_since = None
+            self._clean_n = 0
+            return None
+        if exchange_s > self.reply_share * self.nominal:
             self._clean_since = None
-            return None
+            self._clean_n = 0
+            return self._ease(exchange_s, now)
+        self._clean_n += 1
         if self._clean_since is None:
             self._clean_since = now
-            return None
-        if now - self._clean_since < self.recover_s:
+        if now - self._clean_since < self.recover_s or self._clean_n < RECOVER_MIN_EXCHANGES:
             return None
         p90 = self._latency_p90()
         measured_at = 1.0 / self.period
         self.period = self.nominal
         self._t_restored = now
-        self.reset()
-        self.last = {
+        self.too_slow = None
+        self._forget()
+        self.last = self._faster(measured_at, p90, "recovered")
+        return {"period": self.period, "change": "restored", **self.last}
+
+    def _faster(self, measured_at: float, p90: float, cause: str) -> dict[str, Any]:
+        """What a change to a faster rate reports (``last_change``)."""
+        return {
             "position": None,
             "link": None,
             "loss": 0.0,
             "measured_at_hz": round(measured_at, 2),
             "latency_ms": round(p90 * 1e3, 2),
             "usable_rate_hz": round(1.0 / self.period, 2),
-            "cause": "recovered",
+            "cause": cause,
         }
-        return {"period": self.period, "change": "restored", **self.last}
+
+    def _ease(self, exchange_s: float, now: float) -> dict[str, Any] | None:
+        """Every exchange answered within the current (lowered) rate's reply time, the last
+        not within the nominal one's: after ``recover_s`` (and RECOVER_MIN_EXCHANGES) of these,
+        the line carries more than the current rate — climb to the rate the longest of them
+        needs with EASE_SPARE to spare, when that is a step (EASE_STEP) up; and a link reported
+        too slow is not (``too_slow`` cleared). Change ``eased`` (event ``link_recovered``)."""
+        if self._fit_since is None:
+            self._fit_since, self._fit_n, self._fit_max = now, 0, 0.0
+        self._fit_n += 1
+        self._fit_max = max(self._fit_max, exchange_s)
+        if now - self._fit_since < self.recover_s or self._fit_n < RECOVER_MIN_EXCHANGES:
+            return None
+        target = max(self.nominal, EASE_SPARE * self._fit_max / self.reply_share)
+        climb = target < EASE_STEP * self.period
+        if not climb and self.too_slow is None:
+            self._fit_since = None  # nothing to change: measure afresh
+            return None
+        measured_at = 1.0 / self.period
+        was_too_slow = self.too_slow is not None
+        if climb:
+            self.period = target
+            self._t_restored = now  # a climb that fails at once backs off like a return
+        self.too_slow = None
+        p90 = self._fit_max
+        self._forget()
+        self.last = self._faster(measured_at, p90, "eased")
+        return {
+            "period": self.period,
+            "change": "eased",
+            "too_slow_cleared": was_too_slow,
+            **self.last,
+        }
+
+    def _late_now(
+        self, answered: list[bool], complete: bool, late_replies: Callable[[], int | list[int]]
+    ) -> tuple[int, ...]:
+        """Late replies per position since the last exchange (read only while replies miss)."""
+        n = len(answered)
+        if complete and not any(self._misses):
+            self._late_prev = None
+            return (0,) * n
+        count = late_replies()
+        if isinstance(count, int):  # one total: the first position missing takes it
+            at = next((i for i, ok in enumerate(answered) if not ok), None)
+            if at is None:
+                at = next((i for i, m in enumerate(self._misses) if m), 0)
+            now_ = [0] * n
+            now_[min(at, n - 1)] = count
+            prev = self._late_prev
+            total_prev = None if prev is None else sum(prev)
+            self._late_prev = [count]
+            if total_prev is None:
+                return (0,) * n
+            now_[min(at, n - 1)] = max(count - total_prev, 0)
+            return tuple(now_)
+        if count is self._late_seen and self._late_prev is not None:
+            return (0,) * n  # the same reading again (read at most every so often): none new
+        self._late_seen = count
+        count = list(count)[:n] + [0] * max(n - len(count), 0)
+        prev, self._late_prev = self._late_prev, count
+        if prev is None or len(prev) != n:
+            return (0,) * n
+        return tuple(max(c - p, 0) for c, p in zip(count, prev, strict=True))
+
+    def _slow(self, position: int) -> bool:
+        """The position's misses in the window came late: enough of them (DEGRADE_LATE, and
+        DEGRADE_LATE_SHARE of its misses) for a slow link, not a lossy one."""
+        if not self._late or position >= len(self._late):
+            return False
+        late = self._late[position]
+        return late >= DEGRADE_LATE and late >= DEGRADE_LATE_SHARE * self._misses[position]
+
+    def garbled(self, now: float) -> None:
+        """The link received garbled frames (CRC or framing errors) while replies missed: a
+        corrupting link — its loss is reported without waiting for late replies."""
+        self._garbled_at = now
+
+    def _lossy(
+        self, full: bool, loss: list[float], first: int, worst: int, now: float
+    ) -> dict[str, Any] | None:
+        """Report a lossy link (replies missing, not late) once; and when its loss ended."""
+        if not full:
+            return None
+        if self.lossy is not None:
+            at = self.lossy["position"] - 1  # in the chain (observe cleared it otherwise)
+            if loss[at] >= LOSSY_CLEAR:
+                self.lossy["loss"] = round(loss[at], 3)  # status: the loss measured now
+                return None
+            self.lossy = None
+            return {"period": self.period, "change": "loss_cleared", **self._measured(at, 0.0)}
+        if loss[worst] < LOSSY_LOSS or self._late[first] >= DEGRADE_LATE:
+            self._lossy_n = 0  # replies that come late are a slow link's, not lost
+            return None
+        self._lossy_n += 1
+        garbled = self._garbled_at is not None and now - self._garbled_at < GARBLED_S
+        if self._lossy_n < DEGRADE_WINDOW and not garbled:
+            return None  # held for a window (late replies had time to come), or frames garbled
+        self._lossy_n = 0
+        self.lossy = {**self._measured(first, loss[first]), "cause": "lossy"}
+        return {"period": self.period, "change": "lossy", **self.lossy}
+
+    def _measured(self, position: int, loss: float) -> dict[str, Any]:
+        """What a change reports about the link into 0-based ``position``."""
+        return {
+            "position": position + 1,  # 1-based, as a user reads it
+            "link": position + 1,  # the cable into that segment, as the emulator counts links
+            "loss": round(loss, 3),
+            "measured_at_hz": round(1.0 / self.period, 2),
+            "latency_ms": round(self._latency_p90() * 1e3, 2),
+            "usable_rate_hz": round(1.0 / self.period, 2),
+        }
+
+    def too_slow_now(self, position: int, loss: float) -> dict[str, Any]:
+        """At the floor rate and still slow (or measured to need a slower one): reported once
+        until the line carries the floor rate again (:meth:`_ease`) or the rate returns to
+        nominal (the rate cannot go lower)."""
+        self.too_slow = {**self._measured(position, loss), "cause": "too_slow"}
+        return {"period": self.period, "change": "too_slow", **self.too_slow}
 
     def _degrade(self, position: int, loss: float, now: float) -> dict[str, Any]:
         """Halve the rate (not below the floor); the change as reported (0-based
         ``position`` in, 1-based ``position``/``link`` out)."""
         p90 = self._latency_p90()
-        if self._t_restored is not None and now - self._t_restored < 2 * self.recover_s:
-            self.recover_s = min(self.recover_s * 2, 12.0)  # the return failed at once
+        if self._t_restored is not None and now - self._t_restored < RECOVER_FAIL_S:
+            self.recover_s = min(self.recover_s * 2, RECOVER_MAX_S)  # the return failed at once
         self._t_restored = None
         measured_at = 1.0 / self.period  # the rate the loss was measured at
         self.period = min(self.period * 2, self.min_period)
         self.degradations += 1
-        self.reset()
-        self._late_seen = None
+        self._forget()
         self.last = {
             "position": position + 1,  # 1-based, as a user reads it
             "link": position + 1,  # the cable into that segment, as the emulator counts links
@@ -177,6 +391,9 @@ class LinkHealth:
         (:meth:`observe`). Returns a change as :meth:`observe` does."""
         if late < DEGRADE_LATE or self.period >= self.min_period * 0.999:
             return None
+        if self._misses and 0 <= position < len(self._misses):
+            if late < DEGRADE_LATE_SHARE * self._misses[position]:
+                return None  # most of its replies never came: lossy, not slow
         if self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S:
             return None  # the process was held up meanwhile (see observe), not the link
         loss = self.loss()
@@ -184,17 +401,23 @@ class LinkHealth:
             return None  # the same threshold as a full window: a few misses are no slow link
         return self._degrade(position, loss[position], now)
 
-    def _push(self, answered: tuple[bool, ...]) -> None:
-        """Adds one exchange to the window, keeping the per-position miss counts (the cycle
-        pays a few integer operations, not a pass over the window)."""
+    def _push(self, answered: tuple[bool, ...], late: tuple[int, ...]) -> None:
+        """Adds one exchange to the window, keeping the per-position miss and late-reply
+        counts (the cycle pays a few integer operations, not a pass over the window)."""
         if not self._misses:
             self._misses = [0] * len(answered)
+            self._late = [0] * len(answered)
         if len(self._answered) == DEGRADE_WINDOW:
             for i, ok in enumerate(self._answered[0]):
                 self._misses[i] -= not ok
+            for i, k in enumerate(self._late_win[0]):
+                self._late[i] -= k
         self._answered.append(answered)
+        self._late_win.append(late)
         for i, ok in enumerate(answered):
             self._misses[i] += not ok
+        for i, k in enumerate(late):
+            self._late[i] += k
 
     def _latency_p90(self, at_least: int = 5) -> float:
         """p90 of the recent complete exchanges (s); 0 with fewer than ``at_least`` (or none)."""
@@ -222,4 +445,6 @@ class LinkHealth:
             "degradations": self.degradations,
             "host_stalls": self.host_stalls,
             "last_change": dict(self.last) if self.last else None,
+            "lossy": dict(self.lossy) if self.lossy else None,
+            "too_slow": dict(self.too_slow) if self.too_slow else None,
         }

@@ -187,6 +187,10 @@ class TopologyFollower:
             timeout = min(timeout, self.reply_window())
         if cap is not None:
             timeout = min(timeout, cap)
+        # a line measured slower than its baud rate: as long as the descriptors need there (the
+        # link never waits longer than asked; on such a line a try may outlast a watchdog)
+        need = getattr(self.link, "discover_need_s", None)
+        timeout = max(timeout, need() if need is not None else 0.0)
         if not running:
             return self.link.discover(timeout=timeout)
         descs = self.link.discover(timeout=timeout, upto_other_version=True)
