@@ -7,6 +7,11 @@ Starts `ucr demo --forever` (emulated chain, daemon, API and the view in its own
 the view's URL in headless Chromium (Debian's /usr/bin/chromium, software WebGL), bends the robot
 into a pose through the demo's API, photographs the page and stops the demo.
 
+It photographs only a healthy view: before the photograph it waits (``--ok-timeout``, 60 s) for
+the page to show every segment ``ok`` and an update rate of at least ``--min-rate`` (20 Hz), and
+otherwise fails saying what the page showed (a loaded machine gives "fault" segments and a few Hz:
+not a picture for the README).
+
 Under load a software-rendering Chromium may take long to produce a frame: each photograph may
 take ``--timeout`` seconds (0: no limit), is tried again on the same page (not by restarting the
 demo), and if the whole page still cannot be photographed the 3D canvas alone is (said on stderr).
@@ -15,6 +20,7 @@ demo), and if the whole page still cannot be photographed the 3D canvas alone is
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import subprocess
 import sys
@@ -41,6 +47,40 @@ def pose(api_url: str, seconds: float) -> None:
         if c.status()["manual_control"]:
             c.hand_back()
         c.send_trajectory([{"time_from_start": seconds, "segments": POSE}])
+
+
+def _state_line(text: str) -> str:
+    """The page's ``tubes: … · update N Hz · … status: …`` figures, on one line."""
+    m = re.search(r"tubes:.*?status:[^\n]*", text, re.S)
+    return " ".join((m.group(0) if m else text[:200]).split())
+
+
+def view_ok(text: str, segments: int, min_rate: float) -> bool:
+    """Whether the page's text shows ``segments`` segments all ``ok`` and an update rate of at
+    least ``min_rate`` Hz."""
+    rate = re.search(r"update (\d+(?:\.\d+)?) Hz", text)
+    status = re.search(r"status: ([^\n]*)", text)
+    if rate is None or status is None or float(rate.group(1)) < min_rate:
+        return False
+    states = re.findall(r":\s*(\w+)", status.group(1))
+    return len(states) == segments and all(s == "ok" for s in states)
+
+
+def wait_ok(page, segments: int, min_rate: float, timeout_s: float, step_s: float = 0.5) -> str:
+    """Wait until the page shows a healthy view (:func:`view_ok`); its figures, or RuntimeError
+    saying what it showed instead."""
+    end = time.monotonic() + timeout_s
+    text = ""
+    while True:
+        text = page.inner_text("body")
+        if view_ok(text, segments, min_rate):
+            return _state_line(text)
+        if time.monotonic() >= end:
+            raise RuntimeError(
+                f"the view did not show {segments} segments ok at >= {min_rate:g} Hz within "
+                f"{timeout_s:g} s (a loaded machine?); it showed: {_state_line(text)!r}"
+            )
+        time.sleep(step_s)
 
 
 #: Photographs of the page tried before falling back to the canvas alone.
@@ -93,6 +133,14 @@ def options(argv: list[str] | None = None) -> argparse.Namespace:
         "--what", choices=("page", "canvas"), default="page",
         help="the whole page (panel and scene, as in the README) or the 3D canvas alone",
     )  # fmt: skip
+    ap.add_argument(
+        "--min-rate", type=float, default=20.0,
+        help="update rate (Hz) the page must show before it is photographed (20)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--ok-timeout", type=float, default=60.0,
+        help="s to wait for every segment ok and --min-rate (60), else fail",
+    )  # fmt: skip
     return ap.parse_args(argv)
 
 
@@ -136,6 +184,8 @@ def shoot(argv: list[str] | None = None) -> int:
             page.get_by_text("tubes: 3").wait_for(timeout=30000)
             pose(api[0], args.after)
             time.sleep(1.0)
+            said = wait_ok(page, len(POSE), args.min_rate, args.ok_timeout)
+            print(f"view_screenshot: {said}", file=sys.stderr)
             # the "software WebGL" notice of headless Chromium is not part of the view
             page.evaluate(
                 "document.querySelectorAll('[class*=Notification-root]').forEach(e => e.remove())"

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import html
 import logging
 import math
 import threading
@@ -51,6 +52,16 @@ COLOURS = {
     "missing": (150, 150, 150),
 }
 TRAIL_POINTS = 300
+#: The tip trail gets a point when the tip has moved this far (m) from the last one: the trail
+#: shows the path of the last TRAIL_POINTS such steps however long ago, not a time window that
+#: collapses onto one point while the robot rests.
+TRAIL_STEP_M = 0.002
+#: What a page sees when the view's daemon token has the read scope.
+READ_TOKEN_NOTE = (
+    "**view only: read token** — the daemon API token this view uses has the `read` scope, so no "
+    "page has controls (sliders, tip gizmo, buttons). Run `ucr view` with a control token to "
+    "move the robot."
+)
 #: What a page client without the page token sees instead of the controls.
 VIEW_ONLY_NOTE = (
     "**view only:** this page was not opened with the view's token, so it has no controls "
@@ -72,6 +83,7 @@ class _Page:
     sliders: dict[str, tuple[Any, Any]] = field(default_factory=dict)
     gizmo: Any = None
     extra: list[Any] = field(default_factory=list)  # its other handles (buttons)
+    toggles: dict[str, Any] = field(default_factory=dict)  # display checkboxes (controls only)
 
     @property
     def id(self) -> int:
@@ -102,7 +114,11 @@ class ViewApp:
         self.always_update = always_update
         self.idle_skips = 0
         self.live = isinstance(source, LiveSource)
-        self.control_enabled = control and self.live
+        #: the daemon told the source its token may only read (view/source.py _probe_scope)
+        self.read_only = self.live and getattr(source, "scope", "control") == "read"
+        self.control_enabled = control and self.live and not self.read_only
+        #: the latency figure ages daemon-monotonic stamps on our clock: only for a local daemon
+        self.latency_shown = not self.live or bool(getattr(source, "local", True))
         # pages get sliders: offline (FK only) and live with controls; never a replay or a
         # view-only live view
         self.has_controls = self.control_enabled or not (
@@ -236,20 +252,19 @@ class ViewApp:
         gui = self.server.gui
         kind = getattr(self.source, "mode", "offline")
         mode = "live: daemon" if self.live else f"{kind}: {self.source.snap.robot_file}"
-        self.g_title = gui.add_markdown(f"**ucr view** — {mode}")
+        self.g_title = gui.add_markdown(f"**ucr view** — {md(mode)}")
         self.g_facts = gui.add_markdown("scene: loading")
         self.g_control = gui.add_markdown("")
         self.g_errors = gui.add_markdown("")
         # wall-clock time (ms) the shown state was sampled by the daemon: the page-side latency
         # figure of benchmarks/bench_view.py reads it
         self.g_stamp = gui.add_markdown("sample: -")
-        self.g_frames = gui.add_checkbox("Frames", initial_value=False)
-        self.g_tendons = gui.add_checkbox("Tendons", initial_value=True)
-        self.g_trail = gui.add_checkbox("Tip trail", initial_value=True)
-        self.g_frames.on_update(lambda _e: self._visibility())
-        self.g_tendons.on_update(lambda _e: self._visibility())
-        self.g_trail.on_update(lambda _e: self._visibility())
-        if self.live and not self.control_enabled and kind != "replay":
+        # display toggles (Frames, Tendons, Tip trail): the scene is shared by every page, so
+        # only a page with controls gets them (_page_controls); a viewer cannot change them
+        self.show = {"frames": False, "tendons": True, "trail": True}
+        if self.read_only:
+            gui.add_markdown(READ_TOKEN_NOTE)
+        elif self.live and not self.control_enabled and kind != "replay":
             gui.add_markdown(
                 "**view only:** served off loopback, so no page has controls; to control "
                 "remotely, tunnel the loopback page (docs/view.md)."
@@ -271,7 +286,7 @@ class ViewApp:
             with self.lock:
                 self.viewers[client.client_id] = peer
             try:
-                client.gui.add_markdown(f"**controls refused:** {mismatch}")
+                client.gui.add_markdown(f"**controls refused:** {md(mismatch)}")
             except Exception:  # noqa: BLE001, S110 - the page went away meanwhile
                 pass
             _audit(client.client_id, peer, "connect", "robot file mismatch: view only")
@@ -330,6 +345,12 @@ class ViewApp:
                 handback = gui.add_button("Hand back control")
                 handback.on_click(lambda e: self._hand_back_clicked(e))
                 page.extra = [stop, handback]
+            if not page.toggles:
+                for key, label in (("frames", "Frames"), ("tendons", "Tendons"),
+                                   ("trail", "Tip trail")):  # fmt: skip
+                    box = gui.add_checkbox(label, initial_value=self.show[key])
+                    box.on_update(lambda e, k=key: self._toggle(e, k))
+                    page.toggles[key] = box
             if page.folder is None:
                 page.folder = gui.add_folder("Segments (κ 1/m, φ deg)")
             if sliders or not page.sliders:
@@ -344,16 +365,34 @@ class ViewApp:
         except Exception:  # noqa: BLE001 - a page that went away while its controls were made
             log.debug("controls for page client %d not made", page.id, exc_info=True)
 
+    def _toggle(self, event: Any, key: str) -> None:
+        """A display checkbox of a page with controls (the scene is shared: every page sees
+        it; the other controlling pages' boxes follow). A page without controls has none."""
+        page = self._page_of(event)
+        if page is None or key not in page.toggles:
+            return
+        value = bool(page.toggles[key].value)
+        with self.lock:
+            self.show[key] = value
+            for other in list(self.pages.values()):
+                box = other.toggles.get(key)
+                if other is not page and box is not None and bool(box.value) != value:
+                    try:
+                        box.value = value
+                    except Exception:  # noqa: BLE001, S110 - a page that went away
+                        pass
+        self._visibility()
+
     def _visibility(self) -> None:
         self.last_seq = -1  # the next update sets the poses of frames shown now
         with self.lock:
             for key, node in self.nodes.items():
                 if key.startswith("frame:"):
-                    node.show_axes = bool(self.g_frames.value)
+                    node.show_axes = self.show["frames"]
                 elif key.startswith("tendons:"):
-                    node.visible = bool(self.g_tendons.value)
+                    node.visible = self.show["tendons"]
                 elif key == "trail":
-                    node.visible = bool(self.g_trail.value)
+                    node.visible = self.show["trail"]
 
     def _page_sliders(self, page: _Page, model: SceneModel, state: dict) -> None:
         for k, p in page.sliders.values():
@@ -472,15 +511,21 @@ class ViewApp:
                 if node is not None:
                     node.vertices = verts
                     node.visible = True
-        state = "reachable" if res.success else f"NOT reachable (best error {res.residual:.3f} m)"
+        state = (
+            "reachable"
+            if res.success
+            else f"NOT reachable (best error {res.residual:.3f} m): Execute move disabled, drag "
+            "the target within reach"
+        )
         cfg = ", ".join(
-            f"{n}: κ {v['kappa']:.2f} φ {math.degrees(v['phi']):.0f}°"
+            f"{md(n)}: κ {v['kappa']:.2f} φ {math.degrees(v['phi']):.0f}°"
             for n, v in res.config.items()
             if isinstance(v, dict) and "kappa" in v
         )
         tx, ty, tz = target
         self._set_plan(
-            f"target ({tx:.3f}, {ty:.3f}, {tz:.3f}) m — {state}<br/>solution: {cfg}", True
+            f"target ({tx:.3f}, {ty:.3f}, {tz:.3f}) m — {state}<br/>solution: {cfg}",
+            bool(res.success),
         )
 
     def execute_move(self, page: _Page | None = None) -> None:
@@ -490,6 +535,13 @@ class ViewApp:
         if self.planner is None or not isinstance(src, LiveSource):
             return
         if self._mismatch_refused("move"):
+            return
+        with self.planner.lock:
+            planned = self.planner.result
+        if planned is not None and not planned.success:  # the button is disabled; a raw client
+            self._refused(
+                f"move refused: the target is NOT reachable (best error {planned.residual:.3f} m)"
+            )
             return
         with src.lock:
             present = list(src.snap.present)
@@ -511,7 +563,7 @@ class ViewApp:
                 _audit(page.id, page.peer, "move", f"tip{where}: {segs}")
             goal = src.client.send_trajectory(points, wait=False)
             self.refusal = ""
-            self._set_plan(f"move {goal} sent ({points[0]['time_from_start']:.2f} s)")
+            self._set_plan(f"move {md(goal)} sent ({points[0]['time_from_start']:.2f} s)")
         except Exception as exc:  # noqa: BLE001 - every refusal is shown on the page
             self._refused(f"move refused: {exc}")
 
@@ -541,7 +593,7 @@ class ViewApp:
         present = set(snap.present)
         for link, t in frame.links.items():
             self.nodes[f"frame:{link}"] = scene.add_frame(
-                f"/robot/links/{link}", show_axes=bool(self.g_frames.value),
+                f"/robot/links/{link}", show_axes=self.show["frames"],
                 axes_length=0.04, axes_radius=0.002, position=t[:3, 3], wxyz=_wxyz(t),
             )  # fmt: skip
         for i, vis in enumerate(model.visuals):
@@ -555,7 +607,7 @@ class ViewApp:
                 if name in frame.tendons:
                     self.nodes[f"tendons:{name}"] = scene.add_line_segments(
                         f"/robot/tendons/{name}", _segments(frame.tendons[name]),
-                        (30, 30, 30), thickness=0.004, visible=bool(self.g_tendons.value),
+                        (30, 30, 30), thickness=0.004, visible=self.show["tendons"],
                     )  # fmt: skip
             else:  # missing after a hot-plug: a grey outline where it was, not a tube
                 self.nodes[f"missing:{name}"] = scene.add_mesh_simple(
@@ -569,7 +621,7 @@ class ViewApp:
                 )  # fmt: skip
         self.nodes["trail"] = scene.add_point_cloud(
             "/robot/trail", np.zeros((1, 3), np.float32), (255, 80, 200), point_size=0.006,
-            visible=bool(self.g_trail.value),
+            visible=self.show["trail"],
         )  # fmt: skip
         if self.control_enabled:
             self.nodes["target"] = scene.add_icosphere(
@@ -623,10 +675,12 @@ class ViewApp:
         model = self.model
         assert model is not None
         frame = model.frame(snap.state)
-        self.trail.append(frame.tip.astype(np.float32))
+        tip = frame.tip.astype(np.float32)
+        if not self.trail or float(np.linalg.norm(tip - self.trail[-1])) > TRAIL_STEP_M:
+            self.trail.append(tip)  # a point per TRAIL_STEP_M moved: at rest it keeps its path
         with self.server.atomic():
             # a link frame moves when shown or carrying visuals; hidden bare frames cost nothing
-            shown = bool(self.g_frames.value)
+            shown = self.show["frames"]
             for link, t in frame.links.items():
                 node = self.nodes.get(f"frame:{link}")
                 if node is not None and (shown or link in self._visual_links):
@@ -654,24 +708,29 @@ class ViewApp:
         lat = sorted(self.latency_ms)
         p50 = lat[len(lat) // 2] if lat else float("nan")
         tubes = self.facts.get("tubes", [])
-        status = ", ".join(f"{n}: {snap.status.get(n, '?')}" for n in snap.expected)
+        status = ", ".join(f"{md(n)}: {md(snap.status.get(n, '?'))}" for n in snap.expected)
+        latency = (
+            f"{'daemon' if self.live else 'slider'}→page {p50:.1f} ms (p50, until sent)"
+            if self.latency_shown
+            else "daemon→page latency not shown (daemon on another machine: its clock is not ours)"
+        )
         self.g_facts.content = (
-            f"tubes: {len(tubes)} ({', '.join(tubes) or '-'}) · update {self.rate:.0f} Hz · "
-            f"{'daemon' if self.live else 'slider'}→page {p50:.1f} ms (p50, until sent) · "
+            f"tubes: {len(tubes)} ({md(', '.join(tubes)) or '-'}) · update {self.rate:.0f} Hz · "
+            f"{latency} · "
             f"pushes {self.pushes}<br/>status: {status or '-'}"
         )
         head = "**daemon:**" if self.live else "**check errors:**"
-        errors = f"{head}<br/>" + "<br/>".join(snap.errors) if snap.errors else ""
+        errors = f"{head}<br/>" + "<br/>".join(md(e) for e in snap.errors) if snap.errors else ""
         if getattr(snap, "mismatch", ""):
-            errors = f"**robot file mismatch:** {snap.mismatch}" + (
+            errors = f"**robot file mismatch:** {md(snap.mismatch)}" + (
                 f"<br/>{errors}" if errors else ""
             )
         if self.visual_problems:
-            errors += "<br/>**visuals:** " + "<br/>".join(self.visual_problems)
+            errors += "<br/>**visuals:** " + "<br/>".join(md(v) for v in self.visual_problems)
         self.g_errors.content = errors
         if self.live:
             self.g_control.content = _who(snap.control, self.driver, self.manual_owner) + (
-                f"<br/>**refused:** {self.refusal}" if self.refusal else ""
+                f"<br/>**refused:** {md(self.refusal)}" if self.refusal else ""
             )
 
     def _whose_input(self, control: dict) -> None:
@@ -732,6 +791,12 @@ class ViewApp:
                 self.driver.halt("the robot file does not match the daemon's robot")
             if self.driver is not None:
                 self._whose_input(snap.control)
+                if (
+                    self.driver.stopped_reason
+                    and not self.driver.targets
+                    and (snap.control.get("goals") or self.manual_owner == "other")
+                ):  # another source took control since: the old stop reason is history
+                    self.driver.stopped_reason = ""
             try:
                 with self.lock:
                     if robot is not None:
@@ -744,7 +809,7 @@ class ViewApp:
                             self.pushes += 1
                             n_rate += 1
                             t0 = snap.t_daemon if self.live else snap.t_received
-                            if snap.sample_seq != self.last_sample and t0:
+                            if snap.sample_seq != self.last_sample and t0 and self.latency_shown:
                                 # a new sample (a daemon message's stamp, an offline slider
                                 # move): its age; a file reload or a reconnect is none
                                 self.last_sample = snap.sample_seq
@@ -778,6 +843,16 @@ def _copy(s: Any) -> Any:
     })  # fmt: skip
 
 
+_MD_SPECIAL = str.maketrans({c: "\\" + c for c in "\\`*_[]~"})
+
+
+def md(text: Any) -> str:
+    """``text`` (a file's content, the daemon's or an event's words: untrusted) as literal text
+    in the page's markdown: markdown punctuation backslash-escaped, then ``<``, ``>``, ``&`` as
+    HTML entities, so ``<tendon>`` reads as such and no tag or link is made from it."""
+    return html.escape(str(text).translate(_MD_SPECIAL), quote=False)
+
+
 def _segments(paths: list[np.ndarray]) -> np.ndarray:
     """Polylines -> (N, 2, 3) line segments for viser."""
     segs = [np.stack([p[:-1], p[1:]], axis=1) for p in paths]
@@ -804,13 +879,15 @@ def _who(control: dict, driver: SliderDriver | None, owner: str = "") -> str:
             "page": "this view's page sliders",
             "other": "another API client (gamepad/teleop)",
         }.get(owner, "a manual source (gamepad/teleop)")
-        line = f"**control:** {who} via {', '.join(manual)} (manual takeover; trajectories wait)"
+        line = (
+            f"**control:** {who} via {md(', '.join(manual))} (manual takeover; trajectories wait)"
+        )
     elif goals:
-        line = f"**control:** trajectory {', '.join(goals)} ({', '.join(active)})"
+        line = f"**control:** trajectory {md(', '.join(goals))} ({md(', '.join(active))})"
     else:
-        line = f"**control:** nobody moving; holding ({', '.join(active) or 'no controller'})"
+        line = f"**control:** nobody moving; holding ({md(', '.join(active)) or 'no controller'})"
     if driver is not None and driver.stopped_reason:
-        line += f"<br/>sliders stopped: {driver.stopped_reason}"
+        line += f"<br/>sliders stopped: {md(driver.stopped_reason)}"
     if control.get("last_event"):
-        line += f"<br/>last event: {control['last_event']}"
+        line += f"<br/>last event: {md(control['last_event'])}"
     return line

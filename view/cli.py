@@ -124,7 +124,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     from host.api.client import ApiError
     from view.app import ViewApp
     from view.guard import GuardError, is_loopback
-    from view.source import LiveSource, OfflineSource
+    from view.source import LiveSource, OfflineSource, RobotFileError
 
     if not 0 < args.rate <= 1000:
         print(f"ucr: --rate must be in (0, 1000] updates per second, got {args.rate:g}",
@@ -153,7 +153,18 @@ def cmd_view(args: argparse.Namespace) -> int:
         token = _token(args)
         try:
             source = LiveSource(args.url, token, args.file, timeout=args.timeout).start()
-        except (ConnectionError, PermissionError, RuntimeError, TimeoutError, ApiError) as exc:
+        except RobotFileError as exc:
+            # the daemon answered: the file is what is wrong, not the daemon (never "no daemon")
+            for e in exc.errors:
+                print(e, file=sys.stderr)
+            print(f"ucr: the daemon answers, but {exc.path} does not load ({len(exc.errors)} "
+                  "check error(s) above): fix it, or run `ucr view` without FILE to view the "
+                  "daemon's own robot", file=sys.stderr)  # fmt: skip
+            return 1
+        except PermissionError as exc:  # the daemon refused the token (ApiAuthError)
+            print(f"ucr: the daemon refused this view's token: {exc}", file=sys.stderr)
+            return 1
+        except (ConnectionError, RuntimeError, TimeoutError, ApiError) as exc:
             # (a daemon too slow to answer: ApiTimeoutError, a TimeoutError and an ApiError)
             if not args.file:
                 print(f"ucr: {exc}", file=sys.stderr)
@@ -162,8 +173,17 @@ def cmd_view(args: argparse.Namespace) -> int:
             if why:
                 print(f"ucr: {exc}; and offline: {why}", file=sys.stderr)
                 return 1
-            print(f"ucr view: no daemon ({exc}); offline on {args.file}", file=sys.stderr)
+            if isinstance(exc, ConnectionError):
+                said = f"no daemon ({exc})"
+            elif isinstance(exc, TimeoutError):
+                said = f"the daemon does not answer ({exc})"
+            else:
+                said = f"the daemon answers but cannot serve the view ({exc})"
+            print(f"ucr view: {said}; offline on {args.file}", file=sys.stderr)
             source = OfflineSource(args.file, on_errors=_print_check(args.file)).start()
+        if getattr(source, "scope", "control") == "read":
+            print("ucr view: view only: read token (the daemon API token has the read scope; "
+                  "no page gets controls)", file=sys.stderr)  # fmt: skip
     try:
         app = ViewApp(
             source, args.host, args.port, tuple(args.allow_host), control, args.rate

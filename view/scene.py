@@ -87,6 +87,7 @@ def _floats(text: str | None, n: int, default: float = 0.0) -> tuple[float, ...]
 def parse_visuals(robot: Robot, base_dir: Path | None = None) -> list[Visual]:
     """The drawable ``<visual>`` elements of every rigid link (meshes resolved from the file)."""
     out: list[Visual] = []
+    materials = named_materials(robot)
     for link in robot.links.values():
         for geom in link.geometry:
             if geom.kind != "visual":
@@ -103,8 +104,12 @@ def parse_visuals(robot: Robot, base_dir: Path | None = None) -> list[Visual]:
                 continue
             vis = Visual(link.name, shape.tag, origin)
             rgba = el.find("material/color")
-            if rgba is not None and rgba.get("rgba"):
-                r, gg, b, _a = _floats(rgba.get("rgba"), 4, 1.0)
+            colour = rgba.get("rgba") if rgba is not None else None
+            mat = el.find("material")
+            if not colour and mat is not None and mat.get("name") in materials:
+                colour = materials[mat.get("name")]  # a robot-level <material name> (URDF)
+            if colour:
+                r, gg, b, _a = _floats(colour, 4, 1.0)
                 vis.color = (round(r * 255), round(gg * 255), round(b * 255))
                 vis.color_given = True
             if shape.tag == "box":
@@ -124,6 +129,23 @@ def parse_visuals(robot: Robot, base_dir: Path | None = None) -> list[Visual]:
             else:
                 vis.problem = f"unknown geometry {shape.tag!r}"
             out.append(vis)
+    return out
+
+
+def named_materials(robot: Robot) -> dict[str, str]:
+    """The robot-level ``<material name><color rgba/></material>`` elements (URDF: a visual's
+    ``<material name="grey"/>`` refers to them): name -> rgba text."""
+    out: dict[str, str] = {}
+    for ext in getattr(robot, "extensions", None) or []:
+        if not isinstance(ext, str) or not ext.lstrip().startswith("<material"):
+            continue
+        try:
+            el = etree.fromstring(ext)
+        except etree.XMLSyntaxError:
+            continue
+        c = el.find("color")
+        if el.get("name") and c is not None and c.get("rgba"):
+            out[el.get("name")] = c.get("rgba")
     return out
 
 

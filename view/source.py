@@ -24,6 +24,10 @@ log = logging.getLogger("ucr.view")
 
 #: A segment event keeps its colour this long (s).
 EVENT_HOLD_S = 1.5
+#: The upload id the scope probe cancels (none of ours: the reply is not_found or forbidden).
+SCOPE_PROBE_UPLOAD = 2**31 - 1
+#: Relative tolerance comparing FILE's segment geometry and limits with the daemon's.
+CONTENT_RTOL = 1e-3
 
 
 @dataclass
@@ -47,6 +51,69 @@ class Snapshot:
     connected: bool = False
     #: why the FILE given does not describe the daemon's robot ("" when it does): no controls
     mismatch: str = ""
+
+
+def _content_differences(robot: Any, segments: list) -> list[str]:
+    """How FILE's bendables differ from the daemon's description of its segments (``topology``
+    ``segments``: model, length, kappa_max, kappa_rate_max of each position), i.e. what the page
+    draws and solves IK with; [] when they agree (within :data:`CONTENT_RTOL`). The API does not
+    expose more of the daemon's robot (joint origins, axes, rigid links): those cannot be
+    compared (docs/view.md)."""
+    out: list[str] = []
+    for seg in segments:
+        if not isinstance(seg, dict):
+            continue
+        name = seg.get("bendable")
+        b = robot.bendables.get(name) if isinstance(name, str) else None
+        if b is None:
+            continue
+        mine = {
+            "model": b.model.type,
+            "length": b.model.backbone.length,
+            "kappa_max": b.model.limits.kappa_max,
+            "kappa_rate_max": b.model.limits.kappa_rate_max,
+        }
+        for key, ours in mine.items():
+            theirs = seg.get(key)
+            if theirs is None or ours is None:
+                continue  # not declared on one side: nothing to compare
+            if key == "model":
+                if str(theirs) != str(ours):
+                    out.append(f"{name} model: the daemon's {theirs!r}, the file's {ours!r}")
+                continue
+            try:
+                a, c = float(theirs), float(ours)
+            except (TypeError, ValueError):
+                continue
+            if abs(a - c) > CONTENT_RTOL * max(abs(a), abs(c), 1e-9):
+                out.append(f"{name} {key}: the daemon's {a:g}, the file's {c:g}")
+    return out
+
+
+def daemon_is_local(url: str | None) -> bool:
+    """Whether the daemon's API URL (None: $UCR_URL or the loopback default) names this machine
+    (a loopback address or ``localhost``)."""
+    import os  # noqa: PLC0415
+    from urllib.parse import urlsplit  # noqa: PLC0415
+
+    from host.api.guard import is_loopback  # noqa: PLC0415
+
+    url = url or os.environ.get("UCR_URL") or "ws://127.0.0.1:8765"
+    try:
+        host = urlsplit(url if "//" in url else f"ws://{url}").hostname or ""
+    except ValueError:
+        return False
+    return is_loopback(host)
+
+
+class RobotFileError(RuntimeError):
+    """The daemon answered, but the robot file to draw (FILE, or the one it names) does not
+    load: its check errors (``path:line: message``) are in ``errors``."""
+
+    def __init__(self, path: str, errors: list[str]) -> None:
+        super().__init__(f"{path} does not load: " + "; ".join(errors))
+        self.path = path
+        self.errors = errors
 
 
 class OfflineSource:
@@ -154,6 +221,10 @@ class LiveSource:
         self.timeout = timeout
         self.client = connect(url, token=token, timeout=timeout, agent="ucr view")
         self.url = self.client_url = url
+        #: the daemon runs on this machine: its monotonic stamps are on our clock (the latency
+        #: figure is shown only then: the API gives no clock of the daemon's to estimate an
+        #: offset from)
+        self.local = daemon_is_local(url)
         self.rate_hz = rate_hz
         self.lock = threading.Lock()
         self.snap = Snapshot(connected=True)
@@ -164,8 +235,11 @@ class LiveSource:
         self._topo_dirty = False
         self._faults: set[str] = set()  # segments the daemon reports in FAULT (status)
         self.reconnects = 0
+        #: what the token may do: "control" or "read" (asked of the daemon: :meth:`_probe_scope`)
+        self.scope = "control"
         try:
             self._topology_locked_refresh()
+            self.scope = self._probe_scope(self.client)
         except BaseException:  # no reply in time, no robot file: do not leave it connected
             self.client.close()
             raise
@@ -222,6 +296,7 @@ class LiveSource:
             try:
                 self.robot = None  # the daemon may run another file now: read it again
                 self._topology_locked_refresh()
+                self.scope = self._probe_scope(client)  # the daemon's token config may change
             except Exception:  # not ready (rebuilding): retried
                 try:
                     client.close()
@@ -248,6 +323,22 @@ class LiveSource:
             self.snap.errors = [f"daemon disconnected: {why}"]
             self.snap.seq += 1
 
+    # -- scope ---------------------------------------------------------------------------------
+    @staticmethod
+    def _probe_scope(client: Any) -> str:
+        """What this connection's token may do, asked of the daemon: the API has no "whoami",
+        so the view sends a control-scope op that changes nothing, ``trajectory.upload_cancel``
+        of an upload no connection of ours holds: a read token gets ``forbidden`` (checked
+        before the op runs, docs/api.md), a control token ``not_found``. "read" or "control"."""
+        try:
+            client.call("trajectory.upload_cancel", upload=SCOPE_PROBE_UPLOAD)
+        except ApiError as exc:
+            if exc.code == "forbidden":
+                return "read"
+            if isinstance(exc, ConnectionError | TimeoutError):
+                raise
+        return "control"
+
     # -- topology ------------------------------------------------------------------------------
     def _topology_locked_refresh(self) -> None:
         """Ask the daemon for its topology and apply it (the robot file read if not yet)."""
@@ -266,7 +357,7 @@ class LiveSource:
             try:
                 robot = load(path)
             except UcrdfError as exc:
-                raise RuntimeError(str(exc)) from None
+                raise RobotFileError(str(path), [str(d) for d in exc.diagnostics]) from None
         mismatch = self._mismatch(robot, topo)
         with self.lock:
             s = self.snap
@@ -303,7 +394,14 @@ class LiveSource:
         expected = list(topo.get("expected") or [])
         name = topo.get("robot")
         if ours == expected and (not name or name == robot.name):
-            return ""
+            content = _content_differences(robot, topo.get("segments") or [])
+            if not content:
+                return ""
+            return (
+                f"{self._robot_file} is not the daemon's robot: same names, but "
+                f"{'; '.join(content)}. Controls refused (view only): run `ucr view` without FILE "
+                "to use the daemon's own file, or give the file the daemon runs."
+            )
         return (
             f"{self._robot_file} is not the daemon's robot: the daemon runs {name!r} "
             f"({theirs or 'file not named'}; bendables {', '.join(expected) or 'none'}), the "

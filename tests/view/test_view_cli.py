@@ -162,5 +162,6 @@ def test_with_a_file_a_daemon_too_slow_falls_back_to_the_file(silent_daemon):
     finally:
         proc.terminate()
         _, err = proc.communicate(timeout=30)
-    assert "ucr view: no daemon (timeout: no reply to 'topology' within 0.5 s); offline on" in err
+    said = "the daemon does not answer (timeout: no reply to 'topology' within 0.5 s)"
+    assert f"ucr view: {said}; offline on" in err
     assert "Traceback" not in err, err

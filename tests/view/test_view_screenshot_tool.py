@@ -60,3 +60,27 @@ def test_the_screenshot_tool_photographs_a_real_page(browser, tmp_path):
         assert out.read_bytes().startswith(PNG)
     finally:
         page.close()
+
+
+def test_the_tool_photographs_only_a_healthy_view():
+    """Defect (audit 15.8): docs/img/view.png showed "status: fault, fault, fault · update 8 Hz"
+    from a loaded machine: the tool never looked. Now it waits for every segment ok at a sane
+    update rate, or fails saying what the page showed."""
+    from tools import view_screenshot as tool
+
+    bad = ("tubes: 3 (segment_1, segment_2, segment_3) · update 8 Hz · daemon→page 3.0 ms\n"
+           "status: segment_1: fault, segment_2: fault, segment_3: fault")  # fmt: skip
+    good = bad.replace("8 Hz", "40 Hz").replace("fault", "ok")
+
+    class Page:
+        def __init__(self, texts: list[str]) -> None:
+            self.texts = texts
+
+        def inner_text(self, selector: str) -> str:
+            return self.texts.pop(0) if len(self.texts) > 1 else self.texts[0]
+
+    assert not tool.view_ok(bad, 3, 20.0) and tool.view_ok(good, 3, 20.0)
+    assert not tool.view_ok(good.replace("40 Hz", "8 Hz"), 3, 20.0)
+    assert "40 Hz" in tool.wait_ok(Page([bad, bad, good]), 3, 20.0, 5.0, step_s=0.01)
+    with pytest.raises(RuntimeError, match="did not show 3 segments ok.*fault"):
+        tool.wait_ok(Page([bad]), 3, 20.0, 0.1, step_s=0.01)
