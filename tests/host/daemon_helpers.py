@@ -92,3 +92,17 @@ def retry_if_the_link_was_disturbed(daemon, attempt, tries: int = 3, before=None
             disturbed = isinstance(e, Disturbed) or disturbances(daemon) != mark
             if i == tries - 1 or not disturbed:
                 raise
+
+
+#: the bendables of robots/softrobot3.ucrdf, in chain order
+NAMES = ["segment_1", "segment_2", "segment_3"]
+
+
+def all_back(d, names: list[str] = NAMES) -> bool:
+    """The daemon ``d`` runs the whole chain ``names`` again, every segment with a valid state."""
+    st = d.status()
+    return (
+        st["state"] == "connected"
+        and st["segments"] == names
+        and all(v["valid"] for v in st["joint_states"].values())
+    )

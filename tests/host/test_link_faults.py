@@ -13,7 +13,7 @@ import queue
 import time
 
 import pytest
-from daemon_helpers import emulated_configs, start_daemon, wait_for
+from daemon_helpers import NAMES, all_back, emulated_configs, start_daemon, wait_for
 
 from host.client_cli import format_status
 from host.config import DaemonConfig
@@ -21,8 +21,6 @@ from host.daemon import Daemon
 from tools.emulator import EmulatedChain
 
 pytestmark = pytest.mark.timeout(240)
-
-NAMES = ["segment_1", "segment_2", "segment_3"]
 
 
 @pytest.fixture(scope="module")
@@ -37,15 +35,6 @@ def daemon(chain, robot3):
     start_daemon(d)
     yield d
     d.stop()
-
-
-def all_back(d) -> bool:
-    st = d.status()
-    return (
-        st["state"] == "connected"
-        and st["segments"] == NAMES
-        and all(v["valid"] for v in st["joint_states"].values())
-    )
 
 
 @pytest.fixture()
