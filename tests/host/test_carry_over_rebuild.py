@@ -332,6 +332,7 @@ def test_a_segment_holding_on_its_own_is_re_held_while_a_rejoin_is_deferred(robo
         deferred = d.topo.rejoins_deferred
         cycles(d, 2)
         assert d.topo.rejoins_deferred > deferred  # the rejoin waits ...
+        assert d.status()["rejoins"]["deferred"] == d.topo.rejoins_deferred  # and says so
         st = d.trajectory_status(gid)
         assert st["state"] == "aborted", st  # ... but segment_1 is re-held (before: skipped)
         assert st["abort"]["cause"] == "segment_fault" and st["abort"]["segment"] == "segment_1"
