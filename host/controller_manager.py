@@ -155,7 +155,7 @@ class ControllerManager:
         ``reason``, ``cause`` and ``segment``; their ids are in :attr:`last_aborted`."""
         now = time.monotonic()
         was_active = self.active_names()
-        carried: dict[str, tuple[Any, Any, list[str]]] = {}
+        carried: dict[str, tuple[Any, Any, list[str], Any]] = {}
         kept: set[str] = set()
         self.last_aborted: list[str] = []
         started: list[str] = []
@@ -172,7 +172,8 @@ class ControllerManager:
                     and not tr.moving(list(c.joints), now) & (set(affected) | self._gone(c, ctx))
                 ):
                     g.carried = True
-                    carried[n] = (g, tr, list(c.joints))
+                    lead = getattr(c, "lead_in_at", lambda _t: None)(now)
+                    carried[n] = (g, tr, list(c.joints), lead)
                 elif c.abort_active(reason, cause=cause, segment=segment):
                     self.last_aborted.append(g.id)
             for n in was_active:
@@ -186,11 +187,11 @@ class ControllerManager:
                         started.append(n)
                     except SwitchError as exc:
                         log.error("after rebuild, %s stays inactive: %s", n, exc)
-            for n, (g, tr, joints) in carried.items():
-                if self._carry(n, g, tr, joints, state, set(affected or ())):
+            for n, (g, tr, joints, lead) in carried.items():
+                if self._carry(n, g, tr, joints, state, set(affected or ()), lead):
                     kept.add(n)
         finally:  # whatever was raised, every goal can end again: not carried is aborted
-            for n, (g, _, _) in carried.items():
+            for n, (g, *_) in carried.items():
                 g.carried = False
                 if n not in kept:
                     g.finish("aborted", reason, cause=cause, segment=segment)
@@ -210,6 +211,7 @@ class ControllerManager:
         joints: list[str],
         state: RobotState,
         affected: set[str],
+        lead_in: Any = None,
     ) -> bool:
         """Install ``goal`` (path ``traj`` over ``joints``) on the rebuilt controller ``name``,
         its path mapped onto that controller's joints. A joint that holds where measured (the
@@ -218,7 +220,9 @@ class ControllerManager:
         only held it still, and its old value is stale: docs/daemon.md "No motion without a
         command"), and one the path holds still that was not measured at the rebuild. False
         when it cannot run there. The path keeps its time base: the first cycle after the
-        rebuild shifts it by the pause (:meth:`update`)."""
+        rebuild shifts it by the pause (:meth:`update`). ``lead_in``: the old motion that runs
+        until a path that has not begun yet begins (mapped the same way and carried too: the
+        path starts where it ends, so holding meanwhile would end in a jump)."""
         c = self.controllers.get(name)
         if c is None or not c.active or not hasattr(c, "install_goal"):
             return False
@@ -230,6 +234,9 @@ class ControllerManager:
             unmeasured = {j for j in c.joints if j not in index or not state.valid[index[j]]}
             held = (set(c.joints) & affected) | (unmeasured - moving)
             path = traj.remapped(joints, list(c.joints), snap.p, held)
+            if lead_in is not None and now < traj.t0:
+                c.run_lead_in(lead_in.remapped(joints, list(c.joints), snap.p, held))
+                snap = c.goal_snapshot(now)
             accepted = goal.t_accepted
             start = GoalStart(now, snap.p, snap.v, snap.a, snap.generation, at_rest=False)
             c.install_goal(goal, path, start, now)

@@ -332,13 +332,7 @@ class Daemon:
                 "manual_control": motion["manual_control"],
                 "topology_changes": topo.topology_changes,
                 "stalls": topo.stalls,
-                # segments probed back beyond the tip: taken back, cycles a steady-enough answer
-                # was still awaited (hysteresis), rediscoveries that found none (docs/daemon.md)
-                "rejoins": {
-                    "done": topo.rejoins,
-                    "deferred": topo.rejoins_deferred,
-                    "failed": topo.rejoin_failures,
-                },
+                "rejoins": topo.rejoin_counts(),
                 "link_health": self.health.snapshot(),
                 "uptime_s": time.monotonic() - self._t_started if self._t_started else 0.0,
                 "joint_states": {

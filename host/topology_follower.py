@@ -130,6 +130,15 @@ class TopologyFollower:
         self._events: list[dict] = []
         self._refused: str | None = None  # the last segment_refused message (reported once)
 
+    def rejoin_counts(self) -> dict[str, int]:
+        """Segments probed back beyond the tip: taken back (``done``), cycles whose answer was
+        not steady enough yet (``deferred``, the hysteresis), rediscoveries that found none."""
+        return {
+            "done": self.rejoins,
+            "deferred": self.rejoins_deferred,
+            "failed": self.rejoin_failures,
+        }
+
     @property
     def connected(self) -> bool:
         return self.link is not None and self.hwi is not None and self.link_state == "connected"

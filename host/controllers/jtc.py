@@ -413,6 +413,21 @@ class JointTrajectoryController(Controller):
         self._lead_in = lead_in
         self._generation += 1
 
+    def lead_in_at(self, t: float) -> CurvatureTrajectory | None:
+        """The old motion that still runs at ``t`` because the current path begins later (a
+        goal built outside the lock, installed ahead of its start); None once it began."""
+        tr = self._traj
+        if tr is not None and t < tr.t0 and self._lead_in is not tr:
+            return self._lead_in
+        return None
+
+    def run_lead_in(self, lead_in: CurvatureTrajectory) -> None:
+        """Run ``lead_in`` (a carried goal's old motion, mapped onto these joints) as the
+        desired motion; the goal installed next begins where it ends (``install_goal``)."""
+        if not self.active:
+            raise ControllerError(f"controller {self.name!r} is not active")
+        self._set_motion(lead_in)
+
     def _traj_at(self, t: float) -> CurvatureTrajectory | None:
         """The trajectory that defines the desired motion at ``t`` (None = hold)."""
         tr = self._traj

@@ -222,6 +222,35 @@ def test_a_pause_shifts_the_path_and_the_goal_time_tolerance_window(robot3):
     assert st["state"] == "aborted" and st["abort"]["cause"] == "goal_tolerance", st
 
 
+def test_a_goal_carried_before_its_path_begins_keeps_its_lead_in(robot3):
+    # A goal sent while another moves begins ``lead`` s later (the daemon builds it outside its
+    # lock); the old motion runs until then. A rebuild in that window that concerns none of the
+    # goal's segments (a rejoin beyond the tip) carries the goal over. Before the fix the rebuilt
+    # controller held where it was until the path began, then jumped to the path's start: a step
+    # of (the old motion's speed x the rest of the lead) in the setpoint, sent to a segment.
+    ctx = ControllerContext(bendable_limits(robot3), robot3)
+    cm = ControllerManager({"jtc": {"type": "jtc"}}, ctx)
+    now = time.monotonic()
+    cm.switch(["jtc"], [], state_at(ctx.names, now - 1.0))
+    jtc = cm.controllers["jtc"]
+    far = {"segment_1": {"kappa": 3.0, "phi": 0.0}}
+    jtc.send_goal([{"time_from_start": 2.0, "segments": far}], now - 1.0)  # moving at `now`
+    now = time.monotonic()
+    start = jtc.goal_snapshot(now + 0.3)  # the path begins 0.3 s from now
+    goal, traj = jtc.build_goal([{"time_from_start": 1.0, "segments": ON_1}], start)
+    jtc.install_goal(goal, traj, start, now)
+    ts = [now + 0.02 * k for k in range(30)]
+    want = [jtc._desired_now(t)[0][0] for t in ts]  # segment_1's setpoint without the rebuild
+    measured = [want[0][0]] + [0.0] * (len(ctx.names) - 1)
+    cm.rebuild(ctx, state_at(ctx.names, now, measured), "rejoin", affected=set())
+    assert jtc.status_of(goal.id)["state"] == "executing"  # carried over
+    rebuilt = cm.controllers["jtc"]
+    assert rebuilt is not jtc
+    got = [rebuilt._desired_now(t)[0][0] for t in ts]
+    step = max(abs(g[0] - w[0]) + abs(g[1] - w[1]) for g, w in zip(got, want, strict=True))
+    assert step < 1e-9, f"the carried goal left its lead-in: setpoint off by {step:.3f} 1/m"
+
+
 # -- 3. rediscovery tries on a slowed link --------------------------------------------------------
 
 
