@@ -237,6 +237,10 @@ class Segment:
         if cfg.error:
             print("[segment]", cfg.error)
         self.event(EV_BOOT, 0)
+        # sent now, before any frame is handled: on the wire the BOOT precedes every reply of
+        # this life (a DISCOVER already waiting would be answered first at the first poll, and
+        # the host would take a BOOT after its discovery for a restart)
+        self.service(now)
 
     # ---- output helpers --------------------------------------------------------------------
     def _up(self, end):

@@ -94,7 +94,9 @@ class ChainLink(_FramePlumbing):
             "alive": 0,
             "events": 0,
             "events_dropped": 0,
+            "boots_before_discovery": 0,  # BOOTs of the lives the first discovery found
         }
+        self._discovered = False  # a discovery succeeded on this link
         self._init_timing()
         self._thread = threading.Thread(target=self._read_loop, name="ucr-link-reader", daemon=True)
         self._thread.start()
@@ -183,6 +185,7 @@ class ChainLink(_FramePlumbing):
                 raise LinkError(f"incomplete discovery: answers from {labels(positions)}")
             if not tip:
                 self._counters["timeouts"] += 1
+            self._drop_boots_before(col.arrived)  # on the first discovery only
             self._expected = len(descs)
             self._geometry = {
                 d["position"]: (d.get("length"), d.get("spool_radius")) for d in descs
@@ -414,13 +417,6 @@ class ChainLink(_FramePlumbing):
     def port_ok(self) -> bool:
         """False once the port failed or was closed (a missing answer alone leaves it True)."""
         return not self._closed and self._error is None
-
-    def events(self) -> list[dict]:
-        """Unsolicited events received so far, oldest first (the queue is drained)."""
-        with self._cond:
-            out = list(self._events)
-            self._events.clear()
-            return out
 
     @property
     def stats(self) -> dict:

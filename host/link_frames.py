@@ -108,6 +108,7 @@ class _Collector:
         self.types = types
         self.replies: dict[int, Frame] = {}
         self.errors: dict[int, Frame] = {}
+        self.arrived: dict[int, float] = {}  # position -> when its reply was dispatched (s)
         self.sent = 0.0  # when the request left (monotonic s)
 
 
@@ -259,6 +260,7 @@ class _FramePlumbing:
             col.errors[position] = frame
         elif frame.mtype in col.types:
             col.replies[position] = frame
+            col.arrived[position] = time.monotonic()  # after every event dispatched before it
         else:
             self._counters["unmatched"] += 1
 
@@ -290,6 +292,33 @@ class _FramePlumbing:
         if isinstance(text, str):
             ev["text"] = text[:200]  # e.g. a FAULT's reason (untrusted: bounded)
         self._events.append(ev)
+
+    def events(self) -> list[dict]:
+        """Unsolicited events received so far, oldest first (the queue is drained)."""
+        with self._cond:
+            out = list(self._events)
+            self._events.clear()
+            return out
+
+    def _drop_boots_before(self, arrived: dict[int, float]) -> None:
+        """After the first discovery on this link (``arrived``: position -> when its DESCRIPTOR
+        was dispatched): drop each position's BOOT received before its DESCRIPTOR. That BOOT
+        began the life the descriptor describes (a segment sends its BOOT before any reply, and
+        relays keep each position's order), so it is no restart after the discovery; taken for
+        one, it was a topology change that aborted the first goal. Later discoveries drop
+        nothing: a known segment's BOOT then tells the daemon it restarted."""
+        with self._cond:
+            if self._discovered:
+                return
+            self._discovered = True
+            kept = [
+                e
+                for e in self._events
+                if not (e["name"] == "BOOT" and e["t"] <= arrived.get(e["position"], -1.0))
+            ]
+            self._counters["boots_before_discovery"] += len(self._events) - len(kept)
+            self._events.clear()
+            self._events.extend(kept)
 
     # -- requests -------------------------------------------------------------------------------
     def _check_open(self) -> None:

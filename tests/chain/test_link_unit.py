@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 
 import pytest
 
@@ -99,8 +100,19 @@ def test_discover_sorts_by_source_position_and_stops_at_the_tip(fake) -> None:
         (1, "b1", "two"),
     ]
     assert descs[1]["downstream_present"] is False
-    assert [e["name"] for e in link.events()] == ["BOOT"]
+    # the BOOT position 0 sent before its DESCRIPTOR began the life this first discovery found:
+    # not a restart after it (a topology change that aborted the first goal), dropped, counted
+    assert link.events() == []
+    assert link.stats["boots_before_discovery"] == 1
+    chain.send(0, C.T_EVENT, 0, {0: C.EV_BOOT, 1: 0, 2: 7})  # a BOOT after it is a restart
+    chain.send(0, C.T_EVENT, 0, {0: C.EV_LIMIT_CLAMPED, 1: 1, 2: 8})
+    deadline = time.monotonic() + 2.0
+    while link.stats["events"] < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [e["name"] for e in link.events()] == ["BOOT", "LIMIT_CLAMPED"]
     assert link.events() == []  # drained
+    link.discover(timeout=2.0)  # a later discovery drops nothing: a BOOT then is news
+    assert [e["name"] for e in link.events()] == ["BOOT"]
 
 
 def test_heartbeat_matches_by_seq_and_decodes_to_si(fake) -> None:

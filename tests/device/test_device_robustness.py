@@ -144,3 +144,26 @@ R['error'] = seg.get_param(16)
     assert r["status"] & 0x01 and r["status"] & 0x20  # HOLD and UNCONFIGURED
     assert "length" in r["error"]
     assert any(m["type"] == "DESCRIPTOR" for m in decode(r["up"]))
+
+
+def test_the_boot_event_goes_out_before_any_reply_of_the_segments_life(vm):
+    """A DISCOVER waiting in the port's buffer when the segment starts (a host that was up first,
+    retrying) was answered at the first poll, and the BOOT went out at the first tick, after the
+    DESCRIPTOR: the host then took the BOOT for a restart after its discovery (a topology change
+    that aborted the first goal). The BOOT now leaves while the segment is built, so on the wire
+    it precedes every reply of this life (relays keep each position's order)."""
+    discover = M.encode_discover(1).hex()
+    r = vm(
+        f"""
+import config, servos
+from segment import Segment
+hal = vmkit.LoopHal()
+hal.up.feed(bytes.fromhex('{discover}'))   # waiting before the segment is built
+cfg = config.Config({{}}, "emulated")
+seg = Segment(hal, cfg, servos.make(cfg.driver, cfg, hal), 5)
+seg.poll()
+R['up'] = vmkit.hexs(hal.up.take())
+"""
+    )
+    kinds = [m["type"] + (":" + m["name"] if m["type"] == "EVENT" else "") for m in decode(r["up"])]
+    assert kinds[:2] == ["EVENT:BOOT", "DESCRIPTOR"], kinds
