@@ -17,8 +17,9 @@ It is the only listener: no other server runs behind it, so nothing bypasses the
   429 (``Retry-After``), while a valid one always gets in.
 
 Limits: at most :data:`MAX_CONNECTIONS` accepted connections (503 beyond) and
-:data:`MAX_PENDING` still in their opening handshake (a new one evicts the oldest that got least
-far: ``host.api.guard.Admission``, the API's rule); :data:`MAX_PER_PEER` per non-loopback
+:data:`MAX_PENDING` still in their opening handshake, from the TCP accept (with TLS, the TLS
+handshake included) (a new one evicts the oldest that got least
+far: ``host.api.admission.Admission``, the API's rule); :data:`MAX_PER_PEER` per non-loopback
 address, pending and accepted, refused beyond that before any work; a client
 frame above :data:`MAX_CLIENT_FRAME` closes the connection (1009) before it is read; per client
 at most :data:`DATA_BACKLOG` messages / :data:`DATA_BACKLOG_BYTES` wait to be sent (the oldest
@@ -55,6 +56,14 @@ from websockets.asyncio.server import ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
+from host.api.admission import (
+    AUTHORIZING,
+    REFUSING,
+    VERIFIED,
+    Admission,
+    admitted_connections,
+    peer_ip,
+)
 from host.api.auth import (
     AuthConfigError,
     Backoff,
@@ -64,16 +73,7 @@ from host.api.auth import (
     find_token,
     server_tls_context,
 )
-from host.api.guard import (
-    AUTHORIZING,
-    REFUSING,
-    VERIFIED,
-    Admission,
-    GuardConfigError,
-    WebGuard,
-    admitted_connections,
-    peer_ip,
-)
+from host.api.guard import GuardConfigError, WebGuard
 from interop import foxglove_protocol as P
 from interop import ros2
 
@@ -82,7 +82,7 @@ SUBPROTOCOLS = P.SUBPROTOCOLS
 
 MAX_CONNECTIONS = 32  # accepted WebSocket connections (a few viewers is the use)
 #: TCP connections still in their opening handshake; when full, a new one evicts the oldest that
-#: got least far (host.api.guard.Admission, as the API): idle sockets cannot keep a viewer out
+#: got least far (host.api.admission.Admission, as the API): idle sockets cannot keep a viewer out
 MAX_PENDING = 16
 MAX_PER_PEER = 8  # per non-loopback address, pending and open (loopback: only the totals)
 MAX_CLIENT_FRAME = 64 * 1024  # a client sends subscribe/unsubscribe: small JSON (the API's 64 KiB)
@@ -299,24 +299,27 @@ class FoxgloveGuard:
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
+        conn_class = self._connection_class()  # (it does the TLS: admitted first, as the API)
         async with serve(
             self._handle, self.host, self.requested_port, subprotocols=SUBPROTOCOLS,
-            process_request=self._authorize, create_connection=self._connection_class(),
+            process_request=self._authorize, create_connection=conn_class,
             max_size=MAX_CLIENT_FRAME, max_queue=4, compression=None,
             open_timeout=OPEN_TIMEOUT_S, ping_interval=20, ping_timeout=20,
-            server_header="ucr-foxglove", logger=_HandshakeLog(self), ssl=self._ssl,
+            server_header="ucr-foxglove", logger=_HandshakeLog(self),
         ) as server:  # fmt: skip
             self.port = next(iter(server.sockets)).getsockname()[1]
             self.web = self.web.with_port(self.port)
             self._ready.set()
             await self._stop.wait()
+            conn_class.ucr_abort_tls()
             server.close(close_connections=True)
             await server.wait_closed()
 
     def _connection_class(self) -> type[ServerConnection]:
-        """ServerConnection admitted before any work as the API's server admits them
-        (:class:`host.api.guard.Admission`: per-peer cap; pending cap with eviction of the
-        oldest pending connection that got least far; only accepted ones count in the total)."""
+        """ServerConnection admitted before any work (at its TCP accept, before any TLS
+        handshake) as the API's server admits them (:class:`host.api.admission.Admission`: per-peer
+        cap; pending cap with eviction of the oldest pending connection that got least far; only
+        accepted ones count in the total)."""
         guard = self
 
         def refused(ip: str) -> None:
@@ -329,7 +332,8 @@ class FoxgloveGuard:
         def evicted() -> None:
             guard.evicted_pending += 1
 
-        admitted = admitted_connections(ServerConnection, guard._admission, refused, evicted)
+        admitted = admitted_connections(ServerConnection, guard._admission, refused, evicted,
+                                        tls=guard._ssl, tls_timeout=OPEN_TIMEOUT_S)  # fmt: skip
 
         class _Capped(admitted):  # type: ignore[misc, valid-type]
             def ucr_gone(self) -> None:

@@ -5,9 +5,10 @@ The server never touches the daemon directly: it talks to it through the bridge
 tests and embedding) or in a process of its own (:mod:`host.api.process`, what ``ucr daemon``
 does, so that client load never competes with the control loop for the interpreter lock).
 
-Bounded by design: connections still in their opening handshake (pending) and accepted ones
-are capped apart (``host.api.guard.Admission``): a full pending cap evicts the oldest pending
-connection that got least far, so idle sockets cannot keep a client out, and only accepted
+Bounded by design: connections still in their opening handshake (pending, from the TCP accept:
+with TLS, their TLS handshake included) and accepted ones are capped apart
+(``host.api.admission.Admission``): a full pending cap evicts the oldest pending connection that got
+least far, so idle sockets cannot keep a client out, and only accepted
 (authenticated) connections count against the total and the slots kept for control tokens;
 what all connections hold of their clients' requests (frames read ahead, a frame being read, the
 request being answered) is counted and capped in total (``inbound_bytes``: above it the connection
@@ -52,6 +53,14 @@ from websockets.http11 import Request, Response
 
 from host.api import DEFAULT_HOST, DEFAULT_PORT
 from host.api import schema as S
+from host.api.admission import (
+    AUTHORIZING,
+    REFUSING,
+    VERIFIED,
+    Admission,
+    admitted_connections,
+    peer_ip,
+)
 from host.api.auth import (
     CONTROL,
     AuthConfigError,
@@ -65,17 +74,7 @@ from host.api.auth import check_bind as _check_bind_policy
 from host.api.bridge import DaemonBridge, DaemonLink
 from host.api.connection import Connections, Outboxes
 from host.api.dispatch import Dispatcher, goal_done
-from host.api.guard import (
-    AUTHORIZING,
-    REFUSING,
-    VERIFIED,
-    Admission,
-    GuardConfigError,
-    WebGuard,
-    admitted_connections,
-    is_loopback,
-    peer_ip,
-)
+from host.api.guard import GuardConfigError, WebGuard, is_loopback
 from host.api.session import _peer
 
 __all__ = [
@@ -165,7 +164,7 @@ class ServerOptions:
     #: with a read token cannot take every slot and keep the operator out
     control_reserve: int = 16
     #: TCP connections still in their opening handshake; when full, a new one evicts the
-    #: oldest that got least far (host.api.guard.Admission)
+    #: oldest that got least far (host.api.admission.Admission)
     max_pending: int = 64
     max_per_peer: int = 32  # per remote address (loopback peers count only in the totals)
     max_subscriptions: int = 16  # per connection
@@ -174,7 +173,7 @@ class ServerOptions:
     max_request_rate: float = 500.0  # budget units/s per connection (1 per request + 1 per KiB)
     global_request_rate: float = 4000.0  # budget units/s for all, shared fairly between tokens
     slow_close_s: float = 5.0  # a client whose outbox did not move for this long is closed
-    open_timeout_s: float = 5.0  # opening handshake (TLS included)
+    open_timeout_s: float = 5.0  # the TLS handshake, then the opening handshake: each at most
     auth_hold_s: float = 1.0  # during an auth back-off, each attempt waits this before its check
     status_period: float = 0.05  # s between status snapshots from the daemon
     goal_poll_s: float = 0.05  # s between goal status polls for trajectory pushes
@@ -381,12 +380,13 @@ class ApiServer:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         server: Server
+        conn_class = self._connection_class()
         async with serve(
             self.connections.handle,
             self.host,
             self.requested_port,
             process_request=self._authorize,
-            create_connection=self._connection_class(),
+            create_connection=conn_class,
             max_size=self.opts.hard_frame_bytes,
             max_queue=self.opts.max_queue,
             # No permessage-deflate: inbound, a 1 KiB frame inflated to 1 MiB in the server
@@ -398,7 +398,8 @@ class ApiServer:
             ping_timeout=20,
             server_header="ucr-api",
             logger=_HandshakeLog(self),
-            ssl=self._ssl,
+            # TLS is not given here: the connection class upgrades each connection after its
+            # TCP accept has been admitted (host.api.admission.admitted_connections)
         ) as server:
             # once bound: a failed start leaves the link alone
             await self._link.start(self.outboxes.publish)
@@ -417,6 +418,7 @@ class ApiServer:
             )
             for t in tasks:
                 t.cancel()
+            conn_class.ucr_abort_tls()
             server.close(close_connections=True)
             await server.wait_closed()
 
@@ -431,9 +433,10 @@ class ApiServer:
 
     # ------------------------------------------------------------------ connection caps
     def _connection_class(self) -> type[ServerConnection]:
-        """ServerConnection that is admitted (:class:`host.api.guard.Admission`: per-peer cap,
-        pending cap with eviction) before any work, and counts the request bytes it holds into
-        :attr:`inbound` (see :meth:`_account`)."""
+        """ServerConnection that is admitted (:class:`host.api.admission.Admission`: per-peer cap,
+        pending cap with eviction) at its TCP accept, before any work (with TLS: before its TLS
+        handshake), and counts the request bytes it holds into :attr:`inbound` (see
+        :meth:`_account`)."""
         srv = self
 
         def refused(_ip: str) -> None:
@@ -442,7 +445,10 @@ class ApiServer:
         def evicted() -> None:
             srv.counters["evicted_pending"] += 1
 
-        admitted = admitted_connections(ServerConnection, srv._admission, refused, evicted)
+        admitted = admitted_connections(
+            ServerConnection, srv._admission, refused, evicted,
+            tls=srv._ssl, tls_timeout=srv.opts.open_timeout_s,
+        )  # fmt: skip
 
         class _Capped(admitted):  # type: ignore[misc, valid-type]
             ucr_held = 0  # request bytes this connection holds, as counted in srv.inbound

@@ -461,7 +461,7 @@ def test_connections_are_capped_in_total_and_per_peer(stub):
 
 
 def test_admission_evicts_the_pending_connection_that_got_least_far_and_caps_each_peer():
-    from host.api.guard import AUTHORIZING, TALKING, Admission
+    from host.api.admission import AUTHORIZING, TALKING, Admission
 
     adm = Admission(max_open=4, max_pending=3, max_per_peer=2, reserve=1)
     assert adm.arrive("a", "127.0.0.1") == (True, None)
@@ -494,7 +494,7 @@ def test_admission_evicts_the_pending_connection_that_got_least_far_and_caps_eac
 
 
 def test_admission_evicts_wrong_tokens_waiting_out_the_hold_first_and_valid_ones_last():
-    from host.api.guard import AUTHORIZING, REFUSING, VERIFIED, Admission
+    from host.api.admission import AUTHORIZING, REFUSING, VERIFIED, Admission
 
     adm = Admission(max_open=8, max_pending=3, max_per_peer=8)
     for conn in "abc":
