@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from host import realtime
+from host.api.schema import robot_description
 from host.arbitration import Arbitrator
 from host.config import DaemonConfig, link_baudrate
 from host.controller_manager import ControllerManager
@@ -373,9 +374,12 @@ class Daemon:
         return {"sent_to": sent, "faults": faults}
 
     def topology(self) -> dict[str, Any]:
-        """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts."""
+        """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts; and
+        the U(C)RDF it drives as canonical text (``description``: API ``robot.description``)."""
         with self._lock:
-            return self.topo.describe()
+            out, robot = self.topo.describe(), self.topo.full_robot
+        out["description"] = robot_description(robot)
+        return out
 
     def loop_stats(self) -> dict[str, Any]:
         """Loop timing (µs: period, jitter, compute without I/O wait; overruns), link counters,

@@ -114,7 +114,7 @@ class ViewApp:
         self.always_update = always_update
         self.idle_skips = 0
         self.live = isinstance(source, LiveSource)
-        #: the daemon told the source its token may only read (view/source.py _probe_scope)
+        #: the daemon told the source its token may only read (view/source.py _ask_scope)
         self.read_only = self.live and getattr(source, "scope", "control") == "read"
         self.control_enabled = control and self.live and not self.read_only
         #: the latency figure ages daemon-monotonic stamps on our clock: only for a local daemon

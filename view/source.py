@@ -7,6 +7,7 @@ a slow reader; we read with a bounded queue of our own).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -17,17 +18,27 @@ from typing import Any
 
 from host.api.client import ApiError, connect
 from host.api.reconnect import reconnect
+from host.api.schema import robot_description
 from ucrdf.errors import UcrdfError
-from ucrdf.parser import load
+from ucrdf.parser import load, parse_string
 
 log = logging.getLogger("ucr.view")
 
 #: A segment event keeps its colour this long (s).
 EVENT_HOLD_S = 1.5
-#: The upload id the scope probe cancels (none of ours: the reply is not_found or forbidden).
+#: The upload id the scope probe cancels (none of ours: the reply is not_found or forbidden);
+#: sent only to a daemon older than the ``session`` op.
 SCOPE_PROBE_UPLOAD = 2**31 - 1
-#: Relative tolerance comparing FILE's segment geometry and limits with the daemon's.
+#: Relative tolerance comparing FILE's segment geometry and limits with the daemon's ``topology``
+#: segments (a daemon older than ``robot.description``).
 CONTENT_RTOL = 1e-3
+#: Differences named in a mismatch message at most (then "and N more").
+MAX_NAMED_DIFFERENCES = 8
+#: The end of every mismatch message: what happens and what to do.
+_REFUSED = (
+    "Controls refused (view only): run `ucr view` without FILE to use the daemon's own file, or "
+    "give the file the daemon runs."
+)
 
 
 @dataclass
@@ -53,12 +64,15 @@ class Snapshot:
     mismatch: str = ""
 
 
-def _content_differences(robot: Any, segments: list) -> list[str]:
-    """How FILE's bendables differ from the daemon's description of its segments (``topology``
-    ``segments``: model, length, kappa_max, kappa_rate_max of each position), i.e. what the page
-    draws and solves IK with; [] when they agree (within :data:`CONTENT_RTOL`). The API does not
-    expose more of the daemon's robot (joint origins, axes, rigid links): those cannot be
-    compared (docs/view.md)."""
+def _num(v: float) -> str:
+    """A number as short as it reads back (``0.316``), else in full (``0.31600000001``)."""
+    return f"{v:g}" if float(f"{v:g}") == v else repr(v)
+
+
+def _content_differences(robot: Any, segments: list, rtol: float = CONTENT_RTOL) -> list[str]:
+    """How FILE's bendables differ from the daemon's segments (``topology`` ``segments`` or
+    :func:`_segments_of` the daemon's description: model, length, kappa_max, kappa_rate_max),
+    i.e. what the page draws and solves IK with; [] when they agree (within ``rtol``)."""
     out: list[str] = []
     for seg in segments:
         if not isinstance(seg, dict):
@@ -85,8 +99,105 @@ def _content_differences(robot: Any, segments: list) -> list[str]:
                 a, c = float(theirs), float(ours)
             except (TypeError, ValueError):
                 continue
-            if abs(a - c) > CONTENT_RTOL * max(abs(a), abs(c), 1e-9):
-                out.append(f"{name} {key}: the daemon's {a:g}, the file's {c:g}")
+            if abs(a - c) > rtol * max(abs(a), abs(c), 1e-9):
+                out.append(f"{name} {key}: the daemon's {_num(a)}, the file's {_num(c)}")
+    return out
+
+
+def _segments_of(robot: Any) -> list[dict]:
+    """A robot's bendables as ``topology`` ``segments`` describe them (for
+    :func:`_content_differences`)."""
+    return [
+        {"bendable": n, "model": b.model.type, "length": b.model.backbone.length,
+         "kappa_max": b.model.limits.kappa_max, "kappa_rate_max": b.model.limits.kappa_rate_max}
+        for n, b in robot.bendables.items()
+    ]  # fmt: skip
+
+
+def description_sha256(robot: Any) -> str:
+    """The sha256 of a robot's canonical U(C)RDF text, as the daemon's ``robot.description``
+    computes it for its own robot."""
+    return robot_description(robot)["sha256"]
+
+
+def _element_differences(ours: Any, theirs: Any, named: set[str]) -> list[str]:
+    """Which links, joints and bendables (and ros2_control blocks, extension elements) differ
+    between FILE's robot (``ours``) and the daemon's (``theirs``), and in which fields; a
+    bendable in ``named`` was already described by its numbers, its ``model`` is not repeated."""
+    out: list[str] = []
+    for what, mine, their in (
+        ("link", ours.links, theirs.links),
+        ("joint", ours.joints, theirs.joints),
+        ("bendable", ours.bendables, theirs.bendables),
+    ):
+        for name in [*their, *(n for n in mine if n not in their)]:
+            if name not in mine:
+                out.append(f"{what} {name!r} only in the daemon's")
+            elif name not in their:
+                out.append(f"{what} {name!r} only in the file")
+            elif mine[name] != their[name]:
+                fields = [
+                    f.name
+                    for f in dataclasses.fields(mine[name])
+                    if f.compare and getattr(mine[name], f.name) != getattr(their[name], f.name)
+                ]
+                if what == "bendable" and name in named:
+                    fields = [f for f in fields if f != "model"]
+                if fields:
+                    verb = "differs" if len(fields) == 1 else "differ"
+                    out.append(f"{what} {name!r}: {', '.join(fields)} {verb}")
+    if ours.ros2_control != theirs.ros2_control:
+        out.append("ros2_control differs")
+    if ours.extensions != theirs.extensions:
+        out.append("extension elements (<gazebo>, <material>, …) differ")
+    return out
+
+
+def description_differences(robot: Any, description: dict) -> list[str]:
+    """How FILE's ``robot`` differs from the daemon's (``description``: a ``robot.description``
+    reply), in plain words, the sha256 of both last; [] when it is the same robot. Compared as
+    parsed models (comments, spacing, attribute order and number spelling do not count); a
+    description without its text (too large) is compared by its sha256 alone."""
+    theirs = None
+    text = description.get("text")
+    if isinstance(text, str):
+        try:
+            theirs = parse_string(text, source="the daemon's description", check=False)
+        except UcrdfError:
+            theirs = None
+    ours_sha = description_sha256(robot)
+    their_sha = str(description.get("sha256") or "")
+    out: list[str] = []
+    if theirs is not None:
+        if theirs == robot:
+            return []
+        from host.topology import chain_bendables  # noqa: PLC0415 - only with a FILE
+
+        if theirs.name != robot.name:
+            out.append(f"robot name: the daemon's {theirs.name!r}, the file's {robot.name!r}")
+        mine, their = chain_bendables(robot), chain_bendables(theirs)
+        if mine != their:
+            out.append(
+                f"bendables in chain order: the daemon's ({', '.join(their) or 'none'}), "
+                f"the file's ({', '.join(mine) or 'none'})"
+            )
+        numbers = _content_differences(robot, _segments_of(theirs), rtol=0.0)
+        named = {line.split(" ", 1)[0] for line in numbers}
+        out += numbers + _element_differences(robot, theirs, named)
+    elif ours_sha == their_sha:
+        return []
+    else:
+        name = description.get("robot")
+        if isinstance(name, str) and name != robot.name:
+            out.append(f"robot name: the daemon's {name!r}, the file's {robot.name!r}")
+    if len(out) > MAX_NAMED_DIFFERENCES:
+        more = len(out) - MAX_NAMED_DIFFERENCES
+        out = [*out[:MAX_NAMED_DIFFERENCES], f"and {more} more difference(s)"]
+    where = description.get("file")
+    out.append(
+        f"the daemon's robot description{f' ({where})' if where else ''} differs from the file "
+        f"(the daemon's sha256 {their_sha[:12]}…, the file's {ours_sha[:12]}…)"
+    )
     return out
 
 
@@ -235,11 +346,16 @@ class LiveSource:
         self._topo_dirty = False
         self._faults: set[str] = set()  # segments the daemon reports in FAULT (status)
         self.reconnects = 0
-        #: what the token may do: "control" or "read" (asked of the daemon: :meth:`_probe_scope`)
+        #: what the token may do: "control" or "read" (asked of the daemon: :meth:`_ask_scope`)
         self.scope = "control"
+        #: how the scope was learnt: "session" (the daemon said) or "probe" (an older daemon)
+        self.scope_from = ""
+        #: the daemon's ``robot.description`` (compared with FILE), None until asked / unknown
+        self._description: dict | None = None
+        self._no_description = False  # the daemon has no robot.description op (older)
         try:
             self._topology_locked_refresh()
-            self.scope = self._probe_scope(self.client)
+            self.scope, self.scope_from = self._ask_scope(self.client)
         except BaseException:  # no reply in time, no robot file: do not leave it connected
             self.client.close()
             raise
@@ -295,8 +411,10 @@ class LiveSource:
             self.client = client
             try:
                 self.robot = None  # the daemon may run another file now: read it again
+                self._description, self._no_description = None, False  # and another daemon
                 self._topology_locked_refresh()
-                self.scope = self._probe_scope(client)  # the daemon's token config may change
+                # the daemon's token config may change
+                self.scope, self.scope_from = self._ask_scope(client)
             except Exception:  # not ready (rebuilding): retried
                 try:
                     client.close()
@@ -324,12 +442,30 @@ class LiveSource:
             self.snap.seq += 1
 
     # -- scope ---------------------------------------------------------------------------------
+    @classmethod
+    def _ask_scope(cls, client: Any) -> tuple[str, str]:
+        """What this connection's token may do, as the daemon says it (``session``): "read" or
+        "control", and "session". A daemon older than that op (any refusal of it, e.g.
+        ``unknown_op``) is probed instead (:meth:`_probe_scope`, then "probe")."""
+        try:
+            scope = client.call("session").get("scope")
+        except ApiError as exc:
+            if isinstance(exc, ConnectionError | TimeoutError):
+                raise
+            scope = None
+        except AttributeError:  # not an object: not an answer
+            scope = None
+        if scope in ("read", "control"):
+            return scope, "session"
+        log.info("the daemon does not say its session's scope (an older daemon): probing it")
+        return cls._probe_scope(client), "probe"
+
     @staticmethod
     def _probe_scope(client: Any) -> str:
-        """What this connection's token may do, asked of the daemon: the API has no "whoami",
-        so the view sends a control-scope op that changes nothing, ``trajectory.upload_cancel``
-        of an upload no connection of ours holds: a read token gets ``forbidden`` (checked
-        before the op runs, docs/api.md), a control token ``not_found``. "read" or "control"."""
+        """What this connection's token may do, for a daemon without ``session``: a control-scope
+        op that changes nothing, ``trajectory.upload_cancel`` of an upload no connection of ours
+        holds: a read token gets ``forbidden`` (checked before the op runs, docs/api.md), a
+        control token ``not_found``. "read" or "control"."""
         try:
             client.call("trajectory.upload_cancel", upload=SCOPE_PROBE_UPLOAD)
         except ApiError as exc:
@@ -358,7 +494,8 @@ class LiveSource:
                 robot = load(path)
             except UcrdfError as exc:
                 raise RobotFileError(str(path), [str(d) for d in exc.diagnostics]) from None
-        mismatch = self._mismatch(robot, topo)
+        description = self._daemon_description(topo) if self._robot_file else None
+        mismatch = self._mismatch(robot, topo, description)
         with self.lock:
             s = self.snap
             if self.robot is None:
@@ -379,14 +516,51 @@ class LiveSource:
         elif said and not mismatch:
             log.warning("%s matches the daemon's robot again: controls back", self._robot_file)
 
-    def _mismatch(self, robot: Any, topo: dict) -> str:
+    def _daemon_description(self, topo: dict) -> dict | None:
+        """The daemon's ``robot.description``, asked again only when ``topo`` names another
+        robot, file or description sha256 than the one held (a topology push carries no sha256:
+        the robot, file and reconnects tell); None from a daemon without it."""
+        held = self._description
+        desc = topo.get("description")
+        sha = desc.get("sha256") if isinstance(desc, dict) else None
+        if held is not None and (
+            held.get("robot") == topo.get("robot")
+            and held.get("file") == topo.get("file")
+            and sha in (None, held.get("sha256"))
+        ):
+            return held
+        if self._no_description:
+            return None
+        try:
+            got = self.client.call("robot.description")
+        except ApiError as exc:
+            if isinstance(exc, ConnectionError | TimeoutError):
+                raise
+            if exc.code == "unknown_op":
+                self._no_description = True  # an older daemon: not asked again
+                log.info("the daemon does not describe its robot (older): FILE compared by "
+                         "its bendables only")  # fmt: skip
+            return None
+        if not isinstance(got, dict) or not got.get("sha256"):
+            return None
+        self._description = got
+        return got
+
+    def _mismatch(self, robot: Any, topo: dict, description: dict | None = None) -> str:
         """Why the FILE given (``ucr view FILE``) is not the daemon's robot; "" if it is (or
-        none was given). Compared: the robot's name and its bendables in chain order with the
-        daemon's ``topology`` (``robot``, ``expected``), always: the daemon's file path names a
-        file on the daemon's machine, relative to its working directory, which the same path here
-        need not be."""
+        none was given). With the daemon's ``description`` (``robot.description``) the whole
+        robot is compared (:func:`description_differences`). Without it (an older daemon): the
+        robot's name and its bendables in chain order with the daemon's ``topology``
+        (``robot``, ``expected``), and each bendable's model, length and limits with its
+        ``segments``. Never by path: the daemon's file path names a file on the daemon's machine,
+        relative to its working directory, which the same path here need not be."""
         if not self._robot_file:
             return ""
+        if isinstance(description, dict) and description.get("sha256"):
+            diffs = description_differences(robot, description)
+            if not diffs:
+                return ""
+            return f"{self._robot_file} is not the daemon's robot: {'; '.join(diffs)}. {_REFUSED}"
         theirs = topo.get("file")
         from host.topology import chain_bendables  # noqa: PLC0415 - only with a FILE
 
@@ -399,15 +573,12 @@ class LiveSource:
                 return ""
             return (
                 f"{self._robot_file} is not the daemon's robot: same names, but "
-                f"{'; '.join(content)}. Controls refused (view only): run `ucr view` without FILE "
-                "to use the daemon's own file, or give the file the daemon runs."
+                f"{'; '.join(content)}. {_REFUSED}"
             )
         return (
             f"{self._robot_file} is not the daemon's robot: the daemon runs {name!r} "
             f"({theirs or 'file not named'}; bendables {', '.join(expected) or 'none'}), the "
-            f"file describes {robot.name!r} (bendables {', '.join(ours) or 'none'}). Controls "
-            "refused (view only): run `ucr view` without FILE to use the daemon's own file, or "
-            "give the file the daemon runs."
+            f"file describes {robot.name!r} (bendables {', '.join(ours) or 'none'}). {_REFUSED}"
         )
 
     # -- streams -------------------------------------------------------------------------------

@@ -1,10 +1,11 @@
 """API access: bearer tokens with scopes, token files, bind/TLS policy and the back-off that
 slows token guessing.
 
-Scopes: ``read`` may look (status, topology, loop stats, controller list, goal status,
-subscriptions); ``control`` may also move the robot and change controllers. Tokens are at least
-:data:`MIN_TOKEN_LEN` printable characters, read from files only the owner can read (mode 0600)
-or from the environment, never from a command line (every user sees those in /proc).
+Scopes: ``read`` may look (status, topology, the robot description, loop stats, controller
+list, goal status, subscriptions, its own session's scope); ``control`` may also move the robot
+and change controllers. Tokens are at least :data:`MIN_TOKEN_LEN` printable characters, read from
+files only the owner can read (mode 0600) or from the environment, never from a command line
+(every user sees those in /proc).
 """
 
 from __future__ import annotations
@@ -30,8 +31,10 @@ MIN_TOKEN_LEN = 16
 READ_OPS = frozenset(
     {
         "ping",
+        "session",
         "status",
         "topology",
+        "robot.description",
         "loop_stats",
         "controllers.list",
         "trajectory.status",

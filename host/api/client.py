@@ -278,8 +278,19 @@ class Client:
     def status(self) -> dict:
         return self.call("status")
 
+    def session(self) -> dict:
+        """This connection as the daemon sees it: ``scope`` ("read" or "control": what its token
+        may call), ``authenticated``, ``peer``, ``agent``. ``unknown_op`` from a daemon older
+        than the op."""
+        return self.call("session")
+
     def topology(self) -> Any:
         return self.call("topology")
+
+    def robot_description(self) -> dict:
+        """The daemon's robot: ``robot``, ``file``, ``sha256``, ``bytes`` and ``text`` (its
+        U(C)RDF as canonical text; None when too large)."""
+        return self.call("robot.description")
 
     def loop_stats(self) -> dict:
         return self.call("loop_stats")

@@ -45,6 +45,7 @@ log = logging.getLogger("ucr.api")
 # Extra budget units per op, on top of 1 per request and 1 per KiB: what it costs the daemon.
 _OP_WORK = {
     "topology": 4,
+    "robot.description": 8,  # one topology call; its reply carries the description's text
     "loop_stats": 4,
     "controllers.list": 4,
     "trajectory.status": 2,

@@ -148,10 +148,14 @@ class Dispatcher:
         call = self._call
         if op == "ping":
             return {"pong": True, "t": time.time()}
+        if op == "session":
+            return self._session(session)
         if op == "status":
             return self._status()
         if op == "topology":
-            return await call("topology")
+            return _without_text(await call("topology"))
+        if op == "robot.description":
+            return await self._description()
         if op == "loop_stats":
             return await call("loop_stats")
         if op == "controllers.list":
@@ -195,6 +199,27 @@ class Dispatcher:
                 "thinned": sub.thinned,
             }
         raise S.RequestError(S.UNKNOWN_OP, f"unknown op {op!r}")  # pragma: no cover - schema guards
+
+    @staticmethod
+    def _session(session: _Session) -> dict:
+        """What this connection is to the server: its scope (what it may call), whether a token
+        let it in, its address and program as the server sees them. Never a token's value or
+        label: a client learns only what it already holds."""
+        return {
+            "scope": session.scope,
+            "authenticated": session.authenticated,
+            "peer": session.peer,
+            "agent": session.agent,
+        }
+
+    async def _description(self) -> dict:
+        """The daemon's robot description (canonical U(C)RDF text and its sha256), with the
+        robot's name and file as ``topology`` gives them."""
+        topo = await self._call("topology")
+        desc = topo.get("description") if isinstance(topo, dict) else None
+        if not isinstance(desc, dict):
+            raise S.RequestError(S.UNAVAILABLE, "this daemon does not describe its robot")
+        return {"robot": topo.get("robot"), "file": topo.get("file"), **desc}
 
     def _status(self) -> Any:
         text = self._status_text()
@@ -383,6 +408,15 @@ class Dispatcher:
                 session.goals[goal] = status
             if done:
                 session.goals.pop(goal, None)
+
+
+def _without_text(topo: Any) -> Any:
+    """A ``topology`` reply: the description's sha256 and size, not its text (that is
+    ``robot.description``'s, asked once rather than with every topology)."""
+    if isinstance(topo, dict) and isinstance(topo.get("description"), dict):
+        topo = dict(topo)
+        topo["description"] = {k: v for k, v in topo["description"].items() if k != "text"}
+    return topo
 
 
 class _Raw:

@@ -12,6 +12,7 @@ together the API's wire contract, and each op's table uses the validators define
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -382,10 +383,34 @@ def _unsubscribe(params: dict) -> dict:
     return {"sub": sub}
 
 
+#: ``robot.description``'s text above this many bytes is left out (its sha256 and size stay).
+DESCRIPTION_TEXT_MAX = 256 * 1024
+_described: list[Any] = [None, None]  # the robot described last and its description
+
+
+def robot_description(robot: Any) -> dict[str, Any]:
+    """A robot (:class:`ucrdf.model.Robot`) as the API describes it: its canonical U(C)RDF text
+    (``ucrdf.writer.dumps``: comments, spacing and number spelling normalised; parsed back it is
+    an equal robot), the text's sha256 and size in bytes (UTF-8); ``text`` None above
+    :data:`DESCRIPTION_TEXT_MAX`. Written once per robot object (the daemon's changes only with
+    ``--adopt``)."""
+    robot_then, desc = _described
+    if robot_then is not robot:
+        from ucrdf.writer import dumps  # noqa: PLC0415 - lxml only where a robot is described
+
+        data = dumps(robot).encode("utf-8")
+        text = data.decode("utf-8") if len(data) <= DESCRIPTION_TEXT_MAX else None
+        desc = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data), "text": text}
+        _described[:] = [robot, desc]
+    return dict(desc)
+
+
 OPS: dict[str, Callable[[dict], dict]] = {
     "ping": _no_params,
+    "session": _no_params,
     "status": _no_params,
     "topology": _no_params,
+    "robot.description": _no_params,
     "loop_stats": _no_params,
     "controllers.list": _no_params,
     "controllers.switch": _switch,

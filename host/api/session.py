@@ -74,6 +74,7 @@ class _Session:
         self.agent = _agent(ws)  # the program it says it is (User-Agent): for the audit log
         self.scope = token.scope if token is not None else anonymous_scope
         self.who = token.label if token is not None else "anonymous"
+        self.authenticated = token is not None  # a token let it in (else: no tokens configured)
         self.subs: dict[int, _Subscription] = {}
         self.goals: dict[Any, Any] = {}  # goal id -> last pushed status
         self.ffc_active: set[str] = set()  # bendables this client last drove with non-zero input

@@ -92,8 +92,9 @@ def _markdown(raw: RawPage) -> str:
 
 # -- 1. a read token ----------------------------------------------------------------------------
 def test_the_scope_probe_tells_a_read_token_from_a_control_token():
-    """The API has no whoami: the probe (a control-scope op that changes nothing) against the
-    real API server answers forbidden to a read token, not_found to a control token."""
+    """For a daemon older than ``session``: the probe (a control-scope op that changes nothing)
+    against the real API server answers forbidden to a read token, not_found to a control
+    token."""
     from host.api.auth import CONTROL, READ, Token
     from host.api.client import connect
     from host.api.server import ApiServer
