@@ -8,10 +8,9 @@ import queue
 import time
 
 import pytest
-from view_helpers import ROBOT, ROOT, RawPage, wait_for
+from view_helpers import NAMES, ROBOT, ROOT, RawPage, fake_topology, wait_for
 
 pytestmark = pytest.mark.timeout(120)
-NAMES = ["segment_1", "segment_2", "segment_3"]
 
 
 class _Sub:
@@ -35,20 +34,9 @@ class _Daemon:
     """An API client on a pretend daemon running softrobot3; ``scope``: its token's."""
 
     def __init__(self, scope: str = "control") -> None:
-        from ucrdf.parser import load
-
         self.scope = scope
         self.pushes: queue.Queue = queue.Queue()
-        robot = load(ROBOT)
-        segs = [
-            {"position": i + 1, "bendable": n, "name": n, "model": "pcc",
-             "length": robot.bendables[n].model.backbone.length,
-             "kappa_max": robot.bendables[n].model.limits.kappa_max,
-             "kappa_rate_max": robot.bendables[n].model.limits.kappa_rate_max}
-            for i, n in enumerate(NAMES)
-        ]  # fmt: skip
-        self.topo = {"robot": "softrobot3", "file": str(ROBOT), "expected": NAMES,
-                     "controlled": list(NAMES), "segments": segs}  # fmt: skip
+        self.topo = fake_topology(str(ROBOT))
 
     def topology(self) -> dict:
         return dict(self.topo)

@@ -9,14 +9,13 @@ import re
 import time
 
 import pytest
-from view_helpers import ROBOT
+from view_helpers import NAMES, ROBOT, fake_topology
 
 from host.api.client import ApiError
 from ucrdf.parser import load
 from ucrdf.writer import dumps
 
 pytestmark = pytest.mark.timeout(120)
-NAMES = ["segment_1", "segment_2", "segment_3"]
 
 
 class _Sub:
@@ -47,15 +46,7 @@ class _Daemon:
         self.description = {"robot": "softrobot3", "file": "/srv/ucr/softrobot3.ucrdf",
                             "sha256": hashlib.sha256(text.encode()).hexdigest(),
                             "bytes": len(text.encode()), "text": text}  # fmt: skip
-        segs = [
-            {"position": i + 1, "bendable": n, "name": n, "model": "pcc",
-             "length": robot.bendables[n].model.backbone.length,
-             "kappa_max": robot.bendables[n].model.limits.kappa_max,
-             "kappa_rate_max": robot.bendables[n].model.limits.kappa_rate_max}
-            for i, n in enumerate(NAMES)
-        ]  # fmt: skip
-        self.topo = {"robot": "softrobot3", "file": "/srv/ucr/softrobot3.ucrdf",
-                     "expected": NAMES, "controlled": list(NAMES), "segments": segs}  # fmt: skip
+        self.topo = fake_topology("/srv/ucr/softrobot3.ucrdf")
 
     def topology(self) -> dict:
         self.ops.append("topology")

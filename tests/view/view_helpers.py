@@ -1,5 +1,6 @@
 """Helpers shared by the view tests (imported as ``view_helpers``: pytest puts this directory on
-sys.path): the robot file, Chromium's location and flags, waiting."""
+sys.path): the robot file, a pretend daemon's topology of it, Chromium's location and flags,
+waiting."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 ROBOT = ROOT / "robots" / "softrobot3.ucrdf"
+NAMES = ["segment_1", "segment_2", "segment_3"]
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
 
 
@@ -86,3 +88,19 @@ class RawPage:
 
     def close(self) -> None:
         self.ws.close()
+
+
+def fake_topology(file: str) -> dict:
+    """A ``topology`` reply of a daemon running robots/softrobot3.ucrdf from ``file``."""
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    robot = load(ROBOT)
+    segs = [
+        {"position": i + 1, "bendable": n, "name": n, "model": "pcc",
+         "length": robot.bendables[n].model.backbone.length,
+         "kappa_max": robot.bendables[n].model.limits.kappa_max,
+         "kappa_rate_max": robot.bendables[n].model.limits.kappa_rate_max}
+        for i, n in enumerate(NAMES)
+    ]  # fmt: skip
+    return {"robot": "softrobot3", "file": file, "expected": list(NAMES),
+            "controlled": list(NAMES), "segments": segs}  # fmt: skip
