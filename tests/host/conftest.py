@@ -1,13 +1,34 @@
-"""Fixtures for the host daemon tests; helpers live in ``daemon_helpers``."""
+"""Fixtures for the host daemon tests; helpers live in ``daemon_helpers``.
+
+``chain`` and ``daemon`` are module-scoped: the end-to-end modules that use them share one
+emulated 3-segment chain and one daemon per module (a module that needs another kind defines
+its own fixture of that name)."""
 
 from __future__ import annotations
 
 import pytest
-from daemon_helpers import ROBOT_FILE
+from daemon_helpers import ROBOT_FILE, emulated_configs, start_daemon
 
+from host.config import DaemonConfig
+from host.daemon import Daemon
+from tools.emulator import EmulatedChain
 from ucrdf.parser import load
 
 
 @pytest.fixture(scope="session")
 def robot3():
     return load(ROBOT_FILE)
+
+
+@pytest.fixture(scope="module")
+def chain(robot3):
+    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
+        yield ch
+
+
+@pytest.fixture(scope="module")
+def daemon(chain, robot3):
+    d = Daemon(robot3, DaemonConfig(port=chain.host_port))
+    start_daemon(d)
+    yield d
+    d.stop()

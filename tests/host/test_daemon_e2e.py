@@ -12,34 +12,16 @@ import numpy as np
 import pytest
 from daemon_helpers import (
     assert_succeeded,
-    emulated_configs,
     retry_if_the_link_was_disturbed,
-    start_daemon,
     wait_for,
 )
 
-from host.config import DaemonConfig
 from host.controllers.base import ControllerError
-from host.daemon import Daemon, GoalNotFound
-from tools.emulator import EmulatedChain
+from host.daemon import GoalNotFound
 
 pytestmark = pytest.mark.timeout(120)
 
 NAMES = ["segment_1", "segment_2", "segment_3"]
-
-
-@pytest.fixture(scope="module")
-def chain(robot3):
-    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
-        yield ch
-
-
-@pytest.fixture(scope="module")
-def daemon(chain, robot3):
-    d = Daemon(robot3, DaemonConfig(port=chain.host_port))
-    start_daemon(d)
-    yield d
-    d.stop()
 
 
 @pytest.fixture()

@@ -13,28 +13,11 @@ import queue
 import time
 
 import pytest
-from daemon_helpers import NAMES, all_back, emulated_configs, start_daemon, wait_for
+from daemon_helpers import NAMES, all_back, wait_for
 
 from host.client_cli import format_status
-from host.config import DaemonConfig
-from host.daemon import Daemon
-from tools.emulator import EmulatedChain
 
 pytestmark = pytest.mark.timeout(240)
-
-
-@pytest.fixture(scope="module")
-def chain(robot3):
-    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
-        yield ch
-
-
-@pytest.fixture(scope="module")
-def daemon(chain, robot3):
-    d = Daemon(robot3, DaemonConfig(port=chain.host_port))
-    start_daemon(d)
-    yield d
-    d.stop()
 
 
 @pytest.fixture()

@@ -15,16 +15,14 @@ import tty
 
 import cbor2
 import pytest
-from daemon_helpers import emulated_configs, start_daemon, wait_for
+from daemon_helpers import wait_for
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from host.config import DaemonConfig
 from host.daemon import Daemon
 from host.link import ChainLink, LinkError, SegmentError
 from protocol import constants as C
 from protocol.frame import encode_frame
-from tools.emulator import EmulatedChain
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -139,20 +137,6 @@ def test_an_unexpected_reader_exit_is_a_link_failure(pty_chain):
 
 
 # ------------------------------------------------------------------ the daemon on a real chain
-@pytest.fixture(scope="module")
-def chain(robot3):
-    with EmulatedChain(3, config_for=emulated_configs(robot3)) as ch:
-        yield ch
-
-
-@pytest.fixture(scope="module")
-def daemon(chain, robot3):
-    d = Daemon(robot3, DaemonConfig(port=chain.host_port))
-    start_daemon(d)
-    yield d
-    d.stop()
-
-
 def _controls_the_chain(d: Daemon, attempts: int = 5) -> None:
     """The daemon is connected and drives all three segments through a slow trajectory to a bend
     and back (retried a few times: on a loaded machine a goal may abort on path tolerance)."""
