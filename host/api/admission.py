@@ -180,11 +180,19 @@ class _TlsHold(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self._pass("connection_lost", exc)
 
+    # flow control: a pause the TLS layer signals before the hand-over reaches the connection
+    # with it (else the connection would get a resume it never paused for)
+    def pause_writing(self) -> None:
+        self._pass("pause_writing", None)
+
+    def resume_writing(self) -> None:
+        self._pass("resume_writing", None)
+
     def _pass(self, event: str, arg: Any) -> None:
         if self.target is None:
             self.kept.append((event, arg))
-        elif event == "eof_received":
-            self.target.eof_received()
+        elif event in ("eof_received", "pause_writing", "resume_writing"):
+            getattr(self.target, event)()
         else:
             getattr(self.target, event)(arg)
 
@@ -203,6 +211,7 @@ def admitted_connections(
     *,
     tls: ssl.SSLContext | None = None,
     tls_timeout: float = 5.0,
+    tls_close_timeout: float = 10.0,
 ) -> type:
     """``base`` (a websockets ``ServerConnection`` class) admitted by ``admission`` before any
     work, as every listener of the project admits them (the API server, the Foxglove door): above
@@ -214,7 +223,8 @@ def admitted_connections(
 
     ``tls``: the server's TLS context, given here instead of to ``serve``: the server then
     accepts plain TCP, so a connection is admitted (counted pending and per peer) at its TCP
-    accept, and only then upgraded (``loop.start_tls``, at most ``tls_timeout`` s). Given to
+    accept, and only then upgraded (``loop.start_tls``, at most ``tls_timeout`` s; its TLS close
+    at most ``tls_close_timeout`` s, websockets' default ``close_timeout``). Given to
     ``serve``, asyncio does the TLS handshake before the connection exists: a socket that never
     sent a ClientHello was in no cap, thousands of them held a descriptor each. A connection in
     its TLS handshake is pending and :data:`SILENT` (evicted first but for :data:`REFUSING`)."""
@@ -252,7 +262,7 @@ def admitted_connections(
             try:
                 app = await asyncio.get_running_loop().start_tls(
                     tcp, hold, tls, server_side=True,
-                    ssl_handshake_timeout=tls_timeout, ssl_shutdown_timeout=tls_timeout,
+                    ssl_handshake_timeout=tls_timeout, ssl_shutdown_timeout=tls_close_timeout,
                 )  # fmt: skip
             except Exception:  # noqa: BLE001 - not TLS (a plain ws:// client), reset, timed out
                 pass
