@@ -15,12 +15,15 @@ except ImportError:  # CPython
         return x
 
 
+import gc
+
 import config
 import sc as scmod
 
-from protocol import cbor
-from protocol import device as pd
-from protocol.constants import (
+gc.collect()  # sc (and mech_fast) loaded: the codec is loaded on a clean heap
+from protocol import cbor  # noqa: E402
+from protocol import device as pd  # noqa: E402
+from protocol.constants import (  # noqa: E402
     ERR_BAD_VALUE,
     ERR_IDENTITY_MISMATCH,
     ERR_MALFORMED,
@@ -41,7 +44,7 @@ from protocol.constants import (
     T_PARAM_VALUE,
     VERSION,
 )
-from protocol.frame import frame_into
+from protocol.frame import frame_into  # noqa: E402
 
 _WIRE_MAX = 0x3FFFFFFF  # the wire's int range: |n| < 2**30 (docs/protocol.md "Integer range")
 
@@ -339,13 +342,13 @@ def get_param(self, pid):
         f = getattr(self.bus, "faults_text", None)
         return f() if f else "none"
     if pid == _P_FRAMES_OK:
-        return self.rd_up.ok + self.rd_dn.ok
+        return self.rd_up.stats()["ok"] + self.rd_dn.stats()["ok"]
     if pid == _P_CRC_ERRORS:
-        return self.rd_up.crc_error + self.rd_dn.crc_error
+        return self.rd_up.stats()["crc_error"] + self.rd_dn.stats()["crc_error"]
     if pid == _P_FRAMING_ERRORS:
-        u = self.rd_up
-        d = self.rd_dn
-        return u.framing_error + u.oversize + d.framing_error + d.oversize
+        u = self.rd_up.stats()
+        d = self.rd_dn.stats()
+        return u["framing_error"] + u["oversize"] + d["framing_error"] + d["oversize"]
     if pid == _P_DROPPED:
         return self.dropped
     if pid == _P_UID:

@@ -423,12 +423,12 @@ class ChainLink(_FramePlumbing):
         """Counters: frames ok, crc/framing errors, oversize, timeouts, unmatched, tx/rx."""
         with self._cond:
             out = dict(self._counters)
-            r = self._reader
+            r = self._reader.stats()
             out.update(
-                frames_ok=r.ok,
-                crc_errors=r.crc_error,
-                framing_errors=r.framing_error,
-                oversize=r.oversize,
+                frames_ok=r["ok"],
+                crc_errors=r["crc_error"],
+                framing_errors=r["framing_error"],
+                oversize=r["oversize"],
             )
             return out
 

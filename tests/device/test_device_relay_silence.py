@@ -55,7 +55,7 @@ for h in {_syncs(20)}:                      # the host's SYNC every 5 ms, nothin
 R['ends'] = ends
 R['up'] = vmkit.hexs(hal.up.take())
 R['lost'] = seg.events_lost
-R['poisoned'] = seg.rl_up.poisoned
+R['poisoned'] = seg.rl_up.stats()['poisoned']
 """
     )
     assert r["busy"]  # the partial frame was being relayed
@@ -65,7 +65,8 @@ R['poisoned'] = seg.rl_up.poisoned
     assert r["lost"] == 0 and r["poisoned"] == 1
     rd = FrameReader()
     got = rd.feed(bytes.fromhex(r["up"]))
-    assert rd.framing_error == 1  # the dead frame was ended invalid, never passed on as good
+    # the dead frame was ended invalid, never passed on as good
+    assert rd.stats()["framing_error"] == 1
     assert all(M.decode_message(f)["type"] in ("STATE", "EVENT") for f in got)
     assert not any(f.flags & 0x01 and f.hop == 1 and f.seq == 1 for f in got)
 
@@ -109,8 +110,8 @@ seg.poll()
 hal.down.feed(bytes.fromhex('{_DOWN_STATE[12:].hex()}'))
 seg.poll()
 R['up'] = vmkit.hexs(hal.up.take())
-R['frames'] = seg.rl_up.frames
-R['poisoned'] = seg.rl_up.poisoned
+R['frames'] = seg.rl_up.stats()['frames']
+R['poisoned'] = seg.rl_up.stats()['poisoned']
 """
     )
     assert (r["frames"], r["poisoned"]) == (1, 0)

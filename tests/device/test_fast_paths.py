@@ -210,8 +210,10 @@ def run(hexs, up, chunks, fused=False):
                 got.append([rd.ver, rd.flags, rd.hop, rd.mtype, rd.seq, rd.raw_len,
                             rd.payload_end, bytes(rd.raw[:rd.raw_len]).hex(), rl.relayed != 0])
             pos = nxt
-    return [sent.hex(), got, rd.ok, rd.crc_error, rd.framing_error, rd.oversize,
-            rl.frames, rl.poisoned, rl.busy]
+    s = rd.stats()
+    r = rl.stats()
+    return [sent.hex(), got, s["ok"], s["crc_error"], s["framing_error"], s["oversize"],
+            r["frames"], r["poisoned"], rl.busy]
 
 bad = []
 for hexs, up, chunks in C:

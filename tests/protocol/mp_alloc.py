@@ -155,4 +155,5 @@ def main(repeat=20, pure=False):
             print(name, "ok")
         else:
             print(name, "ALLOC", err)
-    print("frames", counter[0], reader.ok, reader.crc_error, reader.framing_error)
+    s = reader.stats()
+    print("frames", counter[0], s["ok"], s["crc_error"], s["framing_error"])

@@ -179,7 +179,7 @@ def test_oversize_frame_is_counted_and_followed_by_resync() -> None:
     r = FrameReader()
     good = encode_frame(2, 0, 2, 1, {0: 1, 1: []})
     assert r.feed(b"\x01" * 400 + b"\x00" + good) == [decode_frame(good)]
-    assert r.oversize == 1 and r.ok == 1
+    assert r.stats()["oversize"] == 1 and r.stats()["ok"] == 1
 
 
 def test_reader_counts_crc_and_framing_errors() -> None:
@@ -187,13 +187,14 @@ def test_reader_counts_crc_and_framing_errors() -> None:
     w = bytearray(encode_frame(2, 0, 1, 1, {}))
     w[6] ^= 0x40  # the payload byte 0xa0 changes, COBS stays valid
     assert r.feed(bytes(w)) == []
-    assert r.crc_error == 1
+    assert r.stats()["crc_error"] == 1
     assert r.feed(b"\x05\x01\x00") == []  # COBS code byte points past the end
-    assert r.framing_error == 1
+    assert r.stats()["framing_error"] == 1
     r.feed(b"\x02\x11")
     r.reset()  # a partial frame discarded after a silence
-    assert r.framing_error == 2
-    assert r.feed(b"\x00\x00\x00") == [] and r.framing_error == 2  # idle delimiters are free
+    assert r.stats()["framing_error"] == 2
+    assert r.feed(b"\x00\x00\x00") == []  # idle delimiters are free
+    assert r.stats()["framing_error"] == 2
 
 
 def test_scan_hands_out_one_frame_at_a_time() -> None:
