@@ -40,6 +40,8 @@ STREAM_GAP_S = 0.02
 #: stream samples kept for the line's byte rate, and for how long (s)
 RATE_SAMPLES = 32
 RATE_KEPT_S = 2.0
+#: frames per position kept for its rate (:meth:`_FramePlumbing.line_rate_by_position`)
+POSITION_FRAMES = 8
 
 
 class LinkError(OSError):
@@ -129,6 +131,10 @@ class _FramePlumbing:
         self._rx_t = 0.0  # when the bytes being dispatched were read
         self._rx_last: float | None = None  # when the previous read returned
         self._rate_samples: deque[tuple[int, float, float]] = deque(maxlen=RATE_SAMPLES)
+        # the same samples by the position whose frame they carried: those of the frame being
+        # read wait here until it completes (line_rate_by_position)
+        self._frame_samples: list[tuple[int, float, float]] = []
+        self._pos_samples: dict[int, deque[tuple[int, float, float]]] = {}
         self._discover_open: _Collector | None = None  # a DISCOVER on a slow line, answers due
 
     def _late(self, position: int) -> None:
@@ -168,6 +174,36 @@ class _FramePlumbing:
             return None
         samples.sort()
         return samples[len(samples) // 2] * 10.0
+
+    def _samples_of(self, frame: Frame) -> None:
+        """The stream samples read since the last frame completed carried ``frame`` (the first
+        one this read completed): kept by its source position if it came up the chain (lock
+        held)."""
+        got, self._frame_samples = self._frame_samples, []
+        if got and frame.flags & C.FLAG_UP and not frame.flags & C.FLAG_LOCAL:
+            # one figure per frame: its streamed bytes over their time (the reads of one frame
+            # alternate between a byte that waited and a burst: each alone says little)
+            kept = self._pos_samples.setdefault(frame.hop, deque(maxlen=POSITION_FRAMES))
+            kept.append((sum(s[0] for s in got), sum(s[1] for s in got), got[-1][2]))
+
+    def line_rate_by_position(self, at_least: int = 5) -> list[float | None]:
+        """Per position (0-based): the rate its frames reach the host's port at (bit/s, the
+        median over its last POSITION_FRAMES frames read in several parts, in the last
+        RATE_KEPT_S, of each one's bytes over their time); None with fewer than ``at_least``.
+        A frame crosses every link between its segment and the host and the segments relay its
+        bytes as they come (cut-through), so it arrives at the rate of the slowest of them: the
+        first position whose frames arrive slowly names the slow link. A read the host made late
+        makes one frame look slow; the median over several does not (unlike the arrival times
+        after the request, which a busy host shifts)."""
+        with self._cond:
+            since = time.monotonic() - RATE_KEPT_S
+            out: list[float | None] = []
+            for pos in range(max(self._pos_samples, default=-1) + 1):
+                got = sorted(
+                    n / dt for n, dt, t in self._pos_samples.get(pos, ()) if dt > 0 and t > since
+                )
+                out.append(got[len(got) // 2] * 10.0 if len(got) >= at_least else None)
+            return out
 
     def _timed(self, frame: Frame, position: int) -> None:
         """Keep the arrival time of a STATE after its request (lock held)."""
@@ -215,10 +251,14 @@ class _FramePlumbing:
                 self._reader = FrameReader()
                 with self._cond:
                     self._counters["bad_payloads"] += 1
+                    self._frame_samples.clear()
                 continue
             with self._cond:  # line_rate_bps reads the samples under this lock
                 if streaming:
                     self._rate_samples.append((len(data), t - last, t))
+                    self._frame_samples.append((len(data), t - last, t))
+                if frames:
+                    self._samples_of(frames[0])
                 self._counters["rx_bytes"] += len(data)
                 for frame in frames:
                     try:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from host.hwi import HardwareInterface
+from host.link_frames import SLOW_LINE_SHARE
 from host.link_health import DEGRADE_WINDOW, GARBLED_S, LinkHealth
 from host.positions import label
 
@@ -66,6 +67,18 @@ def slow_link(base: list[float | None], now: list[float | None]) -> tuple[int, f
         return None
     first = next(i for i, x in enumerate(steps) if x >= top / 2)
     return first, added[first]
+
+
+def slow_by_rate(rates: list[float | None], configured: Any) -> tuple[int, float] | None:
+    """Which link is slow from the rate each position's frames arrive at (0-based position of
+    the segment behind it, its bit/s): the first position measured below SLOW_LINE_SHARE of the
+    configured baud rate (``ChainLink.line_rate_by_position``); None if none is (or unknown)."""
+    if not isinstance(configured, int) or configured <= 0:
+        return None
+    for pos, bps in enumerate(rates):
+        if bps is not None and bps < SLOW_LINE_SHARE * configured:
+            return pos, bps
+    return None
 
 
 class UsableRate:
@@ -183,14 +196,23 @@ class UsableRate:
         missing: the slow link is that one or one before it)."""
         if change["change"] not in ("degraded", "too_slow"):
             return
-        found = None
+        found = by_rate = None
+        per_position = getattr(link, "line_rate_by_position", None)
+        if per_position is not None:
+            try:
+                by_rate = slow_by_rate(per_position(), getattr(link, "baudrate", None))
+            except (OSError, AttributeError, TypeError):
+                by_rate = None
         offsets = getattr(link, "arrival_offsets", None)
-        if self._base is not None and offsets is not None:
+        if by_rate is None and self._base is not None and offsets is not None:
             try:
                 found = slow_link(self._base, offsets())
             except (OSError, AttributeError):
                 found = None
-        if found is None:
+        if by_rate is not None:
+            position, _bps = by_rate
+            change.update(position=position + 1, link=position + 1, named_by="line_rate")
+        elif found is None:
             change["named_by"] = "loss"
         else:
             position, added = found

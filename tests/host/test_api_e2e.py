@@ -74,9 +74,17 @@ def test_status_and_topology_report_three_controlled_segments(client):
 def test_subscribe_receives_joint_states_of_every_segment(client):
     with client.subscribe(["joint_states"], max_rate=20) as sub:
         msgs = [sub.get(timeout=3) for _ in range(5)]
+        # every segment measured: a host stalled under load marks states invalid for a moment
+        # (a gap in them: docs/daemon.md "No motion without a command"), so wait that out
+        valid = next((m for m in msgs if m and all(m["valid"])), None)
+        for _ in range(60):
+            if valid is not None:
+                break
+            m = sub.get(timeout=3)
+            valid = m if m and all(m["valid"]) else None
     assert all(m is not None and m["kind"] == "joint_states" for m in msgs)
     assert msgs[0]["names"] == ["segment_1", "segment_2", "segment_3"]
-    assert len(msgs[0]["kappa"]) == 3 and all(msgs[0]["valid"])
+    assert len(msgs[0]["kappa"]) == 3 and valid is not None, msgs[-1]
     stamps = [m["t"] for m in msgs]
     assert stamps == sorted(stamps) and stamps[-1] - stamps[0] >= 4 * 0.05 * 0.8  # <= 20 Hz
 
