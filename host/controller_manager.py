@@ -45,6 +45,9 @@ class ControllerManager:
         self.controllers: dict[str, Controller] = {}
         self.failed: dict[str, str] = {}
         self.last_aborted: list[str] = []  # goals the last rebuild aborted
+        #: the time of the last cycle (its state's, s): where the robot's motion stands while
+        #: the loop pauses (a rebuild decides at it what a carried goal still has to run)
+        self.t_last: float | None = None
         self._load()
 
     def _load(self) -> None:
@@ -172,7 +175,10 @@ class ControllerManager:
                     and not tr.moving(list(c.joints), now) & (set(affected) | self._gone(c, ctx))
                 ):
                     g.carried = True
-                    lead = getattr(c, "lead_in_at", lambda _t: None)(now)
+                    # at the last cycle's time: a pause that began before the path's start and
+                    # ends after it is taken back by the time shift after the rebuild (update)
+                    t_ref = now if self.t_last is None else min(now, self.t_last)
+                    lead = getattr(c, "lead_in_at", lambda _t: None)(t_ref)
                     carried[n] = (g, tr, list(c.joints), lead)
                 elif c.abort_active(reason, cause=cause, segment=segment):
                     self.last_aborted.append(g.id)
@@ -234,7 +240,7 @@ class ControllerManager:
             unmeasured = {j for j in c.joints if j not in index or not state.valid[index[j]]}
             held = (set(c.joints) & affected) | (unmeasured - moving)
             path = traj.remapped(joints, list(c.joints), snap.p, held)
-            if lead_in is not None and now < traj.t0:
+            if lead_in is not None:  # (the path had not begun at the last cycle)
                 c.run_lead_in(lead_in.remapped(joints, list(c.joints), snap.p, held))
                 snap = c.goal_snapshot(now)
             accepted = goal.t_accepted
@@ -262,6 +268,7 @@ class ControllerManager:
                 shift = getattr(c, "shift_time", None)
                 if c.active and shift is not None:
                     shift(dt - period)
+        self.t_last = state.t
         out: Commands = {}
         for c in self.controllers.values():
             if not c.active:

@@ -245,6 +245,7 @@ class _FramePlumbing:
             last, self._rx_last, self._rx_t = self._rx_last, t, t
             # mid-frame (bytes of a frame already in): these came at the line's rate
             streaming = last is not None and t - last < STREAM_GAP_S and self._reader.st[0] > 0
+            bad = self._reader.errors()
             try:
                 frames = self._reader.feed(data)
             except Exception:  # noqa: BLE001 - a framer failure costs these bytes, no more
@@ -257,7 +258,9 @@ class _FramePlumbing:
                 if streaming:
                     self._rate_samples.append((len(data), t - last, t))
                     self._frame_samples.append((len(data), t - last, t))
-                if frames:
+                if self._reader.errors() != bad:
+                    self._frame_samples.clear()  # a frame that failed its check carried them
+                elif frames:
                     self._samples_of(frames[0])
                 self._counters["rx_bytes"] += len(data)
                 for frame in frames:
@@ -348,8 +351,8 @@ class _FramePlumbing:
         one, it was a topology change that aborted the first goal. Later discoveries drop
         nothing: a known segment's BOOT then tells the daemon it restarted."""
         with self._cond:
-            if self._discovered:
-                return
+            if self._discovered or not arrived:
+                return  # (a discovery that found nobody leaves the first one still to come)
             self._discovered = True
             kept = [
                 e
@@ -457,6 +460,7 @@ class _FramePlumbing:
                 again = self._send(C.FLAG_BCAST, 0, C.T_DISCOVER, {}, (C.T_DESCRIPTOR,), lead=True)
                 with self._cond:
                     again.replies, again.errors = col.replies, col.errors
+                    again.arrived = col.arrived  # (when each answer came: _drop_boots_before)
                     for seq in aliases:
                         self._pipelined[seq] = again
                 col = again

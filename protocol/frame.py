@@ -365,6 +365,11 @@ class FrameReader:
         self.ready = False
         return frames
 
+    def errors(self):
+        """Frames rejected so far: CRC, framing and oversize errors together."""
+        st = self.st
+        return st[_CRC_ERR] + st[_FRAMING] + st[_OVERSIZE]
+
     def stats(self):
         """Counters as a dict: good frames, CRC errors, framing errors, oversize frames. (No
         properties on this class: on MicroPython a class with one makes every attribute store

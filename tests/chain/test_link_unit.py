@@ -179,3 +179,17 @@ def test_closed_link_refuses_requests(fake) -> None:
     link.close()
     with pytest.raises(LinkError, match="closed"):
         link.discover()
+
+
+def test_a_discovery_that_finds_nobody_leaves_the_boot_drop_to_the_first_that_finds_some():
+    # review: an empty first discovery (a chain still unpowered) used up the one-time drop
+    from host.link_frames import _FramePlumbing
+
+    link = _FramePlumbing.__new__(_FramePlumbing)
+    link._cond = threading.Condition()
+    link._discovered = False
+    link._counters = {"boots_before_discovery": 0}
+    link._events = __import__("collections").deque([{"name": "BOOT", "position": 0, "t": 1.0}])
+    link._drop_boots_before({})  # found nobody
+    link._drop_boots_before({0: 2.0})  # found position 0 after its BOOT
+    assert list(link._events) == [] and link._counters["boots_before_discovery"] == 1

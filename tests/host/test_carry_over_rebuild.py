@@ -251,6 +251,36 @@ def test_a_goal_carried_before_its_path_begins_keeps_its_lead_in(robot3):
     assert step < 1e-9, f"the carried goal left its lead-in: setpoint off by {step:.3f} 1/m"
 
 
+def test_a_pause_across_the_carried_paths_start_keeps_its_lead_in(robot3):
+    # review of the fix above: the loop's last cycle came before the path's start, the rebuild
+    # after it (a rediscovery pause of 0.4 s against a lead of 0.3 s). The lead-in was judged
+    # at the rebuild's wall time ("begun": dropped); the pause's time shift then moved the start
+    # into the future again, so the controller held and then stepped 0.79 1/m onto the path
+    ctx = ControllerContext(bendable_limits(robot3), robot3)
+    cm = ControllerManager({"jtc": {"type": "jtc"}}, ctx)
+    t0 = time.monotonic()
+    cm.switch(["jtc"], [], state_at(ctx.names, t0 - 1.0))
+    jtc = cm.controllers["jtc"]
+    far = {"segment_1": {"kappa": 3.0, "phi": 0.0}}
+    jtc.send_goal([{"time_from_start": 2.0, "segments": far}], t0 - 1.0)
+    now = time.monotonic()
+    start = jtc.goal_snapshot(now + 0.3)
+    goal, traj = jtc.build_goal([{"time_from_start": 1.0, "segments": ON_1}], start)
+    jtc.install_goal(goal, traj, start, now)
+    rest = [0.0] * (len(ctx.names) - 1)
+    sat = cm.update(state_at(ctx.names, now, [jtc._desired_now(now)[0][0][0], *rest]), DT, DT)
+    time.sleep(0.4)
+    t_rb = time.monotonic()
+    last = sat["segment_1"][0]
+    cm.rebuild(ctx, state_at(ctx.names, t_rb, [last, *rest]), "rejoin", affected=set())
+    t, dt = t_rb + 0.001, t_rb + 0.001 - now
+    while t < t_rb + 1.0:
+        k = cm.update(state_at(ctx.names, t, [last, *rest]), dt, DT)["segment_1"][0]
+        assert abs(k - last) < 0.05, f"setpoint step {abs(k - last):.3f} 1/m at +{t - t_rb:.2f} s"
+        last, dt, t = k, DT, t + DT
+    assert cm.controllers["jtc"].status_of(goal.id)["state"] in ("executing", "succeeded")
+
+
 # -- 3. rediscovery tries on a slowed link --------------------------------------------------------
 
 
