@@ -4,7 +4,8 @@ Keys: space or h holds at once (HOLD to the segment; the running step ends), i i
 0-9 select a servo, + / - jog it in / out by the jog step, [ / ] halve / double the step,
 r reverse its direction, d check every direction, t tension to the load threshold, s straight,
 p persist, q quit (holding). Each step runs in a worker thread, one at a time; the UI stays
-responsive so the hold key always works. Ctrl-C quits the same way (textual maps it to quit).
+responsive so the hold key always works. Ctrl-C quits the same way (bound here: textual 8 maps
+it to a "press ctrl+q to quit" prompt, which neither held nor quit).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from host.positions import label
 require("textual", extra="tui")
 
 from textual.app import App, ComposeResult  # noqa: E402 - after the extra check
+from textual.binding import Binding  # noqa: E402
 from textual.widgets import Footer, Header, RichLog, Static  # noqa: E402
 
 JOG_MIN, JOG_MAX = 0.005, 0.2  # rad
@@ -41,6 +43,7 @@ class CalibrateApp(App):
         ("s", "straight", "straight"),
         ("p", "persist", "persist"),
         ("q", "quit", "quit"),
+        Binding("ctrl+c", "quit", "quit", show=False, priority=True),
     ] + [(str(k), f"select({k})", "") for k in range(10)]
 
     def __init__(self, session: Session, *, threshold: float = 0.05, on_persist=None) -> None:

@@ -63,3 +63,31 @@ def test_tui_keys_jog_a_servo_persist_it_and_hold_at_once() -> None:
     assert after["zero_offsets"][1] == pytest.approx(before[1] + 0.02 * after["directions"][1])
     assert "HOLD: the segment holds" in text and "stopped: the segment holds" in text
     assert "HOLD" in status
+
+
+def test_ctrl_c_in_the_tui_holds_and_quits() -> None:
+    """New-user audit: textual 8 maps Ctrl-C to a "press ctrl+q to quit" prompt, so Ctrl-C
+    neither held the segment nor quit (docs/commissioning.md promises both)."""
+
+    class Stub:
+        def __init__(self) -> None:
+            self.stops = 0
+            self.position, self.n, self.zeros, self.dirs = 0, 3, [0.0, 0.0, 0.0], [1, 1, 1]
+
+        def stop(self) -> None:
+            self.stops += 1
+
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+
+    stub = Stub()
+    app = CalibrateApp(stub)  # type: ignore[arg-type]
+
+    async def drive() -> None:
+        async with app.run_test() as pilot:
+            await pilot.pause(0.2)
+            await pilot.press("ctrl+c")
+            await pilot.pause(0.5)
+
+    asyncio.run(drive())
+    assert stub.stops >= 1 and not app.is_running
