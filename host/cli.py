@@ -49,7 +49,13 @@ def register(subparsers: Any) -> None:
         "than the reply window (overrides config pipeline; docs/daemon.md 'Pipelining')",
     )
     p.add_argument("--no-api", action="store_true", help="do not start the network API")
-    p.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING (default INFO)")
+    p.add_argument(
+        "--log-level",
+        default="INFO",
+        type=str.upper,
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        help="DEBUG, INFO, WARNING or ERROR (default INFO)",
+    )
     p.set_defaults(func=cmd_daemon)
 
 

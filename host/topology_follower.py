@@ -704,6 +704,8 @@ class TopologyFollower:
         self.link_state = "connected"
         self.link_error = ""
         self._backoff = wd.reconnect_min_s
+        # the journal says the chain is back as loudly as it said it was lost
+        log.warning("chain restored: %d segment(s) back on %s", len(self.hwi.names), self.port)
         self._fanout.emit_event(
             "link_restored",
             message=f"{len(self.hwi.names)} segment(s) back on {self.port}",

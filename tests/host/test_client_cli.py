@@ -311,3 +311,11 @@ def test_move_to_a_segment_not_controlled_now_says_so(capsys, url, monkeypatch):
     monkeypatch.setattr(FacadeStub, "topology", lambda self: topo)
     rc, _, err = run(capsys, "move", "--url", url, "--segment", "s2", "--kappa", "1")
     assert rc == 1 and "segment 's2' is not controlled now (controlled: s1;" in err
+
+
+def test_an_unknown_daemon_log_level_is_a_usage_error(capsys):
+    # new-user audit: `ucr daemon --log-level foo` ran at INFO without a word
+    with pytest.raises(SystemExit) as exc:
+        ucr(["daemon", "--robot", "robots/softrobot3.ucrdf", "--log-level", "foo"])
+    assert exc.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
