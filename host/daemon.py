@@ -375,11 +375,20 @@ class Daemon:
 
     def topology(self) -> dict[str, Any]:
         """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts; and
-        the U(C)RDF it drives as canonical text (``description``: API ``robot.description``)."""
+        the sha256 and size of the U(C)RDF it drives (``description``: a client notices a change
+        there and asks :meth:`robot_description` for the text)."""
         with self._lock:
             out, robot = self.topo.describe(), self.topo.full_robot
-        out["description"] = robot_description(robot)
+        desc = robot_description(robot)
+        out["description"] = {"sha256": desc["sha256"], "bytes": desc["bytes"]}
         return out
+
+    def robot_description(self) -> dict[str, Any]:
+        """The U(C)RDF this daemon drives (API ``robot.description``): its robot's name, the file,
+        the canonical text (None above the API's bound), the text's sha256 and size in bytes."""
+        with self._lock:
+            robot = self.topo.full_robot
+        return {"robot": robot.name, "file": robot.source or None, **robot_description(robot)}
 
     def loop_stats(self) -> dict[str, Any]:
         """Loop timing (µs: period, jitter, compute without I/O wait; overruns), link counters,

@@ -51,6 +51,7 @@ DAEMON_KINDS = ("joint_states", "transforms", "event", "topology")
 METHODS: dict[str, bool] = {
     "status": False,
     "topology": False,
+    "robot_description": False,
     "loop_stats": False,
     "controllers": False,
     "trajectory_status": False,
@@ -219,7 +220,8 @@ class DaemonBridge:
                 raise RemoteError(S.UNKNOWN_OP, f"no facade method {method!r}")
             fn = getattr(self.daemon, method, None)
             if fn is None:
-                raise RemoteError(S.UNKNOWN_OP, f"this daemon has no {method!r}")
+                # an op of the API this facade does not serve (e.g. an older daemon's)
+                raise RemoteError(S.UNAVAILABLE, f"this daemon does not offer {method!r}")
             self.counters["calls"] += 1
             result = fn(*args)
             text = S.encode({"id": rid, "ok": True, "r": result})

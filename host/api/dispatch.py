@@ -153,9 +153,9 @@ class Dispatcher:
         if op == "status":
             return self._status()
         if op == "topology":
-            return _without_text(await call("topology"))
+            return await call("topology")
         if op == "robot.description":
-            return await self._description()
+            return await call("robot_description")
         if op == "loop_stats":
             return await call("loop_stats")
         if op == "controllers.list":
@@ -211,15 +211,6 @@ class Dispatcher:
             "peer": session.peer,
             "agent": session.agent,
         }
-
-    async def _description(self) -> dict:
-        """The daemon's robot description (canonical U(C)RDF text and its sha256), with the
-        robot's name and file as ``topology`` gives them."""
-        topo = await self._call("topology")
-        desc = topo.get("description") if isinstance(topo, dict) else None
-        if not isinstance(desc, dict):
-            raise S.RequestError(S.UNAVAILABLE, "this daemon does not describe its robot")
-        return {"robot": topo.get("robot"), "file": topo.get("file"), **desc}
 
     def _status(self) -> Any:
         text = self._status_text()
@@ -409,14 +400,6 @@ class Dispatcher:
             if done:
                 session.goals.pop(goal, None)
 
-
-def _without_text(topo: Any) -> Any:
-    """A ``topology`` reply: the description's sha256 and size, not its text (that is
-    ``robot.description``'s, asked once rather than with every topology)."""
-    if isinstance(topo, dict) and isinstance(topo.get("description"), dict):
-        topo = dict(topo)
-        topo["description"] = {k: v for k, v in topo["description"].items() if k != "text"}
-    return topo
 
 
 class _Raw:

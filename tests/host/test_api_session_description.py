@@ -37,6 +37,9 @@ class DescribedStub(FacadeStub):
     def topology(self) -> dict:
         return self.daemon.topology()
 
+    def robot_description(self) -> dict:
+        return self.daemon.robot_description()
+
 
 @pytest.fixture
 def described():
@@ -103,13 +106,15 @@ def test_robot_description_text_is_left_out_above_its_bound(monkeypatch):
     from host.daemon import Daemon
 
     monkeypatch.setattr(schema, "DESCRIPTION_TEXT_MAX", 100)
-    desc = Daemon(ROBOT, port="loop://").topology()["description"]
+    daemon = Daemon(ROBOT, port="loop://")
+    desc = daemon.robot_description()
     assert desc["text"] is None and desc["bytes"] > 100
+    assert daemon.topology()["description"] == {"sha256": desc["sha256"], "bytes": desc["bytes"]}
     assert desc["sha256"] == hashlib.sha256(dumps(load(ROBOT)).encode()).hexdigest()
 
 
 def test_a_daemon_that_does_not_describe_its_robot_says_unavailable():
-    stub = FacadeStub(publish_hz=50.0)  # its topology has no description
+    stub = FacadeStub(publish_hz=50.0)  # it has no robot_description
     srv = ApiServer(stub, "127.0.0.1", 0, token=None).start()
     try:
         with connect(srv.url) as c, pytest.raises(ApiError) as err:
