@@ -8,7 +8,9 @@
 - ``too_slow`` is re-evaluated: a link partly restored climbs to the rate it now carries;
 - ``lossy`` is cleared (with ``link_loss_cleared``) when its link leaves the chain or the chain
   is rebuilt;
-- while a position misses, the link's counters are read at most every 100 ms.
+- while a position misses, the link's counters are read at most every 100 ms;
+- a frame that fails its check takes its streamed read samples with it (they never make the
+  next good frame's source position look slow).
 """
 
 from __future__ import annotations
@@ -222,3 +224,36 @@ def test_a_short_discovery_on_a_slow_line_leaves_its_answers_to_the_next_try():
         sent, took = _tx_during_discover(link, 0.05)  # the next try: the same DISCOVER
         assert sent == 0 and took < 0.2
         assert link._discover_open is not None  # still collecting
+
+
+def test_a_frame_that_fails_its_check_lends_no_read_samples_to_the_next_frame():
+    """A slow link corrupting frames from position 3 must not make position 1 (whose frames
+    come whole, fast) look slow: the corrupted frame's streamed reads are discarded with it,
+    not counted for the next good frame's source position."""
+    import os
+
+    from protocol import constants as C
+    from protocol.frame import encode_frame
+
+    master, slave = os.openpty()
+    link = ChainLink(os.ttyname(slave), 115200)
+    try:
+        boot = {0: C.EV_BOOT, 1: 0, 2: 5}
+        for _ in range(8):
+            bad = bytearray(encode_frame(C.FLAG_UP, 2, C.T_EVENT, 0, boot))
+            bad[5] ^= 0x55  # corrupted on its way: fails its check
+            for b in bad:  # trickles in, a byte every 2 ms (a slow link)
+                os.write(master, bytes([b]))
+                time.sleep(0.002)
+            os.write(master, encode_frame(C.FLAG_UP, 0, C.T_EVENT, 0, boot))  # whole, at once
+            time.sleep(0.05)
+        deadline = time.monotonic() + 5
+        while link.stats["events"] < 8 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert link.stats["events"] == 8  # the 8 good frames; the 8 bad ones dropped
+        rates = link.line_rate_by_position(at_least=1)
+        assert all(r is None or r > 100_000 for r in rates), rates
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
