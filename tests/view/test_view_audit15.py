@@ -8,7 +8,17 @@ import queue
 import time
 
 import pytest
-from view_helpers import NAMES, ROBOT, ROOT, RawPage, fake_topology, wait_for
+from view_helpers import (
+    CONTROL_TOKEN,
+    NAMES,
+    READ_TOKEN,
+    ROBOT,
+    ROOT,
+    RawPage,
+    fake_topology,
+    two_token_server,
+    wait_for,
+)
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -83,25 +93,14 @@ def test_the_scope_probe_tells_a_read_token_from_a_control_token():
     """For a daemon older than ``session``: the probe (a control-scope op that changes nothing)
     against the real API server answers forbidden to a read token, not_found to a control
     token."""
-    from host.api.auth import CONTROL, READ, Token
     from host.api.client import connect
-    from host.api.server import ApiServer
-    from tests.host.test_api_protocol import FacadeStub
     from view.source import LiveSource
 
-    read, ctl = "read-only-token-0123456789", "control-token-0123456789ab"
-    stub = FacadeStub(publish_hz=100.0)
-    srv = ApiServer(
-        stub, "127.0.0.1", 0, tokens=(Token(read, READ, "v"), Token(ctl, CONTROL, "o"))
-    ).start()
-    try:
-        with connect(srv.url, token=read) as c:
+    with two_token_server(publish_hz=100.0) as srv:
+        with connect(srv.url, token=READ_TOKEN) as c:
             assert LiveSource._probe_scope(c) == "read"
-        with connect(srv.url, token=ctl) as c:
+        with connect(srv.url, token=CONTROL_TOKEN) as c:
             assert LiveSource._probe_scope(c) == "control"
-    finally:
-        srv.stop()
-        stub.close()
 
 
 def test_a_read_token_gives_no_page_controls_and_says_so(monkeypatch):

@@ -9,7 +9,7 @@ import re
 import time
 
 import pytest
-from view_helpers import NAMES, ROBOT, fake_topology
+from view_helpers import CONTROL_TOKEN, NAMES, READ_TOKEN, ROBOT, fake_topology, two_token_server
 
 from host.api.client import ApiError
 from ucrdf.parser import load
@@ -112,26 +112,15 @@ def test_an_older_daemon_without_session_is_probed_as_before(monkeypatch):
 
 
 def test_the_view_asks_the_real_api_server_its_scope_without_a_forbidden_request():
-    from host.api.auth import CONTROL, READ, Token
     from host.api.client import connect
-    from host.api.server import ApiServer
-    from tests.host.test_api_protocol import FacadeStub
     from view.source import LiveSource
 
-    read, ctl = "read-only-token-0123456789", "control-token-0123456789ab"
-    stub = FacadeStub(publish_hz=50.0)
-    srv = ApiServer(
-        stub, "127.0.0.1", 0, tokens=(Token(read, READ, "v"), Token(ctl, CONTROL, "o"))
-    ).start()
-    try:
-        with connect(srv.url, token=read) as c:
+    with two_token_server() as srv:
+        with connect(srv.url, token=READ_TOKEN) as c:
             assert LiveSource._ask_scope(c) == ("read", "session")
-        with connect(srv.url, token=ctl) as c:
+        with connect(srv.url, token=CONTROL_TOKEN) as c:
             assert LiveSource._ask_scope(c) == ("control", "session")
         assert srv.stats()["forbidden"] == 0  # the old probe cost a read token one each
-    finally:
-        srv.stop()
-        stub.close()
 
 
 # -- (b) FILE against the daemon's robot description ---------------------------------------------

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -104,3 +105,25 @@ def fake_topology(file: str) -> dict:
     ]  # fmt: skip
     return {"robot": "softrobot3", "file": file, "expected": list(NAMES),
             "controlled": list(NAMES), "segments": segs}  # fmt: skip
+
+
+#: a read-scope and a control-scope token of :func:`two_token_server`
+READ_TOKEN, CONTROL_TOKEN = "read-only-token-0123456789", "control-token-0123456789ab"
+
+
+@contextmanager
+def two_token_server(publish_hz: float = 50.0):
+    """The real API server over the facade stub, with a read and a control token
+    (:data:`READ_TOKEN`, :data:`CONTROL_TOKEN`); yields the server."""
+    from host.api.auth import CONTROL, READ, Token
+    from host.api.server import ApiServer
+    from tests.host.test_api_protocol import FacadeStub
+
+    stub = FacadeStub(publish_hz=publish_hz)
+    tokens = (Token(READ_TOKEN, READ, "v"), Token(CONTROL_TOKEN, CONTROL, "o"))
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+        stub.close()
