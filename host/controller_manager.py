@@ -104,9 +104,16 @@ class ControllerManager:
 
     # -- switching ---------------------------------------------------------------------------
     def switch(
-        self, start: list[str], stop: list[str], state: RobotState, reason: str = ""
+        self,
+        start: list[str],
+        stop: list[str],
+        state: RobotState,
+        reason: str = "",
+        *,
+        logged: bool = True,
     ) -> dict[str, list[str]]:
-        """Deactivate ``stop`` then activate ``start``; all-or-nothing. Returns what changed."""
+        """Deactivate ``stop`` then activate ``start``; all-or-nothing. Returns what changed
+        (logged unless ``logged`` is False: a rebuild logs its restarts in one line)."""
         start, stop = list(dict.fromkeys(start or [])), list(dict.fromkeys(stop or []))
         for n in start + stop:
             self.get(n)
@@ -135,7 +142,7 @@ class ControllerManager:
         started = [n for n in start if not self.controllers[n].active]
         for n in started:
             self.controllers[n].on_activate(state)
-        if started or stopped:
+        if logged and (started or stopped):
             log.info("controllers switched: started %s, stopped %s", started, stopped)
         return {"started": started, "stopped": stopped}
 
@@ -189,10 +196,12 @@ class ControllerManager:
             for n in was_active:
                 if n in self.controllers:
                     try:
-                        self.switch([n], [], state, reason)
+                        self.switch([n], [], state, reason, logged=False)
                         started.append(n)
                     except SwitchError as exc:
                         log.error("after rebuild, %s stays inactive: %s", n, exc)
+            if started:
+                log.info("controllers rebuilt and restarted (%s): %s", reason, ", ".join(started))
             for n, (g, tr, joints, lead) in carried.items():
                 if self._carry(n, g, tr, joints, state, set(affected or ()), lead):
                     kept.add(n)

@@ -419,3 +419,16 @@ def test_a_goal_whose_carry_over_raises_still_ends(scripted):
     assert not goal.carried
     st = d.trajectory_status(gid)
     assert st["state"] == "aborted" and st["abort"]["cause"] == "topology_change", st
+
+
+def test_a_rebuild_logs_its_restarts_in_one_line(robot3, caplog):
+    # new-user audit: each rebuild logged one "controllers switched" line per controller, which
+    # read as three operator switches in the journal
+    ctx = ControllerContext(bendable_limits(robot3), robot3)
+    cm = ControllerManager({"jtc": {"type": "jtc"}, "jsb": {"type": "jsb"}}, ctx)
+    now = time.monotonic()
+    cm.switch(["jtc", "jsb"], [], state_at(ctx.names, now))
+    with caplog.at_level("INFO", logger="ucr.controllers"):
+        cm.rebuild(ctx, state_at(ctx.names, now), "rejoin", affected=set())
+    lines = [r.getMessage() for r in caplog.records if r.name == "ucr.controllers"]
+    assert lines == ["controllers rebuilt and restarted (rejoin): jtc, jsb"], lines
