@@ -129,9 +129,22 @@ def _missing(path: str) -> str:
     return f"does not exist (adapter plugged in? stable names under {BY_ID}/: {where})"
 
 
+def _is_char_device(path: str) -> bool:
+    """True if ``path`` is a character device, or cannot be judged (missing, unreadable)."""
+    try:
+        return stat.S_ISCHR(os.stat(path).st_mode)
+    except OSError:
+        return True  # (missing or unreadable: errno says more)
+
+
 def describe_open_error(url: str, exc: BaseException) -> str:
     """One line saying why ``url`` did not open and what to do (``exc`` from pyserial/OS)."""
     code = getattr(exc, "errno", None)
+    if _is_path(url) and not _is_char_device(url):  # pyserial's termios ioctl fails on it
+        return (
+            f"cannot open chain port {url!r}: not a serial port (not a character device); "
+            "give the serial device of the chain with --port, e.g. /dev/ttyUSB0"
+        )
     if not _is_path(url) or code is None:
         return f"cannot open chain port {url!r}: {exc}"
     if code == errno.ENOENT:

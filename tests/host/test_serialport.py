@@ -40,6 +40,17 @@ def test_missing_port_points_at_the_stable_names() -> None:
     assert "/dev/serial/by-id/" in msg
 
 
+def test_a_regular_file_as_port_is_named_not_a_serial_port(tmp_path) -> None:
+    # new-user audit: pyserial's "Could not configure port: (25, 'Inappropriate ioctl for
+    # device')" was all a user given a wrong --port learned
+    f = tmp_path / "notatty"
+    f.write_bytes(b"")
+    with pytest.raises(LinkError) as info:
+        ChainLink(str(f))
+    msg = str(info.value)
+    assert "not a serial port" in msg and "--port" in msg and "ioctl" not in msg, msg
+
+
 def test_missing_pi_uart_says_how_to_enable_it() -> None:
     msg = describe_open_error("/dev/serial0", FileNotFoundError(2, "No such file or directory"))
     assert "raspi-config" in msg and "enable_uart=1" in msg
