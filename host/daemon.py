@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
-import math
 import queue
 import sys
 import threading
@@ -47,7 +46,7 @@ from host.link_health import LinkHealth
 from host.loop import FixedRateLoop
 from host.motion import Motion
 from host.publisher import KINDS, Fanout, PublisherThread
-from host.supervision import Supervisor
+from host.supervision import Supervisor, gap_cycles
 from host.topology import Comparison, adopted_path
 from host.topology_follower import TopologyFollower
 from host.usable_rate import UsableRate
@@ -59,13 +58,6 @@ __all__ = ["KINDS", "Daemon", "DaemonError", "GoalNotFound", "PublisherThread", 
 
 SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while the daemon runs (s)
 REPLY_SHARE = 0.8  # share of the loop period one exchange may wait for the states
-
-
-def gap_cycles(period: float, watchdog: Any) -> int:
-    """Consecutive cycles without a STATE that make a gap (docs/daemon.md): the silence limit
-    of supervision (``missed_cycles`` and ``silence_s``), so a gap and a silent segment are one
-    notion."""
-    return max(2, watchdog.missed_cycles, math.ceil(watchdog.silence_s / period - 1e-9))
 
 
 class Daemon:
@@ -374,21 +366,16 @@ class Daemon:
         return {"sent_to": sent, "faults": faults}
 
     def topology(self) -> dict[str, Any]:
-        """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts; and
-        the sha256 and size of the U(C)RDF it drives (``description``: a client notices a change
-        there and asks :meth:`robot_description` for the text)."""
+        """The chain as discovered, what is controlled, differences from the U(C)RDF, cuts; the
+        sha256 and size of the U(C)RDF it drives (its text: :meth:`robot_description`)."""
         with self._lock:
             out, robot = self.topo.describe(), self.topo.full_robot
-        desc = robot_description(robot)
-        out["description"] = {"sha256": desc["sha256"], "bytes": desc["bytes"]}
+        out["description"] = robot_description(robot, text=False)
         return out
 
     def robot_description(self) -> dict[str, Any]:
-        """The U(C)RDF this daemon drives (API ``robot.description``): its robot's name, the file,
-        the canonical text (None above the API's bound), the text's sha256 and size in bytes."""
-        with self._lock:
-            robot = self.topo.full_robot
-        return {"robot": robot.name, "file": robot.source or None, **robot_description(robot)}
+        """The U(C)RDF it drives as the API's ``robot.description`` (host/api/schema.py)."""
+        return robot_description(self.topo.full_robot)
 
     def loop_stats(self) -> dict[str, Any]:
         """Loop timing (µs: period, jitter, compute without I/O wait; overruns), link counters,

@@ -24,6 +24,13 @@ from protocol.constants import FAULT_NAMES
 TOPOLOGY_EVENTS = {"DOWNSTREAM_UP", "DOWNSTREAM_DOWN", "BOOT"}
 
 
+def gap_cycles(period: float, watchdog: Any) -> int:
+    """Consecutive cycles without a STATE that make a gap (docs/daemon.md): the silence limit
+    of supervision (``missed_cycles`` and ``silence_s``), so a gap and a silent segment are one
+    notion."""
+    return max(2, watchdog.missed_cycles, math.ceil(watchdog.silence_s / period - 1e-9))
+
+
 def describe_event(ev: dict, descriptors: list[dict]) -> str:
     """One readable line for a segment EVENT (which segment, what happened)."""
     pos, name, detail = ev.get("position"), ev.get("name", ""), ev.get("detail")

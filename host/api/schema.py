@@ -388,20 +388,28 @@ DESCRIPTION_TEXT_MAX = 256 * 1024
 _described: list[Any] = [None, None]  # the robot described last and its description
 
 
-def robot_description(robot: Any) -> dict[str, Any]:
-    """A robot (:class:`ucrdf.model.Robot`) as the API describes it: its canonical U(C)RDF text
-    (``ucrdf.writer.dumps``: comments, spacing and number spelling normalised; parsed back it is
-    an equal robot), the text's sha256 and size in bytes (UTF-8); ``text`` None above
-    :data:`DESCRIPTION_TEXT_MAX`. Written once per robot object (the daemon's changes only with
+def robot_description(robot: Any, text: bool = True) -> dict[str, Any]:
+    """A robot (:class:`ucrdf.model.Robot`) as the API describes it: its name and file, its
+    canonical U(C)RDF text (``ucrdf.writer.dumps``: comments, spacing and number spelling
+    normalised; parsed back it is an equal robot), the text's sha256 and size in bytes (UTF-8);
+    ``text`` None above :data:`DESCRIPTION_TEXT_MAX`. ``text=False``: only the sha256 and size
+    (what ``topology`` carries). Written once per robot object (the daemon's changes only with
     ``--adopt``)."""
     robot_then, desc = _described
     if robot_then is not robot:
         from ucrdf.writer import dumps  # noqa: PLC0415 - lxml only where a robot is described
 
         data = dumps(robot).encode("utf-8")
-        text = data.decode("utf-8") if len(data) <= DESCRIPTION_TEXT_MAX else None
-        desc = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data), "text": text}
+        desc = {
+            "robot": robot.name,
+            "file": robot.source or None,
+            "sha256": hashlib.sha256(data).hexdigest(),
+            "bytes": len(data),
+            "text": data.decode("utf-8") if len(data) <= DESCRIPTION_TEXT_MAX else None,
+        }
         _described[:] = [robot, desc]
+    if not text:
+        return {"sha256": desc["sha256"], "bytes": desc["bytes"]}
     return dict(desc)
 
 
