@@ -50,6 +50,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-api", action="store_true", help="do not start the network API")
     p.add_argument(
+        "--api-port",
+        type=port_arg,
+        metavar="N",
+        help="TCP port of the API, 0..65535 (overrides the config's api.port, default 8765; "
+        "0: a free port the OS chooses, printed at start)",
+    )
+    p.add_argument(
         "--log-level",
         default="INFO",
         type=str.upper,
@@ -72,6 +79,36 @@ def print_error(msg: str) -> int:
     """Print ``ucr: error: msg`` to stderr; returns the exit code 1."""
     print(f"ucr: error: {msg}", file=sys.stderr)
     return 1
+
+
+def port_arg(text: str) -> int:
+    """An argparse ``type``: a TCP port 0..65535 (0: the OS chooses a free one)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port 0..65535 (0: any free port), got {text}")
+    return v
+
+
+def api_start_error(exc: BaseException, bind: str, port: int, where: str) -> str:
+    """One actionable line for an API that did not start. A port in use (another daemon or demo)
+    or not ours to bind says how to choose another; ``where``: how this command sets the port
+    (e.g. "--api-port N or api.port in daemon.yaml")."""
+    text = str(exc)
+    low = text.lower()
+    if "in use" in low or "errno 98" in low or "errno 48" in low:
+        return (
+            f"the API port {port} on {bind} is already in use (another `ucr daemon` or "
+            f"`ucr demo`?): stop that, or choose another port with {where} (0: any free port)"
+        )
+    if "permission denied" in low or "errno 13" in low:
+        return (
+            f"the API may not listen on {bind}:{port} (ports below 1024 need privileges): "
+            f"choose a port from 1024 with {where}"
+        )
+    return f"api: {text}"
 
 
 def resolve_port(arg: str | None, cfg_port: str | None, robot: Any) -> str:
@@ -117,6 +154,16 @@ def start_api(
     return start_api_process(daemon, bind, port, token, log_level=log_level, **(options or {}))
 
 
+def _api_error_line(exc: BaseException, cfg: Any) -> str:
+    """The daemon's API start failure, naming where its port came from."""
+    has_file = not str(cfg.source).startswith("<")  # "<defaults>": no --config given
+    where = "--api-port N" + (f" or api.port in {cfg.source}" if has_file else "")
+    line = api_start_error(exc, cfg.api.bind, cfg.api.port, where)
+    if line.startswith("api: ") and has_file:
+        return f"{cfg.source}: {line}"  # a token or TLS setting of that file
+    return line
+
+
 STOP_DUMP_S = 6.0  # s: a stop taking longer dumps every thread's stack to stderr
 
 
@@ -130,6 +177,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         robot, cfg = _load(args.robot, args.config)
         if args.pipeline:
             cfg.pipeline = True
+        if args.api_port is not None:
+            cfg.api.port = args.api_port
         port = resolve_port(args.port, cfg.port, robot)
         daemon = Daemon(
             robot,
@@ -163,7 +212,9 @@ def cmd_daemon(args: argparse.Namespace) -> int:
                 options=cfg.api.server_options(),
             )
         except Exception as exc:  # noqa: BLE001 - bind/token errors are user errors
-            return print_error(f"{cfg.source}: api: {exc}")
+            return print_error(_api_error_line(exc, cfg))
+        if api is not None and cfg.api.port == 0:
+            print(f"API on {api.url} (port chosen by the OS: --api-port 0)", flush=True)
     try:
         daemon.start()
     except (DaemonError, ConfigError) as exc:

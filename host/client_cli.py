@@ -4,8 +4,9 @@ controllers; the commands that move the robot live in :mod:`host.client_motion`,
 and error helpers in :mod:`host.client_common`.
 
 Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with the token
-from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN``). Curvature is in 1/m, the
-bending-plane angle phi in degrees on the command line and in the output (radians on the wire).
+from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN_FILE``, else ``$UCR_TOKEN``). Curvature
+is in 1/m, the bending-plane angle phi in degrees on the command line and in the output (radians
+on the wire).
 Exit codes: 0 done, 1 failed (daemon unreachable, request refused, trajectory aborted), 2 usage
 error. Errors are one line, never a traceback. ``ucr token FILE`` writes a new token file.
 """
@@ -13,6 +14,7 @@ error. Errors are one line, never a traceback. ``ucr token FILE`` writes a new t
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -20,9 +22,11 @@ from typing import Any
 from host.client_common import (
     add_connection_args,
     deg,
+    format_missing,
     kap,
     number_arg,
     say_error,
+    topology_or_none,
     with_client,
 )
 from host.client_motion import cmd_move, cmd_teleop, cmd_trajectory
@@ -38,14 +42,25 @@ def register(subparsers: Any) -> None:
         help="write a new random API token to a file only you can read (mode 0600)",
         description="Writes a new random API token (43 characters) to FILE, mode 0600, "
         "atomically. Point api.tokens in the daemon config at it (scope read or control) and "
-        "give clients the same file (--token-file) or its content ($UCR_TOKEN).",
+        "give clients the same file (--token-file or $UCR_TOKEN_FILE) or its content "
+        "($UCR_TOKEN).",
     )
     t.add_argument("file", help="where to write the token (must not exist, unless --force)")
     t.add_argument("--force", action="store_true", help="replace an existing file")
     t.set_defaults(func=cmd_token)
-    p = subparsers.add_parser("status", help="show the daemon's state and the robot's joints")
+    p = subparsers.add_parser(
+        "status",
+        help="show the daemon's state and the robot's joints",
+        description="The daemon's state, its controllers and goals, kappa (1/m) and phi (degrees) "
+        "per segment, and the description's segments that are missing now, with where the "
+        "chain is cut.",
+    )
     add_connection_args(p)
-    p.add_argument("--json", action="store_true", help="print the raw status as JSON")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the raw status as JSON (with the daemon's topology under 'topology')",
+    )
     p.set_defaults(func=cmd_status)
 
     p = subparsers.add_parser(
@@ -67,7 +82,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true", help="print each status as one JSON line")
     p.set_defaults(func=cmd_goal)
 
-    p = subparsers.add_parser("watch", help="print live joint states, transforms or events")
+    p = subparsers.add_parser(
+        "watch",
+        help="print live joint states, transforms, events or the topology",
+        description="One line per message: t is the daemon's clock in s, kappa in 1/m, phi in "
+        "degrees, positions in m. --kind topology prints the current topology first, then "
+        "each change.",
+    )
     add_connection_args(p)
     p.add_argument(
         "--kind",
@@ -174,8 +195,9 @@ def format_link_health(st: dict) -> tuple[str, list[str]]:
     return rate, lines
 
 
-def format_status(st: dict) -> list[str]:
-    """Human lines for a daemon status."""
+def format_status(st: dict, topo: dict | None = None) -> list[str]:
+    """Human lines for a daemon status; ``topo`` (the daemon's topology, if known) adds the
+    segments of the description that are missing and where the chain is cut."""
     rate, degraded = format_link_health(st)
     lines = [
         (
@@ -198,7 +220,9 @@ def format_status(st: dict) -> list[str]:
     if st.get("running_goals"):
         lines.append(f"running goals: {', '.join(map(str, st['running_goals']))}")
     js = st.get("joint_states") or {}
-    lines.append(f"segments ({len(js)}):")
+    expected = topo.get("expected") if isinstance(topo, dict) else None
+    of = f" of {len(expected)}" if isinstance(expected, list) and len(expected) != len(js) else ""
+    lines.append(f"segments ({len(js)}{of}):")
     faults = st.get("faults") or {}
     for name, j in js.items():
         flag = "" if j.get("valid", True) else "  (no answer)"
@@ -208,6 +232,7 @@ def format_status(st: dict) -> list[str]:
         lines.append(
             f"  {name:<16} kappa {kap(j.get('kappa'))} 1/m   phi {deg(j.get('phi'))}{flag}"
         )
+    lines.extend(format_missing(topo))
     if faults:
         lines.append(
             f"{len(faults)} segment(s) in FAULT, holding: `ucr clear-fault [SEGMENT]` clears it "
@@ -219,10 +244,11 @@ def format_status(st: dict) -> list[str]:
 def cmd_status(args: argparse.Namespace) -> int:
     def body(c: Any) -> int:
         st = c.status()
+        topo = topology_or_none(c)
         if args.json:
-            print(json.dumps(st, indent=2))
+            print(json.dumps(st if topo is None else {**st, "topology": topo}, indent=2))
         else:
-            print("\n".join(format_status(st)))
+            print("\n".join(format_status(st, topo)))
         return 0
 
     return with_client(args, body)
@@ -269,10 +295,11 @@ def cmd_goal(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- watch
 def format_message(msg: dict) -> str:
-    """One human line per published message (kappa 1/m, phi degrees, positions m)."""
+    """One human line per published message: ``t=`` the daemon's clock in s, kappa in 1/m, phi
+    in degrees, positions in m."""
     kind = msg.get("kind")
     t = msg.get("t")
-    head = f"{t:10.3f} " if isinstance(t, int | float) else ""
+    head = f"t={t:.3f} s  " if isinstance(t, int | float) else ""
     if kind == "joint_states":
         parts = []
         valid = msg.get("valid") or []
@@ -292,7 +319,8 @@ def format_message(msg: dict) -> str:
         return head + f"EVENT {msg.get('event')}" + (f": {text}" if text else "")
     if kind == "topology":
         ctl = ", ".join(msg.get("controlled") or []) or "none"
-        return head + f"TOPOLOGY {msg.get('reason', '')}: controlled {ctl}"
+        missing = "".join(f"; {ln.strip()}" for ln in format_missing(msg))
+        return head + f"TOPOLOGY {msg.get('reason', '')}: controlled {ctl}{missing}"
     return head + json.dumps(msg)
 
 
@@ -309,8 +337,13 @@ def cmd_watch(args: argparse.Namespace) -> int:
         n = 0
         rc = 0
         sub = c.subscribe(kinds, max_rate=args.rate)
+        first = []
+        if "topology" in kinds:  # subscribed first: a change meanwhile is printed after it
+            topo = topology_or_none(c)
+            if topo is not None:
+                first.append({"kind": "topology", "reason": "current", **topo})
         try:
-            for msg in sub:
+            for msg in itertools.chain(first, sub):
                 print(json.dumps(msg) if args.json else format_message(msg), flush=True)
                 n += 1
                 if args.count is not None and n >= args.count:

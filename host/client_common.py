@@ -1,14 +1,16 @@
 """Shared pieces of the client commands (host/client_cli.py, host/client_motion.py): connecting
-to the daemon's API, turning every failure into one line and an exit code, unit formatting."""
+to the daemon's API, turning every failure into one line and an exit code, unit formatting,
+the segments missing from the chain."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from typing import Any
 
-from host.api import ENV_TOKEN, ENV_URL, default_url
+from host.api import ENV_TOKEN, ENV_TOKEN_FILE, ENV_URL, default_url
 
 _PROG = "ucr"
 
@@ -33,8 +35,8 @@ def add_connection_args(p: argparse.ArgumentParser, nested: bool = False) -> Non
     )
     p.add_argument(
         "--token-file",
-        help=f"file (mode 0600) holding the API token; without it, ${ENV_TOKEN} holds the "
-        "token itself",
+        help=f"file (mode 0600) holding the API token (default ${ENV_TOKEN_FILE}; without "
+        f"either, ${ENV_TOKEN} holds the token itself)",
         **({"default": None} | kw),
     )
     # A token on a command line is visible to every user (/proc/PID/cmdline): refused with advice.
@@ -77,8 +79,24 @@ def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
 _seconds = number_arg(float, 0.0, False, " s")
 
 
+def unreachable_message(url: str, given: str | None) -> str:
+    """Why a client found no daemon, where its URL came from and how to point it elsewhere."""
+    if given:
+        origin = "--url"
+    elif os.environ.get(ENV_URL):
+        origin = f"${ENV_URL}"
+    else:
+        origin = "the default"
+    return (
+        f"cannot reach the daemon at {url} ({origin}): is `ucr daemon` running? Another "
+        f"daemon: --url URL or ${ENV_URL}; its token: --token-file FILE, ${ENV_TOKEN_FILE} "
+        f"or ${ENV_TOKEN}"
+    )
+
+
 def connect_daemon(args: argparse.Namespace) -> Any:
-    """Connect with ``--url``, the token from ``--token-file`` or ``$UCR_TOKEN``, ``--ca``."""
+    """Connect with ``--url``, the token (``--token-file``, ``$UCR_TOKEN_FILE`` or
+    ``$UCR_TOKEN``: host.api.client_open.read_token), ``--ca``."""
     from host.api.client import (  # noqa: PLC0415
         ApiAuthError,
         ApiConnectionError,
@@ -91,7 +109,7 @@ def connect_daemon(args: argparse.Namespace) -> Any:
         if getattr(args, "token", None):
             raise CliError(
                 "--token is refused: a token on the command line is visible to every user in "
-                f"/proc; use --token-file FILE (mode 0600) or ${ENV_TOKEN}"
+                f"/proc; use --token-file FILE (mode 0600), ${ENV_TOKEN_FILE} or ${ENV_TOKEN}"
             )
         token = read_token(getattr(args, "token_file", None))
         return connect(
@@ -106,7 +124,7 @@ def connect_daemon(args: argparse.Namespace) -> Any:
     except ApiConnectionError as exc:
         if exc.code in ("bad_url", "tls", "busy"):
             raise CliError(exc.message) from None
-        raise CliError(f"cannot reach the daemon at {url}: is `ucr daemon` running?") from None
+        raise CliError(unreachable_message(url, args.url)) from None
 
 
 def with_client(args: argparse.Namespace, body: Any) -> int:
@@ -131,6 +149,47 @@ def with_client(args: argparse.Namespace, body: Any) -> int:
         return 1
     finally:
         client.close()
+
+
+def topology_or_none(c: Any) -> dict | None:
+    """The daemon's topology, or None when it cannot give one (a daemon without the op, not
+    running yet): status then shows what it has."""
+    from host.api.client import ApiConnectionError, ApiError  # noqa: PLC0415
+
+    try:
+        topo = c.topology()
+    except ApiConnectionError:
+        raise
+    except ApiError:
+        return None
+    return topo if isinstance(topo, dict) else None
+
+
+def format_missing(topo: dict | None) -> list[str]:
+    """The description's segments not under control now, and where the chain is cut (after a
+    hot-unplug, a refused segment or a broken link): ``missing: segment_3 (chain cut after
+    position 2, segment_2)``; shown by ``ucr status``, ``ucr watch`` and ``ucr demo``. Positions
+    count from 1, as the daemon reports them."""
+    if not isinstance(topo, dict):
+        return []
+    expected = [n for n in topo.get("expected") or [] if isinstance(n, str)]
+    controlled = set(topo.get("controlled") or [])
+    missing = [n for n in expected if n not in controlled]
+    if not missing:
+        return []
+    cut = topo.get("cut") if isinstance(topo.get("cut"), dict) else {}
+    pos = cut.get("after_position")
+    if isinstance(pos, int) and pos > 0:
+        after = f", {cut['after']}" if cut.get("after") else ""
+        where = f" (chain cut after position {pos}{after})"
+    elif pos == 0:
+        where = " (chain cut before position 1: no segment answers)"
+    else:
+        where = ""
+    lines = [f"missing: {', '.join(missing)}{where}"]
+    if topo.get("refused"):
+        lines.append(f"  {topo['refused']}")
+    return lines
 
 
 def deg(rad: float | None) -> str:

@@ -8,12 +8,14 @@ from __future__ import annotations
 import argparse
 import math
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from host.cli import print_error, setup_logging, start_api
+from host.cli import api_start_error, port_arg, print_error, setup_logging, start_api
+from host.client_common import format_missing
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_ROBOT = REPO / "robots" / "softrobot3.ucrdf"
@@ -27,12 +29,27 @@ def register(subparsers: Any) -> None:
         "and its API, runs a demo trajectory with live state, then unplugs and replugs segment 3.",
     )
     d.add_argument(
-        "--forever", action="store_true", help="keep running (API up, state printed) until Ctrl-C"
+        "--forever",
+        action="store_true",
+        help="keep running (API up; a state line at most once a second, when it changed) "
+        "until Ctrl-C",
     )
     d.add_argument("--no-api", action="store_true", help="do not start the network API")
-    d.add_argument("--api-port", type=int, default=0, help="API port (default: a free one)")
+    d.add_argument(
+        "--api-port",
+        type=port_arg,
+        default=0,
+        metavar="N",
+        help="API port, 0..65535 (default 0: a free one); a port in use fails the demo",
+    )
     d.add_argument("--no-view", action="store_true", help="do not start `ucr view`")
-    d.add_argument("--view-port", type=int, default=0, help="view page port (default: a free one)")
+    d.add_argument(
+        "--view-port",
+        type=port_arg,
+        default=0,
+        metavar="N",
+        help="view page port (default 0: a free one); a given port that fails fails the demo",
+    )
     d.add_argument("--quiet-log", action="store_true", help="only warnings from the daemon log")
     d.set_defaults(func=cmd_demo)
 
@@ -40,26 +57,54 @@ def register(subparsers: Any) -> None:
 # -- demo -------------------------------------------------------------------------------------
 
 
+#: s: the demo prints a state line at most this often, and only when it changed (an idle robot
+#: under --forever prints none); events and topology changes print at once
+STATE_LINE_PERIOD_S = 1.0
+
+_OUT = threading.Lock()
+
+
+def say(line: str) -> None:
+    """One whole line on stdout: the printer thread and the script never interleave mid-line."""
+    with _OUT:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
+
+
+class DemoFailed(Exception):
+    """A part the user asked for did not start: one line, exit 1."""
+
+
 def _start_view(api_url: str, port: int) -> Any:
-    """`ucr view` on the demo's API in its own process; None (with the reason) if it cannot."""
+    """`ucr view` on the demo's API in its own process; None (with the reason) if it cannot.
+    A view on a port the user chose (``port`` not 0) that does not start fails the demo
+    (:class:`DemoFailed`); the view's extra not installed never does."""
+    import importlib.util  # noqa: PLC0415
+
     try:
         from view.launch import start_view_process  # noqa: PLC0415 - optional part
 
         view = start_view_process(api_url, port)
     except (ModuleNotFoundError, RuntimeError, OSError) as exc:
-        print(f"view not started: {exc}", flush=True)
+        if port and importlib.util.find_spec("viser") is not None:
+            raise DemoFailed(
+                f"demo: view not started on port {port}: {exc}; choose another with "
+                "--view-port N (0: any free port) or run without it (--no-view)"
+            ) from None
+        say(f"view not started: {exc}")
         return None
-    print(f"view on {view.url} (open it in a browser)", flush=True)
+    say(f"view on {view.url} (open it in a browser)")
     return view
 
 
 def _fmt_state(js: dict | None, tf: dict | None) -> str:
+    """The robot in one line: per segment kappa (1/m) and phi (degrees), the tip in mm."""
     if js is None:
         return "(no state yet)"
     parts = []
     for name, k, p, ok in zip(js["names"], js["kappa"], js["phi"], js["valid"], strict=True):
         short = name.replace("segment_", "s")
-        parts.append(f"{short} κ={k:4.2f} φ={math.degrees(p):6.1f}°" if ok else f"{short} --")
+        parts.append(f"{short} κ={k:4.2f} 1/m φ={math.degrees(p):6.1f}°" if ok else f"{short} --")
     line = " | ".join(parts)
     if tf is not None:
         x, y, z = (v * 1000 for v in tf["tip"]["xyz"])
@@ -67,8 +112,26 @@ def _fmt_state(js: dict | None, tf: dict | None) -> str:
     return line
 
 
+class StateThrottle:
+    """When the demo prints a state line: at most once per ``period`` s, and only when the line
+    differs from the last one printed (``ucr demo --forever`` printed 5 lines a second, the
+    same line while the robot held)."""
+
+    def __init__(self, period: float = STATE_LINE_PERIOD_S) -> None:
+        self.period = period
+        self.last_line: str | None = None
+        self.last_t = -math.inf
+
+    def due(self, line: str, now: float) -> bool:
+        """True if ``line`` is to be printed at ``now`` (s, monotonic); then it is the last."""
+        if line == self.last_line or now - self.last_t < self.period:
+            return False
+        self.last_line, self.last_t = line, now
+        return True
+
+
 class _Printer(threading.Thread):
-    """Prints one compact state line per 0.2 s and every event/topology message."""
+    """Prints a compact state line (:class:`StateThrottle`) and every event/topology message."""
 
     def __init__(self, daemon: Any, t0: float):
         super().__init__(name="ucr-demo-printer", daemon=True)
@@ -80,6 +143,7 @@ class _Printer(threading.Thread):
         self.tf: dict | None = None
         self.topologies: list[dict] = []
         self._last_event: dict[tuple, float] = {}
+        self.throttle = StateThrottle()
 
     def _quiet(self, msg: dict) -> bool:
         """Repeated segment events (e.g. LIMIT_CLAMPED on every step) print once per 2 s."""
@@ -95,7 +159,6 @@ class _Printer(threading.Thread):
     def run(self) -> None:
         import queue  # noqa: PLC0415
 
-        next_print = time.monotonic()
         while not self.stop.is_set():
             try:
                 msg = self.q.get(timeout=0.05)
@@ -110,25 +173,22 @@ class _Printer(threading.Thread):
                 elif kind == "event" and self._quiet(msg):
                     pass
                 elif kind == "event":
-                    print(
+                    say(
                         f"[{time.monotonic() - self.t0:5.1f}s] event {msg['event']}: "
-                        f"{msg.get('message', '')}",
-                        flush=True,
+                        f"{msg.get('message', '')}"
                     )
                 elif kind == "topology":
                     self.topologies.append(msg)
-                    print(
+                    missing = "".join(f"; {ln.strip()}" for ln in format_missing(msg))
+                    say(
                         f"[{time.monotonic() - self.t0:5.1f}s] topology: "
-                        f"{len(msg['controlled'])} segment(s) {msg['controlled']}"
-                        + (f", cut after {msg['cut']['after']}" if msg.get("cut") else ""),
-                        flush=True,
+                        f"{len(msg['controlled'])} segment(s): {', '.join(msg['controlled'])}"
+                        + missing
                     )
-            if time.monotonic() >= next_print:
-                next_print += 0.2
-                print(
-                    f"[{time.monotonic() - self.t0:5.1f}s] {_fmt_state(self.js, self.tf)}",
-                    flush=True,
-                )
+            state = _fmt_state(self.js, self.tf)
+            now = time.monotonic()
+            if self.throttle.due(state, now):
+                say(f"[{now - self.t0:5.1f}s] {state}")
         self.daemon_.unsubscribe(self.q)
 
 
@@ -181,25 +241,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     t0 = time.monotonic()
-    print(
+    say(
         f"ucr demo: starting {len(names)} emulated segments (real firmware on the MicroPython "
-        f"VM) for {DEMO_ROBOT.name}",
-        flush=True,
+        f"VM) for {DEMO_ROBOT.name}"
     )
     with EmulatedChain(len(names), config_for=lambda k: config_for(robot, names[k])) as chain:
         cfg = DaemonConfig(port=chain.host_port)
         daemon = Daemon(robot, cfg)
-        deadline = time.monotonic() + 15.0
-        while True:  # the segments need a moment to boot
-            try:
-                daemon.start()
-                break
-            except DaemonError as exc:
-                if time.monotonic() > deadline:
-                    return print_error(f"demo: {exc}")
-                time.sleep(0.3)
         api = view = None
+        started = False
         try:
+            # The API first, as `ucr daemon` does: a port in use fails the demo at once, before
+            # the segments boot (until the chain runs, requests answer "daemon is not running").
             if not args.no_api:
                 try:
                     api = start_api(
@@ -209,27 +262,37 @@ def cmd_demo(args: argparse.Namespace) -> int:
                         None,
                         log_level="warning" if args.quiet_log else "info",
                     )
-                    if api is not None:
-                        print(f"API on {api.url} (try `ucr status --url {api.url}`)", flush=True)
-                except Exception as exc:  # noqa: BLE001 - the demo runs without API
-                    print(f"API not started: {exc}", flush=True)
+                except Exception as exc:  # noqa: BLE001 - bind errors are the user's to fix
+                    why = api_start_error(exc, "127.0.0.1", args.api_port, "--api-port N")
+                    raise DemoFailed(f"demo: {why}") from None
+            deadline = time.monotonic() + 15.0
+            while True:  # the segments need a moment to boot
+                try:
+                    daemon.start()
+                    started = True
+                    break
+                except DaemonError as exc:
+                    if time.monotonic() > deadline:
+                        raise DemoFailed(f"demo: {exc}") from None
+                    time.sleep(0.3)
+            if api is not None:
+                say(f"API on {api.url} (try `ucr status --url {api.url}`)")
             if api is not None and not args.no_view:
                 view = _start_view(api.url, args.view_port)
             topo = daemon.topology()
-            print(
+            say(
                 f"discovered {len(topo['segments'])} segment(s): "
                 + ", ".join(
                     f"{s['bendable']} (uid {s['uid']}, fw {s['fw_version']})"
                     for s in topo["segments"]
-                ),
-                flush=True,
+                )
             )
             printer = _Printer(daemon, t0)
             printer.start()
             try:
                 rc = _run_script(daemon, chain, names, printer, stop, args.forever)
                 if args.forever:
-                    print("== running until Ctrl-C", flush=True)
+                    say("== running until Ctrl-C")
                     try:
                         while not stop.wait(0.5):
                             pass
@@ -239,25 +302,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 printer.stop.set()
                 printer.join(1.0)
             stats = daemon.loop_stats()
-            print(
+            say(
                 f"loop: {stats['cycles']} cycles at {stats['rate_hz']:.0f} Hz, compute mean "
                 f"{stats['compute_us']['mean']:.0f} µs (p99 {stats['compute_us']['p99']:.0f}), "
                 f"jitter p99 {stats['jitter_us']['p99']:.0f} µs, overruns {stats['overruns']} "
-                "(this process also runs the emulator; see benchmarks/bench_host.py)",
-                flush=True,
+                "(this process also runs the emulator; see benchmarks/bench_host.py)"
             )
             for h in stats["hotplug"]:
-                print(
-                    f"hot-plug: {h['reason']} -> {h['segments']} in {h['rebuild_s'] * 1000:.0f} ms",
-                    flush=True,
-                )
+                say(f"hot-plug: {h['reason']} -> {h['segments']} in {h['rebuild_s'] * 1000:.0f} ms")
+        except DemoFailed as exc:
+            return print_error(str(exc))
         finally:
             if view is not None:
                 view.stop()
             if api is not None:
                 api.stop()
-            daemon.stop(hold=True)
-    print(f"ucr demo: done in {time.monotonic() - t0:.1f} s", flush=True)
+            if started:
+                daemon.stop(hold=True)
+    say(f"ucr demo: done in {time.monotonic() - t0:.1f} s")
     return rc
 
 
@@ -282,12 +344,12 @@ def _run_script(
     try:
         return _demo_script(daemon, chain, names, printer, stop)
     except ClientTookOver as exc:
-        print(f"== a client took over ({exc}): demo script stopped, serving clients", flush=True)
+        say(f"== a client took over ({exc}): demo script stopped, serving clients")
         return 0
     except (ControllerError, DaemonError) as exc:
         if not forever:
             raise
-        print(f"== demo script stopped: {exc}; serving clients", flush=True)
+        say(f"== demo script stopped: {exc}; serving clients")
         return 0
 
 
@@ -320,27 +382,23 @@ def _demo_script(
     stop: threading.Event,
 ) -> int:
     kappa = 0.6 * min(daemon.hwi.limits[n].kappa_max for n in names)
-    print(
-        "== demo trajectory: bend each segment in turn, a circle of phi, back to straight",
-        flush=True,
-    )
+    say("== demo trajectory: bend each segment in turn, a circle of phi, back to straight")
     for _ in range(3):  # a goal aborted by a gap in a segment's states (a loaded host) reruns
         gid = _send(daemon, demo_trajectory(names, kappa))
         ok = _wait(lambda g=gid: _ours(daemon, g)["done"] or stop.is_set(), 40.0)
         st = _ours(daemon, gid)
         if (st.get("abort") or {}).get("cause") != "link_loss" or stop.is_set():
             break
-        print(f"== trajectory aborted ({st['reason']}); once more", flush=True)
-    print(
+        say(f"== trajectory aborted ({st['reason']}); once more")
+    say(
         f"== trajectory {st['state']}{': ' + st['reason'] if st['reason'] else ''} "
-        f"(duration {st['duration']:.1f} s, max path error {st['max_path_error']:.3f} 1/m)",
-        flush=True,
+        f"(duration {st['duration']:.1f} s, max path error {st['max_path_error']:.3f} 1/m)"
     )
     if not ok or st["state"] != "succeeded":
         return 1
     if stop.is_set():
         return 0
-    print("== hot-plug: unplugging segment 3 during a motion", flush=True)
+    say("== hot-plug: unplugging segment 3 during a motion")
     _send(
         daemon,
         [{"time_from_start": 3.0, "segments": {n: {"kappa": kappa, "phi": 1.0} for n in names}}],
@@ -349,23 +407,21 @@ def _demo_script(
     t_unplug = time.monotonic()
     chain.unplug(len(names) - 1)
     if not _wait(lambda: len(daemon.status()["segments"]) == len(names) - 1, 5.0):
-        print("== segment 3 removal was not detected", flush=True)
+        say("== segment 3 removal was not detected")
         return 1
-    print(
+    say(
         f"== rebuilt as {len(names) - 1} segments {time.monotonic() - t_unplug:.2f} s after "
-        "the unplug; plugging it back",
-        flush=True,
+        "the unplug; plugging it back"
     )
     time.sleep(1.0)
     t_plug = time.monotonic()
     chain.plug(len(names) - 1)
     if not _wait(lambda: len(daemon.status()["segments"]) == len(names), 5.0):
-        print("== segment 3 was not found again", flush=True)
+        say("== segment 3 was not found again")
         return 1
-    print(
+    say(
         f"== {len(names)} segments again {time.monotonic() - t_plug:.2f} s after the plug; "
-        "back to straight",
-        flush=True,
+        "back to straight"
     )
     gid = _send(
         daemon,

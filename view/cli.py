@@ -15,11 +15,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from host.api import ENV_TOKEN_FILE
 from host.client_common import number_arg
 from host.extras import install_command
 
 INSTALL_HINT = f"ucr view needs the `view` extra (viser): {install_command('view')}"
-ENV_TOKEN_FILE = "UCR_TOKEN_FILE"
 VIEW_NICE = 5  # as the API process (host.api.process.API_NICE): the control loop comes first
 
 

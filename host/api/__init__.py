@@ -13,6 +13,7 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # same default as host.config.ApiConfig
 ENV_URL = "UCR_URL"
 ENV_TOKEN = "UCR_TOKEN"
+ENV_TOKEN_FILE = "UCR_TOKEN_FILE"  # a file (mode 0600) holding the token, for every client
 ENV_CA = "UCR_CA"
 
 

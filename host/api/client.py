@@ -20,7 +20,6 @@ from __future__ import annotations
 import collections
 import itertools
 import json
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -29,7 +28,7 @@ from typing import Any
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection
 
-from host.api import ENV_TOKEN, default_url
+from host.api import default_url
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
@@ -417,12 +416,13 @@ def connect(
     cafile: str | None = None,
     agent: str | None = None,
 ) -> Client:
-    """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to ``$UCR_TOKEN``.
+    """Open a connection; ``url`` defaults to ``$UCR_URL``, ``token`` to what
+    :func:`read_token` finds (the file ``$UCR_TOKEN_FILE`` names, else ``$UCR_TOKEN``).
 
     ``cafile`` (default ``$UCR_CA``): a CA bundle or the daemon's own certificate, to verify a
     ``wss://`` server that uses a self-signed certificate. ``agent``: the program's name, sent
     as the User-Agent (the daemon's audit lines show it; default ``ucr python client``).
     """
     url = url or default_url()
-    token = token if token is not None else os.environ.get(ENV_TOKEN) or None
+    token = token if token is not None else read_token()
     return Client(open_websocket(url, token, timeout, cafile, agent), url, timeout)

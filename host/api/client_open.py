@@ -1,4 +1,5 @@
-"""Opening a connection to the daemon API: the token (file or ``$UCR_TOKEN``), the rule that a
+"""Opening a connection to the daemon API: the token (``--token-file``, ``$UCR_TOKEN_FILE`` or
+``$UCR_TOKEN``: :func:`read_token`, the one place every client reads it), the rule that a
 token never travels in clear off loopback, TLS verification, and the WebSocket handshake with
 each refusal turned into a clear :mod:`host.api.client_errors` error.
 
@@ -15,23 +16,31 @@ from websockets.exceptions import InvalidStatus, InvalidURI, WebSocketException
 from websockets.sync.client import ClientConnection
 from websockets.sync.client import connect as ws_connect
 
-from host.api import ENV_CA, ENV_TOKEN
+from host.api import ENV_CA, ENV_TOKEN, ENV_TOKEN_FILE
 from host.api.auth import AuthConfigError, read_token_file
 from host.api.client_errors import ApiAuthError, ApiConnectionError
 from host.api.guard import is_loopback
 
+#: where a client may take its token from, as messages name it
+TOKEN_SOURCES = f"--token-file FILE, ${ENV_TOKEN_FILE} or ${ENV_TOKEN}"
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024  # largest message the client accepts from the daemon
 #: the User-Agent a client sends unless told (the daemon writes it into its audit lines)
 DEFAULT_AGENT = "ucr python client"
 
 
 def read_token(token_file: str | None = None) -> str | None:
-    """The token from ``token_file`` (must be 0600) or ``$UCR_TOKEN``; None if neither."""
-    if token_file:
+    """The API token every client uses: from ``token_file`` (``--token-file``), else the file
+    ``$UCR_TOKEN_FILE`` names, else ``$UCR_TOKEN`` itself; None if none is set. A file must be
+    the reader's own, mode 0600 (host.api.auth.read_token_file); a bad one is an
+    :class:`ApiAuthError` naming where its path came from."""
+    env_file = os.environ.get(ENV_TOKEN_FILE) or None
+    path = token_file or env_file
+    if path:
         try:
-            return read_token_file(token_file)
+            return read_token_file(path)
         except AuthConfigError as exc:
-            raise ApiAuthError(str(exc)) from None
+            where = "" if token_file else f" (from ${ENV_TOKEN_FILE})"
+            raise ApiAuthError(f"{exc}{where}") from None
     return os.environ.get(ENV_TOKEN) or None
 
 
@@ -76,7 +85,7 @@ def open_websocket(
         status = exc.response.status_code
         reason = exc.response.body.decode(errors="replace").strip()[:200]  # the server's why
         if status == 401:
-            what = "wrong token" if token else "a token is required (--token-file or $UCR_TOKEN)"
+            what = "wrong token" if token else f"a token is required ({TOKEN_SOURCES})"
             raise ApiAuthError(f"the daemon at {url} refused the connection: {what}") from None
         if status == 429:
             raise ApiAuthError(

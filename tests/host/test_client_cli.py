@@ -59,7 +59,10 @@ def test_daemon_not_running_is_one_clear_line_and_exit_1(capsys, argv):
     url = free_url()
     rc, out, err = run(capsys, *argv, "--url", url)
     assert rc == 1
-    assert err.strip() == f"ucr: cannot reach the daemon at {url}: is `ucr daemon` running?"
+    assert err.startswith(
+        f"ucr: cannot reach the daemon at {url} (--url): is `ucr daemon` running?"
+    )
+    assert err.count("\n") == 1 and "$UCR_URL" in err and "$UCR_TOKEN_FILE" in err
 
 
 def test_no_traceback_from_a_real_process_when_daemon_is_down():
