@@ -26,14 +26,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "fk",
         help="forward kinematics: transform of every link frame as JSON",
-        description="Print a JSON object {link: 4x4 matrix (nested lists, root frame, m)} for a "
+        description="Print a JSON object {link: 4x4 homogeneous transform in the root frame, "
+        "one row per line; rotation unitless, translation (last column) in m} for a "
         'configuration. --config maps each bendable to {"kappa": 1/m, "phi": rad} (its model\'s '
         "variables) and each movable joint to a number (rad or m); anything not named takes its "
         "ros2_control initial_value, else 0.",
     )
     p.add_argument("file", metavar="FILE", help="U(C)RDF file")
     p.add_argument(
-        "--config", default="{}", help="configuration as a JSON string, or @path to a JSON file"
+        "--config",
+        default="{}",
+        help='configuration as a JSON string, or @path to a JSON file: {"BENDABLE": {"kappa": '
+        '1/m, "phi": rad}, "JOINT": rad or m}',
     )
     p.set_defaults(func=_guard(run_fk))
 
@@ -131,9 +135,18 @@ def run_fk(args: argparse.Namespace) -> int:
     robot = _load(args.file)
     frames = RobotKinematics(robot).fk(config)
     out = {name: [[float(x) for x in row] for row in t.tolist()] for name, t in frames.items()}
-    json.dump(out, sys.stdout, indent=1)
-    print()
+    print(matrices_json(out))
     return 0
+
+
+def matrices_json(frames: dict[str, list[list[float]]]) -> str:
+    """JSON of ``{link: 4x4 matrix}`` with each matrix row on one line (a reader sees the
+    rotation and, in the last column, the position in m; ``json.loads`` reads it as usual)."""
+    items = []
+    for name, rows in frames.items():
+        body = ",\n".join("  " + json.dumps(row) for row in rows)
+        items.append(f" {json.dumps(name)}: [\n{body}\n ]")
+    return "{\n" + ",\n".join(items) + "\n}" if items else "{}"
 
 
 def _target(text: str) -> tuple[float, float, float]:

@@ -157,3 +157,13 @@ def test_ucr_dispatcher_exposes_the_kinematics_commands(capsys):
     assert code == 0 and frames["segment_1_tip"][2][3] == pytest.approx(0.316)
     assert main(["fk", str(path), "--config", '{"segment_2": 1}']) == 1
     assert "needs an object of variables" in capsys.readouterr().err
+
+
+def test_fk_prints_each_matrix_row_on_one_line(robot_file, capsys):
+    # new-user audit: every number stood on its own line (json indent), 26 lines per frame
+    code, out, _ = run(["fk", str(robot_file)], capsys)
+    assert code == 0
+    frames = json.loads(out)
+    lines = out.splitlines()
+    assert len(lines) == 2 + 6 * len(frames), out  # braces; per frame: name, 4 rows, close
+    assert "  [1.0, 0.0, 0.0, 0.0]," in lines
