@@ -173,7 +173,13 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
-    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument(
+        "--compression",
+        choices=("zstd", "lz4", "none"),
+        default="zstd",
+        help="chunk compression (default zstd: smallest files; lz4: less CPU on the Pi, larger "
+        "files; none: largest; every MCAP reader opens all three)",
+    )
     p.add_argument(
         "--flush-interval",
         type=POSITIVE_S,
