@@ -157,8 +157,18 @@ def register(subparsers: Any) -> None:
     src.add_argument("--keyboard", action="store_true", help="use the keyboard in this terminal")
     src.add_argument("--replay", default=None, metavar="FILE", help="play a recorded stream")
     p.add_argument("--record", default=None, metavar="FILE", help="also record the input here")
-    p.add_argument("--rate", type=float, default=50.0, help="command rate while moving, Hz (50)")
-    p.add_argument("--speed", type=float, default=1.0, help="replay speed factor (1)")
+    p.add_argument(
+        "--rate",
+        type=number_arg(float, 0.0, False, " Hz"),
+        default=50.0,
+        help="command rate while moving, Hz (50)",
+    )
+    p.add_argument(
+        "--speed",
+        type=number_arg(float, 0.0, False),
+        default=1.0,
+        help="replay speed factor, > 0 (1: as recorded)",
+    )
     p.set_defaults(func=cmd_teleop)
 
 

@@ -312,3 +312,13 @@ def test_demo_prints_a_state_line_at_most_once_a_second_and_only_on_change():
     assert th.due("b", 101.0)
     assert not th.due("b", 105.0)  # unchanged: never again
     assert th.due("c", 105.1)
+
+
+# ------------------------------------------------------------------ teleop options
+@pytest.mark.parametrize("option", [["--speed", "0"], ["--speed", "-1"], ["--rate", "nan"]])
+def test_teleop_rejects_an_impossible_speed_or_rate_before_connecting(option, capsys):
+    # new-user audit: --speed 0 connected first, then failed with exit 1
+    with pytest.raises(SystemExit) as exc:
+        run(capsys, "teleop", *option, "--url", "ws://127.0.0.1:9")
+    assert exc.value.code == 2
+    assert f"argument {option[0]}: must be a finite number" in capsys.readouterr().err
