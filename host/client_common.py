@@ -11,6 +11,7 @@ import sys
 from typing import Any
 
 from host.api import ENV_TOKEN, ENV_TOKEN_FILE, ENV_URL, default_url
+from host.positions import label
 
 _PROG = "ucr"
 
@@ -181,7 +182,7 @@ def format_missing(topo: dict | None) -> list[str]:
     pos = cut.get("after_position")
     if isinstance(pos, int) and pos > 0:
         after = f", {cut['after']}" if cut.get("after") else ""
-        where = f" (chain cut after position {pos}{after})"
+        where = f" (chain cut after {label(pos - 1)}{after})"  # after_position counts from 1
     elif pos == 0:
         where = " (chain cut before position 1: no segment answers)"
     else:
