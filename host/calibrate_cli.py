@@ -8,6 +8,9 @@ from typing import Any
 
 from host.positions import label
 
+#: exit code of a command stopped by Ctrl-C (128 + SIGINT), as every ucr command
+INTERRUPTED = 130
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -30,10 +33,15 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_calibrate)
 
 
+#: what --segment takes, said where it names nothing
+SEGMENT_FORMS = "a segment name, a chain position counted from 1, or a uid"
+
+
 def find_segment(descs: list[dict], which: str) -> dict:
     """The descriptor named ``which`` (name, then chain position counted from 1 as everywhere a
     user sees one, then uid); ValueError if none, or if a name is ambiguous (two segments flashed
-    with the same configuration): the message lists the positions."""
+    with the same configuration): the message lists the positions. An unknown one is refused as
+    ``ucr move`` refuses it (``unknown segment 'X': ...``), naming the segments there are."""
     named = [d for d in descs if d.get("name") == which]
     if len(named) > 1:
         where = ", ".join(f"{label(d.get('position'))} ({d.get('uid')})" for d in named)
@@ -43,7 +51,8 @@ def find_segment(descs: list[dict], which: str) -> dict:
         )
     if named:
         return named[0]
-    if which.isdigit():
+    number = which.isascii() and which.isdigit()  # not '²' (a digit to str.isdigit, not to int)
+    if number:
         for d in descs:
             if isinstance(d.get("position"), int) and d["position"] + 1 == int(which):
                 return d
@@ -53,7 +62,9 @@ def find_segment(descs: list[dict], which: str) -> dict:
     names = ", ".join(
         f"{label(d.get('position'))}: {d.get('name')} ({d.get('uid')})" for d in descs
     )
-    raise ValueError(f"no segment {which!r} in the chain ({names or 'none answers'})")
+    hint = " (positions count from 1)" if number and int(which) == 0 else ""
+    there = f"the chain's segments are {names}" if names else "no segment answers"
+    raise ValueError(f"unknown segment {which!r}{hint}: {there}; --segment takes {SEGMENT_FORMS}")
 
 
 def open_session(args: argparse.Namespace, say=print) -> tuple[Any, Any]:
@@ -107,47 +118,89 @@ def persist_robot(args: argparse.Namespace, session: Any, result: Any, say=print
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from host.calibrate import CalibrationError  # noqa: PLC0415
-    from host.calibrate_robot import RobotFileError  # noqa: PLC0415
-    from host.calibrate_script import ScriptError, check_segment, load, run  # noqa: PLC0415
-    from host.link import LinkError  # noqa: PLC0415
-
     if args.script is None:
         return run_tui(args)
     try:
-        steps = load(args.script)  # the whole script is checked before anything moves
-        link, session = open_session(args)
-    except (ScriptError, ValueError, LinkError) as exc:
-        print(f"ucr calibrate: {exc}", file=sys.stderr)
-        return 1
-    try:  # the script and the robot file against the segment found, still before any motion
-        check_segment(steps, session.desc, args.script)
-        check_robot(args, session)
-    except (ScriptError, RobotFileError) as exc:
-        link.close()
-        print(f"ucr calibrate: {exc} (nothing moved)", file=sys.stderr)
+        return run_script(args)
+    except KeyboardInterrupt:  # before any motion (a running script holds the segment itself)
+        print("ucr calibrate: stopped (Ctrl-C) before anything moved", file=sys.stderr)
+        return 130
+
+
+def _script_problems(args: argparse.Namespace) -> tuple[list[Any], list[str]]:
+    """(steps, problems) of --script: every problem of the file at once, each FILE:LINE."""
+    from host.calibrate_script import ScriptError, load  # noqa: PLC0415
+
+    try:
+        return load(args.script), []
+    except ScriptError as exc:
+        return exc.steps, exc.problems
+
+
+def run_script(args: argparse.Namespace) -> int:
+    """``ucr calibrate --script FILE``: the whole file checked (alone, then against the segment
+    and the robot file) before anything moves; every problem of the script reported at once."""
+    from host.calibrate import CalibrationError  # noqa: PLC0415
+    from host.calibrate_robot import RobotFileError  # noqa: PLC0415
+    from host.calibrate_script import run, segment_problems  # noqa: PLC0415
+    from host.link import LinkError  # noqa: PLC0415
+
+    steps, problems = _script_problems(args)
+    if problems and not steps:  # unreadable, or nothing well formed to check on the segment
+        print("\n".join(f"ucr calibrate: {p}" for p in problems), file=sys.stderr)
         return 1
     try:
-        result = run(session, steps, args.script)
-        persist_robot(args, session, result)
-        return 0
-    except KeyboardInterrupt:
-        try:
-            session.stop()
-            said = "the segment holds"
-        except LinkError as exc:
-            said = f"HOLD not sent ({exc}); its watchdog holds it"
-        print(f"ucr calibrate: stopped (Ctrl-C): {said}", file=sys.stderr)
-        return 130
-    except (CalibrationError, RobotFileError, LinkError) as exc:
-        try:
-            session.stop()
-        except LinkError:
-            pass
-        print(f"ucr calibrate: {exc} (the segment holds)", file=sys.stderr)
+        link, session = open_session(args)
+    except (ValueError, LinkError) as exc:
+        for p in problems:
+            print(f"ucr calibrate: {p}", file=sys.stderr)
+        print(f"ucr calibrate: {exc}", file=sys.stderr)
         return 1
+    try:
+        # the script and the robot file against the segment found, still before any motion
+        problems += segment_problems(steps, session.desc, args.script)
+        if problems:
+            problems.sort(key=_line_of)
+            for p in problems:
+                print(f"ucr calibrate: {p}", file=sys.stderr)
+            print(
+                f"ucr calibrate: {len(problems)} problem(s) in {args.script} (nothing moved)",
+                file=sys.stderr,
+            )
+            return 1
+        try:
+            check_robot(args, session)
+        except RobotFileError as exc:
+            print(f"ucr calibrate: {exc} (nothing moved)", file=sys.stderr)
+            return 1
+        try:
+            result = run(session, steps, args.script)
+            persist_robot(args, session, result)
+            return 0
+        except KeyboardInterrupt:
+            try:
+                session.stop()
+                said = "the segment holds"
+            except LinkError as exc:
+                said = f"HOLD not sent ({exc}); its watchdog holds it"
+            print(f"ucr calibrate: stopped (Ctrl-C): {said}", file=sys.stderr)
+            return 130
+        except (CalibrationError, RobotFileError, LinkError) as exc:
+            try:
+                session.stop()
+            except LinkError:
+                pass
+            print(f"ucr calibrate: {exc} (the segment holds)", file=sys.stderr)
+            return 1
     finally:
         link.close()
+
+
+def _line_of(problem: str) -> int:
+    """The line number of a ``FILE:LINE: message`` problem (0 for one about the whole file)."""
+    head = problem.split(": ", 1)[0]
+    number = head.rsplit(":", 1)[-1]
+    return int(number) if number.isascii() and number.isdigit() else 0
 
 
 def run_tui(args: argparse.Namespace) -> int:
@@ -161,6 +214,9 @@ def run_tui(args: argparse.Namespace) -> int:
     except (ValueError, LinkError) as exc:
         print(f"ucr calibrate: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("ucr calibrate: stopped (Ctrl-C) before anything moved", file=sys.stderr)
+        return INTERRUPTED
     try:
         check_robot(args, session)
     except RobotFileError as exc:
@@ -172,7 +228,13 @@ def run_tui(args: argparse.Namespace) -> int:
             session, on_persist=lambda r: persist_robot(args, session, r, session.say)
         )
         app.run()
+        if app.return_code == INTERRUPTED:  # Ctrl-C, a key in the UI: it held the segment
+            print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
+            return INTERRUPTED
         return 0
+    except KeyboardInterrupt:  # SIGINT outside the UI's raw terminal (e.g. while it starts)
+        print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
+        return INTERRUPTED
     finally:
         try:
             session.stop()
@@ -181,4 +243,4 @@ def run_tui(args: argparse.Namespace) -> int:
         link.close()
 
 
-__all__ = ["cmd_calibrate", "find_segment", "open_session", "register"]
+__all__ = ["cmd_calibrate", "find_segment", "open_session", "register", "run_script"]

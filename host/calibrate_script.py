@@ -12,10 +12,11 @@ Commands (``#`` starts a comment; angles in rad unless said; docs/commissioning.
     wait SECONDS                  keep holding the current setpoint
     persist                       store the calibration on the segment (and in the robot file)
 
-The whole file is checked before anything moves: errors are ``FILE:LINE: message``. :func:`parse`
-checks what needs no segment (names, counts, numbers, jog <= 0.5 rad, LOAD in (0, 0.8), STEP in
-(0, 0.1] rad, wait 0..60 s, KAPPA >= 0); :func:`check_segment` then, with the segment found,
-refuses a KAPPA beyond its kappa_max (the segment would clamp it and report a bend it never made).
+The whole file is checked before anything moves, and every error is reported at once, one
+``FILE:LINE: message`` each. :func:`parse` checks what needs no segment (names, counts, numbers,
+jog <= 0.5 rad, LOAD in (0, 0.8), STEP in (0, 0.1] rad, wait 0..60 s, KAPPA >= 0);
+:func:`check_segment` then, with the segment found, refuses a KAPPA beyond its kappa_max (the
+segment would clamp it and report a bend it never made) and a servo index it does not have.
 """
 
 from __future__ import annotations
@@ -49,7 +50,14 @@ TENSION_STEP_MAX = 0.1
 
 
 class ScriptError(ValueError):
-    """A script line is wrong: ``FILE:LINE: message``."""
+    """What is wrong with a script: every problem found, each ``FILE:LINE: message`` on a line
+    of its own (``problems``); ``steps`` holds the lines that were well formed, so the checks
+    against the segment can still add theirs."""
+
+    def __init__(self, problems: str | list[str], steps: list[Step] | None = None) -> None:
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        self.steps = steps or []
+        super().__init__("\n".join(self.problems))
 
 
 @dataclass
@@ -59,68 +67,102 @@ class Step:
     args: list[float]
 
 
+def _line_problems(cmd: str, rest: list[str]) -> tuple[list[str], list[float]]:
+    """Every problem of one line (names, argument count, numbers, ranges) and its numbers."""
+    if cmd not in _ARITY:
+        return [f"unknown command {cmd!r} (one of {', '.join(_ARITY)})"], []
+    out = []
+    lo, hi = _ARITY[cmd]
+    if not lo <= len(rest) <= hi:
+        want = str(lo) if lo == hi else f"{lo}..{hi}"
+        out.append(f"{cmd} takes {want} argument(s), got {len(rest)}")
+    try:
+        args = [float(w) for w in rest]
+    except ValueError:
+        return [*out, f"{cmd}: arguments must be numbers: {rest}"], []
+    if any(not math.isfinite(a) for a in args):
+        return [*out, f"{cmd}: arguments must be finite"], []
+    if out:  # a wrong count: which argument is which is unknown
+        return out, args
+    if cmd in ("jog", "direction") and args[0] != int(args[0]):
+        out.append(f"{cmd}: the servo index must be an integer")
+    if cmd == "direction" and args[1] not in (1.0, -1.0):
+        out.append("direction must be 1 or -1")
+    if cmd == "jog" and abs(args[1]) > 0.5:
+        out.append("jog at most 0.5 rad at a time")
+    if cmd == "wait" and not 0 <= args[0] <= 60:
+        out.append("wait 0..60 s")
+    if cmd in _KAPPA_ARG and args and args[0] < 0:
+        out.append(
+            f"{cmd}: kappa {args[0]:g} 1/m is negative: kappa is a magnitude >= 0 "
+            "(bend the other way with phi + 180 deg)"
+        )
+    if cmd == "tension" and not 0 < args[0] < TENSION_MAX:
+        out.append(f"tension LOAD {args[0]:g} must be in (0, {TENSION_MAX:g}) of max torque")
+    if cmd == "tension" and len(args) > 1 and not 0 < args[1] <= TENSION_STEP_MAX:
+        out.append(
+            f"tension STEP {args[1]:g} rad must be in (0, {TENSION_STEP_MAX:g}] rad (default 0.01)"
+        )
+    return out, args
+
+
 def parse(text: str, source: str = "<script>") -> list[Step]:
-    """Every step of a script, checked (names, argument counts, numbers, ranges)."""
+    """Every step of a script, checked (names, argument counts, numbers, ranges); ScriptError
+    lists every problem of the file at once, each ``FILE:LINE: message``."""
     steps = []
+    problems = []
     for no, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
         words = line.split()
-        cmd, rest = words[0].lower(), words[1:]
-        where = f"{source}:{no}"
-        if cmd not in _ARITY:
-            raise ScriptError(f"{where}: unknown command {cmd!r} (one of {', '.join(_ARITY)})")
-        lo, hi = _ARITY[cmd]
-        if not lo <= len(rest) <= hi:
-            want = str(lo) if lo == hi else f"{lo}..{hi}"
-            raise ScriptError(f"{where}: {cmd} takes {want} argument(s), got {len(rest)}")
-        try:
-            args = [float(w) for w in rest]
-        except ValueError:
-            raise ScriptError(f"{where}: {cmd}: arguments must be numbers: {rest}") from None
-        if any(not math.isfinite(a) for a in args):
-            raise ScriptError(f"{where}: {cmd}: arguments must be finite")
-        if cmd in ("jog", "direction") and args[0] != int(args[0]):
-            raise ScriptError(f"{where}: {cmd}: the servo index must be an integer")
-        if cmd == "direction" and args[1] not in (1.0, -1.0):
-            raise ScriptError(f"{where}: direction must be 1 or -1")
-        if cmd == "jog" and abs(args[1]) > 0.5:
-            raise ScriptError(f"{where}: jog at most 0.5 rad at a time")
-        if cmd == "wait" and not 0 <= args[0] <= 60:
-            raise ScriptError(f"{where}: wait 0..60 s")
-        if cmd in _KAPPA_ARG and args and args[0] < 0:
-            raise ScriptError(
-                f"{where}: {cmd}: kappa {args[0]:g} 1/m is negative: kappa is a magnitude >= 0 "
-                "(bend the other way with phi + 180 deg)"
-            )
-        if cmd == "tension" and not 0 < args[0] < TENSION_MAX:
-            raise ScriptError(
-                f"{where}: tension LOAD {args[0]:g} must be in (0, {TENSION_MAX:g}) of max torque"
-            )
-        if cmd == "tension" and len(args) > 1 and not 0 < args[1] <= TENSION_STEP_MAX:
-            raise ScriptError(
-                f"{where}: tension STEP {args[1]:g} rad must be in (0, {TENSION_STEP_MAX:g}] rad "
-                "(default 0.01)"
-            )
-        steps.append(Step(no, cmd, args))
+        cmd = words[0].lower()
+        found, args = _line_problems(cmd, words[1:])
+        problems += [f"{source}:{no}: {p}" for p in found]
+        if not found:
+            steps.append(Step(no, cmd, args))
+    if problems:
+        raise ScriptError(problems, steps)
     if not steps:
         raise ScriptError(f"{source}: the script has no step")
     return steps
 
 
-def check_segment(steps: list[Step], descriptor: dict, source: str = "<script>") -> None:
+def segment_problems(steps: list[Step], descriptor: dict, source: str = "<script>") -> list[str]:
     """The steps against the segment found (its descriptor): every curvature within
-    [0, kappa_max]. Called before anything moves; ScriptError ``FILE:LINE: message``."""
+    [0, kappa_max], every servo index one of its servos; each ``FILE:LINE: message``."""
+    out = []
     kappa_max = descriptor.get("kappa_max")
     if not isinstance(kappa_max, (int, float)) or not kappa_max > 0:
-        raise ScriptError(f"{source}: the segment reports no kappa_max to check the script against")
+        out.append(f"{source}: the segment reports no kappa_max to check the script against")
+        kappa_max = None
+    tendons = descriptor.get("tendon_angles")
+    n = len(tendons) if isinstance(tendons, list) else None
     for st in steps:
-        if st.command in _KAPPA_ARG and st.args and st.args[0] > kappa_max + 1e-9:
-            raise ScriptError(
+        if (
+            kappa_max is not None
+            and st.command in _KAPPA_ARG
+            and st.args
+            and st.args[0] > kappa_max + 1e-9
+        ):
+            out.append(
                 f"{source}:{st.line}: {st.command}: kappa {st.args[0]:g} 1/m is beyond the "
                 f"segment's kappa_max {kappa_max:g} 1/m (it would stop at the limit)"
             )
+        if st.command in ("jog", "direction") and n is not None and not 0 <= st.args[0] < n:
+            out.append(
+                f"{source}:{st.line}: {st.command}: servo {st.args[0]:g}: the segment has "
+                f"servos 0..{n - 1}"
+            )
+    return out
+
+
+def check_segment(steps: list[Step], descriptor: dict, source: str = "<script>") -> None:
+    """:func:`segment_problems` as a ScriptError listing them all (called before anything
+    moves)."""
+    problems = segment_problems(steps, descriptor, source)
+    if problems:
+        raise ScriptError(problems, steps)
 
 
 def run(session: Session, steps: list[Step], source: str = "<script>") -> Result | None:

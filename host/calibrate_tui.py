@@ -4,8 +4,8 @@ Keys: space or h holds at once (HOLD to the segment; the running step ends), i i
 0-9 select a servo, + / - jog it in / out by the jog step, [ / ] halve / double the step,
 r reverse its direction, d check every direction, t tension to the load threshold, s straight,
 p persist, q quit (holding). Each step runs in a worker thread, one at a time; the UI stays
-responsive so the hold key always works. Ctrl-C quits the same way (bound here: textual 8 maps
-it to a "press ctrl+q to quit" prompt, which neither held nor quit).
+responsive so the hold key always works. Ctrl-C holds and quits too, with return code 130 (bound
+here: textual 8 maps it to a "press ctrl+q to quit" prompt, which neither held nor quit).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from textual.binding import Binding  # noqa: E402
 from textual.widgets import Footer, Header, RichLog, Static  # noqa: E402
 
 JOG_MIN, JOG_MAX = 0.005, 0.2  # rad
+INTERRUPTED = 130  # the return code after Ctrl-C (= host.calibrate_cli.INTERRUPTED)
 
 
 class CalibrateApp(App):
@@ -43,7 +44,7 @@ class CalibrateApp(App):
         ("s", "straight", "straight"),
         ("p", "persist", "persist"),
         ("q", "quit", "quit"),
-        Binding("ctrl+c", "quit", "quit", show=False, priority=True),
+        Binding("ctrl+c", "interrupt", "quit", show=False, priority=True),
     ] + [(str(k), f"select({k})", "") for k in range(10)]
 
     def __init__(self, session: Session, *, threshold: float = 0.05, on_persist=None) -> None:
@@ -158,3 +159,8 @@ class CalibrateApp(App):
     async def action_quit(self) -> None:
         self.session.stop()
         self.exit(self.result)
+
+    async def action_interrupt(self) -> None:
+        """Ctrl-C: hold and quit as q does, with the exit code of an interrupted command."""
+        self.session.stop()
+        self.exit(self.result, return_code=INTERRUPTED)

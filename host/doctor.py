@@ -10,27 +10,30 @@ Checks, in order (docs/commissioning.md): port present and permitted (host/seria
 chain answers at the baud rate (else which rate it answers at), per segment firmware and protocol
 version, configuration, servos found, faults and error counters, the watchdog; with a U(C)RDF the
 chain against it, the configuration hash and the board (host/doctor_config.py); then loop timing
-over a few seconds. The checks themselves: host/doctor_checks.py.
+over a few seconds. The checks themselves: host/doctor_checks.py. Each finding is printed as it is
+made (progress on stderr before a slow step); Ctrl-C keeps what was found and exits 130.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
 
+from host.client_common import number_arg
 from host.doctor_checks import (  # noqa: F401 - re-exported: the names tests and docs use
     EXPECTED_FW_VERSION,
     EXPECTED_PROTOCOL_VERSION,
     P_SERVO_TELEMETRY,
     Finding,
-    check_robot,
     check_segment,
     check_timing,
 )
-from host.doctor_config import check_board, check_config_hash
+from host.doctor_config import check_board, check_config_hash, check_robot
 from host.positions import label
 from host.serialport import access_problem
 
@@ -131,24 +134,48 @@ def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
     )
 
 
-def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = None) -> list[Finding]:
-    """All checks in order; stops early where later checks cannot run (no port, no answer)."""
+def run(
+    port: str,
+    baud: int,
+    robot: str | None,
+    seconds: float,
+    link: Any = None,
+    *,
+    report: Callable[[Finding], None] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[Finding]:
+    """All checks in order; stops early where later checks cannot run (no port, no answer).
+    ``report`` gets each finding as it is made and ``progress`` a line before each slow step, so
+    a caller can show them at once (and keep them when Ctrl-C ends the run)."""
     from host.link import ChainLink, LinkError  # noqa: PLC0415
     from host.link_frames import ProtocolVersionError  # noqa: PLC0415
 
-    findings = [check_port(port)]
+    findings: list[Finding] = []
+
+    def add(*found: Finding) -> None:
+        for f in found:
+            findings.append(f)
+            if report is not None:
+                report(f)
+
+    def say(text: str) -> None:
+        if progress is not None:
+            progress(text)
+
+    add(check_port(port))
     if findings[-1].level == "error":
         return findings
     own = link is None
     if own:
         heard = listen(port, baud)
         if heard is not None:
-            return [*findings, heard]
+            add(heard)
+            return findings
     try:
         if own:
             link = ChainLink(port, baud)
     except LinkError as exc:
-        findings.append(
+        add(
             Finding(
                 "open",
                 "error",
@@ -164,7 +191,7 @@ def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = Non
             try:
                 descs = link.discover(timeout=1.0)
             except ProtocolVersionError as exc:  # a segment answers, in another version
-                findings.append(
+                add(
                     Finding(
                         "protocol",
                         "error",
@@ -181,7 +208,7 @@ def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = Non
             if descs:
                 break
         if not descs:
-            findings.append(
+            add(
                 Finding(
                     "chain",
                     "error",
@@ -192,35 +219,53 @@ def run(port: str, baud: int, robot: str | None, seconds: float, link: Any = Non
             )
             if own:
                 link.close()
-                findings.append(scan_baud(port, baud))
+                say(f"baud: trying {len(BAUD_RATES) - 1} other rates (about 0.5 s each) ...")
+                add(scan_baud(port, baud))
             return findings
-        findings.append(Finding("chain", "ok", f"{len(descs)} segment(s) answer at {baud} bit/s"))
+        add(Finding("chain", "ok", f"{len(descs)} segment(s) answer at {baud} bit/s"))
+        try:  # each segment's measured bend: the load check compares with it (read-only)
+            states = link.heartbeat(timeout=0.5, expected=len(descs))
+        except LinkError:
+            states = []
         for d in descs:
-            findings += check_segment(link, d["position"], d)
+            pos = d["position"]
+            state = states[pos] if isinstance(pos, int) and 0 <= pos < len(states) else None
+            add(*check_segment(link, pos, d, state))
         if robot:
-            findings += check_robot(robot, descs)
-            findings += check_config_hash(robot, descs)
-            findings += check_board(link, robot, descs)
+            add(*check_robot(robot, descs))
+            add(*check_config_hash(robot, descs))
+            add(*check_board(link, robot, descs))
         if seconds > 0:
-            findings.append(check_timing(link, len(descs), seconds))
+            say(f"timing: HEARTBEAT round trips for {seconds:g} s ...")
+            add(check_timing(link, len(descs), seconds))
+        else:
+            add(Finding("timing", "ok", "not checked (--seconds 0)"))
         return findings
     finally:
         if own:
             link.close()
 
 
-def format_text(findings: list[Finding]) -> str:
-    mark = {"ok": "ok  ", "warning": "WARN", "error": "FAIL"}
-    lines = []
-    for f in findings:
-        where = f"{label(f.position)} " if f.position is not None else ""
-        lines.append(f"[{mark[f.level]}] {where}{f.check}: {f.message}")
-        if f.fix and f.level != "ok":
-            lines.append(f"       fix: {f.fix}")
+_MARK = {"ok": "ok  ", "warning": "WARN", "error": "FAIL"}
+
+
+def format_finding(f: Finding) -> str:
+    """One finding as the text report shows it: its line, and its fix unless it is ok."""
+    where = f"{label(f.position)} " if f.position is not None else ""
+    line = f"[{_MARK[f.level]}] {where}{f.check}: {f.message}"
+    if f.fix and f.level != "ok":
+        line += f"\n       fix: {f.fix}"
+    return line
+
+
+def format_summary(findings: list[Finding]) -> str:
     bad = sum(f.level == "error" for f in findings)
     warn = sum(f.level == "warning" for f in findings)
-    lines.append(f"{bad} error(s), {warn} warning(s)")
-    return "\n".join(lines)
+    return f"{bad} error(s), {warn} warning(s)"
+
+
+def format_text(findings: list[Finding]) -> str:
+    return "\n".join([*map(format_finding, findings), format_summary(findings)])
 
 
 def register(subparsers: Any) -> None:
@@ -229,25 +274,61 @@ def register(subparsers: Any) -> None:
         help="find what is wrong with a segment chain (read-only: moves nothing)",
         description="Check the port, the chain and every segment, in order, each finding with "
         "its fix. Read-only: sends DISCOVER, PARAM_GET, HEARTBEAT and CALIBRATE read only. Exit "
-        "1 if anything is wrong.",
+        "1 if anything is wrong, 130 after Ctrl-C (the findings so far are kept).",
     )
     p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
     p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
     p.add_argument("--robot", help="U(C)RDF to compare the chain with")
-    p.add_argument("--seconds", type=float, default=3.0, help="loop timing check duration (s)")
+    p.add_argument(
+        "--seconds",
+        type=number_arg(float, 0.0, True, " s"),
+        default=3.0,
+        help="loop timing check duration (s, default 3; 0 skips the check)",
+    )
     p.add_argument("--json", action="store_true", help="findings as JSON")
     p.set_defaults(func=cmd_doctor)
 
 
+def _as_json(findings: list[Finding]) -> str:
+    # positions counted from 1, as in the text report and everywhere else a user sees them
+    out = [asdict(f) for f in findings]
+    for f in out:
+        if f["position"] is not None:
+            f["position"] += 1
+    return json.dumps(out, indent=1)
+
+
 def cmd_doctor(args: argparse.Namespace) -> int:
-    findings = run(args.port, args.baud, args.robot, args.seconds)
+    """Text: each finding printed as it is made, progress on stderr before each slow step. On
+    Ctrl-C the findings so far stay (JSON: printed then), a one-line note says so, exit 130."""
+    found: list[Finding] = []
+
+    def show(f: Finding) -> None:
+        found.append(f)
+        if not args.json:
+            print(format_finding(f), flush=True)
+
+    def progress(text: str) -> None:
+        if not args.json:
+            print(f"  ... {text}", file=sys.stderr, flush=True)
+
+    try:
+        findings = run(
+            args.port, args.baud, args.robot, args.seconds, report=show, progress=progress
+        )
+    except KeyboardInterrupt:
+        if args.json:
+            print(_as_json(found), flush=True)
+        print(
+            f"ucr doctor: interrupted (Ctrl-C) after {len(found)} finding(s): "
+            f"{format_summary(found)} so far; the checks after them did not run",
+            file=sys.stderr,
+        )
+        return 130
     if args.json:
-        # positions counted from 1, as in the text report and everywhere else a user sees them
-        out = [asdict(f) for f in findings]
-        for f in out:
-            if f["position"] is not None:
-                f["position"] += 1
-        print(json.dumps(out, indent=1))
+        print(_as_json(findings))
     else:
-        print(format_text(findings))
+        for f in findings[len(found) :]:  # any not reported as made
+            print(format_finding(f))
+        print(format_summary(findings))
     return 1 if any(f.level == "error" for f in findings) else 0

@@ -1,17 +1,17 @@
 """The checks of ``ucr doctor`` (host/doctor.py runs them in order and prints them).
 
 Read-only: DISCOVER, PARAM_GET and HEARTBEAT only. Each check returns ``Finding``s, each with the
-fix where something is wrong (docs/commissioning.md).
+fix where something is wrong (docs/commissioning.md). The chain against the U(C)RDF:
+host/doctor_config.py.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from host.positions import label as position_label
-from host.positions import labels as position_labels
 from protocol.constants import VERSION as _PROTOCOL_VERSION
 
 # What this host expects of a segment. The firmware version's major.minor must match (a test
@@ -45,7 +45,9 @@ TEMP_WARN_C = 55.0
 TEMP_ERROR_C = 65.0
 VOLT_MIN_V = 6.0
 VOLT_MAX_V = 14.0
-LOAD_WARN = 0.8  # fraction of max torque
+LOAD_WARN = 0.8  # fraction of max torque, on a tendon no bend winds in (load_allowed)
+#: spool angle (rad) below which the measured bend leaves a tendon as at rest
+BEND_WIND_MIN = 0.05
 
 SERVO_FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
 
@@ -104,8 +106,9 @@ def _param(link: Any, pos: int, pid: int, uid: str | None) -> Any:
     return link.param_get(pos, pid, uid, timeout=0.5)
 
 
-def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
-    """Per-segment checks over PARAM_GET (read-only)."""
+def check_segment(link: Any, pos: int, desc: dict, state: dict | None = None) -> list[Finding]:
+    """Per-segment checks over PARAM_GET (read-only); ``state`` (its STATE answering a
+    HEARTBEAT, if any) tells the load check how the segment is bent."""
     from host.link import LinkError  # noqa: PLC0415
 
     uid = desc.get("uid")
@@ -190,7 +193,7 @@ def check_segment(link: Any, pos: int, desc: dict) -> list[Finding]:
             out.append(
                 Finding("servos", "ok", f"{len(servo_faults)} servo(s) answer", position=pos)
             )
-    out += check_telemetry(link, pos, uid)
+    out += check_telemetry(link, pos, uid, desc=desc, state=state)
     if fault:
         out.append(
             Finding(
@@ -264,8 +267,77 @@ def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
     return Finding("cpu", "ok", msg, position=pos)
 
 
-def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:
-    """Servo voltage, temperature and load where the servos report them (PARAM 22)."""
+def bend_wind_in(desc: dict | None, state: dict | None) -> tuple[list[float], float] | None:
+    """Spool angle (rad, + = tendon wound in) the measured curvature implies per tendon,
+    a_i = l·d·κ·cos(φ − σ_i)/r (docs/firmware.md "Mapping"), and the wind-in of the segment's
+    full bend (κ = kappa_max) towards a tendon; None without its STATE or geometry."""
+    if not isinstance(desc, dict) or not isinstance(state, dict):
+        return None
+    sig = desc.get("tendon_angles")
+    nums = (
+        state.get("kappa"),
+        state.get("phi"),
+        desc.get("length"),
+        desc.get("tendon_radius"),
+        desc.get("spool_radius"),
+        desc.get("kappa_max"),
+    )
+    if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in nums):
+        return None
+    kappa, phi, length, radius, spool, kappa_max = nums
+    if not isinstance(sig, list) or not all(isinstance(x, (int, float)) for x in sig):
+        return None
+    if not (spool > 0 and length * radius * kappa_max > 0):
+        return None
+    per_kappa = length * radius / spool
+    return [per_kappa * kappa * math.cos(phi - x) for x in sig], per_kappa * kappa_max
+
+
+def load_allowed(wind: float, full: float) -> float:
+    """The load (fraction of max torque) a servo may show before it is over-tension: LOAD_WARN,
+    plus the share of the full bend its tendon is wound in by the measured bend (a servo is
+    sized to hold the segment's full bend), so a bent segment's loaded tendons are expected."""
+    return LOAD_WARN + max(0.0, wind) / full
+
+
+def _load_finding(i: int, load: float, pos: int, bend: str, wind: float, full: float) -> Finding:
+    """Servo ``i``'s load beyond what the measured bend explains: over-tension."""
+    load = abs(load)
+    if bend and wind >= BEND_WIND_MIN:
+        what = (
+            f"more than the bend ({bend}) explains: it winds this tendon in by {wind:.2f} rad, "
+            f"up to {load_allowed(wind, full):.0%}"
+        )
+    elif bend and wind <= -BEND_WIND_MIN:
+        what = (
+            f"while the bend ({bend}) pays its tendon out by {-wind:.2f} rad: that tendon should "
+            "be slacker than at rest"
+        )
+    else:  # straight, its tendon left as at rest by the bend, or the pose unknown
+        return Finding(
+            "load",
+            "warning",
+            f"servo {i} load {load:.0%} of max torque at rest",
+            "tendon over-tensioned at rest: slacken it (loosen the spool) "
+            "and check the zero offset",
+            pos,
+        )
+    return Finding(
+        "load",
+        "warning",
+        f"servo {i} load {load:.0%} of max torque, {what}",
+        "its tendon is caught or over-tensioned: free it, slacken it (loosen the spool) and "
+        "check the zero offset",
+        pos,
+    )
+
+
+def check_telemetry(
+    link: Any, pos: int, uid: str | None, *, desc: dict | None = None, state: dict | None = None
+) -> list[Finding]:
+    """Servo voltage, temperature and load where the servos report them (PARAM 22). The load is
+    judged against the bend the segment measures (``state``, with its geometry from ``desc``):
+    a bent segment's servos that wind their tendons in hold that bend (``load_allowed``)."""
     from host.link import LinkError  # noqa: PLC0415
 
     try:
@@ -276,8 +348,16 @@ def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:
         ]
     if not isinstance(tel, list) or not any(isinstance(t, list) for t in tel):
         return [Finding("telemetry", "ok", "servos report no telemetry (e.g. PWM)", position=pos)]
+    winds, full = bend_wind_in(desc, state) or ([], 0.0)
+    bent = max((abs(w) for w in winds), default=0.0) >= BEND_WIND_MIN
+    bend = (
+        f"kappa {state['kappa']:.2f} 1/m, phi {math.degrees(state['phi']):.0f} deg"
+        if bent and state
+        else ""
+    )
     out = []
     shown = []
+    held = False
     for i, t in enumerate(tel):
         if not (
             isinstance(t, list) and len(t) == 3 and all(isinstance(x, (int, float)) for x in t)
@@ -310,18 +390,16 @@ def check_telemetry(link: Any, pos: int, uid: str | None) -> list[Finding]:
                     pos,
                 )
             )
-        if abs(load) >= LOAD_WARN:
-            out.append(
-                Finding(
-                    "load",
-                    "warning",
-                    f"servo {i} load {abs(load):.0%} of max torque at rest",
-                    "tendon over-tensioned at rest: slacken it (loosen the spool) "
-                    "and check the zero offset",
-                    pos,
-                )
-            )
-    out.insert(0, Finding("telemetry", "ok", "; ".join(shown), position=pos))
+        if abs(load) < LOAD_WARN:
+            continue
+        wind = winds[i] if bent and i < len(winds) else 0.0
+        if bent and abs(load) < load_allowed(wind, full):
+            shown[-1] += " (holds the bend)"
+            held = True
+        else:
+            out.append(_load_finding(i, load, pos, bend, wind, full))
+    head = "; ".join(shown) + (f" (bent: {bend})" if held else "")
+    out.insert(0, Finding("telemetry", "ok", head, position=pos))
     return out
 
 
@@ -351,67 +429,3 @@ def check_timing(link: Any, n: int, seconds: float) -> Finding:
     if missing:
         return Finding("timing", "warning", msg, "lost answers: check cables and counters above")
     return Finding("timing", "ok", msg)
-
-
-def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
-    """The chain against the U(C)RDF: count, model, geometry, limits, pinned uids."""
-    from host.topology import compare  # noqa: PLC0415
-    from ucrdf.parser import load  # noqa: PLC0415
-
-    try:
-        robot = load(robot_path)
-    except Exception as exc:  # noqa: BLE001 - shown as a finding, never a traceback
-        return [Finding("robot", "error", str(exc), "fix the U(C)RDF (`ucr check` it)")]
-    cmp = compare(robot, descs)
-    out = _same_names(descs)
-    if cmp.ok:
-        return [*out, Finding("robot", "ok", cmp.text())]
-    found = len(descs)
-    for d in cmp.differences:
-        if d.kind == "count" and found < len(cmp.expected):
-            last, first_missing = position_label(found - 1), position_label(found)
-            fix = (
-                f"no answer beyond {last}: check the cable from {last} to {first_missing} and "
-                f"the power of {cmp.expected[found]} (a segment that does not answer cuts the "
-                "chain there)"
-            )
-            if found and descs[found - 1].get("config_error"):
-                # a refused segment may open no downstream UART (its pins unknown, or a board
-                # whose one free UART is upstream, e.g. an esp32c3): the cut may be its own
-                fix = (
-                    f"{last} refused its configuration ({descs[found - 1]['config_error']}) and "
-                    "may not forward the chain beyond itself: fix and reflash it first "
-                    f"(`ucr flash ... --segment {cmp.expected[found - 1]}`); if the chain is still "
-                    f"cut, {fix}"
-                )
-        elif d.kind == "count":
-            fix = "add the extra segment(s) to the U(C)RDF, or let `ucr daemon --adopt` write one"
-        else:
-            fix = (
-                "stale flash: reflash the segment from this U(C)RDF "
-                "(`ucr flash --robot ... --segment ...`), "
-                "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)"
-            )
-        out.append(
-            Finding("robot", "error" if d.blocking else "warning", d.message, fix, d.position)
-        )
-    return out
-
-
-def _same_names(descs: list[dict]) -> list[Finding]:
-    """Two segments that call themselves by one name (one flashed with the other's bendable)."""
-    at: dict[str, list[int]] = {}
-    for i, d in enumerate(descs):
-        if isinstance(d.get("name"), str):
-            at.setdefault(d["name"], []).append(i)
-    return [
-        Finding(
-            "robot",
-            "error",
-            f"{position_labels(indices)} all call themselves {name!r}",
-            "each segment needs its own bendable's configuration: reflash the wrong one "
-            "(`ucr flash --robot ... --segment NAME` with the bendable at its position)",
-        )
-        for name, indices in at.items()
-        if len(indices) > 1
-    ]

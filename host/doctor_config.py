@@ -1,4 +1,5 @@
-"""``ucr doctor``: the flashed configuration against the U(C)RDF, by hash and by board.
+"""``ucr doctor``: the chain against the U(C)RDF: its segments (count, model, geometry, limits,
+pinned uids, names), and the flashed configuration by hash and by board.
 
 The configuration hash (descriptor key 17, protocol/confighash.py) covers geometry, limits,
 servo ids, the calibration (zero offsets, directions) and the safety params (watchdog_ms,
@@ -14,6 +15,8 @@ from __future__ import annotations
 from typing import Any
 
 from host.doctor_checks import Finding
+from host.positions import label as position_label
+from host.positions import labels as position_labels
 from protocol import calibration as cal
 from protocol.constants import T_CALIBRATE, T_CALIBRATION
 
@@ -146,3 +149,67 @@ def check_board(link: Any, robot_path: str, descs: list[dict]) -> list[Finding]:
                 )
             )
     return out
+
+
+def check_robot(robot_path: str, descs: list[dict]) -> list[Finding]:
+    """The chain against the U(C)RDF: count, model, geometry, limits, pinned uids."""
+    from host.topology import compare  # noqa: PLC0415
+    from ucrdf.parser import load  # noqa: PLC0415
+
+    try:
+        robot = load(robot_path)
+    except Exception as exc:  # noqa: BLE001 - shown as a finding, never a traceback
+        return [Finding("robot", "error", str(exc), "fix the U(C)RDF (`ucr check` it)")]
+    cmp = compare(robot, descs)
+    out = _same_names(descs)
+    if cmp.ok:
+        return [*out, Finding("robot", "ok", cmp.text())]
+    found = len(descs)
+    for d in cmp.differences:
+        if d.kind == "count" and found < len(cmp.expected):
+            last, first_missing = position_label(found - 1), position_label(found)
+            fix = (
+                f"no answer beyond {last}: check the cable from {last} to {first_missing} and "
+                f"the power of {cmp.expected[found]} (a segment that does not answer cuts the "
+                "chain there)"
+            )
+            if found and descs[found - 1].get("config_error"):
+                # a refused segment may open no downstream UART (its pins unknown, or a board
+                # whose one free UART is upstream, e.g. an esp32c3): the cut may be its own
+                fix = (
+                    f"{last} refused its configuration ({descs[found - 1]['config_error']}) and "
+                    "may not forward the chain beyond itself: fix and reflash it first "
+                    f"(`ucr flash ... --segment {cmp.expected[found - 1]}`); if the chain is still "
+                    f"cut, {fix}"
+                )
+        elif d.kind == "count":
+            fix = "add the extra segment(s) to the U(C)RDF, or let `ucr daemon --adopt` write one"
+        else:
+            fix = (
+                "stale flash: reflash the segment from this U(C)RDF "
+                "(`ucr flash --robot ... --segment ...`), "
+                "or edit the U(C)RDF to match (`ucr daemon --adopt` writes one)"
+            )
+        out.append(
+            Finding("robot", "error" if d.blocking else "warning", d.message, fix, d.position)
+        )
+    return out
+
+
+def _same_names(descs: list[dict]) -> list[Finding]:
+    """Two segments that call themselves by one name (one flashed with the other's bendable)."""
+    at: dict[str, list[int]] = {}
+    for i, d in enumerate(descs):
+        if isinstance(d.get("name"), str):
+            at.setdefault(d["name"], []).append(i)
+    return [
+        Finding(
+            "robot",
+            "error",
+            f"{position_labels(indices)} all call themselves {name!r}",
+            "each segment needs its own bendable's configuration: reflash the wrong one "
+            "(`ucr flash --robot ... --segment NAME` with the bendable at its position)",
+        )
+        for name, indices in at.items()
+        if len(indices) > 1
+    ]

@@ -28,8 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     em.add_argument(
         "--keep",
         action="store_true",
-        help="reuse existing segment directories in "
-        "--workdir (e.g. flashed ones) instead of repopulating them",
+        help="with --workdir: reuse its existing segment directories (e.g. flashed ones) "
+        "instead of repopulating them",
     )
     em.add_argument("--control-socket", type=Path, help="also accept commands on this unix socket")
     em.add_argument("--no-stdin", action="store_true", help="do not read commands from stdin")
@@ -164,8 +164,29 @@ def _plan_problem(config: dict) -> str | None:
     return f"board {config['board']!r}: {found[0][1]}" if found else None
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM: a requested stop (a service manager, a script), unlike Ctrl-C not an interrupt."""
+
+
 def _on_sigterm(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+    raise _Terminated
+
+
+def _option_problem(args: argparse.Namespace) -> str | None:
+    """An option that would be silently ignored, or out of range: why (a usage error)."""
+    if args.cpu_factor is not None and not (1.0 <= args.cpu_factor < float("inf")):
+        return f"--cpu-factor must be a finite number >= 1, got {args.cpu_factor}"
+    if args.cpu_factor is not None and not args.timing_model:
+        return (
+            "--cpu-factor needs --timing-model: it scales the board's timing model; without "
+            "that model the firmware runs at this computer's speed"
+        )
+    if args.keep and args.workdir is None:
+        return (
+            "--keep needs --workdir DIR: it reuses the segment directories there; without "
+            "--workdir they are a new temporary directory, with nothing to keep"
+        )
+    return None
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -173,6 +194,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from tools.emulator.control import ControlSocket, execute  # noqa: PLC0415 - keeps `ucr --help` fast
     from tools.segment_config import SegmentConfigError, configs  # noqa: PLC0415 - keeps `ucr --help` fast
 
+    problem = _option_problem(args)
+    if problem:
+        return _error(problem)
     configs_list = None
     n = args.n
     if args.robot is not None:
@@ -199,9 +223,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         return _error(f"number of segments must be 1..64, got {n}")
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     control = None
+    rc = 0
     try:
-        if args.cpu_factor is not None and not (1.0 <= args.cpu_factor < float("inf")):
-            return _error(f"--cpu-factor must be a finite number >= 1, got {args.cpu_factor}")
         with EmulatedChain(
             n,
             args.workdir,
@@ -254,13 +277,15 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                             "stdin closed; still running (Ctrl-C or SIGTERM stops it)", flush=True
                         )
                     threading.Event().wait()  # stdin closed (background run): keep running
-    except KeyboardInterrupt:
+    except _Terminated:
         pass
+    except KeyboardInterrupt:
+        rc = 130  # interrupted, as every ucr command
     except EmulatorError as exc:
         return _error(str(exc))
     finally:
         if control is not None:
             control.close()
         signal.signal(signal.SIGTERM, previous)
-    print("emulator stopped", flush=True)
-    return 0
+    print("emulator stopped" + (" (Ctrl-C)" if rc else ""), flush=True)
+    return rc

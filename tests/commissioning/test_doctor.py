@@ -296,7 +296,7 @@ def test_doctor_reports_each_segments_cpu_load_and_a_saturated_board() -> None:
 def test_doctor_fix_for_a_missing_or_doubled_segment_points_at_the_cause() -> None:
     """Review 2026-11-26: a segment unplugged (or one flashed with its neighbour's bendable)
     got the fix "stale flash: reflash the segment"."""
-    from host.doctor_checks import check_robot
+    from host.doctor_config import check_robot
     from host.topology import chain_bendables
 
     robot_file = REPO / "robots" / "softrobot3.ucrdf"
@@ -384,7 +384,7 @@ def test_a_short_chain_ending_at_a_refused_segment_names_the_refusal_before_the_
     """A segment that refused its configuration may open no downstream UART (an esp32c3 whose one
     free UART is upstream, or pins it cannot trust): `ucr doctor` blamed only the cable and the
     next segment's power for the missing rest of the chain."""
-    from host.doctor_checks import check_robot
+    from host.doctor_config import check_robot
     from host.topology import chain_bendables
 
     robot_file = REPO / "robots" / "softrobot3.ucrdf"
