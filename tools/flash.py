@@ -53,6 +53,10 @@ class FlashError(RuntimeError):
     """Flashing failed; the message says what happened and what to do."""
 
 
+class FlashInterrupted(FlashError):
+    """Ctrl-C (or SIGTERM) ended the flash; the message says what state the board is left in."""
+
+
 @dataclass
 class BoardInfo:
     """What the board says about itself."""
@@ -201,7 +205,7 @@ class Flasher:
             except _LINK_ERRORS:
                 pass
             self.close()
-            raise FlashError(
+            raise FlashInterrupted(
                 "interrupted while entering the board's REPL; nothing was changed (Ctrl-B, "
                 "Ctrl-D sent so its firmware starts again)"
             ) from None
@@ -601,7 +605,7 @@ def flash(
             sigs.mode("defer")  # the cleanup is not cut short by a second Ctrl-C
             what = fl.abort(files, reset=reset, info=info)
             if isinstance(exc, KeyboardInterrupt):
-                raise FlashError(f"interrupted; nothing was changed ({what})") from None
+                raise FlashInterrupted(f"interrupted; nothing was changed ({what})") from None
             if isinstance(exc, FlashError):
                 raise FlashError(f"{exc}; nothing was changed ({what})") from exc
             raise FlashError(f"the link failed: {_why(exc)}; nothing was changed ({what})") from exc

@@ -112,7 +112,7 @@ def _load_robot(path: Path):
 
 
 def cmd_flash(args: argparse.Namespace) -> int:
-    from tools.flash import FlashError, flash  # noqa: PLC0415 - keeps `ucr --help` fast
+    from tools.flash import FlashError, FlashInterrupted, flash  # noqa: PLC0415 - fast --help
     from tools.segment_config import (  # noqa: PLC0415 - keeps `ucr --help` fast
         SegmentConfigError,
         config_for,
@@ -141,10 +141,14 @@ def cmd_flash(args: argparse.Namespace) -> int:
             log=lambda s: print(s, flush=True),
             forget_calibration=args.forget_calibration,
         )
+    except FlashInterrupted as exc:
+        _error(str(exc))
+        return 130  # interrupted, as every ucr command
     except FlashError as exc:
         return _error(str(exc))
     except KeyboardInterrupt:
-        return _error("interrupted before the board was touched")
+        _error("interrupted before the board was touched")
+        return 130
     return 0
 
 
