@@ -258,9 +258,10 @@ class Dispatcher:
             raise S.RequestError(S.INVALID_PARAMS, "points: needs at least one waypoint")
         t_end = points[-1]["time_from_start"]
         names = sorted({n for pt in points for n in pt["segments"]})
-        summary = (
-            f"{len(points)} waypoint(s) over {t_end:g} s, segments {names}, "
-            f"controller {p['controller']!r}"
+        summary = f"{len(points)} waypoint(s) over {t_end:g} s, segments {names}, " + (
+            "the active trajectory controller"
+            if p["controller"] is None
+            else f"controller {p['controller']!r}"
         )
         try:
             goal = await self._call("send_trajectory", points, p["controller"])
@@ -399,7 +400,6 @@ class Dispatcher:
                 session.goals[goal] = status
             if done:
                 session.goals.pop(goal, None)
-
 
 
 class _Raw:

@@ -730,6 +730,8 @@ def test_audit_lines_name_the_client_program_each_connection_declares(stub, audi
     assert len(sends) == 3, audit_lines
     assert "client='ucr view' op=" in sends[0]
     assert "client='ucr python client' op=" in sends[1]
+    # no internal spelling: the default controller is named, not "controller None"
+    assert sends[1].endswith("the active trajectory controller") and "None" not in sends[1]
     # quoted when it is not a plain word, at most 64 characters (HTTP allows no line break)
     assert f"client='x op=fake {'A' * 54}' op=" in sends[2]
 
