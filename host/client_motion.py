@@ -111,7 +111,7 @@ def cmd_move(args: argparse.Namespace) -> int:
 
 def _check_segment(topo: dict, segment: str) -> None:
     """Refuse a segment the robot does not have, naming its bendables, before the daemon would
-    (its answer points at "trajectory point 0", a point ``ucr move`` never showed)."""
+    (its answer points at "trajectory point 1", a point ``ucr move`` never showed)."""
     known = [n for n in topo.get("expected") or [] if isinstance(n, str)]
     controlled = [n for n in topo.get("controlled") or [] if isinstance(n, str)]
     robot = topo.get("robot") or "the robot"
@@ -125,9 +125,11 @@ def _check_segment(topo: dict, segment: str) -> None:
 
 
 def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
-    """Read a YAML/JSON waypoint file into API points (phi in rad); raises CliError with the
-    file and the waypoint on any problem. Format: docs/api.md "Trajectory files"."""
-    from host.api.schema import RequestError, validate_points  # noqa: PLC0415
+    """Read a YAML/JSON waypoint file into API points (phi in rad); raises CliError naming the
+    file, the line (YAML) and the waypoint (from 1) of every problem (the first 20 in full).
+    Format: docs/api.md "Trajectory files"."""
+    from host.api.schema import MAX_POINTS, RequestError, validate_points  # noqa: PLC0415
+    from host.limits import Problems  # noqa: PLC0415
 
     p = Path(path)
     try:
@@ -160,34 +162,70 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
         doc = doc.get("waypoints")
     if not isinstance(doc, list):
         raise CliError(f"{p}: expected a list of waypoints (or a mapping with 'waypoints')")
+    if not doc or len(doc) > MAX_POINTS:
+        raise CliError(f"{p}: {len(doc)} waypoints; 1 to {MAX_POINTS} are accepted")
+    lines = _waypoint_lines(text) if p.suffix.lower() != ".json" else []
+
+    def at(i: int) -> str:  # counted from 1, as the daemon counts a goal's points
+        line = f":{lines[i]}" if i < len(lines) else ""
+        return f"{p}{line}: waypoint {i + 1}"
+
+    problems = Problems()  # every bad waypoint in one go, not one per run
     points = []
+    last_t = 0.0
     for i, wp in enumerate(doc):
         if not isinstance(wp, dict):
-            raise CliError(f"{p}: waypoint {i}: expected a mapping with t and segments")
+            problems.add(f"{at(i)}: expected a mapping with t and segments")
+            continue
         wp = dict(wp)
         if "t" in wp and "time_from_start" not in wp:
             wp["time_from_start"] = wp.pop("t")
         segs = wp.get("segments")
+        found = problems.count
         if isinstance(segs, dict):
             conv = {}
             for name, target in segs.items():
                 if isinstance(target, dict) and "phi_deg" in target:
                     target = dict(target)
-                    if "phi" in target:
-                        raise CliError(
-                            f"{p}: waypoint {i}: {name}: give phi (rad) or phi_deg, not both"
-                        )
                     v = target.pop("phi_deg")
-                    if isinstance(v, bool) or not isinstance(v, int | float):
-                        raise CliError(f"{p}: waypoint {i}: {name}: phi_deg must be a number")
-                    target["phi"] = math.remainder(math.radians(v), 2 * math.pi)
+                    if "phi" in target:
+                        problems.add(f"{at(i)}: {name}: give phi (rad) or phi_deg, not both")
+                    elif isinstance(v, bool) or not isinstance(v, int | float):
+                        problems.add(f"{at(i)}: {name}: phi_deg must be a number")
+                    else:
+                        target["phi"] = math.remainder(math.radians(v), 2 * math.pi)
                 conv[str(name)] = target
             wp["segments"] = conv
-        points.append(wp)
+        if problems.count > found:  # no follow-on report of the same waypoint
+            continue
+        try:
+            (point,) = validate_points([wp], "waypoint", last_t=last_t)
+        except RequestError as exc:  # "waypoint[0].segments.s1.kappa: ..." -> this waypoint
+            problems.add(at(i) + exc.message.removeprefix("waypoint[0]"))
+            t = wp.get("time_from_start")
+            if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
+                last_t = t  # each waypoint against the one before it: one typo, one problem
+            continue
+        last_t = point["time_from_start"]
+        points.append(point)
+    if problems:
+        raise CliError(problems.kept[0] if problems.count == 1 else problems.text(str(p)))
+    return points, controller
+
+
+def _waypoint_lines(text: str) -> list[int]:
+    """The line (from 1) each waypoint of a YAML trajectory file starts on; [] if unknown."""
+    import yaml  # noqa: PLC0415
+
     try:
-        return validate_points(points, "waypoint"), controller
-    except RequestError as exc:
-        raise CliError(f"{p}: {exc.message}") from None
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return []
+    if isinstance(node, yaml.MappingNode):
+        node = next((v for k, v in node.value if k.value == "waypoints"), None)
+    if not isinstance(node, yaml.SequenceNode):
+        return []
+    return [item.start_mark.line + 1 for item in node.value]
 
 
 def cmd_trajectory(args: argparse.Namespace) -> int:

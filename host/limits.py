@@ -55,6 +55,38 @@ def kappa_exceeds(kappa: float, kappa_max: float, measured: bool = False) -> boo
     return kappa > kappa_max + slack + KAPPA_EPS
 
 
+#: A check of many waypoints (a goal, a recording, a trajectory file) reports every problem it
+#: finds in one go, not only the first: the first this many in full, then how many more.
+MAX_REPORTED_PROBLEMS = 20
+
+
+class Problems:
+    """The problems one check found: all counted, the first ``limit`` kept in full.
+    ``text(head)``: ``head`` with the count, then one indented line per problem kept."""
+
+    def __init__(self, limit: int = MAX_REPORTED_PROBLEMS) -> None:
+        self.limit = limit
+        self.kept: list[str] = []
+        self.count = 0
+
+    def add(self, problem: str) -> None:
+        self.count += 1
+        if len(self.kept) < self.limit:
+            self.kept.append(problem)
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def text(self, head: str) -> str:
+        """``head: 1 problem: <it>`` for one, else ``head: N problems:`` and a line each."""
+        if self.count == 1:
+            return f"{head}: {self.kept[0]}"
+        lines = [f"{head}: {self.count} problems:", *(f"  {p}" for p in self.kept)]
+        if self.count > len(self.kept):
+            lines.append(f"  ... and {self.count - len(self.kept)} more")
+        return "\n".join(lines)
+
+
 def _fparam(params: dict, key: str, robot_src: str, where: str) -> float | None:
     if key not in params:
         return None

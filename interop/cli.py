@@ -222,7 +222,8 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--execute",
         action="store_true",
-        help="re-run the recorded motion on the robot: prints the plan (dry run)",
+        help="re-run the recorded motion on the robot: prints what would move, the lead-in "
+        "from the robot's pose now included (dry run)",
     )
     p.add_argument("--go", action="store_true", help="with --execute: really move the robot")
     p.add_argument(

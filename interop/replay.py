@@ -32,9 +32,9 @@ from mcap_ros2._dynamic import generate_dynamic
 from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
 from host.errors import ConfigError
-from host.limits import KAPPA_EPS, BendableLimits, bendable_limits, kappa_exceeds
+from host.limits import KAPPA_EPS, BendableLimits, Problems, bendable_limits, kappa_exceeds
 from interop import ros2
-from interop.live import robot_for
+from interop.live import FeedError, robot_for
 from interop.sinks import Fanout
 from interop.topics import CommandedGoals
 from ucrdf.errors import UcrdfError
@@ -263,6 +263,9 @@ class Plan:
     notes: list[str] = field(default_factory=list)
     source: str = "measured"  # "commanded": the recorded goals; "measured": /joint_states
     goals: list[tuple[float, list[dict]]] = field(default_factory=list)  # (start s, points)
+    # where the robot is now (the lead-in's start): bendable -> (kappa, phi), for those measured
+    now: dict[str, tuple[float, float]] | None = None
+    now_unknown: str = ""  # why ``now`` is None (or lacks a bendable), for the dry run to say
 
 
 def recorded_joint_states(
@@ -349,7 +352,7 @@ def _limits(robot: Any) -> dict[str, BendableLimits]:
 
 
 def _check_point(
-    robot: Any,
+    problems: Problems,
     lims: dict[str, BendableLimits],
     name: str,
     kappa: float,
@@ -358,28 +361,41 @@ def _check_point(
     measured: bool = False,
 ) -> float:
     """κ clipped into [0, kappa_max] after the daemon's own check (host.limits.kappa_exceeds;
-    a measured κ gets the measurement slack); RecordingError if outside."""
+    a measured κ gets the measurement slack). A point outside is added to ``problems`` (the
+    caller refuses the plan once every point is checked; it reports unknown bendables once)."""
     lim = lims.get(name)
     if lim is None:
-        who = getattr(robot, "name", "?")
-        raise RecordingError(
-            f"the recording moves {name}, which robot {who!r} does not have: refused, nothing moves"
-        )
+        return kappa
     if not (math.isfinite(kappa) and math.isfinite(phi)):
-        raise RecordingError(f"{name}: non-finite waypoint {when}: refused, nothing moves")
+        problems.add(f"{name}: non-finite waypoint {when}")
+        return kappa
     if kappa < -KAPPA_EPS or kappa_exceeds(kappa, lim.kappa_max, measured):
         what = "measured" if measured else "recorded"
-        raise RecordingError(
+        problems.add(
             f"{name}: {what} kappa {kappa:.4g} 1/m {when} is outside "
-            f"[0, {lim.kappa_max:.4g}] of the robot file: refused, nothing moves"
+            f"[0, {lim.kappa_max:.4g}] of the robot file"
         )
-    if not lim.full_circle and kappa > 1e-9 and not lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9:
-        raise RecordingError(
+    elif (
+        not lim.full_circle
+        and kappa > 1e-9
+        and not (lim.phi_min - 1e-9 <= phi <= lim.phi_max + 1e-9)
+    ):
+        problems.add(
             f"{name}: recorded phi {math.degrees(phi):.1f} deg {when} is "
             f"outside [{math.degrees(lim.phi_min):.1f}, {math.degrees(lim.phi_max):.1f}] "
-            "deg of the robot file: refused, nothing moves"
+            "deg of the robot file"
         )
     return min(max(kappa, 0.0), lim.kappa_max)
+
+
+def _refuse_if_any(problems: Problems, robot: Any) -> None:
+    """One RecordingError naming every problem found (the first MAX_REPORTED_PROBLEMS in full):
+    a long recording is fixed in one go, not one point per run."""
+    if problems:
+        who = getattr(robot, "name", "?")
+        raise RecordingError(
+            problems.text(f"the recording does not fit robot {who!r} (refused, nothing moves)")
+        )
 
 
 Pose = dict[str, tuple[float, float]]  # bendable -> (kx, ky) 1/m
@@ -437,6 +453,14 @@ def commanded_plan(path: str | Path, robot: Any, here: Pose | None = None) -> Pl
     lims = _limits(robot)
     states = recorded_joint_states(path, ReadReport())  # its warnings are in report already
     paths: dict[str, list[tuple[float, float, float]]] = {}  # the last goal's path per bendable
+    problems = Problems()
+    moved = {n for _, points in goals for pt in points for n in pt["segments"]}
+    unknown = sorted(moved - set(lims))
+    if unknown:
+        problems.add(
+            f"the recording moves {', '.join(unknown)}, which robot "
+            f"{getattr(robot, 'name', '?')!r} does not have"
+        )
     for i, (t_goal, points) in enumerate(goals):
         start = t_goal - t0
         pose = here if i == 0 and here is not None else measured_pose_at(states, t_goal)
@@ -444,12 +468,15 @@ def commanded_plan(path: str | Path, robot: Any, here: Pose | None = None) -> Pl
         for n, p in paths.items():  # the previous goal's path where it has one
             current[n] = [(start, *_position_at(p, start))]
         checked = []
-        for pt in points:
+        for k, pt in enumerate(points):
             t = pt["time_from_start"]
-            when = f"in the goal at {start:.2f} s, waypoint {t:.2f} s"
+            # counted from 1, as `ucr replay` prints the goals ("goal 1/2 sent")
+            when = f"in goal {i + 1} (sent at {start:.2f} s), waypoint {k + 1} (t = {t:.2f} s)"
             segs = {}
             for name, v in pt["segments"].items():
-                kappa = _check_point(robot, lims, name, v["kappa"], v["phi"], when)
+                kappa = _check_point(problems, lims, name, v["kappa"], v["phi"], when)
+                if name not in lims or not (math.isfinite(kappa) and math.isfinite(v["phi"])):
+                    continue
                 phi = v["phi"]
                 segs[name] = {"kappa": kappa, "phi": phi}
                 if name not in plan.segments:
@@ -466,11 +493,25 @@ def commanded_plan(path: str | Path, robot: Any, here: Pose | None = None) -> Pl
         paths.update(current)
         plan.goals.append((start, checked))
         plan.points += checked
+    _refuse_if_any(problems, robot)
+    plan.lead_in = plan.goals[0][1][0]["time_from_start"]  # the first goal's: to its waypoint 1
     last_start, last = plan.goals[-1]
     plan.duration = last_start + last[-1]["time_from_start"]
     plan.segments.sort()
+    _note_now(plan, here)
     _rate_notes(plan, lims)
     return plan
+
+
+def _note_now(plan: Plan, here: Pose | None) -> None:
+    """``plan.now``: (kappa, phi) now of each bendable the plan moves, from ``here`` (the live
+    pose, None when unknown); the dry run shows the lead-in from it."""
+    if here is None:
+        return
+    plan.now = {n: (math.hypot(*here[n]), math.atan2(here[n][1], here[n][0]))
+                for n in plan.segments if n in here}  # fmt: skip
+    if len(plan.now) < len(plan.segments):
+        plan.now_unknown = "no valid measurement"
 
 
 def _rate_notes(plan: Plan, lims: dict[str, BendableLimits]) -> None:
@@ -510,6 +551,7 @@ def make_plan(
     t0 = states[0][0]
     last_t = -math.inf
     prev = {n: (t0 - lead_in, *xy) for n, xy in (here or {}).items()}  # the lead-in's start
+    problems = Problems()
     for i, (t, s) in enumerate(states):
         if t - last_t < sample_period - 1e-9 and i != len(states) - 1:
             continue
@@ -517,8 +559,10 @@ def make_plan(
         seg_pts = {}
         for name, (kappa, phi) in s.items():
             kappa = _check_point(
-                robot, lims, name, kappa, phi, f"at t = {t - t0:.2f} s", measured=True
+                problems, lims, name, kappa, phi, f"at t = {t - t0:.2f} s", measured=True
             )
+            if not (math.isfinite(kappa) and math.isfinite(phi)):
+                continue
             kx, ky = _vector(kappa, phi)
             seg_pts[name] = {"kx": kx, "ky": ky}
             lo, hi = plan.kappa_range.get(name, (kappa, kappa))
@@ -529,8 +573,10 @@ def make_plan(
                 _fastest(plan, name, prev[name], (t, kx, ky))
             prev[name] = (t, kx, ky)
         plan.points.append({"time_from_start": lead_in + (t - t0), "segments": seg_pts})
+    _refuse_if_any(problems, robot)
     plan.duration = plan.points[-1]["time_from_start"]
     plan.goals = [(0.0, plan.points)]
+    _note_now(plan, here)
     _rate_notes(plan, lims)
     return plan
 
@@ -559,25 +605,42 @@ def live_pose(client: Any, timeout: float = 2.0) -> Pose | None:
 
 
 def describe(plan: Plan) -> str:
-    if plan.source == "commanded":
-        head = (
-            f"the recorded commanded trajectory: {len(plan.goals)} goal(s), {len(plan.points)} "
-            f"waypoints over {plan.duration:.2f} s (the first from where the robot is):"
-        )
-    else:
-        head = (
-            f"the recorded measured motion: {len(plan.points)} waypoints over "
-            f"{plan.duration:.2f} s (first after a {plan.lead_in:.1f} s lead-in from where "
-            "the robot is):"
-        )
+    """What would move: per bendable from where it is now (the lead-in, when the live pose is
+    known; else said so) through its first waypoint to its end, the range over all of it."""
+    what = (f"the recorded commanded trajectory: {len(plan.goals)} goal(s), "
+            if plan.source == "commanded" else "the recorded measured motion: ")  # fmt: skip
+    now = plan.now or {}
+    head = (
+        f"{what}{len(plan.points)} waypoints over {plan.duration:.2f} s, the first after a "
+        f"{plan.lead_in:.2f} s lead-in from "
+        + ("the robot's pose now:" if now else "wherever the robot is then:")
+    )
     lines = [head]
     for name in plan.segments:
         (k0, p0), (k1, p1) = plan.start[name], plan.end[name]
         lo, hi = plan.kappa_range[name]
+        if name in now:
+            kn, pn = now[name]
+            lo, hi = min(lo, kn), max(hi, kn)
+            start, phi_start, span = f"{kn:.3f}", f"{math.degrees(pn) + 0.0:.1f}", ""
+        else:
+            start, phi_start, span = "?", "?", " from the first waypoint on"
         lines.append(
-            f"  {name}: kappa {k0:.3f} -> {k1:.3f} 1/m (range {lo:.3f}..{hi:.3f}), "
-            f"phi {math.degrees(p0):.1f} -> {math.degrees(p1):.1f} deg, "
+            f"  {name}: kappa {start} now -> {k0:.3f} after the lead-in -> {k1:.3f} 1/m at the "
+            f"end (range {lo:.3f}..{hi:.3f}{span}), phi {phi_start} -> "
+            f"{math.degrees(p0):.1f} -> {math.degrees(p1):.1f} deg, "
             f"fastest {plan.fastest.get(name, 0.0):.3g} 1/m/s"
+        )
+    unknown = [n for n in plan.segments if n not in now]
+    if unknown:
+        who = ("the robot is" if plan.now is None else
+               f"{', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'}")  # fmt: skip
+        rate = ("not checked" if plan.source == "measured"
+                else "checked from the recorded pose at the goal's start")  # fmt: skip
+        lines.append(
+            f"  note: where {who} now is unknown ({plan.now_unknown or 'not measured'}): the "
+            "lead-in to the first waypoint (from wherever the robot is when it starts) is not "
+            f"in the figures above, its rate {rate}"
         )
     lines += [f"  note: {n}" for n in plan.notes]
     return "\n".join(lines)
@@ -614,12 +677,20 @@ def execute(args: Any) -> int:
     """``ucr replay FILE --execute [--go]``."""
     client = None
     try:
+        unknown = ""  # why the live pose (the lead-in's start) is unknown
         if args.robot:
             robot = load(args.robot)
+            try:  # the lead-in starts where the robot is: ask a daemon if one answers
+                client = connect_daemon(args)
+            except CliError as exc:
+                # "cannot reach the daemon at URL (--url)", without the advice that follows
+                unknown = f"no daemon reachable: {str(exc).split(': is `ucr daemon`')[0]}"
         else:
             client = connect_daemon(args)
             robot, _ = robot_for(client, None)
         here = live_pose(client) if client is not None else None  # the lead-in's start
+        if client is not None and here is None:
+            unknown = "the daemon sent no joint state within 2 s"
         measured = getattr(args, "measured", False)
         plan = None if measured else commanded_plan(args.file, robot, here)
         if plan is None:
@@ -627,6 +698,7 @@ def execute(args: Any) -> int:
                 print("no commanded trajectory in the recording (/ucr/trajectory/commanded): "
                       "re-running the measured motion (/joint_states)")  # fmt: skip
             plan = make_plan(args.file, robot, args.sample_period, args.lead_in, here)
+        plan.now_unknown = plan.now_unknown or unknown
         print(describe(plan))
         if not args.go:
             print("dry run: nothing moved (add --go to run it on the robot)")
@@ -645,7 +717,7 @@ def execute(args: Any) -> int:
               f"{result.get('duration') or 0:.2f} s"
               + (" (retimed)" if result.get("retimed") else ""))  # fmt: skip
         return 0 if result.get("state") == "succeeded" else 1
-    except (RecordingError, UcrdfError, CliError) as exc:
+    except (RecordingError, UcrdfError, CliError, FeedError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     except ApiError as exc:

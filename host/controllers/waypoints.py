@@ -1,6 +1,7 @@
 """Waypoints of a cJTC goal: validated against the bendables' limits and turned into knots
 (time from start, (J, 2) curvature vectors in 1/m). A bad waypoint rejects the whole goal with a
-reason naming the waypoint and the bendable (docs/controllers.md); nothing moves.
+reason naming the waypoint (counted from 1) and the bendable, every bad waypoint in one reason
+(the first host.limits.MAX_REPORTED_PROBLEMS in full; docs/controllers.md); nothing moves.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from host.controllers.base import ControllerError
-from host.limits import BendableLimits, kappa_exceeds
+from host.limits import BendableLimits, Problems, kappa_exceeds
 
 MAX_WAYPOINTS = 10_000  # what the API accepts (docs/api.md)
 MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
@@ -82,76 +83,94 @@ def parse_waypoints(
     times = array("d")
     flat = array("d")
     row = [float(v) for v in np.asarray(current, dtype=float).reshape(-1)]
-    for n, pt in enumerate(points):
+    problems = Problems()  # every bad point is reported, not only the first
+    for n, pt in enumerate(points, start=1):  # counted from 1, as a user counts a file's points
         if not isinstance(pt, dict):
-            raise ControllerError(f"trajectory point {n}: expected a mapping")
+            problems.add(f"trajectory point {n}: expected a mapping")
+            continue
         if not _KEYS.issuperset(pt):
             unknown = ", ".join(sorted(map(str, set(pt) - _KEYS)))
-            raise ControllerError(f"trajectory point {n}: unknown key(s) {unknown}")
+            problems.add(f"trajectory point {n}: unknown key(s) {unknown}")
         t = pt.get("time_from_start", pt.get("t"))
         if not _finite(t):
-            raise ControllerError(
-                f"trajectory point {n}: 'time_from_start' (s) missing or not a number"
-            )
-        if t <= prev_t:
-            raise ControllerError(
+            problems.add(f"trajectory point {n}: 'time_from_start' (s) missing or not a number")
+        elif t <= prev_t:
+            problems.add(
                 f"trajectory point {n}: time_from_start {t} s must be > {prev_t} s (strictly "
                 "increasing, first > 0)"
             )
-        if t - prev_t < MIN_PIECE_S:
-            raise ControllerError(
+        elif t - prev_t < MIN_PIECE_S:
+            problems.add(
                 f"trajectory point {n}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms "
                 f"after the previous point; at least {MIN_PIECE_S * 1e3:g} ms between points"
             )
         segs = pt.get("segments")
         if not isinstance(segs, dict) or not segs:
-            raise ControllerError(
+            problems.add(
                 f"trajectory point {n}: 'segments' must map bendable names to {{kappa, phi}}"
             )
+            segs = {}
         for name, val in segs.items():
             lim = lims.get(name)
             if lim is None:
                 known = ", ".join(joints) or "none"
-                raise ControllerError(
+                problems.add(
                     f"trajectory point {n}: bendable {name!r} is not commanded by "
                     f"{controller!r} (commanded: {known})"
                 )
+                continue
             i, kappa_max, full_circle, phi_min, phi_max = lim
             where = f"trajectory point {n}.{name}"  # only reached for a named bendable
             if not isinstance(val, dict):
-                raise ControllerError(f"{where}: expected {{kappa, phi}}")
+                problems.add(f"{where}: expected {{kappa, phi}}")
+                continue
             if "kx" in val or "ky" in val:
                 if "kx" not in val or "ky" not in val or "kappa" in val or "phi" in val:
-                    raise ControllerError(f"{where}: give both kx and ky (1/m), or kappa and phi")
+                    problems.add(f"{where}: give both kx and ky (1/m), or kappa and phi")
+                    continue
                 kx, ky = val["kx"], val["ky"]
                 if not (_finite(kx) and _finite(ky)):
-                    raise ControllerError(f"{where}: kx/ky must be numbers (1/m)")
+                    problems.add(f"{where}: kx/ky must be numbers (1/m)")
+                    continue
                 kappa = math.hypot(kx, ky)
             else:
                 kappa = val.get("kappa")
                 phi = val.get("phi", 0.0)
                 if not _finite(kappa) or kappa < 0:
-                    raise ControllerError(f"{where}: kappa must be a number >= 0 (1/m)")
+                    problems.add(f"{where}: kappa must be a number >= 0 (1/m)")
+                    continue
                 if not _finite(phi):
-                    raise ControllerError(f"{where}: phi must be a number (rad)")
+                    problems.add(f"{where}: phi must be a number (rad)")
+                    continue
                 kx, ky = kappa * math.cos(phi), kappa * math.sin(phi)
             if kappa_exceeds(kappa, kappa_max):
                 k_txt, max_txt = distinct(kappa, kappa_max)
-                raise ControllerError(
+                problems.add(
                     f"{where}: kappa {k_txt} 1/m exceeds kappa_max "
                     f"{max_txt} 1/m (goal rejected; nothing moved)"
                 )
+                continue
             if not full_circle and kappa > 1e-9:
                 ph = math.atan2(ky, kx)
                 if not phi_min - 1e-9 <= ph <= phi_max + 1e-9:
-                    raise ControllerError(
+                    problems.add(
                         f"{where}: phi {ph:.4g} rad outside [{phi_min:.4g}, {phi_max:.4g}] rad"
                     )
+                    continue
             row[2 * i] = float(kx)
             row[2 * i + 1] = float(ky)
+        if problems.count:  # the knots are thrown away: only keep checking
+            if _finite(t):
+                prev_t = t  # each point against the one before it: one typo is one problem
+            continue
         times.append(float(t))
         flat.extend(row)
         prev_t = t
+    if problems:
+        raise ControllerError(
+            problems.kept[0] if problems.count == 1
+            else problems.text("trajectory rejected (goal rejected; nothing moved)")
+        )  # fmt: skip
     m, j = len(times), len(joints)
     return Knots(
         np.frombuffer(times, dtype=float), np.frombuffer(flat, dtype=float).reshape(m, j, 2)

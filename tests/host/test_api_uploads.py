@@ -74,10 +74,11 @@ def test_an_error_in_a_later_chunk_names_its_index_in_the_whole_trajectory(serve
         c.send_trajectory(points, wait=False)
     assert info.value.code == schema.INVALID_PARAMS
     assert "points[5000].segments.s1.kappa: expected a number, got string" in info.value.message
-    # `ucr trajectory` validates the file itself: the same waypoint, the same index
+    # `ucr trajectory` validates the file itself: the same waypoint, counted from 1 (prose, not
+    # a JSON path: the 5001st waypoint of the file)
     f = tmp_path / "bad.json"
     f.write_text(json.dumps(points))
-    with pytest.raises(CliError, match=r"waypoint\[5000\]\.segments\.s1\.kappa"):
+    with pytest.raises(CliError, match=r"waypoint 5001\.segments\.s1\.kappa"):
         load_trajectory_file(str(f))
 
 

@@ -177,7 +177,7 @@ def test_trajectory_file_is_checked_and_sent(capsys, url, tmp_path):
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("waypoints: [{t: 1, segments: {s1: {kappa: -2}}}]", "waypoint[0].segments.s1.kappa"),
+        ("waypoints: [{t: 1, segments: {s1: {kappa: -2}}}]", ":1: waypoint 1.segments.s1.kappa"),
         (
             "waypoints: [{t: 2, segments: {s1: {kappa: 1}}}, {t: 1, segments: {s1: {kappa: 1}}}]",
             "increase strictly",

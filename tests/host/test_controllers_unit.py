@@ -117,7 +117,7 @@ def test_jtc_interpolates_in_curvature_vector_so_phi_does_not_whip(ctx):
 def test_jtc_rejects_a_waypoint_beyond_kappa_max_with_reason(ctx):
     jtc = JointTrajectoryController("jtc", {}, ctx)
     jtc.on_activate(state_at(ctx.names, 0.0))
-    with pytest.raises(ControllerError, match=r"point 1\.segment_2: kappa 4 1/m exceeds kappa_max"):
+    with pytest.raises(ControllerError, match=r"point 2\.segment_2: kappa 4 1/m exceeds kappa_max"):
         jtc.send_goal(
             [
                 {"time_from_start": 1.0, "segments": {"segment_2": {"kappa": 1.0}}},

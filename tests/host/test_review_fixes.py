@@ -306,7 +306,7 @@ def test_finished_goals_drop_their_trajectory_and_keep_their_status(robot3):
     ("times", "match"),
     [
         ([1e-200], "at least 1 ms between points"),
-        ([0.5, 0.5 + 1e-6], "point 1: .* at least 1 ms between points"),
+        ([0.5, 0.5 + 1e-6], "point 2: .* at least 1 ms between points"),
     ],
 )
 def test_waypoints_too_close_in_time_are_rejected_with_a_reason(robot3, times, match):

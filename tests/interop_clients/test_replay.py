@@ -44,9 +44,18 @@ def test_dry_run_prints_the_plan_and_moves_nothing(rig, recording):
         assert proc.returncode == 0, err
         assert "dry run: nothing moved" in out
         assert "the recorded commanded trajectory: 1 goal(s)" in out
+        # what would move starts where the robot is now (straight), not at the first waypoint:
+        # the lead-in is part of the printed start -> end and range (new-user audit)
+        assert "lead-in from the robot's pose now" in out and "is unknown" not in out, out
         for seg, (kappa, _) in GOAL.items():
-            m = re.search(rf"{seg}: kappa [-\d.]+ -> ([-\d.]+) 1/m", out)
-            assert m and float(m.group(1)) == pytest.approx(kappa, abs=0.05), out
+            m = re.search(
+                rf"{seg}: kappa ([-\d.]+) now -> [-\d.]+ after the lead-in -> ([-\d.]+) 1/m at "
+                r"the end \(range ([-\d.]+)\.\.",
+                out,
+            )
+            assert m and float(m.group(2)) == pytest.approx(kappa, abs=0.05), out
+            assert float(m.group(1)) == pytest.approx(before[seg], abs=0.01), out
+            assert float(m.group(3)) <= before[seg] + 0.01, out
         time.sleep(1.0)
         after = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
     common = [n for n in before if n in after]  # a segment dropped under load is not motion
@@ -673,3 +682,115 @@ def test_rate_zero_says_as_fast_as_possible_and_impossible_rates_are_refused(tmp
         with pytest.raises(ValueError, match="rate must be"):
             play(path, [], rate=bad)
     assert play(path, [], rate=0) == 5
+
+
+def test_every_limit_problem_is_reported_at_once_counting_goals_and_waypoints_from_one(tmp_path):
+    """New-user audit: `ucr replay --execute` stopped at the first waypoint outside the robot's
+    limits (fix one, run again, find the next), and named it by its time only. Now every
+    problem is counted, the first MAX_REPORTED_PROBLEMS shown, each naming its goal and
+    waypoint counted from 1 as `ucr replay` prints goals ("goal 1/2 sent")."""
+    from host.limits import MAX_REPORTED_PROBLEMS
+    from interop.replay import RecordingError, commanded_plan, make_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    ok, bad = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], [[9.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+    far = tmp_path / "far.mcap"
+    _synthetic(far, [
+        {"joints": JOINTS, "waypoints": [[0.5, ok], [1.0, bad]]},  # goal 1: waypoint 2
+        {"joints": JOINTS, "waypoints": [[0.1 * (k + 1), bad] for k in range(24)]},  # 24 more
+    ])  # fmt: skip
+    with pytest.raises(RecordingError) as info:
+        commanded_plan(far, robot)
+    text = str(info.value)
+    assert "25 problems" in text and "nothing moves" in text, text
+    assert "in goal 1 (sent at 0.00 s), waypoint 2 (t = 1.00 s)" in text, text
+    assert "in goal 2 (sent at 1.00 s), waypoint 1 (t = 0.10 s)" in text, text
+    assert text.count("outside [0, 3.314]") == MAX_REPORTED_PROBLEMS, text
+    assert f"and {25 - MAX_REPORTED_PROBLEMS} more" in text, text
+    assert "waypoint 0" not in text and "goal 0" not in text, text
+
+    other = tmp_path / "other.mcap"  # a bendable the robot lacks: named once, not per waypoint
+    _synthetic(other, [{"joints": ["segment_1", "segment_9", "segment_3"],
+                        "waypoints": [[0.5 * (k + 1), ok] for k in range(5)]}])  # fmt: skip
+    with pytest.raises(RecordingError) as info:
+        commanded_plan(other, robot)
+    assert str(info.value).count("segment_9") == 1 and "3 problems" not in str(info.value)
+
+    measured = tmp_path / "measured.mcap"
+    _measured(measured, [0.0, 5.0, 0.0, 6.0, 7.0])
+    with pytest.raises(RecordingError) as info:
+        make_plan(measured, robot, sample_period=0.01)
+    text = str(info.value)
+    assert "3 problems" in text and all(f"at t = {t} s" in text for t in ("0.10", "0.30", "0.40"))
+
+
+def test_the_dry_run_shows_the_lead_in_from_the_pose_now_or_says_it_cannot_know(tmp_path):
+    """New-user audit: the dry run's start -> end and range began at the first waypoint, though
+    the daemon first moves from where the robot is to it (the cJTC lead-in). Now they begin at
+    the live pose when a daemon answers; without one the dry run says the lead-in is unknown
+    (also with --robot, where it never asked a daemon before)."""
+    from interop.replay import commanded_plan, describe, make_plan
+    from ucrdf.parser import load
+
+    robot = load(ROBOT_FILE)
+    rest = [(0.1 * i, [0.0, 0.0, 0.0]) for i in range(3)]
+    path = tmp_path / "lead.mcap"
+    wps = [[0.5, [[1.0, 0], [0, 0], [0, 0]]], [1.5, [[2.0, 0], [0, 0], [0, 0]]]]
+    _goals_and_states(path, [(0.2, {"waypoints": wps})], rest)
+    # segment_1 bent beyond every waypoint now: the range must show it
+    here = {"segment_1": (3.0, 0.0), "segment_2": (0.0, 0.0), "segment_3": (0.0, 0.0)}
+    text = describe(commanded_plan(path, robot, here=here))
+    assert "0.50 s lead-in from the robot's pose now" in text, text
+    assert (
+        "segment_1: kappa 3.000 now -> 1.000 after the lead-in -> 2.000 1/m at the end "
+        "(range 1.000..3.000)" in text
+    ), text
+    assert "unknown" not in text, text
+
+    text = describe(commanded_plan(path, robot))
+    assert "segment_1: kappa ? now -> 1.000 after the lead-in" in text, text
+    assert "range 1.000..2.000 from the first waypoint on" in text, text
+    assert "where the robot is now is unknown (not measured)" in text, text
+    here.pop("segment_3")  # no valid state of it now: that one is said unknown
+    text = describe(commanded_plan(path, robot, here=here))
+    assert "segment_3: kappa ? now" in text and "segment_2: kappa 0.000 now" in text, text
+    assert "where segment_3 is now is unknown (no valid measurement)" in text, text
+
+    measured = tmp_path / "measured.mcap"
+    _measured(measured, [1.0, 1.0])
+    text = describe(make_plan(measured, robot, lead_in=2.0, here={"segment_1": (0.0, 0.0)}))
+    assert "2.00 s lead-in from the robot's pose now" in text, text
+    assert "segment_1: kappa 0.000 now -> 1.000 after the lead-in" in text, text
+
+    # --robot with no daemon to ask: planned all the same, and it says why the start is unknown
+    code, out, err = _ucr_run("replay", str(path), "--execute", "--robot", str(ROBOT_FILE),
+                              "--url", "ws://127.0.0.1:9", "--timeout", "2")  # fmt: skip
+    assert code == 0, err
+    assert "kappa ? now" in out and "unknown (no daemon reachable: cannot reach" in out, out
+    assert "dry run: nothing moved" in out
+
+
+def test_a_robot_file_the_daemon_names_but_cannot_be_read_here_is_one_line(monkeypatch, capsys):
+    """Found with the audit's dry run: a daemon started elsewhere reports its robot file by a
+    path relative to its own directory; `ucr replay --execute` without --robot then ended in a
+    FeedError traceback instead of the one line that says to pass --robot."""
+    from types import SimpleNamespace
+
+    import interop.replay as replay
+    from interop.live import FeedError
+
+    closed = []
+    client = SimpleNamespace(close=lambda: closed.append(True))
+    monkeypatch.setattr(replay, "connect_daemon", lambda args: client)
+
+    def no_file(c, robot):
+        raise FeedError("cannot read the robot file robots/x.ucrdf (No such file or directory); "
+                        "pass --robot FILE")  # fmt: skip
+
+    monkeypatch.setattr(replay, "robot_for", no_file)
+    args = SimpleNamespace(robot=None, file="run.mcap", measured=False, go=False)
+    assert replay.execute(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("ucr: cannot read the robot file") and "pass --robot FILE" in err, err
+    assert closed == [True]
