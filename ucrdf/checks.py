@@ -948,7 +948,16 @@ class _Checker:
         driven = [j.name for j in control.joints if j.name in robot.bendables] or list(
             robot.bendables
         )
-        other = [n for n in driven if robot.bendables[n].model.type != model_name]
+        try:  # a bendable whose own model type is unknown was reported as such (model())
+            known = set(model_registry()[1]())
+        except LookupError:
+            known = None
+        other = [
+            n
+            for n in driven
+            if robot.bendables[n].model.type != model_name
+            and (known is None or robot.bendables[n].model.type in known)
+        ]
         if other:
             types = sorted({robot.bendables[n].model.type for n in other})
             self.error(

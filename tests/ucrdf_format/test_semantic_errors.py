@@ -390,6 +390,15 @@ def test_all_semantic_errors_are_collected_not_just_the_first():
     assert [d.line for d in diagnostics] == sorted(d.line for d in diagnostics)
 
 
+def test_an_unknown_model_type_is_reported_once():
+    # it was named again by the hardware model param check ("model='pcc' but ... use 'spline9'")
+    diagnostics = diagnostics_of(edit('<model type="pcc">', '<model type="spline9">'))
+    assert [d.message for d in diagnostics if "spline9" in d.message] == [
+        d.message for d in diagnostics
+    ]
+    assert len(diagnostics) == 1, "\n".join(map(str, diagnostics))
+
+
 PPC = edit(
     '<model type="pcc">\n        <limits kappa_max="3.0" kappa_rate_max="5.0"/>',
     '<model type="ppc">\n        <param name="steps" value="32"/>\n'
