@@ -2,12 +2,11 @@
 
 Read-only: DISCOVER, PARAM_GET and HEARTBEAT only. Each check returns ``Finding``s, each with the
 fix where something is wrong (docs/commissioning.md). The chain against the U(C)RDF:
-host/doctor_config.py.
+host/doctor_config.py; the servos' telemetry (voltage, temperature, load): host/doctor_telemetry.py.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -39,15 +38,6 @@ P_TICK_MS = 24
 # forwarding run late
 CPU_WARN_PCT = 80
 CPU_SATURATED_PCT = 98
-
-# servo telemetry limits (Feetech STS defaults: 70 deg C cut-off, 6-14 V supply)
-TEMP_WARN_C = 55.0
-TEMP_ERROR_C = 65.0
-VOLT_MIN_V = 6.0
-VOLT_MAX_V = 14.0
-LOAD_WARN = 0.8  # fraction of max torque, on a tendon no bend winds in (load_allowed)
-#: spool angle (rad) below which the measured bend leaves a tendon as at rest
-BEND_WIND_MIN = 0.05
 
 SERVO_FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
 
@@ -193,6 +183,8 @@ def check_segment(link: Any, pos: int, desc: dict, state: dict | None = None) ->
             out.append(
                 Finding("servos", "ok", f"{len(servo_faults)} servo(s) answer", position=pos)
             )
+    from host.doctor_telemetry import check_telemetry  # noqa: PLC0415 - it imports Finding
+
     out += check_telemetry(link, pos, uid, desc=desc, state=state)
     if fault:
         out.append(
@@ -265,142 +257,6 @@ def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
     if max(now, peak) >= CPU_WARN_PCT:
         return Finding("cpu", "warning", msg, fix, pos)
     return Finding("cpu", "ok", msg, position=pos)
-
-
-def bend_wind_in(desc: dict | None, state: dict | None) -> tuple[list[float], float] | None:
-    """Spool angle (rad, + = tendon wound in) the measured curvature implies per tendon,
-    a_i = l·d·κ·cos(φ − σ_i)/r (docs/firmware.md "Mapping"), and the wind-in of the segment's
-    full bend (κ = kappa_max) towards a tendon; None without its STATE or geometry."""
-    if not isinstance(desc, dict) or not isinstance(state, dict):
-        return None
-    sig = desc.get("tendon_angles")
-    nums = (
-        state.get("kappa"),
-        state.get("phi"),
-        desc.get("length"),
-        desc.get("tendon_radius"),
-        desc.get("spool_radius"),
-        desc.get("kappa_max"),
-    )
-    if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in nums):
-        return None
-    kappa, phi, length, radius, spool, kappa_max = nums
-    if not isinstance(sig, list) or not all(isinstance(x, (int, float)) for x in sig):
-        return None
-    if not (spool > 0 and length * radius * kappa_max > 0):
-        return None
-    per_kappa = length * radius / spool
-    return [per_kappa * kappa * math.cos(phi - x) for x in sig], per_kappa * kappa_max
-
-
-def load_allowed(wind: float, full: float) -> float:
-    """The load (fraction of max torque) a servo may show before it is over-tension: LOAD_WARN,
-    plus the share of the full bend its tendon is wound in by the measured bend (a servo is
-    sized to hold the segment's full bend), so a bent segment's loaded tendons are expected."""
-    return LOAD_WARN + max(0.0, wind) / full
-
-
-def _load_finding(i: int, load: float, pos: int, bend: str, wind: float, full: float) -> Finding:
-    """Servo ``i``'s load beyond what the measured bend explains: over-tension."""
-    load = abs(load)
-    if bend and wind >= BEND_WIND_MIN:
-        what = (
-            f"more than the bend ({bend}) explains: it winds this tendon in by {wind:.2f} rad, "
-            f"up to {load_allowed(wind, full):.0%}"
-        )
-    elif bend and wind <= -BEND_WIND_MIN:
-        what = (
-            f"while the bend ({bend}) pays its tendon out by {-wind:.2f} rad: that tendon should "
-            "be slacker than at rest"
-        )
-    else:  # straight, its tendon left as at rest by the bend, or the pose unknown
-        return Finding(
-            "load",
-            "warning",
-            f"servo {i} load {load:.0%} of max torque at rest",
-            "tendon over-tensioned at rest: slacken it (loosen the spool) "
-            "and check the zero offset",
-            pos,
-        )
-    return Finding(
-        "load",
-        "warning",
-        f"servo {i} load {load:.0%} of max torque, {what}",
-        "its tendon is caught or over-tensioned: free it, slacken it (loosen the spool) and "
-        "check the zero offset",
-        pos,
-    )
-
-
-def check_telemetry(
-    link: Any, pos: int, uid: str | None, *, desc: dict | None = None, state: dict | None = None
-) -> list[Finding]:
-    """Servo voltage, temperature and load where the servos report them (PARAM 22). The load is
-    judged against the bend the segment measures (``state``, with its geometry from ``desc``):
-    a bent segment's servos that wind their tendons in hold that bend (``load_allowed``)."""
-    from host.link import LinkError  # noqa: PLC0415
-
-    try:
-        tel = _param(link, pos, P_SERVO_TELEMETRY, uid)
-    except LinkError as exc:
-        return [
-            Finding("telemetry", "warning", f"not available: {exc}", "update the firmware", pos)
-        ]
-    if not isinstance(tel, list) or not any(isinstance(t, list) for t in tel):
-        return [Finding("telemetry", "ok", "servos report no telemetry (e.g. PWM)", position=pos)]
-    winds, full = bend_wind_in(desc, state) or ([], 0.0)
-    bent = max((abs(w) for w in winds), default=0.0) >= BEND_WIND_MIN
-    bend = (
-        f"kappa {state['kappa']:.2f} 1/m, phi {math.degrees(state['phi']):.0f} deg"
-        if bent and state
-        else ""
-    )
-    out = []
-    shown = []
-    held = False
-    for i, t in enumerate(tel):
-        if not (
-            isinstance(t, list) and len(t) == 3 and all(isinstance(x, (int, float)) for x in t)
-        ):
-            continue
-        volt, temp, load = (float(x) for x in t)
-        shown.append(f"{i}: {volt:.1f} V {temp:.0f} C load {load:.2f}")
-        if temp >= TEMP_ERROR_C:
-            out.append(
-                Finding(
-                    "temperature",
-                    "error",
-                    f"servo {i} at {temp:.0f} C (limit {TEMP_ERROR_C:.0f} C)",
-                    "let it cool; slacken its tendon (it is holding too much load) or check for "
-                    "a jammed horn",
-                    pos,
-                )
-            )
-        elif temp >= TEMP_WARN_C:
-            out.append(
-                Finding("temperature", "warning", f"servo {i} at {temp:.0f} C", "watch it", pos)
-            )
-        if not VOLT_MIN_V <= volt <= VOLT_MAX_V:
-            out.append(
-                Finding(
-                    "voltage",
-                    "error",
-                    f"servo {i} supply {volt:.1f} V (expected {VOLT_MIN_V}-{VOLT_MAX_V} V)",
-                    "check the servo power supply and its wiring",
-                    pos,
-                )
-            )
-        if abs(load) < LOAD_WARN:
-            continue
-        wind = winds[i] if bent and i < len(winds) else 0.0
-        if bent and abs(load) < load_allowed(wind, full):
-            shown[-1] += " (holds the bend)"
-            held = True
-        else:
-            out.append(_load_finding(i, load, pos, bend, wind, full))
-    head = "; ".join(shown) + (f" (bent: {bend})" if held else "")
-    out.insert(0, Finding("telemetry", "ok", head, position=pos))
-    return out
 
 
 def check_timing(link: Any, n: int, seconds: float) -> Finding:

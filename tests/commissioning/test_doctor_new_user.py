@@ -9,7 +9,7 @@ import math
 import pytest
 
 from host import doctor
-from host.doctor_checks import check_telemetry
+from host.doctor_telemetry import check_telemetry
 from tests.commissioning.test_doctor import _configs, chain_and_link, wait_discover
 
 # softrobot2's geometry, as its descriptor reports it
@@ -20,7 +20,19 @@ DESC = {
     "tendon_angles": [0.0, 2.0943951023931953, 4.1887902047863905],
     "kappa_max": 3.313916301255056,  # a full bend winds a tendon in by 2.51 rad
 }
-BENT = {"kappa": 2.8, "phi": 0.0}  # towards tendon 0: it is wound in, tendons 1 and 2 pay out
+PER_KAPPA = DESC["length"] * DESC["tendon_radius"] / DESC["spool_radius"]  # rad of spool per 1/m
+
+
+def state(kappa: float, phi: float, excess: tuple[float, ...] = (0.0, 0.0, 0.0)) -> dict:
+    """A STATE of this bend whose servos are wound in as the bend needs, plus ``excess`` rad."""
+    angles = [
+        PER_KAPPA * kappa * math.cos(phi - sig) + e
+        for sig, e in zip(DESC["tendon_angles"], excess, strict=True)
+    ]
+    return {"kappa": kappa, "phi": phi, "servo_angles": angles}
+
+
+BENT = state(2.8, 0.0)  # towards tendon 0: it is wound in, tendons 1 and 2 pay out
 
 
 class _Telemetry:
@@ -39,14 +51,14 @@ def _loads(findings: list[doctor.Finding]) -> list[doctor.Finding]:
 
 
 def test_the_servo_holding_a_bend_is_not_reported_as_over_tensioned() -> None:
-    link = _Telemetry([[12.0, 30.0, 1.0], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
+    link = _Telemetry([[12.0, 30.0, 0.9], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
     found = check_telemetry(link, 0, None, desc=DESC, state=BENT)
     assert not _loads(found), doctor.format_text(found)
     assert "holds the bend" in found[0].message and "kappa 2.80" in found[0].message
 
 
 def test_a_loaded_tendon_the_bend_pays_out_is_still_over_tension() -> None:
-    link = _Telemetry([[12.0, 30.0, 1.0], [12.0, 30.0, 0.9], [12.0, 30.0, 0.0]])
+    link = _Telemetry([[12.0, 30.0, 0.9], [12.0, 30.0, 0.9], [12.0, 30.0, 0.0]])
     found = _loads(check_telemetry(link, 0, None, desc=DESC, state=BENT))
     assert [f.level for f in found] == ["warning"]
     assert "servo 1 load 90%" in found[0].message and "pays its tendon out" in found[0].message
@@ -54,7 +66,7 @@ def test_a_loaded_tendon_the_bend_pays_out_is_still_over_tension() -> None:
 
 def test_a_slight_bend_does_not_excuse_a_servo_near_its_max_torque() -> None:
     link = _Telemetry([[12.0, 30.0, 0.9], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
-    slight = {"kappa": 0.15, "phi": 0.0}  # winds tendon 0 in by 0.11 rad: up to 84 %
+    slight = state(0.15, 0.0)  # winds tendon 0 in by 0.11 rad: up to 84 %
     found = _loads(check_telemetry(link, 0, None, desc=DESC, state=slight))
     assert [f.level for f in found] == ["warning"]
     assert "servo 0 load 90%" in found[0].message and "more than the bend" in found[0].message
@@ -78,18 +90,49 @@ def _bent_config(kappa: float, phi: float, **extra: object) -> dict:
     return cfg
 
 
+def test_a_servo_wound_in_beyond_the_bend_it_measures_is_over_tension() -> None:
+    # review: one servo wound 1.8 rad past taut at rest makes the segment measure a bend towards
+    # its tendon (kappa 1.58); that "bend" excused the load, though the other tendons were not
+    # paid out as a real bend needs
+    wound = {"kappa": 1.58, "phi": 0.0, "servo_angles": [1.8, 0.0, 0.0]}
+    link = _Telemetry([[12.0, 30.0, 0.9], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
+    found = _loads(check_telemetry(link, 0, None, desc=DESC, state=wound))
+    assert [f.level for f in found] == ["warning"], found
+    assert "servo 0 load 90%" in found[0].message and "beyond what the bend" in found[0].message
+
+
+@pytest.mark.parametrize("kappa", [0.7, 2.8, 3.3])
+def test_a_servo_at_its_torque_limit_warns_whatever_the_bend(kappa: float) -> None:
+    # review: the allowance grew past 100 % from a fifth of the full bend on
+    link = _Telemetry([[12.0, 30.0, 1.0], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
+    found = _loads(check_telemetry(link, 0, None, desc=DESC, state=state(kappa, 0.0)))
+    assert [f.message.split(":")[-1] for f in found] == [" at its torque limit"], found
+
+
+def test_a_bend_without_the_servos_angles_excuses_nothing() -> None:
+    link = _Telemetry([[12.0, 30.0, 0.9], [12.0, 30.0, 0.0], [12.0, 30.0, 0.0]])
+    found = _loads(check_telemetry(link, 0, None, desc=DESC, state={"kappa": 2.8, "phi": 0.0}))
+    assert [f.message for f in found] == ["servo 0 load 90% of max torque at rest"]
+
+
 def test_doctor_on_a_bent_emulated_segment_warns_only_about_a_caught_tendon() -> None:
-    bent = _bent_config(2.8, 0.0)  # servo 0 winds 2.1 rad in: load 1.0 (0.5 per rad)
-    caught = _bent_config(2.8, 0.0, emulated_pretension=2.8)  # 1 and 2 taut though paid out
-    for cfg, want in ((bent, []), (caught, [1, 2])):
+    bent = _bent_config(2.4, 0.0)  # servo 0 winds 1.8 rad in: load 0.91 (0.5 per rad)
+    # tendons 1 and 2 taut though the bend pays them out; servo 0 then at its torque limit
+    caught = _bent_config(2.4, 0.0, emulated_pretension=2.6)
+    wound = {**_configs()[0]}  # straight, servo 0 wound 1.8 rad past taut (review)
+    z = [sv.get("zero_offset", 0.0) for sv in wound["servos"]]
+    d = [sv.get("direction", 1) for sv in wound["servos"]]
+    wound["emulated_start"] = [z[0] + d[0] * 1.8, z[1], z[2]]
+    for cfg, want in ((bent, []), (caught, [0, 1, 2]), (wound, [0])):
         with chain_and_link(1, config_for=[cfg]) as (chain, link):
             wait_discover(link, 1)
             link.close()
             findings = doctor.run(chain.host_port, 921600, None, 0.0)
         warned = [int(f.message.split()[1]) for f in _loads(findings)]
         assert warned == want, doctor.format_text(findings)
-        tel = [f for f in findings if f.check == "telemetry"]
-        assert "0: 12.0 V 30 C load 1.00 (holds the bend)" in tel[0].message
+        if cfg is bent:
+            tel = [f for f in findings if f.check == "telemetry"]
+            assert "0: 12.0 V 30 C load 0.91 (holds the bend)" in tel[0].message, tel
         assert [f.message for f in findings if f.check == "timing"] == ["not checked (--seconds 0)"]
 
 
