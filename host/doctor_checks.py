@@ -8,30 +8,32 @@ host/doctor_config.py; the servos' telemetry (voltage, temperature, load): host/
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
+from host.doctor_base import (  # noqa: F401 - Finding and the ids re-exported (tests, doctor.py)
+    P_CONFIG_ERROR,
+    P_CPU_LOAD,
+    P_CRC_ERRORS,
+    P_CYCLE_US,
+    P_DROPPED,
+    P_FAULT,
+    P_FAULT_COUNT,
+    P_FRAMING_ERRORS,
+    P_OVERRUNS,
+    P_SERVO_FAULTS,
+    P_SERVO_TELEMETRY,
+    P_TICK_MS,
+    P_WATCHDOG_MS,
+    Finding,
+    _param,
+)
+from host.doctor_telemetry import check_telemetry
 from protocol.constants import VERSION as _PROTOCOL_VERSION
 
 # What this host expects of a segment. The firmware version's major.minor must match (a test
 # keeps this equal to device/config.py FW_VERSION); the protocol version must be equal.
 EXPECTED_FW_VERSION = "0.1.0"
 EXPECTED_PROTOCOL_VERSION = _PROTOCOL_VERSION  # the one this host's protocol/ speaks
-
-# parameter ids (docs/firmware.md)
-P_WATCHDOG_MS = 0
-P_CRC_ERRORS = 7
-P_FRAMING_ERRORS = 8
-P_DROPPED = 9
-P_SERVO_FAULTS = 12
-P_CYCLE_US = 13
-P_OVERRUNS = 14
-P_CONFIG_ERROR = 16
-P_FAULT = 20
-P_FAULT_COUNT = 21
-P_SERVO_TELEMETRY = 22
-P_CPU_LOAD = 23
-P_TICK_MS = 24
 
 # a segment's CPU load (PARAM 23, % of the last second not spent waiting): above this it has
 # little slack left for frames arriving at once; at or above CPU_SATURATED_PCT its ticks and
@@ -40,17 +42,6 @@ CPU_WARN_PCT = 80
 CPU_SATURATED_PCT = 98
 
 SERVO_FAULT_NAMES = ("none", "no_reply", "stall", "overload", "error", "out_of_range")
-
-
-@dataclass
-class Finding:
-    """One check's result. ``level``: ok | warning | error; ``fix`` says what to do about it."""
-
-    check: str
-    level: str
-    message: str
-    fix: str = ""
-    position: int | None = None
 
 
 def _version_tuple(text: Any) -> tuple[int, ...] | None:
@@ -90,10 +81,6 @@ def check_versions(pos: int, desc: dict) -> list[Finding]:
             )
         )
     return out
-
-
-def _param(link: Any, pos: int, pid: int, uid: str | None) -> Any:
-    return link.param_get(pos, pid, uid, timeout=0.5)
 
 
 def check_segment(link: Any, pos: int, desc: dict, state: dict | None = None) -> list[Finding]:
@@ -183,8 +170,6 @@ def check_segment(link: Any, pos: int, desc: dict, state: dict | None = None) ->
             out.append(
                 Finding("servos", "ok", f"{len(servo_faults)} servo(s) answer", position=pos)
             )
-    from host.doctor_telemetry import check_telemetry  # noqa: PLC0415 - it imports Finding
-
     out += check_telemetry(link, pos, uid, desc=desc, state=state)
     if fault:
         out.append(

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from host.doctor_checks import P_SERVO_TELEMETRY, Finding, _param
+from host.doctor_base import P_SERVO_TELEMETRY, Finding, _param
 
 # servo telemetry limits (Feetech STS defaults: 70 deg C cut-off, 6-14 V supply)
 TEMP_WARN_C = 55.0
