@@ -227,7 +227,17 @@ def admitted_connections(
     at most ``tls_close_timeout`` s, websockets' default ``close_timeout``). Given to
     ``serve``, asyncio does the TLS handshake before the connection exists: a socket that never
     sent a ClientHello was in no cap, thousands of them held a descriptor each. A connection in
-    its TLS handshake is pending and :data:`SILENT` (evicted first but for :data:`REFUSING`)."""
+    its TLS handshake is pending and :data:`SILENT` (evicted first but for :data:`REFUSING`).
+
+    With ``tls``, the server sends no TLS 1.3 session tickets (``tls.num_tickets`` is set to 0
+    here): they were the only records it sent between the handshake and the client's request,
+    and a client that reads on one thread while it writes on another on the same TLS connection
+    (websockets' sync client: the project's own, the tests') now and then lost its upgrade
+    request to them (OpenSSL forbids that concurrent use): the request never left, the client
+    waited out its open timeout, the server logged "did not receive a valid HTTP request".
+    Resumption would only save a reconnecting client one handshake."""
+    if tls is not None:
+        tls.num_tickets = 0
 
     class Admitted(base):  # type: ignore[misc, valid-type]
         ucr_ip: str | None = None

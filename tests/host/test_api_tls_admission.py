@@ -96,14 +96,7 @@ def test_silent_sockets_to_a_tls_api_are_capped_from_accept_and_a_wss_client_sti
         assert stats["evicted_pending"] == 42, stats
         assert sum(_closed(s) for s in socks) == 42
 
-        # one retry: in the full suite on a loaded 2-core host this connect once timed out
-        # after its TLS handshake ("did not receive a valid HTTP request" on the server); not
-        # reproduced alone (an open question of the TLS upgrade, stop 30's note)
-        try:
-            c = connect(srv.url, cafile=str(cert), timeout=20)
-        except ConnectionError:
-            c = connect(srv.url, cafile=str(cert), timeout=20)
-        with c:
+        with connect(srv.url, cafile=str(cert), timeout=20) as c:
             assert c.status()["state"] == "connected"
         ctx = ssl.create_default_context(cafile=str(cert))
         with ws_connect(srv.url, ssl=ctx, open_timeout=20) as ws:
@@ -124,21 +117,29 @@ def test_silent_sockets_to_a_tls_api_are_capped_from_accept_and_a_wss_client_sti
         srv.stop()
 
 
-def _finished_and_request_in_one_packet(port: int, cafile: str) -> bytes:
-    """A wss client whose last TLS handshake message and WebSocket upgrade request leave in one
-    send (as a busy client's may arrive): the status line answered."""
+def _tls_client(
+    s: socket.socket, cafile: str
+) -> tuple[ssl.SSLObject, ssl.MemoryBIO, ssl.MemoryBIO]:
+    """The client side of a TLS handshake over ``s`` (the TLS object, its incoming and outgoing
+    buffers), done but for its last message (the client's Finished), left in outgoing."""
     ctx = ssl.create_default_context(cafile=cafile)
     incoming, outgoing = ssl.MemoryBIO(), ssl.MemoryBIO()
     tls = ctx.wrap_bio(incoming, outgoing, server_hostname="127.0.0.1")
+    while True:
+        try:
+            tls.do_handshake()
+            return tls, incoming, outgoing
+        except ssl.SSLWantReadError:
+            if outgoing.pending:
+                s.sendall(outgoing.read())
+            incoming.write(s.recv(65536))
+
+
+def _finished_and_request_in_one_packet(port: int, cafile: str) -> bytes:
+    """A wss client whose last TLS handshake message and WebSocket upgrade request leave in one
+    send (as a busy client's may arrive): the status line answered."""
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-        while True:
-            try:
-                tls.do_handshake()
-                break
-            except ssl.SSLWantReadError:
-                if outgoing.pending:
-                    s.sendall(outgoing.read())
-                incoming.write(s.recv(65536))
+        tls, incoming, outgoing = _tls_client(s, cafile)
         key = base64.b64encode(os.urandom(16)).decode()
         tls.write(
             f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
@@ -168,6 +169,43 @@ def test_a_request_in_the_same_packet_as_the_end_of_the_tls_handshake_is_answere
             status = _finished_and_request_in_one_packet(srv.port, str(cert))
             assert status == b"HTTP/1.1 101 Switching Protocols", status
     finally:
+        srv.stop()
+
+
+def _sent_after_the_handshake(port: int, cafile: str, wait: float = 1.0) -> tuple[str, bytes]:
+    """What a TLS server sends between the end of the TLS handshake and the client's first
+    request, within ``wait`` s: (the TLS version agreed, the bytes received)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        tls, _, outgoing = _tls_client(s, cafile)
+        s.sendall(outgoing.read())  # the client's Finished: the server's handshake ends
+        s.settimeout(wait)
+        try:
+            return str(tls.version()), s.recv(65536)
+        except TimeoutError:
+            return str(tls.version()), b""
+
+
+def test_the_tls_listeners_send_nothing_between_the_handshake_and_the_request(stub, tls_files):
+    """No TLS 1.3 session tickets, from the API or the Foxglove door: they were the only
+    records a server sent before a client's request, and websockets' sync client (the project's
+    client, the tests') reads them on its receiving thread while it writes its request on the
+    same TLS connection, which OpenSSL does not allow: now and then the request never left, the
+    client timed out and the server logged "did not receive a valid HTTP request" (once in the
+    loaded full suite; under load about 1 in 1500 connects, none in 18000 without tickets)."""
+    from interop.foxglove import FoxgloveSink
+
+    cert, key = tls_files
+    srv = ApiServer(stub, "127.0.0.1", 0, tls_cert=str(cert), tls_key=str(key)).start()
+    sink = FoxgloveSink(port=0, host="127.0.0.1", tls_cert=str(cert), tls_key=str(key))
+    try:
+        for port in (srv.port, sink.port):
+            version, sent = _sent_after_the_handshake(port, str(cert))
+            assert version == "TLSv1.3", version  # (tickets come after the handshake in 1.3)
+            assert sent == b"", f"{len(sent)} bytes ({sent[:5].hex()}…) before any request"
+        status = _finished_and_request_in_one_packet(srv.port, str(cert))
+        assert status == b"HTTP/1.1 101 Switching Protocols", status
+    finally:
+        sink.close()
         srv.stop()
 
 
