@@ -174,6 +174,8 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
     points = []
     last_t = 0.0
     for i, wp in enumerate(doc):
+        if problems.full:
+            break  # enough to say (Problems.text): the rest is not checked
         if not isinstance(wp, dict):
             problems.add(f"{at(i)}: expected a mapping with t and segments")
             continue
@@ -196,8 +198,7 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
                         target["phi"] = math.remainder(math.radians(v), 2 * math.pi)
                 conv[str(name)] = target
             wp["segments"] = conv
-        if problems.count > found:  # no follow-on report of the same waypoint
-            continue
+        bad = problems.count > found  # its times are still checked (against the one before)
         try:
             (point,) = validate_points([wp], "waypoint", last_t=last_t)
         except RequestError as exc:  # "waypoint[0].segments.s1.kappa: ..." -> this waypoint
@@ -207,7 +208,8 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
                 last_t = t  # each waypoint against the one before it: one typo, one problem
             continue
         last_t = point["time_from_start"]
-        points.append(point)
+        if not bad:
+            points.append(point)
     if problems:
         raise CliError(problems.kept[0] if problems.count == 1 else problems.text(str(p)))
     return points, controller

@@ -58,14 +58,21 @@ def kappa_exceeds(kappa: float, kappa_max: float, measured: bool = False) -> boo
 #: A check of many waypoints (a goal, a recording, a trajectory file) reports every problem it
 #: finds in one go, not only the first: the first this many in full, then how many more.
 MAX_REPORTED_PROBLEMS = 20
+#: a check stops at this many problems (:attr:`Problems.full`): a goal of 10,000 bad waypoints
+#: costs the daemon what 1,000 cost, not ten times a good goal's check
+MAX_COUNTED_PROBLEMS = 1000
 
 
 class Problems:
-    """The problems one check found: all counted, the first ``limit`` kept in full.
-    ``text(head)``: ``head`` with the count, then one indented line per problem kept."""
+    """The problems one check found: counted up to ``count_max`` (then :attr:`full`: the check
+    stops), the first ``limit`` kept in full. ``text(head)``: ``head`` with the count, then one
+    indented line per problem kept."""
 
-    def __init__(self, limit: int = MAX_REPORTED_PROBLEMS) -> None:
+    def __init__(
+        self, limit: int = MAX_REPORTED_PROBLEMS, count_max: int = MAX_COUNTED_PROBLEMS
+    ) -> None:
         self.limit = limit
+        self.count_max = count_max
         self.kept: list[str] = []
         self.count = 0
 
@@ -74,6 +81,11 @@ class Problems:
         if len(self.kept) < self.limit:
             self.kept.append(problem)
 
+    @property
+    def full(self) -> bool:
+        """True once ``count_max`` problems are counted: the check stops there."""
+        return self.count >= self.count_max
+
     def __bool__(self) -> bool:
         return self.count > 0
 
@@ -81,9 +93,11 @@ class Problems:
         """``head: 1 problem: <it>`` for one, else ``head: N problems:`` and a line each."""
         if self.count == 1:
             return f"{head}: {self.kept[0]}"
-        lines = [f"{head}: {self.count} problems:", *(f"  {p}" for p in self.kept)]
+        more = "at least " if self.full else ""
+        lines = [f"{head}: {more}{self.count} problems:", *(f"  {p}" for p in self.kept)]
         if self.count > len(self.kept):
-            lines.append(f"  ... and {self.count - len(self.kept)} more")
+            stop = f" (the check stops at {self.count_max})" if self.full else ""
+            lines.append(f"  ... and {more}{self.count - len(self.kept)} more{stop}")
         return "\n".join(lines)
 
 

@@ -85,6 +85,8 @@ def parse_waypoints(
     row = [float(v) for v in np.asarray(current, dtype=float).reshape(-1)]
     problems = Problems()  # every bad point is reported, not only the first
     for n, pt in enumerate(points, start=1):  # counted from 1, as a user counts a file's points
+        if problems.full:
+            break  # enough to say (Problems.text): the rest is not checked
         if not isinstance(pt, dict):
             problems.add(f"trajectory point {n}: expected a mapping")
             continue
@@ -111,6 +113,8 @@ def parse_waypoints(
             )
             segs = {}
         for name, val in segs.items():
+            if problems.full:
+                break
             lim = lims.get(name)
             if lim is None:
                 known = ", ".join(joints) or "none"
