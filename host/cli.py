@@ -214,7 +214,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         except Exception as exc:  # noqa: BLE001 - bind/token errors are user errors
             return print_error(_api_error_line(exc, cfg))
         if api is not None and cfg.api.port == 0:
-            print(f"API on {api.url} (port chosen by the OS: --api-port 0)", flush=True)
+            print(f"API on {api.url} (port 0: chosen by the OS)", flush=True)
     try:
         daemon.start()
     except (DaemonError, ConfigError) as exc:

@@ -14,7 +14,6 @@ error. Errors are one line, never a traceback. ``ucr token FILE`` writes a new t
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -97,7 +96,13 @@ def register(subparsers: Any) -> None:
         help="what to watch (repeatable; default joint_states)",
     )
     p.add_argument("--rate", type=float, default=10.0, help="max lines per second per kind (10)")
-    p.add_argument("--count", type=int, default=None, help="stop after this many messages")
+    p.add_argument(
+        "--count",
+        type=int,
+        default=None,
+        help="stop after this many messages from the daemon (the current topology that "
+        "--kind topology prints first is not counted: --count 0 prints only that)",
+    )
     p.add_argument("--json", action="store_true", help="print each message as one JSON line")
     p.set_defaults(func=cmd_watch)
 
@@ -339,21 +344,21 @@ def cmd_watch(args: argparse.Namespace) -> int:
     if not (0 < args.rate <= 1000):
         say_error("--rate must be in (0, 1000] Hz")
         return 2
-    if args.count is not None and args.count < 1:
-        say_error("--count must be >= 1")
+    if args.count is not None and (args.count < 0 or args.count == 0 and "topology" not in kinds):
+        say_error("--count must be >= 1 (0 only with --kind topology: the current one alone)")
         return 2
 
     def body(c: Any) -> int:
         n = 0
         rc = 0
         sub = c.subscribe(kinds, max_rate=args.rate)
-        first = []
         if "topology" in kinds:  # subscribed first: a change meanwhile is printed after it
             topo = topology_or_none(c)
-            if topo is not None:
-                first.append({"kind": "topology", "reason": "current", **topo})
+            if topo is not None:  # (not counted by --count: a script waits for a change)
+                msg = {"kind": "topology", "reason": "current", **topo}
+                print(json.dumps(msg) if args.json else format_message(msg), flush=True)
         try:
-            for msg in itertools.chain(first, sub):
+            for msg in sub if args.count is None or args.count > 0 else ():
                 print(json.dumps(msg) if args.json else format_message(msg), flush=True)
                 n += 1
                 if args.count is not None and n >= args.count:

@@ -166,6 +166,11 @@ def topology_or_none(c: Any) -> dict | None:
     return topo if isinstance(topo, dict) else None
 
 
+def _names(value: object) -> list[str]:
+    """The names in a list from the daemon (anything else, or a non-name in it, left out)."""
+    return [n for n in value if isinstance(n, str)] if isinstance(value, list) else []
+
+
 def format_missing(topo: dict | None) -> list[str]:
     """The description's segments not under control now, and where the chain is cut (after a
     hot-unplug, a refused segment or a broken link): ``missing: segment_3 (chain cut after
@@ -173,13 +178,14 @@ def format_missing(topo: dict | None) -> list[str]:
     count from 1, as the daemon reports them."""
     if not isinstance(topo, dict):
         return []
-    expected = [n for n in topo.get("expected") or [] if isinstance(n, str)]
-    controlled = set(topo.get("controlled") or [])
+    expected, controlled = _names(topo.get("expected")), set(_names(topo.get("controlled")))
     missing = [n for n in expected if n not in controlled]
     if not missing:
         return []
     cut = topo.get("cut") if isinstance(topo.get("cut"), dict) else {}
     pos = cut.get("after_position")
+    if isinstance(pos, bool):
+        pos = None
     if isinstance(pos, int) and pos > 0:
         after = f", {cut['after']}" if cut.get("after") else ""
         where = f" (chain cut after {label(pos - 1)}{after})"  # after_position counts from 1

@@ -129,6 +129,14 @@ class StateThrottle:
         self.last_line, self.last_t = line, now
         return True
 
+    def final(self, line: str) -> bool:
+        """True if ``line``, the state as the printer stops, differs from the last printed
+        (a motion's end pose is shown, however soon after the last line it came)."""
+        if line == self.last_line:
+            return False
+        self.last_line = line
+        return True
+
 
 class _Printer(threading.Thread):
     """Prints a compact state line (:class:`StateThrottle`) and every event/topology message."""
@@ -156,39 +164,45 @@ class _Printer(threading.Thread):
         self._last_event[key] = now
         return False
 
+    def _handle(self, msg: dict) -> None:
+        kind = msg["kind"]
+        if kind == "joint_states":
+            self.js = msg
+        elif kind == "transforms":
+            self.tf = msg
+        elif kind == "event" and self._quiet(msg):
+            pass
+        elif kind == "event":
+            text = msg.get("message", "")
+            say(f"[{time.monotonic() - self.t0:5.1f}s] event {msg['event']}: {text}")
+        elif kind == "topology":
+            self.topologies.append(msg)
+            missing = "".join(f"; {ln.strip()}" for ln in format_missing(msg))
+            say(
+                f"[{time.monotonic() - self.t0:5.1f}s] topology: "
+                f"{len(msg['controlled'])} segment(s): {', '.join(msg['controlled'])}" + missing
+            )
+
     def run(self) -> None:
         import queue  # noqa: PLC0415
 
         while not self.stop.is_set():
             try:
-                msg = self.q.get(timeout=0.05)
+                self._handle(self.q.get(timeout=0.05))
             except queue.Empty:
-                msg = None
-            if msg is not None:
-                kind = msg["kind"]
-                if kind == "joint_states":
-                    self.js = msg
-                elif kind == "transforms":
-                    self.tf = msg
-                elif kind == "event" and self._quiet(msg):
-                    pass
-                elif kind == "event":
-                    say(
-                        f"[{time.monotonic() - self.t0:5.1f}s] event {msg['event']}: "
-                        f"{msg.get('message', '')}"
-                    )
-                elif kind == "topology":
-                    self.topologies.append(msg)
-                    missing = "".join(f"; {ln.strip()}" for ln in format_missing(msg))
-                    say(
-                        f"[{time.monotonic() - self.t0:5.1f}s] topology: "
-                        f"{len(msg['controlled'])} segment(s): {', '.join(msg['controlled'])}"
-                        + missing
-                    )
+                pass
             state = _fmt_state(self.js, self.tf)
             now = time.monotonic()
             if self.throttle.due(state, now):
                 say(f"[{now - self.t0:5.1f}s] {state}")
+        while True:  # what came meanwhile, then the last state if not yet shown (the end pose)
+            try:
+                self._handle(self.q.get_nowait())
+            except queue.Empty:
+                break
+        state = _fmt_state(self.js, self.tf)
+        if self.throttle.final(state):
+            say(f"[{time.monotonic() - self.t0:5.1f}s] {state}")
         self.daemon_.unsubscribe(self.q)
 
 
