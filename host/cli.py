@@ -15,6 +15,8 @@ import sys
 import threading
 from typing import Any
 
+from host.client_common import port_arg
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -79,17 +81,6 @@ def print_error(msg: str) -> int:
     """Print ``ucr: error: msg`` to stderr; returns the exit code 1."""
     print(f"ucr: error: {msg}", file=sys.stderr)
     return 1
-
-
-def port_arg(text: str) -> int:
-    """An argparse ``type``: a TCP port 0..65535 (0: the OS chooses a free one)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
-    if not 0 <= v <= 65535:
-        raise argparse.ArgumentTypeError(f"must be a port 0..65535 (0: any free port), got {text}")
-    return v
 
 
 def api_start_error(exc: BaseException, bind: str, port: int, where: str) -> str:

@@ -80,6 +80,17 @@ def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
 _seconds = number_arg(float, 0.0, False, " s")
 
 
+def port_arg(text: str) -> int:
+    """An argparse ``type``: a TCP port 0..65535 (0: the OS chooses a free one)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port 0..65535 (0: any free port), got {text}")
+    return v
+
+
 def unreachable_message(url: str, given: str | None) -> str:
     """Why a client found no daemon, where its URL came from and how to point it elsewhere."""
     if given:

@@ -12,7 +12,7 @@ import os
 import sys
 from typing import Any
 
-from host.client_common import number_arg
+from host.client_common import number_arg, port_arg
 from host.extras import install_command
 
 _NEEDS = {
@@ -82,16 +82,6 @@ POSITIVE_S = number_arg(float, 0.0, False, " s")
 POSITIVE_HZ = number_arg(float, 0.0, False, " Hz")
 NON_NEGATIVE_S = number_arg(float, 0.0, True, " s")
 AT_LEAST_ONE = number_arg(int, 1, True)
-
-
-def _port(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
-    if not 0 <= v <= 65535:
-        raise argparse.ArgumentTypeError(f"must be a port 0..65535, got {text}")
-    return v
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -189,7 +179,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--foxglove-port",
-        type=_port,
+        type=port_arg,
         default=None,
         help="also serve the same data live to Foxglove on this port",
     )
@@ -208,11 +198,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--rate", type=number_arg(float, 0.0, True), default=1.0,
                    help="playback speed, x recorded (1; 0: as fast as possible)")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help=f"server address ({OFF_LOOPBACK})")
-    p.add_argument("--port", type=_port, default=8766, help="Foxglove server port (8766)")
+    p.add_argument("--port", type=port_arg, default=8766, help="Foxglove server port (8766)")
     p.add_argument("--no-foxglove", action="store_true", help="no Foxglove server (with --view)")
     p.add_argument("--view", action="store_true", help="play into the 3D view (`ucr view`) as well")
     p.add_argument("--view-host", default="127.0.0.1", help="view address (loopback)")
-    p.add_argument("--view-port", type=_port, default=8080, help="view port (8080; 0: any free)")
+    p.add_argument("--view-port", type=port_arg, default=8080, help="view port (8080; 0: any free)")
     p.add_argument(
         "--wait-client",
         type=NON_NEGATIVE_S,
@@ -256,7 +246,7 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     p.add_argument("--host", default="127.0.0.1",
                    help=f"address to listen on ({OFF_LOOPBACK})")  # fmt: skip
-    p.add_argument("--port", type=_port, default=8766, help="port (8766; 0: any free port)")
+    p.add_argument("--port", type=port_arg, default=8766, help="port (8766; 0: any free port)")
     p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
         "--subdivisions", type=AT_LEAST_ONE, default=10, help="pseudo-rigid links per bendable (10)"

@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.cli import api_start_error, port_arg, print_error, setup_logging, start_api
-from host.client_common import format_missing
+from host.cli import api_start_error, print_error, setup_logging, start_api
+from host.client_common import format_missing, port_arg
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_ROBOT = REPO / "robots" / "softrobot3.ucrdf"

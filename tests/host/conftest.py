@@ -32,3 +32,17 @@ def daemon(chain, robot3):
     start_daemon(d)
     yield d
     d.stop()
+
+
+@pytest.fixture
+def stub_url():
+    """The URL of a real API server over the in-memory facade stub (test_api_protocol)."""
+    from test_api_protocol import FacadeStub
+
+    from host.api.server import ApiServer
+
+    stub = FacadeStub()
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    yield srv.url
+    srv.stop()
+    stub.close()

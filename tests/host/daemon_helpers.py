@@ -106,3 +106,12 @@ def all_back(d, names: list[str] = NAMES) -> bool:
         and st["segments"] == names
         and all(v["valid"] for v in st["joint_states"].values())
     )
+
+
+def free_url() -> str:
+    """A ws:// URL on a loopback port nothing listens on (just freed)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"ws://127.0.0.1:{s.getsockname()[1]}"

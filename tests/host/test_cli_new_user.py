@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from daemon_helpers import NAMES, all_back, wait_for
+from daemon_helpers import NAMES, all_back, free_url, wait_for
 from test_api_protocol import FacadeStub
 
 from host.api.server import ApiServer
@@ -32,13 +32,13 @@ def run(capsys, *argv) -> tuple[int, str, str]:
     return rc, out, err
 
 
-
 def _error_line(stderr: str) -> str:
     """The command's own error line (the API process's log lines on the same stderr may come
     before or after it)."""
     lines = [ln for ln in stderr.splitlines() if ln.startswith("ucr: ")]
     assert len(lines) == 1, stderr
     return lines[0]
+
 
 def _ucr(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -57,21 +57,6 @@ def busy_port():
         s.bind(("127.0.0.1", 0))
         s.listen()
         yield s.getsockname()[1]
-
-
-def free_url() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"ws://127.0.0.1:{s.getsockname()[1]}"
-
-
-@pytest.fixture
-def stub_url():
-    stub = FacadeStub()
-    srv = ApiServer(stub, "127.0.0.1", 0).start()
-    yield srv.url
-    srv.stop()
-    stub.close()
 
 
 CUT_TOPOLOGY = {

@@ -4,7 +4,6 @@ server; the real daemon is exercised in test_api_e2e.py."""
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -17,22 +16,13 @@ from tools.cli import main as ucr
 pytestmark = pytest.mark.timeout(60)
 ROOT = Path(__file__).resolve().parents[2]
 
+from daemon_helpers import free_url  # noqa: E402
 from test_api_protocol import FacadeStub  # noqa: E402 - the in-memory facade
 
 
-def free_url() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"ws://127.0.0.1:{s.getsockname()[1]}"
-
-
 @pytest.fixture
-def url():
-    stub = FacadeStub()
-    srv = ApiServer(stub, "127.0.0.1", 0).start()
-    yield srv.url
-    srv.stop()
-    stub.close()
+def url(stub_url):
+    return stub_url
 
 
 def run(capsys, *argv) -> tuple[int, str, str]:
