@@ -427,7 +427,9 @@ class ApiServer:
         while not self._link.closed:
             await asyncio.sleep(0.2)
         if self._bridge is None:
-            log.warning("API: the daemon side closed; stopping")
+            # the daemon's ordered stop closes the bridge first (its own log says why it
+            # stopped, also when it died): not a warning of the API's
+            log.info("API: the daemon closed the bridge; stopping")
         else:
             await self._stop.wait()
 
