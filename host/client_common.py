@@ -164,16 +164,21 @@ def with_client(args: argparse.Namespace, body: Any) -> int:
 
 
 def topology_or_none(c: Any) -> dict | None:
-    """The daemon's topology, or None when it cannot give one (a daemon without the op, not
-    running yet): status then shows what it has."""
+    """The daemon's topology, or None when it cannot give one (a daemon without the op, or
+    one that cannot answer now): status then shows what it has. Any other refusal (a token
+    without the scope, the request budget used up, ...) is raised: hiding it would show a
+    robot without its missing segments as if it were whole."""
     from host.api.client import ApiConnectionError, ApiError  # noqa: PLC0415
+    from host.api.schema import UNAVAILABLE, UNKNOWN_OP  # noqa: PLC0415
 
     try:
         topo = c.topology()
     except ApiConnectionError:
         raise
-    except ApiError:
-        return None
+    except ApiError as e:
+        if e.code in (UNKNOWN_OP, UNAVAILABLE):
+            return None
+        raise
     return topo if isinstance(topo, dict) else None
 
 

@@ -360,3 +360,31 @@ def test_a_malformed_topology_from_a_foreign_server_is_no_crash(topo):
 
     lines = format_missing(topo)
     assert all(isinstance(ln, str) for ln in lines)
+
+
+class _TopologyRefused:
+    def __init__(self, code: str) -> None:
+        self.code = code
+
+    def topology(self) -> dict:
+        from host.api.client import ApiError
+
+        raise ApiError(self.code, "refused")
+
+
+@pytest.mark.parametrize("code", ["unknown_op", "unavailable"])
+def test_status_goes_on_without_a_topology_the_daemon_cannot_give(code):
+    from host.client_common import topology_or_none
+
+    assert topology_or_none(_TopologyRefused(code)) is None
+
+
+@pytest.mark.parametrize("code", ["forbidden", "rate_limited", "internal"])
+def test_a_refused_topology_is_not_shown_as_a_whole_robot(code):
+    # review: every refusal became "no topology", so status listed no missing segments
+    from host.api.client import ApiError
+    from host.client_common import topology_or_none
+
+    with pytest.raises(ApiError) as e:
+        topology_or_none(_TopologyRefused(code))
+    assert e.value.code == code
