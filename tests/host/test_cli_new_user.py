@@ -7,8 +7,6 @@ the demo's state-line rate."""
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -16,6 +14,7 @@ from daemon_helpers import NAMES, all_back, free_url, wait_for
 from test_api_protocol import FacadeStub
 
 from host.api.server import ApiServer
+from tests.cli_run import run_ucr
 from tools.cli import main as ucr
 
 pytestmark = pytest.mark.timeout(180)
@@ -38,16 +37,6 @@ def _error_line(stderr: str) -> str:
     lines = [ln for ln in stderr.splitlines() if ln.startswith("ucr: ")]
     assert len(lines) == 1, stderr
     return lines[0]
-
-
-def _ucr(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 @pytest.fixture
@@ -140,7 +129,7 @@ def test_watch_topology_prints_the_current_topology_first(capsys, stub_url):
 
 # ------------------------------------------------------------------ 2. daemon: busy API port
 def test_daemon_with_its_api_port_busy_says_how_to_choose_another(busy_port, tmp_path):
-    res = _ucr("daemon", "--robot", str(ROBOT), "--port", "/nonexistent/tty", "--api-port",
+    res = run_ucr("daemon", "--robot", str(ROBOT), "--port", "/nonexistent/tty", "--api-port",
                str(busy_port))  # fmt: skip
     assert res.returncode == 1
     assert "<config>" not in res.stderr and "Traceback" not in res.stderr
@@ -149,7 +138,9 @@ def test_daemon_with_its_api_port_busy_says_how_to_choose_another(busy_port, tmp
     assert "--api-port N" in err and "0: any free port" in err
     cfg = tmp_path / "daemon.yaml"
     cfg.write_text(f"api:\n  port: {busy_port}\n")
-    res = _ucr("daemon", "--robot", str(ROBOT), "--port", "/nonexistent/tty", "--config", str(cfg))
+    res = run_ucr(
+        "daemon", "--robot", str(ROBOT), "--port", "/nonexistent/tty", "--config", str(cfg)
+    )
     assert res.returncode == 1
     assert f"--api-port N or api.port in {cfg}" in res.stderr, res.stderr
 
@@ -157,7 +148,7 @@ def test_daemon_with_its_api_port_busy_says_how_to_choose_another(busy_port, tmp
 def test_daemon_api_port_overrides_the_config_and_0_lets_the_os_choose(busy_port, tmp_path):
     cfg = tmp_path / "daemon.yaml"
     cfg.write_text(f"api:\n  port: {busy_port}\n")  # busy: only the override can start the API
-    res = _ucr("daemon", "--robot", str(ROBOT), "--config", str(cfg), "--port",
+    res = run_ucr("daemon", "--robot", str(ROBOT), "--config", str(cfg), "--port",
                "/nonexistent/tty", "--api-port", "0", "--log-level", "WARNING")  # fmt: skip
     line = next((ln for ln in res.stdout.splitlines() if ln.startswith("API on ")), "")
     assert line.startswith("API on ws://127.0.0.1:"), res.stdout + res.stderr
@@ -189,7 +180,7 @@ def test_api_start_errors_say_what_to_do():
 # ------------------------------------------------------------------ 3. demo: busy API port
 def test_demo_with_its_api_port_busy_fails_with_the_reason(busy_port):
     """It ran the whole demo without API and view and exited 0."""
-    res = _ucr("demo", "--api-port", str(busy_port), "--no-view", "--quiet-log")
+    res = run_ucr("demo", "--api-port", str(busy_port), "--no-view", "--quiet-log")
     assert res.returncode == 1, res.stdout + res.stderr
     err = _error_line(res.stderr)
     assert err.startswith("ucr: error: demo: the API port") and "already in use" in err, err
@@ -200,7 +191,7 @@ def test_demo_with_its_api_port_busy_fails_with_the_reason(busy_port):
 def test_demo_with_its_view_port_busy_fails_with_the_reason(busy_port):
     """A view asked for on a port (--view-port) that cannot serve fails the demo, as the API."""
     pytest.importorskip("viser")
-    res = _ucr("demo", "--view-port", str(busy_port), "--quiet-log")
+    res = run_ucr("demo", "--view-port", str(busy_port), "--quiet-log")
     assert res.returncode == 1, res.stdout + res.stderr
     err = _error_line(res.stderr)
     assert err.startswith(f"ucr: error: demo: view not started on port {busy_port}"), err

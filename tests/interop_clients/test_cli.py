@@ -8,6 +8,8 @@ import sys
 
 import pytest
 
+from tests.cli_run import run_ucr
+
 from .conftest import REPO
 
 MISSING = """
@@ -35,13 +37,8 @@ def test_missing_optional_dependency_is_one_line(mod, argv):
     assert "pip install -e '" in lines[0] and "[record]'" in lines[0], lines  # not PyPI's 'ucr'
 
 
-def _ucr(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tools.cli", *argv], cwd=REPO,
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
-
-
 def test_record_without_a_daemon_says_so(tmp_path):
-    res = _ucr("record", "-o", str(tmp_path / "r.mcap"), "--url", "ws://127.0.0.1:9")
+    res = run_ucr("record", "-o", str(tmp_path / "r.mcap"), "--url", "ws://127.0.0.1:9")
     assert res.returncode == 1 and "Traceback" not in res.stderr
     assert "cannot reach the daemon" in res.stderr
 
@@ -49,12 +46,12 @@ def test_record_without_a_daemon_says_so(tmp_path):
 def test_replay_of_a_file_that_is_not_mcap_is_one_line(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"this is not an mcap file at all")
-    res = _ucr("replay", str(bad), "--execute", "--robot", str(REPO / "robots/softrobot3.ucrdf"))
+    res = run_ucr("replay", str(bad), "--execute", "--robot", str(REPO / "robots/softrobot3.ucrdf"))
     assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
     assert "bad.mcap: not an MCAP file" in res.stderr
-    res = _ucr("replay", str(bad), "--port", "0")
+    res = run_ucr("replay", str(bad), "--port", "0")
     assert res.returncode == 1 and "bad.mcap: not an MCAP file" in res.stderr
-    res = _ucr("replay", str(tmp_path / "missing.mcap"), "--port", "0")
+    res = run_ucr("replay", str(tmp_path / "missing.mcap"), "--port", "0")
     assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
 
 
@@ -62,15 +59,15 @@ def test_record_keeps_an_existing_file_unless_overwrite(tmp_path):
     """Defect: `ucr record -o EXISTING` replaced a recording without a word."""
     old = tmp_path / "old.mcap"
     old.write_bytes(b"an earlier recording")
-    res = _ucr("record", "-o", str(old), "--url", "ws://127.0.0.1:9")
+    res = run_ucr("record", "-o", str(old), "--url", "ws://127.0.0.1:9")
     assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
     assert res.stderr.strip().splitlines() == [
         f"ucr: {old} exists: refused, it is kept (--overwrite replaces it)"
     ]
     assert old.read_bytes() == b"an earlier recording"
-    res = _ucr("record", "-o", str(tmp_path), "--url", "ws://127.0.0.1:9")
+    res = run_ucr("record", "-o", str(tmp_path), "--url", "ws://127.0.0.1:9")
     assert res.returncode == 1 and "is a directory" in res.stderr, res.stderr
-    res = _ucr("record", "-o", str(old), "--overwrite", "--url", "ws://127.0.0.1:9")
+    res = run_ucr("record", "-o", str(old), "--overwrite", "--url", "ws://127.0.0.1:9")
     assert res.returncode == 1 and "cannot reach the daemon" in res.stderr  # got past the check
 
 

@@ -8,17 +8,17 @@ docs/ros2.md. Zenoh sessions here are local (no router, no network)."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import shlex
 import shutil
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
+
+from tests.cli_run import run_ucr
 
 pytest.importorskip("rosbags", reason="the 'ros2' extra (rosbags) is not installed")
 zenoh = pytest.importorskip("zenoh", reason="the 'ros2' extra (eclipse-zenoh) is not installed")
@@ -435,19 +435,13 @@ def test_status_service_says_the_daemon_is_away_and_stop_cancels_nothing():
 
 
 # ---------------------------------------------------------------- command line
-def _ucr(*argv: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tools.cli", *argv], cwd=REPO,
-                          env={**os.environ, **(env or {})}, capture_output=True, text=True,
-                          timeout=120)  # fmt: skip
-
-
 def test_a_bad_ros_domain_id_concerns_ucr_zenoh_only():
     """Defect: a non-integer $ROS_DOMAIN_ID crashed every `ucr` command with a traceback (the
     default was computed while building the parser)."""
-    res = _ucr("check", str(REPO / "robots" / "softrobot3.ucrdf"), env={"ROS_DOMAIN_ID": "abc"})
+    res = run_ucr("check", str(REPO / "robots" / "softrobot3.ucrdf"), env={"ROS_DOMAIN_ID": "abc"})
     assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr
     for bad in ("abc", "300"):
-        res = _ucr("zenoh", "--url", "ws://127.0.0.1:9", env={"ROS_DOMAIN_ID": bad})
+        res = run_ucr("zenoh", "--url", "ws://127.0.0.1:9", env={"ROS_DOMAIN_ID": bad})
         assert res.returncode == 2, res.stderr
         said = (
             f"ucr: $ROS_DOMAIN_ID: {bad!r} is not a ROS 2 domain id (an integer 0..232); set it "
@@ -468,7 +462,7 @@ def test_a_bad_ros_domain_id_concerns_ucr_zenoh_only():
 def test_impossible_options_are_usage_errors_before_anything_opens(option, value, says):
     """Defect: they ended in tracebacks after connecting to the daemon and opening Zenoh. Now a
     usage error (exit 2) names the bound; the daemon is never asked (none runs at that URL)."""
-    res = _ucr("zenoh", option, value, "--url", "ws://127.0.0.1:9")
+    res = run_ucr("zenoh", option, value, "--url", "ws://127.0.0.1:9")
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     assert f"ucr zenoh: error: argument {option}: {says}" in res.stderr
     assert "daemon" not in res.stderr
@@ -479,7 +473,7 @@ def test_an_impossible_controller_is_a_usage_error_before_anything_opens(value):
     """Defect: `--controller bad-name` ended in a RosNameError traceback after the Zenoh session
     had opened, and `--controller /x` made the command topic and action absolute (/x/…, outside
     the robot's namespace). Now one line, exit 2, before the daemon is asked (none runs there)."""
-    res = _ucr("zenoh", "--enable-commands", "--controller", value, "--url", "ws://127.0.0.1:9")
+    res = run_ucr("zenoh", "--enable-commands", "--controller", value, "--url", "ws://127.0.0.1:9")
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     said = (
         f"ucr: invalid controller name {value!r}: letters, digits and '_', not starting with a "

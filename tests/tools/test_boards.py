@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
 from protocol import boards
+from tests.cli_run import run_ucr
 from tools import mpvm
 from tools.emulator import EmulatedChain
 from tools.segment_config import config_for
@@ -44,16 +43,6 @@ def _line_of(path: Path, needle: str) -> int:
         if needle in line:
             return i
     raise AssertionError(needle)
-
-
-def _ucr(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
 
 
 # -- the rules, board by board -------------------------------------------------------------------
@@ -114,7 +103,7 @@ def test_ucr_check_refuses_pwm_on_gpio37_with_path_and_line(tmp_path) -> None:
     path = tmp_path / "pwm37.ucrdf"
     path.write_text(text.replace(old, new, 1))
     line = next(i for i, s in enumerate(path.read_text().splitlines(), 1) if 'pin="37"' in s)
-    res = _ucr("check", str(path))
+    res = run_ucr("check", str(path))
     assert res.returncode != 0
     out = res.stdout + res.stderr
     assert f"{path}:{line}: " in out and "GPIO37 is input-only on esp32" in out, out
@@ -139,7 +128,7 @@ def test_a_serial_servo_bus_needs_a_free_uart_and_unique_ids() -> None:
 def test_ucr_check_refuses_the_chain_on_the_repl_uart_with_path_and_line(tmp_path) -> None:
     wiring = '\n        <uart role="upstream" id="0" tx="1" rx="3"/>'
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32"'), wiring)
-    result = _ucr("check", str(path))
+    result = run_ucr("check", str(path))
     assert result.returncode != 0 and "Traceback" not in result.stderr
     line = _line_of(path, '<uart role="upstream"')
     assert f"{path}:{line}: bendable 'segment_2': board 'esp32': UART0 is the REPL's" in (
@@ -149,25 +138,25 @@ def test_ucr_check_refuses_the_chain_on_the_repl_uart_with_path_and_line(tmp_pat
 
 def test_ucr_check_refuses_a_c3_chain_and_a_pwm_pin_twice(tmp_path) -> None:
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm" board="esp32c3"'))
-    result = _ucr("check", str(path))
+    result = run_ucr("check", str(path))
     assert result.returncode != 0
     assert re.search(r"robot\.ucrdf:\d+: .*esp32c3 has 2 UARTs", result.stderr), result.stderr
     wiring = '\n        <pwm index="1" pin="25"/>'
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="pwm"'), wiring)
-    result = _ucr("check", str(path))
+    result = run_ucr("check", str(path))
     assert f"{path}:{_line_of(path, '<pwm index')}:" in result.stderr
     assert "GPIO25 is used twice: PWM servo 0 and PWM servo 1" in result.stderr
 
 
 def test_ucr_flash_refuses_an_impossible_plan_before_touching_the_port(tmp_path) -> None:
     path = _robot(tmp_path, ACT.replace('driver="emulated"', 'driver="feetech_sts" board="esp32"'))
-    result = _ucr("flash", "--port", "/dev/null", "--robot", str(path), "--segment", "segment_2")
+    result = run_ucr("flash", "--port", "/dev/null", "--robot", str(path), "--segment", "segment_2")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "no UART left for a serial servo bus" in result.stderr
 
 
 def test_ucr_flash_refuses_a_servo_driver_override_the_board_cannot_wire() -> None:
-    result = _ucr(
+    result = run_ucr(
         "flash",
         "--port",
         "/dev/null",
@@ -263,7 +252,7 @@ def test_the_emulator_gives_each_segment_its_boards_heap() -> None:
 
 
 def test_ucr_emulate_refuses_an_unknown_board_in_one_line() -> None:
-    result = _ucr("emulate", "1", "--board", "esp8266", "--no-stdin")
+    result = run_ucr("emulate", "1", "--board", "esp8266", "--no-stdin")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "unknown board 'esp8266'" in result.stderr and "esp32c3" in result.stderr
 

@@ -13,19 +13,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_run import run_ucr
+
 REPO = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.timeout(180)
-
-
-def _ucr(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> None:
@@ -52,7 +44,7 @@ def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> N
         # (a goal may abort with cause link_loss when the loaded machine starves the emulated
         # segments — docs/daemon.md "No motion without a command": then it is sent again)
         for _ in range(3):
-            moved = _ucr(
+            moved = run_ucr(
                 "move",
                 "--url",
                 url,
@@ -79,10 +71,10 @@ def test_demo_forever_keeps_serving_a_client_that_moves_during_the_script() -> N
                 break
         text = "".join(lines)
         assert "== running until Ctrl-C" in text and proc.poll() is None, text
-        st = _ucr("status", "--url", url)
+        st = run_ucr("status", "--url", url)
         assert st.returncode == 0 and "segment_2" in st.stdout, st.stdout + st.stderr
         for _ in range(3):
-            again = _ucr(
+            again = run_ucr(
                 "move",
                 "--url",
                 url,

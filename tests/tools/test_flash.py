@@ -13,6 +13,7 @@ import pytest
 import serial
 
 from host.link import ChainLink
+from tests.cli_run import run_ucr
 from tools.emulator import EmulatedChain
 from tools.flash import Flasher, FlashError, flash
 
@@ -49,22 +50,12 @@ def _robot_with_changed_kappa_max(tmp_path: Path, value: float) -> Path:
     return path
 
 
-def _ucr(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-
-
 def test_ucr_flash_installs_the_segments_configuration(one_segment, tmp_path) -> None:
     chain, link = one_segment
     assert discover_one(link)["name"] == "segment"  # firmware defaults before
     robot = _robot_with_changed_kappa_max(tmp_path, 3.5)
     restarts = chain.stats()["segments"][0]["restarts"]
-    proc = _ucr(
+    proc = run_ucr(
         "flash", "--port", chain.repl_port(0), "--robot", str(robot), "--segment", "segment_2"
     )
     assert proc.returncode == 0, proc.stderr
@@ -96,7 +87,7 @@ def test_flash_precompiled_mpy_boots_and_runs(one_segment) -> None:
 
 
 def test_missing_port_is_a_clear_error(tmp_path) -> None:
-    proc = _ucr(
+    proc = run_ucr(
         "flash", "--port", "/dev/ttyUSB_nope", "--robot", str(ROBOT), "--segment", "segment_1"
     )
     assert proc.returncode == 2
@@ -104,7 +95,7 @@ def test_missing_port_is_a_clear_error(tmp_path) -> None:
 
 
 def test_unknown_segment_is_a_clear_error() -> None:
-    proc = _ucr("flash", "--port", "/dev/null", "--robot", str(ROBOT), "--segment", "nope")
+    proc = run_ucr("flash", "--port", "/dev/null", "--robot", str(ROBOT), "--segment", "nope")
     assert proc.returncode == 2 and "no bendable 'nope'" in proc.stderr
 
 

@@ -8,23 +8,15 @@ import sys
 
 import pytest
 
+from tests.cli_run import run_ucr
+
 from .conftest import REPO, ROBOTS, VALID, edit
 
 pytestmark = pytest.mark.timeout(60)
 
 
-def ucr(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
 def test_check_valid_file_prints_tree_and_exits_0():
-    result = ucr("check", str(ROBOTS / "softrobot3.ucrdf"))
+    result = run_ucr("check", str(ROBOTS / "softrobot3.ucrdf"))
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert out.startswith("robot softrobot3: 4 links, 0 joints, 3 bendables")
@@ -35,7 +27,7 @@ def test_check_valid_file_prints_tree_and_exits_0():
 
 
 def test_check_hybrid_shows_joint_types():
-    result = ucr("check", str(ROBOTS / "hybrid_arm.ucrdf"))
+    result = run_ucr("check", str(ROBOTS / "hybrid_arm.ucrdf"))
     assert result.returncode == 0, result.stderr
     assert "joint elbow (revolute" in result.stdout and "joint wrist_mount (fixed)" in result.stdout
 
@@ -45,7 +37,7 @@ def test_check_invalid_file_prints_path_line_errors_and_exits_1(tmp_path):
     text = edit('<parent link="arm"/>', '<parent link="nowhere"/>')
     text = edit('<backbone length="0.3"', '<backbone length="-1"', text)
     bad.write_text(text)
-    result = ucr("check", str(bad))
+    result = run_ucr("check", str(bad))
     assert result.returncode == 1
     assert result.stdout == ""
     lines = result.stderr.splitlines()
@@ -63,7 +55,7 @@ def test_check_unreadable_input_is_one_clear_line(tmp_path, kind):
         target.mkdir()
     elif kind == "binary":
         target.write_bytes(bytes(range(256)))
-    result = ucr("check", str(target))
+    result = run_ucr("check", str(target))
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     first = result.stderr.splitlines()[0]
@@ -73,7 +65,7 @@ def test_check_unreadable_input_is_one_clear_line(tmp_path, kind):
 def test_quiet_check_prints_nothing(tmp_path):
     good = tmp_path / "good.ucrdf"
     good.write_text(VALID)
-    result = ucr("check", "-q", str(good))
+    result = run_ucr("check", "-q", str(good))
     assert (result.returncode, result.stdout, result.stderr) == (0, "", "")
 
 
