@@ -10,18 +10,16 @@ import json
 
 import pytest
 
-from host.api.auth import CONTROL, READ, Token
 from host.api.client import ApiError, connect
 from host.api.server import ApiServer
 from tests.host.test_api_protocol import FacadeStub
+from tests.view.view_helpers import CONTROL_TOKEN, READ_TOKEN, two_token_server
 from ucrdf.parser import load, parse_string
 from ucrdf.writer import dumps
 
 pytestmark = pytest.mark.timeout(60)
 
 ROBOT = "robots/softrobot3.ucrdf"
-READ_TOKEN = "viewer-token-0123456789abcdef"
-CONTROL_TOKEN = "operator-token-0123456789abcd"
 
 
 class DescribedStub(FacadeStub):
@@ -43,14 +41,8 @@ class DescribedStub(FacadeStub):
 
 @pytest.fixture
 def described():
-    stub = DescribedStub()
-    tokens = (Token(READ_TOKEN, READ, "viewer.token"), Token(CONTROL_TOKEN, CONTROL, "op.token"))
-    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
-    try:
+    with two_token_server(stub=DescribedStub()) as srv:
         yield srv
-    finally:
-        srv.stop()
-        stub.close()
 
 
 def test_session_tells_each_token_its_own_scope_and_never_a_token(described):

@@ -112,15 +112,16 @@ READ_TOKEN, CONTROL_TOKEN = "read-only-token-0123456789", "control-token-0123456
 
 
 @contextmanager
-def two_token_server(publish_hz: float = 50.0):
-    """The real API server over the facade stub, with a read and a control token
-    (:data:`READ_TOKEN`, :data:`CONTROL_TOKEN`); yields the server."""
+def two_token_server(publish_hz: float = 50.0, stub=None):
+    """The real API server over ``stub`` (the facade stub by default), with a read and a control
+    token (:data:`READ_TOKEN`, :data:`CONTROL_TOKEN`, labelled ``viewer.token`` and
+    ``op.token``); yields the server and closes the stub after it."""
     from host.api.auth import CONTROL, READ, Token
     from host.api.server import ApiServer
     from tests.host.test_api_protocol import FacadeStub
 
-    stub = FacadeStub(publish_hz=publish_hz)
-    tokens = (Token(READ_TOKEN, READ, "v"), Token(CONTROL_TOKEN, CONTROL, "o"))
+    stub = FacadeStub(publish_hz=publish_hz) if stub is None else stub
+    tokens = (Token(READ_TOKEN, READ, "viewer.token"), Token(CONTROL_TOKEN, CONTROL, "op.token"))
     srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens).start()
     try:
         yield srv
