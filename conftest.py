@@ -377,3 +377,34 @@ if Sybil is not None:
         patterns=["README.md", "docs/*.md"],
         fixtures=["docenv"],
     ).pytest()
+
+
+# -- where the suite's time goes ------------------------------------------------------------------
+# The guide's budget: the tests within 10 minutes on 2 cores, heavier end-to-end checks (a browser,
+# the documentation's commands against emulated robots) within 10 more. Each run prints the split,
+# so a test that grows the first part shows in the next run's summary, not in a timed test.
+_PARTS = ("tests", "browser tests", "documentation's commands")
+_part_of: dict[str, str] = {}
+_seconds = dict.fromkeys(_PARTS, 0.0)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        path = item.nodeid.split("::")[0]
+        if path.endswith(".md"):
+            _part_of[item.nodeid] = _PARTS[2]
+        elif "browser" in getattr(item, "fixturenames", ()):
+            _part_of[item.nodeid] = _PARTS[1]
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    _seconds[_part_of.get(report.nodeid, _PARTS[0])] += report.duration
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    if sum(_seconds.values()) < 1.0:
+        return
+    split = ", ".join(f"{_seconds[p]:.0f} s {p}" for p in _PARTS)
+    terminalreporter.write_line(
+        f"time by part: {split} (budget: 600 s tests, 600 s for the other two)"
+    )
