@@ -110,7 +110,7 @@ def test_a_lossy_tip_link_leaves_the_healthy_segments_under_control(ready, chain
     try:
         changes0 = d.status()["topology_changes"]
         chain.set_link(2, corrupt_rate=0.01)  # `corrupt 3 0.01` on the control socket
-        t_end = time.monotonic() + 10.0
+        t_end = time.monotonic() + 6.0
         results = []
         while time.monotonic() < t_end:
             gid = d.send_trajectory(
@@ -133,8 +133,8 @@ def test_a_lossy_tip_link_leaves_the_healthy_segments_under_control(ready, chain
     # goals naming only segment_1 are never aborted by what happens at segment_3
     assert not [r for r in aborted if r["abort"]["cause"] == "topology_change"], aborted
     assert len(aborted) <= 1, aborted  # (one for a starved emulated segment on a loaded host)
-    assert len(results) >= 5
+    assert len(results) >= 3
     # segment_1 and segment_2 keep getting their cyclic frames during rebuilds and probes
     assert trips == [], trips
-    # no flapping: a few rebuilds in 10 s, not several a second
+    # no flapping: a few rebuilds in 6 s, not several a second
     assert changes <= 6, [e["message"] for e in flaps]
