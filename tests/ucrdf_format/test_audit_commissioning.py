@@ -9,14 +9,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_run import run_ucr as ucr
 from tools.segment_config import SegmentConfigError, config_for, configs
 from ucrdf.checks import check, warnings
 from ucrdf.compose import robot_from_descriptors
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load, parse_string, parse_with_lines
 from ucrdf.writer import dumps
-
-from .test_cli import ucr
 
 REPO = Path(__file__).resolve().parents[2]
 HYBRID = REPO / "robots" / "hybrid_arm.ucrdf"
