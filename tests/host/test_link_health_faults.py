@@ -145,8 +145,8 @@ def test_the_chain_is_back_soon_after_corruption_on_the_first_link(ready, chain)
     # the daemon's own event time: rebuilt by the first rediscovery after the link is clean,
     # well within the 500 ms goal (before: 0.37 s here — the DISCOVER swallowed by the garbage
     # in segment_1's receiver was waited out, then the 0.2 s between rediscoveries). Now it is
-    # about 0.06 s, or about 0.25 s when the first rediscovery still meets garbage and the next
-    # one, 0.2 s later, brings the chain back; either way under the old 0.37 s
+    # about 0.06 s, or about 0.25 s: one rediscovery period (0.2 s) later, when the rediscovery
+    # around the moment the link turned clean did not get through; either way under 0.37 s
     assert min(took) < 0.3 and sorted(took)[1] < 0.33, took
 
 
