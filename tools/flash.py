@@ -47,6 +47,27 @@ UP_LINE = re.compile(rb"\[main\] segment \S+ up")
 BOOT_TIMEOUT = 15.0
 #: Seconds an interrupted board gets to answer the raw REPL again before it is given up on.
 RESYNC_TIMEOUT = 3.0
+#: Seconds of silence from a board waiting for its raw-REPL prompt or acknowledgement (mpremote
+#: waits 10 s there): a board switched off mid-upload is given up on after this. A command's own
+#: output keeps mpremote's 10 s (a board may compute that long before it prints).
+QUIET_TIMEOUT = 5.0
+_DEFAULT = object()
+
+
+def _bounded_reads(read_until: Callable[..., bytes]) -> Callable[..., bytes]:
+    """mpremote's ``read_until`` with :data:`QUIET_TIMEOUT` where its callers rely on its 10 s
+    default, and a message saying what happened when the answer does not come (every such caller
+    fails then anyway, saying "could not enter raw repl")."""
+
+    def read(min_num_bytes, ending, timeout=_DEFAULT, data_consumer=None, timeout_overall=None):
+        if timeout is not _DEFAULT:
+            return read_until(min_num_bytes, ending, timeout, data_consumer, timeout_overall)
+        data = read_until(min_num_bytes, ending, QUIET_TIMEOUT, data_consumer, timeout_overall)
+        if not data.endswith(ending):
+            raise TransportError(f"the board sent nothing for {QUIET_TIMEOUT:g} s")
+        return data
+
+    return read
 
 
 class FlashError(RuntimeError):
@@ -196,6 +217,7 @@ class Flasher:
         # board (or loaded host) slower than 0.1 s made every exec fail "could not enter raw repl".
         self.t.serial.timeout = 0.1
         self.t.serial = self.wire = _CountingSerial(self.t.serial)
+        self.t.read_until = _bounded_reads(self.t.read_until)
         try:
             self._enter_raw_repl(connect_timeout)
             self.t.serial.timeout = 2.0

@@ -105,6 +105,8 @@ def test_a_board_switched_off_midway_is_not_claimed_reset(chain) -> None:
     assert time.monotonic() - t0 < 25, message
     assert "reset to its previous firmware" not in message, message
     assert "did not answer" in message and "ucr flash" in message, message
+    # before: mpremote's "could not enter raw repl" after 10 s of silence (15 s in all here)
+    assert "failed: the board sent nothing for 5 s" in message, message
     assert discover_name(link) == name
 
 
