@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from protocol import messages as M
+from tests.cli_run import run_ucr
 from tests.device.conftest import decode
 from tools import mpvm
 
@@ -195,16 +194,6 @@ def _robot(tmp_path: Path, **edits: str) -> Path:
     return path
 
 
-def _ucr(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-
-
 def _line_of(path: Path, needle: str) -> int:
     for i, line in enumerate(path.read_text().splitlines(), 1):
         if needle in line:
@@ -223,12 +212,12 @@ def test_ucr_check_and_flash_refuse_what_the_firmware_cannot_run_with_path_and_l
         },
     )
     line = _line_of(path, 'min_angle="-60.0"')
-    res = _ucr("check", str(path))
+    res = run_ucr("check", str(path))
     assert res.returncode != 0
     assert f"{path}:{line}: " in res.stdout + res.stderr
     assert "firmware would refuse" in res.stdout + res.stderr and "Traceback" not in res.stderr
     # ucr flash generates the same configuration and refuses it before touching the board
-    res = _ucr(
+    res = run_ucr(
         "flash", "--port", "/dev/null-no-such-port", "--robot", str(path), "--segment", "segment_1"
     )
     out = res.stdout + res.stderr

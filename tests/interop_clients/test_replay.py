@@ -9,6 +9,8 @@ import time
 import numpy as np
 import pytest
 
+from tests.cli_run import run_ucr
+
 from .conftest import GOAL, ROBOT_FILE, stop, straighten, ucr, wait_for
 
 pytestmark = pytest.mark.timeout(300)
@@ -365,13 +367,7 @@ def test_a_segment_holding_kappa_max_replays_although_it_measures_a_hair_above(t
 
 
 def _ucr_run(*argv: str) -> tuple[int, str, str]:
-    import subprocess
-    import sys
-
-    from .conftest import REPO
-
-    res = subprocess.run([sys.executable, "-m", "tools.cli", *argv], cwd=REPO,
-                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    res = run_ucr(*argv)
     return res.returncode, res.stdout, res.stderr
 
 

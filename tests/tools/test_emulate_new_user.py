@@ -10,18 +10,13 @@ import sys
 
 import pytest
 
+from tests.cli_run import run_ucr
 from tools.mpvm import REPO
 
 
 def _emulate(*argv: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", "emulate", *argv],
-        cwd=REPO,
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        timeout=30,  # the old code started the chain and ran until stopped
-    )
+    # (timeout: the old code started the chain and ran until stopped)
+    return run_ucr("emulate", *argv, timeout=30)
 
 
 def test_cpu_factor_without_the_timing_model_is_a_usage_error() -> None:

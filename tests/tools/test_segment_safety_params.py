@@ -7,11 +7,11 @@ would, and that ``ucr flash`` writes into config.json."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.cli_run import run_ucr
 from tools.segment_config import SegmentConfigError, config_for
 from ucrdf.checks import firmware_refusal
 from ucrdf.parser import load
@@ -30,10 +30,7 @@ def _robot(tmp_path: Path, extra: str) -> Path:
 
 
 def _check(path: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", "check", str(path)],
-        cwd=REPO, capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+    return run_ucr("check", str(path), timeout=60)
 
 
 def test_the_safety_params_reach_config_json_and_the_firmware_runs_them(tmp_path) -> None:

@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+from tests.cli_run import run_ucr
+
 pytest.importorskip("viser", reason="the view extra (viser) is not installed")
 
 from view_helpers import ROBOT, ROOT, wait_for  # noqa: E402
@@ -19,8 +21,7 @@ pytestmark = pytest.mark.timeout(180)
 
 
 def _view(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tools.cli", "view", *argv], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)  # fmt: skip
+    return run_ucr("view", *argv, timeout=timeout)
 
 
 def test_a_port_in_use_is_named_as_such():
