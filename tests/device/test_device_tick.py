@@ -86,12 +86,13 @@ def test_ucrdf_hardware_param_tick_ms_reaches_the_segment_config():
 
 
 def test_ucr_check_refuses_a_tick_the_segments_cannot_run_with_path_and_line(tmp_path):
-    from tests.device.test_device_config_rules import _line_of, _robot, _ucr
+    from tests.cli_run import run_ucr
+    from tests.device.test_device_config_rules import _line_of, _robot
 
     old = '<param name="watchdog_ms">200</param>'
     path = _robot(tmp_path, **{old: old + '\n      <param name="tick_ms">7.5</param>'})
     line = _line_of(path, 'name="tick_ms"')
-    res = _ucr("check", str(path))
+    res = run_ucr("check", str(path))
     out = res.stdout + res.stderr
     assert res.returncode != 0 and "Traceback" not in out
     assert f"{path}:{line}: " in out and "tick_ms 7.5 is not a whole number of ms" in out
@@ -110,12 +111,13 @@ R['ok'] = config.Config({'tick_ms': 25, 'watchdog_ms': 50}).watchdog_ms
 """
     )
     assert r["err"] and "two ticks" in r["err"] and r["ok"] == 50
-    from tests.device.test_device_config_rules import _line_of, _robot, _ucr
+    from tests.cli_run import run_ucr
+    from tests.device.test_device_config_rules import _line_of, _robot
 
     old = '<param name="watchdog_ms">200</param>'
     new = '<param name="watchdog_ms">40</param>\n      <param name="tick_ms">25</param>'
     path = _robot(tmp_path, **{old: new})
-    res = _ucr("check", str(path))
+    res = run_ucr("check", str(path))
     out = res.stdout + res.stderr
     assert res.returncode != 0 and "Traceback" not in out
     line = _line_of(path, 'name="watchdog_ms"')
