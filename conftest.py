@@ -379,32 +379,78 @@ if Sybil is not None:
     ).pytest()
 
 
-# -- where the suite's time goes ------------------------------------------------------------------
+# -- where the suite's time goes, and which tests share the machine --------------------------------
 # The guide's budget: the tests within 10 minutes on 2 cores, heavier end-to-end checks (a browser,
 # the documentation's commands against emulated robots) within 10 more. Each run prints the split,
-# so a test that grows the first part shows in the next run's summary, not in a timed test.
+# so a test that grows a part shows in the next run's summary, not in a timed test.
+#
+# Most of a test's time is waiting on emulated segments, daemons and timeouts: a run in one process
+# keeps about 0.6 of the 2 cores busy. So `./run.sh test` runs the suite in two phases:
+# ``--ucr-phase=shared`` (two pytest-xdist workers, a file at a time each) and then
+# ``--ucr-phase=alone`` (one process, as before) for what must have the machine to itself: the
+# browser files, the documentation's commands (they use the documented default ports and one
+# session daemon) and tests marked ``alone`` (they judge timing or CPU load). Without the option,
+# pytest runs everything in one process.
 _PARTS = ("tests", "browser tests", "documentation's commands")
-_part_of: dict[str, str] = {}
+_PART_KEY = {_PARTS[1]: "ucr_part_browser", _PARTS[2]: "ucr_part_docs"}
+_PHASES = ("all", "shared", "alone")
 _seconds = dict.fromkeys(_PARTS, 0.0)
+_started = time.monotonic()
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--ucr-phase",
+        choices=_PHASES,
+        default="all",
+        help="shared: only tests that can share the machine with another worker; alone: only "
+        "the others (browser, documentation's commands, tests marked alone); all: both",
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "alone: judges timing or CPU load, so ./run.sh test runs it after the others, in one "
+        "process (conftest.py)",
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    def path(item: pytest.Item) -> str:
+        return item.nodeid.split("::")[0]
+
+    browser_files = {path(i) for i in items if "browser" in getattr(i, "fixturenames", ())}
+    phase = config.getoption("--ucr-phase")
+    keep, drop = [], []
     for item in items:
-        path = item.nodeid.split("::")[0]
-        if path.endswith(".md"):
-            _part_of[item.nodeid] = _PARTS[2]
+        p = path(item)
+        if p.endswith(".md"):
+            item.keywords[_PART_KEY[_PARTS[2]]] = True
         elif "browser" in getattr(item, "fixturenames", ()):
-            _part_of[item.nodeid] = _PARTS[1]
+            item.keywords[_PART_KEY[_PARTS[1]]] = True
+        alone = p.endswith(".md") or p in browser_files or item.get_closest_marker("alone")
+        (keep if phase == "all" or (phase == "alone") == bool(alone) else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = keep
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    _seconds[_part_of.get(report.nodeid, _PARTS[0])] += report.duration
+    part = next((p for p, k in _PART_KEY.items() if k in report.keywords), _PARTS[0])
+    _seconds[part] += report.duration
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
     if sum(_seconds.values()) < 1.0:
         return
+    config = terminalreporter.config
     split = ", ".join(f"{_seconds[p]:.0f} s {p}" for p in _PARTS)
+    workers = getattr(config.option, "numprocesses", None) or 0
+    where = f"{workers} workers" if workers else "one process"
+    phase = config.getoption("--ucr-phase")
     terminalreporter.write_line(
-        f"time by part: {split} (budget: 600 s tests, 600 s for the other two)"
+        f"time by part: {split}; {time.monotonic() - _started:.0f} s wall in {where}"
+        + ("" if phase == "all" else f" (phase {phase})")
+        + "; budget on 2 cores: 600 s for the tests, 1200 s with the other two"
     )

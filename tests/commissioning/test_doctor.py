@@ -267,6 +267,7 @@ def test_doctor_finds_a_segment_flashed_for_another_board() -> None:
     assert "'esp32s3'" in errs[0].message and "'esp32'" in errs[0].message
 
 
+@pytest.mark.alone  # judges CPU load: not beside another worker (conftest.py)
 def test_doctor_reports_each_segments_cpu_load_and_a_saturated_board() -> None:
     """PARAM 23: an emulated ESP32 under the timing model with a CPU this slow cannot keep its
     200 Hz tick (docs/firmware.md, "CPU load"); the same firmware at PC speed is nearly idle."""

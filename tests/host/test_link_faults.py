@@ -17,7 +17,7 @@ from daemon_helpers import NAMES, all_back, wait_for
 
 from host.client_cli import format_status
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.alone]  # recovery times: conftest.py
 
 
 @pytest.fixture()

@@ -25,7 +25,7 @@ import time
 import pytest
 from daemon_helpers import all_back, wait_for
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.alone]  # recovery times: conftest.py
 
 
 def clean(chain) -> None:

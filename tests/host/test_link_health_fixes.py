@@ -27,7 +27,7 @@ from host.link_health import DEGRADE_WINDOW, LinkHealth
 from host.usable_rate import UsableRate
 from tools.emulator import EmulatedChain
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.alone]  # recovery times: conftest.py
 
 
 def _tx_during_discover(link: ChainLink, timeout: float) -> tuple[int, float]:

@@ -22,7 +22,7 @@ from daemon_helpers import wait_for
 
 from host.daemon import Daemon
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.alone]  # recovery times: conftest.py
 
 NAMES = ["segment_1", "segment_2", "segment_3"]
 

@@ -70,6 +70,7 @@ def test_the_stop_kills_after_the_units_timeout_stop_sec(monkeypatch, tmp_path) 
 
 
 @pytest.mark.timeout(1900)
+@pytest.mark.alone  # minutes of qemu: a heavier end-to-end check, not beside a worker
 def test_documented_install_runs_the_daemon_on_arm64_debian() -> None:
     if os.environ.get("UCR_PI_CHECK") == "0":
         pytest.skip("turned off by UCR_PI_CHECK=0")
