@@ -450,7 +450,9 @@ def pytest_terminal_summary(terminalreporter) -> None:
     where = f"{workers} workers" if workers else "one process"
     phase = config.getoption("--ucr-phase")
     terminalreporter.write_line(
-        f"time by part: {split}; {time.monotonic() - _started:.0f} s wall in {where}"
+        f"time by part: {split}"
+        + (" (summed over the workers)" if workers else "")
+        + f"; {time.monotonic() - _started:.0f} s wall in {where}"
         + ("" if phase == "all" else f" (phase {phase})")
-        + "; budget on 2 cores: 600 s for the tests, 1200 s with the other two"
+        + "; the budget is wall time on 2 cores: 600 s for the tests, 1200 s with the other two"
     )
