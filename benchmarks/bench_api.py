@@ -373,11 +373,22 @@ _PHASE_LABELS = {
 }
 
 
+def _chain(st: dict) -> str:
+    """The overruns a late chain caused (host/loop.py), of all; the rest are the loop's own."""
+    return str(st.get("overruns_waiting_on_chain", "?"))
+
+
 def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: Any) -> None:
     """The loop table (one row per phase) and the publish → client latency, for the docs."""
     figs.table(
         "loop",
-        ["phase", "overruns", "jitter p99 / max", "daemon RSS" + (" / API RSS" if pid_api else "")],
+        [
+            "phase",
+            "overruns",
+            "of them waiting on the chain",
+            "jitter p99 / max",
+            "daemon RSS" + (" / API RSS" if pid_api else ""),
+        ],
         note=f"100 Hz loop, 3 emulated segments, API mode {args.mode}, loop thread {sched}, "
         f"{args.seconds:g} s per phase; load from other processes at nice 15",
     )
@@ -386,6 +397,7 @@ def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: 
         figs.row("loop", [
             _PHASE_LABELS.get(name, name),
             f"{st['overruns']} of {st['cycles']} ({100 * st['overruns'] / cyc:.2f} %)",
+            f"{_chain(st)}",
             f"{st['jitter_us']['p99']:.0f} / {st['jitter_us']['max']:.0f} µs",
             f"{rss:.1f} MiB" + (f" / {rss_api:.1f} MiB" if pid_api else ""),
         ])  # fmt: skip
@@ -486,7 +498,8 @@ def main(argv: list[str] | None = None) -> int:
             ratio = st["jitter_us"]["p99"] / max(quiet["jitter_us"]["p99"], 1.0)
             print(
                 f"{name:<14} cycles {st['cycles']:5d}  overruns {st['overruns']:4d} "
-                f"({100 * st['overruns'] / cyc:5.2f} %)  jitter p99 {st['jitter_us']['p99']:7.0f} "
+                f"({100 * st['overruns'] / cyc:5.2f} %; {_chain(st)} waiting on the chain)  "
+                f"jitter p99 {st['jitter_us']['p99']:7.0f} "
                 f"µs (x{ratio:4.1f} quiet) max {st['jitter_us']['max']:7.0f} µs  "
                 f"RSS daemon {rows[-1][2]:6.1f} MiB"
                 + (f" api {rows[-1][3]:6.1f} MiB" if api_pid else "")

@@ -2,7 +2,9 @@
 
 Per cycle it records: the period (start-to-start, s), the jitter (start minus scheduled start, s),
 the compute time of the cycle without bus I/O wait (s, reported by the step function), and
-overruns (a cycle that ended after the next scheduled start). The schedule is absolute
+overruns (a cycle that ended after the next scheduled start; of them, those whose own duration
+exceeded a period while their compute did not: the wait for the chain's STATEs alone overran,
+``overruns_waiting_on_chain``). The schedule is absolute
 (start + k·period), so lateness never accumulates; after an overrun the late cycle runs at once
 and whole slots already missed are skipped instead of bursting to catch up.
 """
@@ -28,6 +30,7 @@ class Stats:
         self.compute: deque[float] = deque(maxlen=window)
         self.cycles = 0
         self.overruns = 0
+        self.overruns_chain = 0  # of them: the wait for the chain alone overran
         self.skipped = 0
         self.lock = threading.Lock()
 
@@ -43,11 +46,13 @@ class Stats:
         with self.lock:
             per, jit, comp = list(self.period), [abs(j) for j in self.jitter], list(self.compute)
             cycles, over, skipped = self.cycles, self.overruns, self.skipped
+            over_chain = self.overruns_chain
         return {
             "rate_hz": 1.0 / target_period,
             "target_period_us": target_period * 1e6,
             "cycles": cycles,
             "overruns": over,
+            "overruns_waiting_on_chain": over_chain,
             "skipped_slots": skipped,
             "period_us": self._summary(deque(per), 1e6),
             "jitter_us": self._summary(deque(jit), 1e6),
@@ -60,7 +65,7 @@ class Stats:
             self.period.clear()
             self.jitter.clear()
             self.compute.clear()
-            self.cycles = self.overruns = self.skipped = 0
+            self.cycles = self.overruns = self.overruns_chain = self.skipped = 0
 
 
 class FixedRateLoop:
@@ -147,6 +152,10 @@ class FixedRateLoop:
                 if end > nxt:
                     # Overrun: run the late slot at once, but skip whole slots already missed.
                     st.overruns += 1
+                    # the cycle alone took longer than a period, its compute did not: the wait for
+                    # the chain's STATEs made it overrun, however on time it started
+                    if compute is not None and compute < self.period < end - start:
+                        st.overruns_chain += 1
                     missed = int((end - nxt) / self.period)
                     st.skipped += missed
                     nxt += missed * self.period

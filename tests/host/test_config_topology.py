@@ -190,6 +190,31 @@ def test_loop_runs_at_its_rate_and_counts_overruns():
     assert loop.stats.overruns >= 4
 
 
+def test_overruns_a_late_chain_causes_are_told_apart_from_the_loop_s_own():
+    """A cycle that waits 12 ms on I/O (the chain) with 0.1 ms of compute overran because of the
+    chain; one that computes 12 ms overran by itself."""
+    import time
+
+    def waits_on_chain():
+        time.sleep(0.012)
+        return 1e-4
+
+    def computes():
+        end = time.perf_counter() + 0.012
+        while time.perf_counter() < end:
+            pass
+        return 0.012
+
+    for step, by_chain in ((waits_on_chain, True), (computes, False)):
+        loop = FixedRateLoop(0.01, step)
+        loop.start()
+        assert wait_for(lambda: loop.stats.cycles >= 5, 5.0)  # noqa: B023 - called at once
+        loop.stop()
+        s = loop.stats.snapshot(0.01)
+        assert s["overruns"] >= 4
+        assert s["overruns_waiting_on_chain"] == (s["overruns"] if by_chain else 0), s
+
+
 def test_daemon_refuses_without_a_port(robot3):
     from host.daemon import Daemon, DaemonError
 
