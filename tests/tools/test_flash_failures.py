@@ -23,7 +23,7 @@ from tools.flash import TMP_SUFFIX, BoardInfo, FlashError, build_files, flash
 REPO = Path(__file__).resolve().parents[2]
 ROBOT = REPO / "robots" / "softrobot3.ucrdf"
 
-pytestmark = pytest.mark.timeout(90)
+pytestmark = [pytest.mark.timeout(90), pytest.mark.alone]  # give-up timeouts: conftest.py
 
 
 def _snapshot(seg: Path) -> dict[str, str]:

@@ -19,7 +19,7 @@ from tools.flash import TMP_SUFFIX, FlashError, flash
 REPO = Path(__file__).resolve().parents[2]
 ROBOT = REPO / "robots" / "softrobot3.ucrdf"
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.alone]  # give-up timeouts: conftest.py
 
 
 @pytest.fixture(scope="module")
