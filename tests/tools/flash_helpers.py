@@ -10,15 +10,24 @@ from host.link import ChainLink
 from tools.emulator import EmulatedChain
 
 
-def discover_name(link: ChainLink, timeout: float = 20.0) -> str:
-    """The name the first segment's DESCRIPTOR reports, once it answers DISCOVER."""
+def discover_name(
+    link: ChainLink, timeout: float = 20.0, chain: EmulatedChain | None = None
+) -> str:
+    """The name the first segment's DESCRIPTOR reports, once it answers DISCOVER. If it does not,
+    the error holds what ``chain`` knows about segment 0 (REPL output, counters)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         descs = link.discover(timeout=0.3)
         if descs:
             return descs[0]["name"]
         time.sleep(0.1)
-    raise AssertionError("segment did not answer DISCOVER")
+    why = ""
+    if chain is not None:
+        why = (
+            f"; emulator: {chain.stats()}; link: {link.stats()}"
+            f"; REPL output of segment 0:\n{chain.repl_output(0)[-4000:]}"
+        )
+    raise AssertionError("segment did not answer DISCOVER" + why)
 
 
 @contextmanager

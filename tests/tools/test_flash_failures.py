@@ -57,7 +57,7 @@ def _failed_flash_keeps_the_previous_firmware(chain, make_it_fail, mpy: bool = T
     left = [p for p in seg.rglob("*" + TMP_SUFFIX) if p.is_file()]
     assert not left, message  # uploads cleaned up
     ch.wait_restarts(0, restarts + 1, timeout=20)  # the previous firmware runs again ...
-    assert discover_name(link) == "before"  # ... and serves the chain
+    assert discover_name(link, chain=ch) == "before"  # ... and serves the chain
     return message
 
 
@@ -134,7 +134,7 @@ def test_an_eio_midway_is_one_line_without_traceback(chain, monkeypatch, capsys)
     assert "input/output error: the port went away" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     ch.wait_restarts(0, restarts + 1, timeout=20)
-    assert discover_name(link) == "before"
+    assert discover_name(link, chain=ch) == "before"
 
 
 def test_ctrl_c_midway_keeps_the_previous_firmware_running(chain, monkeypatch) -> None:

@@ -65,7 +65,7 @@ def _flash_and_signal(port: str, sig: int, after: str, delay: float) -> tuple[in
 def test_a_signal_midway_leaves_the_previous_firmware_running(chain, sig, after, delay) -> None:
     ch, link = chain
     seg = ch.segment_dir(0)
-    name = discover_name(link)
+    name = discover_name(link, chain=ch)
     restarts = ch.stats()["segments"][0]["restarts"]
     code, err = _flash_and_signal(ch.repl_port(0), sig, after, delay)
     assert code == 130, err  # interrupted, as every ucr command (it was 2, a usage error's code)
@@ -74,7 +74,7 @@ def test_a_signal_midway_leaves_the_previous_firmware_running(chain, sig, after,
     assert "temporary files removed" in err and "previous firmware" in err, err
     assert not [p for p in seg.rglob("*" + TMP_SUFFIX)], err
     ch.wait_restarts(0, restarts + 1, timeout=20)  # out of the raw REPL: main.py runs again
-    assert discover_name(link) == name
+    assert discover_name(link, chain=ch) == name
 
 
 def test_ctrl_c_during_the_final_renames_is_held_back_until_they_end(chain) -> None:
@@ -82,12 +82,12 @@ def test_ctrl_c_during_the_final_renames_is_held_back_until_they_end(chain) -> N
     code, err = _flash_and_signal(ch.repl_port(0), signal.SIGINT, "verified", 0.0)
     assert code == 0, err
     assert not [p for p in ch.segment_dir(0).rglob("*" + TMP_SUFFIX)]
-    assert discover_name(link) == "segment_1"  # the new firmware, complete, runs
+    assert discover_name(link, chain=ch) == "segment_1"  # the new firmware, complete, runs
 
 
 def test_a_board_switched_off_midway_is_not_claimed_reset(chain) -> None:
     ch, link = chain
-    name = discover_name(link)
+    name = discover_name(link, chain=ch)
     lines: list[str] = []
 
     def log(line: str) -> None:
@@ -107,7 +107,7 @@ def test_a_board_switched_off_midway_is_not_claimed_reset(chain) -> None:
     assert "did not answer" in message and "ucr flash" in message, message
     # before: mpremote's "could not enter raw repl" after 10 s of silence (15 s in all here)
     assert "failed: the board sent nothing for 5 s" in message, message
-    assert discover_name(link) == name
+    assert discover_name(link, chain=ch) == name
 
 
 def test_a_successful_flash_removes_stale_uploads_of_a_failed_one(chain) -> None:
@@ -121,4 +121,4 @@ def test_a_successful_flash_removes_stale_uploads_of_a_failed_one(chain) -> None
     assert not [p for p in seg.rglob("*" + TMP_SUFFIX)]
     assert any("old_module.mpy.new" in line for line in lines), lines
     ch.wait_restarts(0, restarts + 1, timeout=20)
-    assert discover_name(link) == "before"
+    assert discover_name(link, chain=ch) == "before"
