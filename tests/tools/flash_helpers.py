@@ -35,7 +35,7 @@ def one_segment_named(name: str) -> Iterator[tuple[EmulatedChain, ChainLink]]:
     """A one-segment emulated chain configured as ``name``, answering, with a link to it."""
     with EmulatedChain(1, config_for=[{"name": name}]) as ch:
         link = ChainLink(ch.host_port)
-        assert discover_name(link) == name
+        assert discover_name(link, chain=ch) == name
         try:
             yield ch, link
         finally:

@@ -444,6 +444,11 @@ class EmulatedChain:
                     if not seg.powered or proc.poll() is None:
                         continue
                     seg.exit_codes.append(proc.returncode)
+                    # The REPL mode it was left in is in its last output, which the proxy
+                    # thread may not have read yet (Ctrl-B then Ctrl-D: the friendly prompt,
+                    # then the exit): read it first, else a stale "raw" restarts it without
+                    # main.py, silent on the chain (a failed flash's reset under load did).
+                    self._proxy.drain(seg.repl_inner)
                     # Ctrl-D in the raw REPL ends the process normally: a raw-REPL soft reset
                     seg.raw_boot = seg.raw_repl and proc.returncode == 0
                     # A process that dies right after starting (broken firmware) is retried slowly.

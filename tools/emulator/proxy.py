@@ -191,17 +191,28 @@ class Proxy:
                 timeout = min(timeout, max(0.0, t - now))
         return timeout
 
-    def _read(self, end: PtyEnd, now: float) -> None:
+    def drain(self, end: PtyEnd) -> None:
+        """Read now, on the caller's thread, everything waiting on ``end`` that the loop has not
+        read yet, and hand it on as the loop would. For a process that just ended: its last
+        output (e.g. the prompt of the REPL mode it was left in) must be seen before it is
+        restarted, however late the loop thread gets to run on a loaded host."""
+        with self._lock:
+            while self._read(end, time.monotonic()):
+                pass
+
+    def _read(self, end: PtyEnd, now: float) -> int:
+        """Read one chunk from ``end`` and pass it to its reader; return its length (0: none)."""
         try:
             data = os.read(end.master, 4096)
         except BlockingIOError:
-            return
+            return 0
         except OSError as exc:
             if exc.errno != errno.EIO:
                 raise
-            return
+            return 0
         if data and end.on_read is not None:
             end.on_read(data, now)
+        return len(data)
 
     def _write(self, end: PtyEnd, data: bytes) -> None:
         if end.closed:
