@@ -3,7 +3,12 @@ whose STATEs all arrive, the loop's usable rate and overruns, for 3 and 8 emulat
 with the links throttled to the baud rate.
 
 Run: .venv/bin/python benchmarks/bench_pipeline.py [--segments 3,8] [--baud 921600]
-     [--rate 100] [--duration 10] [--timing off|on] [--figures FILE]
+     [--rate 100] [--duration 10] [--timing off|on] [--pipeline off,on] [--rt-priority N]
+     [--figures FILE]
+
+``--rt-priority N`` runs the daemon's loop and link reader at SCHED_FIFO N, as the installed
+service does (docs/daemon.md "Real-time scheduling"; needs root or RLIMIT_RTPRIO, else the daemon
+warns and runs them normally, and the note says what they got).
 
 Each run starts a fresh daemon (``pipeline`` off, then on) on one emulated chain (the real
 firmware) whose robot is composed from the segments' descriptors, holds every segment still,
@@ -57,8 +62,15 @@ def _robot(chain: EmulatedChain, n: int):
     raise SystemExit(f"chain of {n} did not boot")
 
 
-def _run(chain, robot, rate: float, pipeline: bool, duration: float) -> dict:
-    d = start_daemon_on(chain, robot, 30.0, config=DaemonConfig(pipeline=pipeline), rate_hz=rate)
+def _run(chain, robot, rate: float, pipeline: bool, duration: float, rt: int = 0) -> dict:
+    d = start_daemon_on(
+        chain,
+        robot,
+        30.0,
+        config=DaemonConfig(pipeline=pipeline),
+        rate_hz=rate,
+        realtime_priority=rt,
+    )
     try:
         time.sleep(1.0)  # settle
         o0 = d.loop_stats()["overruns"]
@@ -74,7 +86,8 @@ def _run(chain, robot, rate: float, pipeline: bool, duration: float) -> dict:
                 incomplete += t - pt[1] if pt[0] == id(link) else 0
                 last = {"hwi": (id(hwi), e), "link": (id(link), t)}
             time.sleep(0.05)
-        overruns = d.loop_stats()["overruns"] - o0
+        stats = d.loop_stats()
+        overruns = stats["overruns"] - o0
         health = d.status()["link_health"]
     finally:
         d.stop()
@@ -83,6 +96,7 @@ def _run(chain, robot, rate: float, pipeline: bool, duration: float) -> dict:
         "complete": exchanges - incomplete,
         "usable_rate_hz": health.get("usable_rate_hz", rate),
         "overruns": overruns,
+        "scheduling": stats.get("scheduling", {}),
     }
 
 
@@ -93,14 +107,19 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--timing", choices=("off", "on"), default="off")
+    ap.add_argument("--pipeline", default="off,on", help="which runs: off, on or off,on")
+    ap.add_argument("--rt-priority", type=int, default=0, help="daemon SCHED_FIFO priority")
     ap.add_argument("--figures", help="save the table for tools/docfigures.py")
     args = ap.parse_args()
     figs = Figures.from_argv("bench_pipeline")
     timing = args.timing == "on"
+    modes = [{"off": False, "on": True}[m.strip()] for m in args.pipeline.split(",")]
     note = (
         f"{args.rate:.0f} Hz for {args.duration:.0f} s per run; emulator timing model "
         f"{args.timing}; links throttled to the baud rate"
     )
+    if args.rt_priority:
+        note += f"; daemon --rt-priority {args.rt_priority}"
     if figs:
         figs.table("daemon", HEADERS, note=note)
     print(f"daemon pipelining, {note}")
@@ -108,8 +127,10 @@ def main() -> int:
         with EmulatedChain(n, timing=timing) as chain:
             robot = _robot(chain, n)
             chain.set_all_links(baud=args.baud)
-            for pipeline in (False, True):
-                r = _run(chain, robot, args.rate, pipeline, args.duration)
+            for pipeline in modes:
+                r = _run(chain, robot, args.rate, pipeline, args.duration, args.rt_priority)
+                if args.rt_priority:
+                    print(f"  daemon threads: {r['scheduling']}")
                 share = r["complete"] / r["exchanges"] if r["exchanges"] else 0.0
                 row = [
                     n,
