@@ -82,6 +82,20 @@ ensure_venv() {
     local stamp="$VENV/.ucr-installed" report="$VENV/.ucr-setup-report"
     local want
     want=$( (cat pyproject.toml; echo "$spec"; cat "$VENV/pyvenv.cfg") | sha256sum | cut -c1-16)
+    local here=$PWD venv_py=$VENV/bin/python
+    [ "${venv_py#/}" != "$venv_py" ] || venv_py=$PWD/$venv_py
+    if [ -f "$stamp" ] && ! (cd / && "$venv_py" - "$here" <<'PYEOF'
+import importlib.util, os, sys
+spec = importlib.util.find_spec("host")
+here = os.path.realpath(sys.argv[1]) + os.sep
+sys.exit(spec is None or not os.path.realpath(spec.origin or "").startswith(here))
+PYEOF
+    ) 2>/dev/null; then
+        # pip's editable install and the scripts' #! lines name the checkout's absolute path: a
+        # moved or copied checkout (or a .venv shared between two) imports the other one's code
+        echo "[setup] $VENV was installed for another directory (checkout moved or copied?): reinstalling it for $PWD" >&2
+        rm -f "$stamp"
+    fi
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
         echo "[setup] installing $spec (pinned in pyproject.toml)" >&2
         "$VENV/bin/python" -m pip install -q --upgrade pip >&2
@@ -96,7 +110,8 @@ ensure_venv() {
         echo "$want" > "$stamp"
         REPORTED=1
     fi
-    export PATH="$PWD/$VENV/bin:$PATH"
+    PATH="$(dirname "$venv_py"):$PATH"
+    export PATH
 }
 
 # The browser tests drive Debian's chromium (no browser download) and the TLS tests need openssl.
