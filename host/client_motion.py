@@ -144,10 +144,7 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
 
             doc = safe_load(text)
     except Exception as exc:  # noqa: BLE001 - YAML/JSON syntax errors of any kind
-        raise CliError(
-            f"{p}: not valid {'JSON' if p.suffix == '.json' else 'YAML'}: "
-            f"{str(exc).splitlines()[0]}"
-        ) from None
+        raise CliError(_syntax_error(p, exc)) from None
     controller = None
     if isinstance(doc, dict):
         unknown = sorted(set(doc) - {"waypoints", "controller"})
@@ -213,6 +210,21 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
     if problems:
         raise CliError(problems.kept[0] if problems.count == 1 else problems.text(str(p)))
     return points, controller
+
+
+def _syntax_error(p: Path, exc: Exception) -> str:
+    """``path:line:column: not valid YAML/JSON: what`` (where the parser stopped, when it says)."""
+    kind = "JSON" if p.suffix.lower() == ".json" else "YAML"
+    if isinstance(exc, json.JSONDecodeError):
+        return f"{p}:{exc.lineno}:{exc.colno}: not valid JSON: {exc.msg}"
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    context = getattr(exc, "context", None)
+    if context and getattr(exc, "problem", None):
+        what = f"{what} ({context})"
+    if mark is not None:
+        return f"{p}:{mark.line + 1}:{mark.column + 1}: not valid {kind}: {what}"
+    return f"{p}: not valid {kind}: {what}"
 
 
 def _waypoint_lines(text: str) -> list[int]:

@@ -186,6 +186,26 @@ def test_bad_trajectory_file_is_reported_with_file_and_waypoint(capsys, tmp_path
     assert str(f) in err and needle in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize(
+    ("name", "text", "where"),
+    [
+        ("t.yaml", "waypoints:\n  - {t: 1, segments: {s1: {kappa: 1}}\n  - {t: 2}\n", ":3:3:"),
+        ("t.yaml", "waypoints: [\n", ":2:1:"),
+        ("t.yaml", "waypoints:\n  t: 1: 2\n", ":2:7:"),
+        ("t.json", '{"waypoints": [\n  {"t": 1,}\n]}\n', ":2:11:"),
+    ],
+)
+def test_a_trajectory_file_that_does_not_parse_says_where(capsys, tmp_path, name, text, where):
+    """Review 2026-11-27: a YAML syntax error said "not valid YAML: while parsing a flow node",
+    no line: in a file of 1,000 waypoints the user had to find it alone."""
+    f = tmp_path / name
+    f.write_text(text)
+    rc, _, err = run(capsys, "trajectory", str(f), "--check")
+    assert rc == 1
+    assert f"{f}{where} not valid {'JSON' if name.endswith('json') else 'YAML'}: " in err, err
+    assert err.count("\n") == 1
+
+
 def test_trajectory_json_file_and_missing_file(capsys, tmp_path):
     f = tmp_path / "t.json"
     f.write_text('[{"time_from_start": 1.0, "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}]')
