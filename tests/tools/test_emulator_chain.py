@@ -123,17 +123,25 @@ def test_killed_process_restarts_as_a_board_reboots(echo_chain) -> None:
         assert time.monotonic() < deadline, chain.repl_output(0)
 
 
+def _interrupt_into_raw_repl(repl: serial.Serial) -> bytes:
+    """Ctrl-C (main.py stops), then Ctrl-A: what mpremote does; returns what the REPL said."""
+    repl.write(b"\r\x03")
+    time.sleep(0.2)
+    repl.write(b"\r\x01")
+    got = b""
+    deadline = time.monotonic() + 5
+    while b"raw REPL; CTRL-B to exit\r\n>" not in got and time.monotonic() < deadline:
+        got += repl.read(256)
+    assert b"raw REPL; CTRL-B to exit\r\n>" in got, got
+    return got
+
+
 def test_ctrl_c_on_the_repl_pty_interrupts_main_and_gives_the_raw_repl(echo_chain) -> None:
     chain, _ = echo_chain
     with serial.serial_for_url(chain.repl_port(1), timeout=0.2) as repl:
-        repl.write(b"\r\x03")
-        time.sleep(0.2)
-        repl.write(b"\r\x01")
-        got = b""
+        got = _interrupt_into_raw_repl(repl)
         deadline = time.monotonic() + 5
-        while b"raw REPL; CTRL-B to exit\r\n>" not in got and time.monotonic() < deadline:
-            got += repl.read(256)
-        assert b"KeyboardInterrupt" in got and b"raw REPL; CTRL-B to exit\r\n>" in got
+        assert b"KeyboardInterrupt" in got
         repl.write(b"print(6*7)\x04")
         got = b""
         while b"\x04>" not in got and time.monotonic() < deadline:
@@ -194,14 +202,7 @@ def test_a_soft_reset_right_after_leaving_the_raw_repl_runs_main_however_late_th
     sel.select = select
     try:
         with serial.serial_for_url(chain.repl_port(1), timeout=0.2) as repl:
-            repl.write(b"\r\x03")
-            time.sleep(0.2)
-            repl.write(b"\r\x01")
-            got = b""
-            deadline = time.monotonic() + 5
-            while b"raw REPL; CTRL-B to exit\r\n>" not in got and time.monotonic() < deadline:
-                got += repl.read(256)
-            assert b"raw REPL; CTRL-B to exit\r\n>" in got, got
+            _interrupt_into_raw_repl(repl)
             boots = chain.repl_output(1).count("echo up")
             restarts = chain.stats()["segments"][1]["restarts"]
             held.set()
