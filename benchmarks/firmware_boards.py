@@ -33,6 +33,9 @@ from tools.emulator.timing import cpu_factor
 
 REPO = mpvm.REPO
 POLICIES = (("model off", {}), ("model on, old wait", {"UCR_NAIVE_WAIT": "1"}), ("model on", {}))
+#: Forwarding also with the model's holds spinning (UCR_SPIN_HOLD, device/hal_unix.py): how much
+#: of "model on" is this host's slowness after each sleep, multiplied by the factor.
+FORWARDING_POLICIES = (*POLICIES, ("model on, holds spinning", {"UCR_SPIN_HOLD": "1"}))
 
 _BOOT = """
 import gc, main
@@ -65,7 +68,14 @@ def _seg_dir(tmp: Path, config: dict | None) -> Path:
 
 def _env(seg: Path, extra: dict[str, str]) -> dict[str, str]:
     env = dict(os.environ, MICROPYPATH=f".frozen:{seg}", UCR_UID="b0a4d0000001")
-    for k in ("UCR_BOARD", "UCR_TIMING", "UCR_CPU_FACTOR", "UCR_NAIVE_WAIT", "UCR_FAULTS"):
+    for k in (
+        "UCR_BOARD",
+        "UCR_TIMING",
+        "UCR_CPU_FACTOR",
+        "UCR_NAIVE_WAIT",
+        "UCR_SPIN_HOLD",
+        "UCR_FAULTS",
+    ):
         env.pop(k, None)
     env.update(extra)
     return env
@@ -149,7 +159,7 @@ def forwarding(n: int, board: str = "esp32") -> tuple[float, list[tuple[str, flo
     """(cpu factor, [(policy, p50 ms, p99 ms, lost)]) of the per-hop SYNC forwarding latency."""
     factor = cpu_factor(board)
     rows = []
-    for label, extra in POLICIES:
+    for label, extra in FORWARDING_POLICIES:
         env = dict(extra)
         if "on" in label:
             env.update(UCR_TIMING="1", UCR_CPU_FACTOR=f"{factor:.2f}")

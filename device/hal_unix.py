@@ -5,7 +5,9 @@ Environment (docs/architecture.md, "Running firmware on the unix port"): ``UCR_U
 ``UCR_FAULTS`` (optional fault injection spec for the emulated servos, see servos/emulated.py),
 ``UCR_BOARD`` (board to emulate, overriding config.json's ``board``), ``UCR_TIMING`` ("1": the
 board's timing model), ``UCR_CPU_FACTOR`` (how much slower than this host the board computes) and
-``UCR_NAIVE_WAIT`` ("1", benchmarks only: wait as the firmware did before issue 11, one poll).
+``UCR_NAIVE_WAIT`` ("1", benchmarks only: wait as the firmware did before issue 11, one poll);
+``UCR_SPIN_HOLD`` ("1", benchmarks only: the model's holds busy-wait instead of sleeping, so the
+host stays as hot as a board that is computing; it costs a host core per segment).
 
 The board is as strict as the real one (docs/emulator.md, "Boards"): the emulated ``machine``
 (:class:`BoardMachine`) refuses a UART the chip lacks or the REPL owns, a pin it lacks or has
@@ -159,6 +161,7 @@ class Hal:
             self.up = emu_board.StretchUart(self.up, self)
             self.down = emu_board.StretchUart(self.down, self)
         self.naive_wait = os.getenv("UCR_NAIVE_WAIT") == "1"
+        self.spin_hold = os.getenv("UCR_SPIN_HOLD") == "1"
         self.idle_us = 0  # time spent waiting (the board's, under the timing model): CPU load
         self._busy_from = time.ticks_us()
 
@@ -240,7 +243,12 @@ class Hal:
         now = time.ticks_us()
         extra = int(time.ticks_diff(now, self._busy_from) * (self.cpu_factor - 1.0))
         if extra > 0:
-            time.sleep_us(extra)
+            if self.spin_hold:  # the host stays hot: the code after the hold runs at full speed
+                end = time.ticks_add(now, extra)
+                while time.ticks_diff(end, time.ticks_us()) > 0:
+                    pass
+            else:
+                time.sleep_us(extra)
         self._busy_from = time.ticks_us()
 
     def servo_uart(self, bus_cfg):

@@ -300,6 +300,33 @@ def test_the_timing_model_does_not_stretch_the_hosts_uart_system_calls() -> None
     assert compute_ms < 10, out  # both calls' 40 ms were left out
 
 
+def test_the_timing_models_hold_sleeps_or_with_ucr_spin_hold_busy_waits() -> None:
+    """1 ms of compute at CPU factor 11 holds 10 ms more, in one sleep by default; with
+    UCR_SPIN_HOLD (benchmarks: the host stays hot) in a busy wait, no sleep (ms, sleeps printed)."""
+    out = _vm(
+        "import time as T, hal_unix\n"
+        "sleeps = []\n"
+        "class FT:\n"
+        " ticks_us = T.ticks_us\n ticks_diff = T.ticks_diff\n ticks_add = T.ticks_add\n"
+        " def sleep_us(us):\n  sleeps.append(us)\n  T.sleep_us(us)\n"
+        "hal_unix.time = FT\n"
+        "class H:\n"
+        " stretch = hal_unix.Hal.stretch\n"
+        "h = H()\n"
+        "h.cpu_factor = 11.0\n"
+        "for spin in (False, True):\n"
+        " h.spin_hold = spin\n"
+        " sleeps.clear()\n"
+        " h._busy_from = T.ticks_add(T.ticks_us(), -1000)\n"
+        " t0 = T.ticks_us()\n"
+        " h.stretch()\n"
+        " print('spin' if spin else 'sleep', T.ticks_diff(T.ticks_us(), t0) // 1000, len(sleeps))\n"
+    )
+    rows = {ln.split()[0]: [int(x) for x in ln.split()[1:]] for ln in out.splitlines() if ln}
+    assert rows["sleep"][0] >= 10 and rows["sleep"][1] == 1, out
+    assert rows["spin"][0] >= 10 and rows["spin"][1] == 0, out
+
+
 def test_board_and_wiring_survive_a_write_and_parse(tmp_path) -> None:
     from ucrdf.parser import parse_string
     from ucrdf.writer import dumps
