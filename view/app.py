@@ -412,6 +412,31 @@ class ViewApp:
                 p.on_update(lambda e, n=name: self._slider(e, n))
                 page.sliders[name] = (k, p)
 
+    def _follow_sliders(self, snap: Any) -> None:
+        """Live: while the sliders drive nothing (no target held), each page's sliders show the
+        measured κ, φ of their segment, so after a trajectory, a gamepad or another page moved
+        the robot they show where it is, and the slider touched next starts from there. A value
+        set here is the server's, not a page's: ``_slider`` ignores it (no motion). Under
+        self.lock."""
+        driver, model = self.driver, self.model
+        if driver is None or model is None or driver.targets:
+            return
+        for page in list(self.pages.values()):
+            for name, (k, p) in page.sliders.items():
+                st = snap.state.get(name)
+                if st is None or not snap.valid.get(name, False):
+                    continue
+                kmax, _ = model.limits(name)
+                kappa = round(min(max(st["kappa"], 0.0), kmax), 2)
+                phi = round(math.degrees(st["phi"]))
+                try:
+                    if abs(float(k.value) - kappa) >= 0.01:
+                        k.value = kappa
+                    if kappa >= 0.01 and abs(float(p.value) - phi) >= 1.0:
+                        p.value = phi  # (straight: φ means nothing, the slider keeps its own)
+                except Exception:  # noqa: BLE001, S110 - a page that went away meanwhile
+                    pass
+
     def _slider(self, event: Any, name: str) -> None:
         page = self._page_of(event)
         if page is None or name not in page.sliders:
@@ -822,6 +847,7 @@ class ViewApp:
                     if now - t_text >= 0.25:
                         t_text = now
                         self._text(snap)
+                        self._follow_sliders(snap)
             except Exception:  # noqa: BLE001 - keep serving; the page shows the last good scene
                 log.exception("view update failed")
 

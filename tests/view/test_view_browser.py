@@ -54,7 +54,7 @@ def settle(daemon, view) -> None:
     gid = daemon.send_trajectory(
         [{"time_from_start": 1.5, "segments": {n: {"kappa": 0.0, "phi": 0.0} for n in names}}]
     )
-    assert wait_for(lambda: daemon.trajectory_status(gid)["state"] != "running", 20)
+    assert wait_for(lambda: daemon.trajectory_status(gid)["done"], 20)
 
 
 def test_page_shows_one_tube_per_discovered_segment(rig, live_view, page):
@@ -85,6 +85,31 @@ def test_slider_bends_the_emulated_segment_and_changes_the_picture(rig, live_vie
     page.get_by_text("this view's page sliders").wait_for(timeout=10000)
     time.sleep(1.0)
     assert canvas.screenshot() != before
+    settle(daemon, live_view)
+
+
+def test_sliders_follow_motion_made_by_another_source_and_move_nothing(rig, live_view, page):
+    """Defect (docs/view.md "Limits", 2026-11-27): the sliders showed their last target, so
+    after a trajectory (or a gamepad, or another page) moved the robot they showed where it had
+    been. Now, while they drive nothing, they show the measured κ, φ; setting them moves nothing."""
+    _, daemon, _ = rig
+    page.get_by_text("tubes: 3").wait_for(timeout=60000)
+    gid = daemon.send_trajectory(
+        [{"time_from_start": 1.0, "segments": {"segment_1": {"kappa": 1.2, "phi": 0.5}}}]
+    )
+    assert wait_for(lambda: daemon.trajectory_status(gid)["done"], 20)
+    k, ph = measured(daemon, "segment_1")
+    assert abs(k - 1.2) < 0.05, (k, ph, daemon.trajectory_status(gid))
+    boxes = page.locator("input[inputmode='decimal'], input[type='number']")
+
+    def shown() -> tuple[float, float]:
+        return float(boxes.nth(0).input_value()), float(boxes.nth(1).input_value())
+
+    assert wait_for(
+        lambda: abs(shown()[0] - k) <= 0.011 and abs(shown()[1] - math.degrees(ph)) <= 1.01, 10
+    ), (shown(), k, math.degrees(ph))
+    assert not live_view.driver.targets  # the page drives nothing ...
+    assert daemon.status()["manual_control"] == []  # ... and took no control
     settle(daemon, live_view)
 
 
