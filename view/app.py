@@ -29,6 +29,7 @@ import viser
 import viser.transforms as vtf
 
 from host.api.audit import audit_logger
+from host.api.client import on_behalf_of
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
 from view.guard import (
@@ -451,7 +452,7 @@ class ViewApp:
             self.refusal = ""
             _audit(page.id, page.peer, "slider",
                    f"{name} κ {kappa:.2f} 1/m φ {math.degrees(phi):.0f}°")  # fmt: skip
-            self.driver.set_target(name, kappa, phi)
+            self.driver.set_target(name, kappa, phi, _label(page))
 
     def _mismatch_refused(self, what: str) -> bool:
         """Refuse ``what`` while the FILE given is not the daemon's robot (shown, logged)."""
@@ -464,7 +465,7 @@ class ViewApp:
         page = self._page_of(event)
         if page is not None:
             _audit(page.id, page.peer, "stop", "stop button")
-            self.stop_motion("stop button")
+            self.stop_motion("stop button", page)
 
     def _execute_clicked(self, event: Any) -> None:
         page = self._page_of(event)
@@ -475,7 +476,7 @@ class ViewApp:
         page = self._page_of(event)
         if page is not None:
             _audit(page.id, page.peer, "hand_back", "hand back control")
-            self._hand_back()
+            self._hand_back(page)
 
     def _set_plan(self, text: str, executable: bool | None = None) -> None:
         """The plan line (and the Execute button's state) on every page with controls."""
@@ -490,10 +491,12 @@ class ViewApp:
                 pass
 
     # -- control ---------------------------------------------------------------------------------
-    def stop_motion(self, why: str) -> None:
-        """Stop button: no more slider input, cancel running goals; the robot holds."""
+    def stop_motion(self, why: str, page: _Page | None = None) -> None:
+        """Stop button: no more slider input, cancel running goals; the robot holds. ``page``:
+        the page that asked (the daemon's audit lines say it was for that page)."""
+        label = None if page is None else _label(page)
         if self.driver is not None:
-            self.driver.halt(why)
+            self.driver.halt(why, label=label)
         client = getattr(self.source, "client", None)
         if client is None:
             return
@@ -501,13 +504,15 @@ class ViewApp:
             goals = list(self.source.snap.control.get("goals", []))
         for g in goals:
             try:
-                client.cancel(g)
+                with on_behalf_of(label):
+                    client.cancel(g)
             except Exception as exc:  # noqa: BLE001 - shown on the page
                 self._refused(f"cancel {g} refused: {exc}")
 
-    def _hand_back(self) -> None:
+    def _hand_back(self, page: _Page | None = None) -> None:
         try:
-            self.source.client.hand_back()
+            with on_behalf_of(None if page is None else _label(page)):
+                self.source.client.hand_back()
             if self.driver is not None:
                 self.driver.owns_control = False
             self.refusal = ""
@@ -571,12 +576,14 @@ class ViewApp:
         with src.lock:
             present = list(src.snap.present)
             manual = list(src.snap.control.get("manual", []))
+        label = None if page is None else _label(page)
         try:
             points = self.planner.trajectory(self._measured(), present, self._rate_max)
             if self.driver is not None:
-                self.driver.halt("move executed")
+                self.driver.halt("move executed", label=label)
                 if manual and self.driver.owns_control:
-                    src.client.hand_back()
+                    with on_behalf_of(label):
+                        src.client.hand_back()
                     self.driver.owns_control = False
             target = self.planner.executed[0] if self.planner.executed else None
             where = "" if target is None else " to ({:.3f}, {:.3f}, {:.3f}) m".format(*target)
@@ -586,7 +593,8 @@ class ViewApp:
             )
             if page is not None:
                 _audit(page.id, page.peer, "move", f"tip{where}: {segs}")
-            goal = src.client.send_trajectory(points, wait=False)
+            with on_behalf_of(label):
+                goal = src.client.send_trajectory(points, wait=False)
             self.refusal = ""
             self._set_plan(f"move {md(goal)} sent ({points[0]['time_from_start']:.2f} s)")
         except Exception as exc:  # noqa: BLE001 - every refusal is shown on the page
@@ -883,6 +891,12 @@ def _segments(paths: list[np.ndarray]) -> np.ndarray:
     """Polylines -> (N, 2, 3) line segments for viser."""
     segs = [np.stack([p[:-1], p[1:]], axis=1) for p in paths]
     return np.concatenate(segs).astype(np.float32)
+
+
+def _label(page: _Page) -> str:
+    """Whom a page's requests are for, in the daemon's audit lines (``for=…``): this view's page
+    id and the page's address, as the view's own audit lines name it."""
+    return f"view page={page.id} peer={page.peer}"
 
 
 def _audit(page: int, peer: str, op: str, summary: str) -> None:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from host.api.client import on_behalf_of
 from host.controllers.ffc import FeedForwardController
 from ucrdf.ik import IKResult, IKSolver
 
@@ -162,6 +163,8 @@ class SliderDriver:
         self.sent = 0
         self.last_names: list[str] = []
         self.stopped_reason = ""
+        #: whom the inputs are for (the page that set the latest target): their audit lines
+        self.label: str | None = None
         self.model = SetpointModel()
         #: (start, end) monotonic times of our recent ffc.input calls: the daemon set each
         #: input in between (told apart from another client's, see sent_at)
@@ -178,8 +181,10 @@ class SliderDriver:
         self._thread.join(timeout=2)
         self.halt("view closing")
 
-    def set_target(self, name: str, kappa: float, phi: float) -> None:
+    def set_target(self, name: str, kappa: float, phi: float, label: str | None = None) -> None:
+        """Drive ``name`` towards κ (1/m), φ (rad); ``label``: the page that asked (audit)."""
         with self.lock:
+            self.label = label
             self.targets[name] = kvec(kappa, phi)
             self.t_touch = time.monotonic()
             self.stopped_reason = ""
@@ -204,9 +209,10 @@ class SliderDriver:
             calls = list(self.calls)
         return any(s - slack <= latest and earliest <= e + slack for s, e in calls)
 
-    def halt(self, reason: str, send_zero: bool = True) -> None:
+    def halt(self, reason: str, send_zero: bool = True, label: str | None = None) -> None:
         """Forget the targets and send one zero input: the robot holds where it is (without
-        ``send_zero``: another client's input is in force, ours is not sent over it)."""
+        ``send_zero``: another client's input is in force, ours is not sent over it).
+        ``label``: the page that asked (else the one whose targets these were)."""
         with self.lock:
             names = list(self.targets) or list(self.last_names)
             self.targets.clear()
@@ -217,14 +223,18 @@ class SliderDriver:
             self.model.advance(time.monotonic(), self.kappa_max)
             self.model.sent(time.monotonic(), {})
         if was and names and send_zero:
-            self._send({n: (0.0, 0.0) for n in names}, report=True)
+            self._send({n: (0.0, 0.0) for n in names}, report=True, label=label)
 
-    def _send(self, rates: dict[str, tuple[float, float]], report: bool = False) -> Any:
+    def _send(
+        self, rates: dict[str, tuple[float, float]], report: bool = False, label: str | None = None
+    ) -> Any:
         call = [time.monotonic(), math.inf]  # in flight: any later input may be this one
         with self.lock:
             self.calls.append(call)
+            label = label or self.label
         try:
-            return self.client.ffc_input(rates)
+            with on_behalf_of(label):
+                return self.client.ffc_input(rates)
         except Exception as exc:  # noqa: BLE001 - the deadman stops it anyway
             if report:
                 self.report(f"zero input not sent ({exc}); the daemon's deadman stops the robot")

@@ -68,13 +68,24 @@ def _one_line(text: str) -> str:
 
 
 def audit_log(
-    peer: str, who: str, scope: str, op: str, goal: Any, summary: str, client: str = "-"
+    peer: str,
+    who: str,
+    scope: str,
+    op: str,
+    goal: Any,
+    summary: str,
+    client: str = "-",
+    on_behalf_of: str | None = None,
 ) -> None:
     """One audit record, one line (fields as ``key=value``, the summary last). ``client``: the
     program the connection said it is (its WebSocket User-Agent, e.g. ``ucr view``): what it
-    declares, not what the token proves."""
+    declares, not what the token proves. ``on_behalf_of``: whom the request said it was for (a
+    ``for=`` field after ``client=``, only when given), declared as well."""
+    behalf = "" if on_behalf_of is None else f" for={audit_field(on_behalf_of)}"
     audit_logger().info(
-        "peer=%s token=%s scope=%s client=%s op=%s goal=%s %s",
-        *(audit_field(v) for v in (peer, who, scope, client, op, goal)),
+        "peer=%s token=%s scope=%s client=%s%s op=%s goal=%s %s",
+        *(audit_field(v) for v in (peer, who, scope, client)),
+        behalf,
+        *(audit_field(v) for v in (op, goal)),
         _one_line(summary)[:500],
     )

@@ -29,6 +29,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection
 
 from host.api import default_url
+from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
@@ -41,6 +42,7 @@ __all__ = [
     "Client",
     "Subscription",
     "connect",
+    "on_behalf_of",
     "read_token",
 ]
 
@@ -244,7 +246,11 @@ class Client:
         with self._lock:
             self._pending[rid] = pending
         try:
-            text = json.dumps({"id": rid, "op": op, **params}, allow_nan=False, separators=_COMPACT)
+            msg = {"id": rid, "op": op, **params}
+            behalf = _ON_BEHALF_OF.get()
+            if behalf is not None:
+                msg["on_behalf_of"] = behalf
+            text = json.dumps(msg, allow_nan=False, separators=_COMPACT)
             self.ws.send(text)
         except ValueError as exc:
             with self._lock:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import json
 import logging
 import math
@@ -28,6 +29,12 @@ from host.api.auth import CONTROL, READ_OPS
 from host.api.bridge import BridgeClosed, RemoteError
 from host.api.connection import Outboxes
 from host.api.session import _Request, _Session, _Subscription, _Upload
+
+#: The ``on_behalf_of`` of the request being served, for its audit line (a context variable:
+#: each request's task sees its own).
+_ON_BEHALF_OF: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "ucr_on_behalf_of", default=None
+)
 
 log = logging.getLogger("ucr.api")
 
@@ -106,7 +113,7 @@ class Dispatcher:
         """The parsed request, or the error reply (bad frame, unknown op, wrong scope)."""
         self.counters["requests"] += 1
         try:
-            rid, op, params = S.parse_request(
+            rid, op, params, behalf = S.parse_request(
                 frame, self.opts.max_request_bytes, lambda uid: self._held(session, uid)
             )
         except S.RequestError as exc:
@@ -120,11 +127,12 @@ class Dispatcher:
             return S.error_reply(
                 rid, S.FORBIDDEN, f"{op!r} needs a token with the control scope (this one: read)"
             )
-        return _Request(rid, op, params)
+        return _Request(rid, op, params, behalf)
 
     async def serve(self, session: _Session, request: _Request) -> dict | str:
         """Run a parsed request; the reply (an error reply for any failure)."""
-        rid, op, params = request
+        rid, op, params, behalf = request
+        scope = _ON_BEHALF_OF.set(behalf)  # this request's task only (the audit reads it)
         try:
             result = await self._dispatch(session, op, params)
         except S.RequestError as exc:
@@ -137,12 +145,23 @@ class Dispatcher:
             self.counters["errors"] += 1
             log.exception("API: op %s failed", op)
             return S.error_reply(rid, S.INTERNAL, f"internal error ({type(exc).__name__}): {exc}")
+        finally:
+            _ON_BEHALF_OF.reset(scope)
         if isinstance(result, _Raw):
             return f'{{"id":{json.dumps(rid)},"ok":true,"result":{result.text}}}'
         return S.ok_reply(rid, result)
 
     def _audit(self, session: _Session, op: str, goal: Any, summary: str) -> None:
-        audit_log(session.peer, session.who, session.scope, op, goal, summary, session.agent)
+        audit_log(
+            session.peer,
+            session.who,
+            session.scope,
+            op,
+            goal,
+            summary,
+            session.agent,
+            on_behalf_of=_ON_BEHALF_OF.get(),
+        )
 
     async def _dispatch(self, session: _Session, op: str, p: dict) -> Any:
         call = self._call

@@ -1,7 +1,8 @@
 """Message schemas of the API: request validation, reply/push builders, JSON encoding.
 
-Every request is a JSON object ``{"id": n, "op": "...", ...params}``. :func:`parse_request` turns
-the raw text into ``(id, op, params)`` or raises :class:`RequestError` carrying the error code and
+Every request is a JSON object ``{"id": n, "op": "...", ...params}`` (optionally with
+``"on_behalf_of"``, for the audit line). :func:`parse_request` turns the raw text into
+``(id, op, params, on_behalf_of)`` or raises :class:`RequestError` carrying the error code and
 the request id (when one could be read), so the server can always answer. Validation is strict:
 unknown ops, unknown fields, wrong types and out-of-range numbers are errors, never ignored.
 Units on the wire are SI (s, 1/m, rad); degrees appear only in the CLI.
@@ -467,14 +468,35 @@ def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
     return obj
 
 
+#: The longest ``on_behalf_of`` label a request may carry (characters).
+MAX_ON_BEHALF_LEN = 80
+
+
+def _on_behalf_of(value: Any, rid: Any) -> str | None:
+    """A request's optional ``on_behalf_of``: who a client acting for others (``ucr view`` for its
+    pages) says this request is for; written into the audit line as declared, not proven."""
+    if value is None:
+        return None
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_ON_BEHALF_LEN:
+        raise RequestError(
+            BAD_REQUEST,
+            f"'on_behalf_of' must be a string of 1 to {MAX_ON_BEHALF_LEN} characters",
+            rid,
+        )
+    if not value.isprintable():
+        raise RequestError(BAD_REQUEST, "'on_behalf_of' must be printable (no control)", rid)
+    return value
+
+
 def parse_request(
     data: str | bytes, max_bytes: int = MAX_REQUEST_BYTES, uploaded: Uploaded | None = None
-) -> tuple[Any, str, dict]:
-    """Decode and validate one request frame; returns ``(id, op, params)``.
+) -> tuple[Any, str, dict, str | None]:
+    """Decode and validate one request frame; returns ``(id, op, params, on_behalf_of)``.
 
     Raises :class:`RequestError`; its ``request_id`` is set whenever the id could be read, so the
     error reply can be matched by the client. ``uploaded``: the connection's uploads (see
     :data:`Uploaded`), so a later chunk's errors count from the start of the trajectory.
+    ``on_behalf_of`` (optional, any op): see :func:`_on_behalf_of`.
     """
     if isinstance(data, bytes | bytearray | memoryview):
         raise RequestError(BAD_REQUEST, "binary frames are not accepted: send JSON text")
@@ -503,11 +525,12 @@ def parse_request(
         raise RequestError(BAD_REQUEST, "'op' must be a string", rid)
     if op not in OPS:
         raise RequestError(UNKNOWN_OP, f"unknown op {op[:64]!r} (known: {', '.join(OPS)})", rid)
-    params = {k: v for k, v in obj.items() if k not in ("id", "op")}
+    behalf = _on_behalf_of(obj.get("on_behalf_of"), rid)
+    params = {k: v for k, v in obj.items() if k not in ("id", "op", "on_behalf_of")}
     try:
         if op in _CHUNK_OPS:
-            return rid, op, _CHUNK_OPS[op](params, uploaded)
-        return rid, op, OPS[op](params)
+            return rid, op, _CHUNK_OPS[op](params, uploaded), behalf
+        return rid, op, OPS[op](params), behalf
     except RequestError as exc:
         exc.request_id = rid
         raise

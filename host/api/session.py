@@ -28,6 +28,7 @@ class _Request(NamedTuple):
     rid: Any
     op: str
     params: dict
+    on_behalf_of: str | None = None  # who the client says it acts for (the audit line's for=)
 
 
 class _Subscription:

@@ -736,6 +736,36 @@ def test_audit_lines_name_the_client_program_each_connection_declares(stub, audi
     assert f"client='x op=fake {'A' * 54}' op=" in sends[2]
 
 
+def test_a_request_on_behalf_of_someone_names_them_in_its_audit_line(stub, audit_lines):
+    """docs/view.md "Limits" (2026-11-27): the daemon's audit line could not name the page a
+    `ucr view` acted for (the API had no field for it), so the view's own line had to be matched
+    to it by time. A request may now say `on_behalf_of` (any op): written as `for=`, declared
+    like `client=`; only requests inside `on_behalf_of(...)` carry it."""
+    from host.api.client import on_behalf_of
+
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    point = {"time_from_start": 1.0, "segments": {"s1": {"kappa": 1.0}}}
+    try:
+        with connect(srv.url, agent="ucr view") as c:
+            with on_behalf_of("view page=3 peer=192.0.2.7:5000"):
+                c.send_trajectory([point], wait=False)
+                c.ffc_input({"s1": (0.5, 0.0)})
+            c.send_trajectory([point], wait=False)  # outside the block: for nobody
+            with ws_connect(srv.url) as ws:
+                for bad in (7, "", "x" * 81, "page\n1 op=fake"):
+                    reply = rpc(ws, {"id": 1, "op": "ping", "on_behalf_of": bad})
+                    assert reply["error"]["code"] == "bad_request", (bad, reply)
+                    assert "on_behalf_of" in reply["error"]["message"]
+    finally:
+        srv.stop()
+    sends = [ln for ln in audit_lines if "op=trajectory.send" in ln]
+    assert len(sends) == 2, audit_lines
+    assert "client='ucr view' for='view page=3 peer=192.0.2.7:5000' op=trajectory.send" in sends[0]
+    assert " for=" not in sends[1] and "client='ucr view' op=trajectory.send" in sends[1]
+    ffc = [ln for ln in audit_lines if "op=ffc.input" in ln]
+    assert ffc and "for='view page=3 peer=192.0.2.7:5000'" in ffc[0], audit_lines
+
+
 def test_failed_handshakes_are_counted_and_summed_up_not_logged_with_a_traceback_each(stub, caplog):
     """Defect (review): each client that reset or sent garbage in its handshake was logged at
     ERROR with a full traceback (629 tracebacks for ~600 aborts): a loop of them fills the

@@ -125,10 +125,18 @@ def test_the_printed_url_gives_controls_and_each_page_command_is_audited(rig, li
             assert wait_for(lambda: want in audit.lines, 20), audit.lines
             assert re.fullmatch(r"127\.0\.0\.1:\d+", page.peer)
             assert "segment_1" in live_view.driver.targets
+            # ... and the daemon's own audit line for the input says which page it was for
+            daemon_for = f"client='ucr view' for='view page={page.id} peer={page.peer}' op="
+            inputs = [daemon_for + "ffc.input"]
+            assert wait_for(lambda: any(inputs[0] in ln for ln in audit.lines), 20), audit.lines
             pg.get_by_role("button", name="Stop (hold)").click()
             stop = f"view page={page.id} peer={page.peer} op=stop stop button"
             assert wait_for(lambda: stop in audit.lines, 20), audit.lines
             assert live_view.driver.targets == {}
+            # the stop's zero input too (the sticks deflected changed: audited)
+            assert wait_for(lambda: sum(inputs[0] in ln for ln in audit.lines) >= 2, 20), (
+                audit.lines
+            )
         finally:
             ctx.close()
             _settle(daemon, live_view)
