@@ -38,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from host.api.client_behalf import on_behalf_of
 from interop import ros2
 from interop.ros2 import actions, services
 from interop.ros2.type_hash import action_type_hash, service_type_hash, type_hash
@@ -213,7 +214,10 @@ class FollowJointTrajectoryServer:
             if not goal.trajectory.points:
                 raise CommandError("empty trajectory")
             points = to_waypoints(goal.trajectory, self.bendables)
-            daemon_id = self.client.send_trajectory(points, wait=False, controller=self.controller)
+            with on_behalf_of(f"zenoh goal_uuid={uuid.hex()}"):  # named in the daemon's audit
+                daemon_id = self.client.send_trajectory(
+                    points, wait=False, controller=self.controller
+                )
         except CommandError as exc:
             self.report(40, f"FollowJointTrajectory goal refused: {exc}")
             return refuse
@@ -278,7 +282,8 @@ class FollowJointTrajectoryServer:
                   stamp_ns=stamp_ns, goals=",".join(g.daemon_id for g in chosen))  # fmt: skip
         for g in chosen:
             try:
-                self.client.cancel(g.daemon_id)
+                with on_behalf_of(f"zenoh goal_uuid={uuid.hex()}"):
+                    self.client.cancel(g.daemon_id)
             except ApiError as exc:
                 if exc.code != "not_found":
                     self.report(40, f"cancel of {g.daemon_id} refused{daemon_said(exc)}")

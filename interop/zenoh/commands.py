@@ -23,6 +23,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from host.api.client_behalf import on_behalf_of
 from host.api.schema import MAX_POINTS
 from interop import ros2
 
@@ -212,11 +213,12 @@ class TrajectoryCommands:
             return
         if not msg.points:
             audit("joint_trajectory.stop", who)
-            self.stop_sent()
+            self.stop_sent(who)
             return
         try:
             points = to_waypoints(msg, self.bendables)
-            goal = self.client.send_trajectory(points, wait=False, controller=self.controller)
+            with on_behalf_of(f"zenoh {who}"):  # the daemon's audit line names it too
+                goal = self.client.send_trajectory(points, wait=False, controller=self.controller)
             self.sent.note(goal, "topic")
             audit("joint_trajectory", who, goal=goal, points=len(points))
             self.accepted += 1
@@ -228,9 +230,10 @@ class TrajectoryCommands:
             self.refused += 1
             self.report(40, f"JointTrajectory refused{daemon_said(exc)}")
 
-    def stop_sent(self) -> None:
+    def stop_sent(self, who: str | None = None) -> None:
         """An empty JointTrajectory: cancel the newest goal this bridge's commands started, if it
-        still runs, and say what happened (nothing to cancel is said as such)."""
+        still runs, and say what happened (nothing to cancel is said as such). ``who``: the
+        publisher that sent it (the daemon's audit line names it)."""
         from host.api.client import ApiError  # noqa: PLC0415
 
         what = "empty JointTrajectory"
@@ -240,7 +243,8 @@ class TrajectoryCommands:
             return
         goal, source = last
         try:
-            st = self.client.cancel(goal)
+            with on_behalf_of(None if who is None else f"zenoh {who}"):
+                st = self.client.cancel(goal)
         except ApiError as exc:
             if exc.code == "not_found":
                 self.report(

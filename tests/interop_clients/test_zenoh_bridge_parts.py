@@ -24,6 +24,7 @@ pytest.importorskip("rosbags", reason="the 'ros2' extra (rosbags) is not install
 zenoh = pytest.importorskip("zenoh", reason="the 'ros2' extra (eclipse-zenoh) is not installed")
 
 from host.api.client import ApiConnectionError, ApiError  # noqa: E402
+from host.api.client_behalf import _ON_BEHALF_OF  # noqa: E402
 from interop import ros2  # noqa: E402
 from interop.ros2 import actions, services  # noqa: E402
 from interop.zenoh import rmw  # noqa: E402
@@ -45,6 +46,7 @@ class FakeDaemon:
         self.goals: dict[str, dict] = {}
         self.sent: list[list[dict]] = []
         self.canceled: list[str] = []
+        self.behalf: list[tuple[str, str | None]] = []  # (call, its on_behalf_of)
         self.away = False
         self.replaces = True
         self._n = 0
@@ -56,6 +58,7 @@ class FakeDaemon:
 
     def send_trajectory(self, points, wait=False, controller=None):
         self._check()
+        self.behalf.append(("send_trajectory", _ON_BEHALF_OF.get()))
         with self._lock:
             self._n += 1
             gid = f"jtc-{self._n}"
@@ -73,6 +76,7 @@ class FakeDaemon:
 
     def cancel(self, goal):
         self._check()
+        self.behalf.append(("cancel", _ON_BEHALF_OF.get()))
         with self._lock:
             g = self.goals.get(goal)
             if g is None:
@@ -553,7 +557,8 @@ def test_the_topic_table_of_docs_ros2_lists_every_topic_the_bridge_publishes():
 def test_each_command_from_ros_is_audited_with_its_ros_identity(commands, action, caplog):
     """Review 2026-11-26: the daemon's audit line names only the bridge's token; who on the ROS
     side moved the robot was written nowhere. The bridge's own audit line names the
-    JointTrajectory publisher's GID and the action goal's UUID."""
+    JointTrajectory publisher's GID and the action goal's UUID, and (2026-11-27) each request
+    it sends the daemon for them says so (``on_behalf_of``, the daemon's ``for=``)."""
     import logging
 
     from host.api.audit import audit_logger
@@ -571,7 +576,7 @@ def test_each_command_from_ros_is_audited_with_its_ros_identity(commands, action
             ln.startswith(f"zenoh publisher={bytes(range(16)).hex()} op=joint_trajectory goal=")
             for ln in lines
         ), lines
-        server, _, _, session = action
+        server, action_daemon, _, session = action
         req = actions.codec(FJT, "SendGoal_Request")
         assert call(
             server, session, "send_goal", req.encode(_goal_request(bytes([7] * 16)))
@@ -579,5 +584,12 @@ def test_each_command_from_ros_is_audited_with_its_ros_identity(commands, action
         lines = [r.getMessage() for r in caplog.records]
         mark = f"zenoh goal_uuid={bytes([7] * 16).hex()} op=follow_joint_trajectory goal="
         assert any(ln.startswith(mark) for ln in lines), lines
+        # and each request to the daemon says whom it is for: its audit line names them too
+        assert daemon.behalf == [
+            ("send_trajectory", f"zenoh publisher={bytes(range(16)).hex()}")
+        ], daemon.behalf
+        assert action_daemon.behalf == [
+            ("send_trajectory", f"zenoh goal_uuid={bytes([7] * 16).hex()}")
+        ], action_daemon.behalf
     finally:
         audit_logger().removeHandler(caplog.handler)
