@@ -204,6 +204,7 @@ class ViewApp:
                 self._refused,
                 kappa_max=self._kappa_max,
                 clamped=self._clamped,
+                ffc_params=lambda: source.ffc_params,
             ).start()
         self.server.on_client_connect(self._client_connected)
         self.server.on_client_disconnect(self._client_gone)

@@ -6,9 +6,10 @@ daemon's deadman apply unchanged. The cFFC integrates a setpoint from the stick 
 (host/controllers/ffc.py) and the segments follow it with a lag, so the driver steers that
 setpoint, not the lagging measurement: it integrates the setpoint from the inputs it sent, as the
 cFFC does (:class:`SetpointModel`), and bounds each deflection so that the setpoint could not pass
-the target even if that input stayed in force until the cFFC's deadman (:data:`HORIZON_S`). So the
-robot never goes past a slider target, and stops at or before it whenever the inputs end (page
-closed, view killed). It streams only while a page is connected and the sliders were touched in
+the target even if that input stayed in force until the cFFC's deadman (:class:`FfcParams`: the
+deadzone, gain and deadman of the daemon's cFFC, read from ``controllers.list``). So the robot
+never goes past a slider target, and stops at or before it whenever the inputs end (page closed,
+view killed). It streams only while a page is connected and the sliders were touched in
 the last ``idle_s``; when it stops it sends one zero input (the daemon's deadman would stop the
 robot anyway 0.3 s later).
 
@@ -23,6 +24,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -56,21 +58,61 @@ STEADY_S = 0.5
 SENT_MEMORY_S = 5.0
 
 
+@dataclass(frozen=True)
+class FfcParams:
+    """The parameters of the daemon's cFFC that the slider drive depends on (its
+    ``controllers.list`` entry; the defaults of host/controllers/ffc.py until it is read)."""
+
+    deadzone: float = FFC_DEADZONE
+    gain: float = 1.0
+    deadman_timeout_s: float = FeedForwardController.defaults["deadman_timeout"]
+
+    @property
+    def horizon_s(self) -> float:
+        """How long one input can stay in force: the deadman plus a loop period and margin."""
+        return self.deadman_timeout_s + 0.05
+
+    @classmethod
+    def from_describe(cls, d: Any) -> FfcParams | None:
+        """From a cFFC's ``controllers.list`` entry; None when it does not say (an older
+        daemon) or says something the cFFC could not run with."""
+        try:
+            dz, gain, dm = (float(d[k]) for k in ("deadzone", "gain", "deadman_timeout_s"))
+        except (KeyError, TypeError, ValueError):
+            return None
+        if not (0.0 <= dz < 1.0 and 0.0 < gain <= 1.0 and 0.0 < dm < 60.0):
+            return None
+        return cls(dz, gain, dm)
+
+
+DEFAULT_FFC = FfcParams()
+
+
 def deflection(
-    target: tuple[float, float], setpoint: tuple[float, float], rate_max: float
+    target: tuple[float, float],
+    setpoint: tuple[float, float],
+    rate_max: float,
+    ffc: FfcParams = DEFAULT_FFC,
 ) -> tuple[tuple[float, float], tuple[float, float]]:
     """``(stick deflection, setpoint rate)`` steering the cFFC's ``setpoint`` (kx, ky) to
-    ``target``: the rate (1/m/s, the cFFC's for that deflection with its default deadzone and
-    gain 1) is at most the distance over :data:`HORIZON_S`, so the setpoint cannot pass the
-    target while that input is in force; zero within :data:`ARRIVED`."""
+    ``target``: the rate (1/m/s, the cFFC's for that deflection with its deadzone and gain) is at
+    most the distance over ``ffc.horizon_s``, so the setpoint cannot pass the target while that
+    input is in force; zero within :data:`ARRIVED`."""
     ex, ey = target[0] - setpoint[0], target[1] - setpoint[1]
     err = math.hypot(ex, ey)
-    if err <= ARRIVED or not math.isfinite(rate_max) or rate_max <= 0:
+    top = rate_max * ffc.gain  # the cFFC's setpoint speed at full deflection
+    if err <= ARRIVED or not math.isfinite(top) or top <= 0:
         return (0.0, 0.0), (0.0, 0.0)
-    speed = min(rate_max, err / HORIZON_S)
-    mag = FFC_DEADZONE + (1.0 - FFC_DEADZONE) * speed / rate_max
-    mag = min(1.0, max(mag, FFC_DEADZONE + MIN_ABOVE_DEADZONE))
-    speed = rate_max * (mag - FFC_DEADZONE) / (1.0 - FFC_DEADZONE)  # what the cFFC does with it
+    dz = ffc.deadzone
+    speed = min(top, err / ffc.horizon_s)
+    mag = dz + (1.0 - dz) * speed / top  # > dz: the cFFC moves
+    if (
+        mag < dz + MIN_ABOVE_DEADZONE
+        and top * MIN_ABOVE_DEADZONE / (1.0 - dz) * ffc.horizon_s <= err
+    ):
+        mag = dz + MIN_ABOVE_DEADZONE  # clear of the deadzone where that cannot pass the target
+    mag = min(1.0, mag)
+    speed = top * (mag - dz) / (1.0 - dz)  # what the cFFC does with it
     ux, uy = ex / err, ey / err
     return (ux * mag, uy * mag), (ux * speed, uy * speed)
 
@@ -90,8 +132,10 @@ class SetpointModel:
         self.rates: dict[str, tuple[float, float]] = {}
         self.t = -math.inf
 
-    def advance(self, now: float, kappa_max: Callable[[str], float]) -> None:
-        dt = min(max(0.0, now - self.t), HORIZON_S)
+    def advance(
+        self, now: float, kappa_max: Callable[[str], float], horizon_s: float = HORIZON_S
+    ) -> None:
+        dt = min(max(0.0, now - self.t), horizon_s)
         for name, (rx, ry) in self.rates.items():
             c = self.at.get(name)
             if c is None or not (rx or ry):
@@ -141,8 +185,11 @@ class SliderDriver:
         idle_s: float = 10.0,
         kappa_max: Callable[[str], float] | None = None,
         clamped: Callable[[str], bool] | None = None,
+        ffc_params: Callable[[], FfcParams | None] | None = None,
     ):
         self.client = client
+        #: the daemon's cFFC parameters as last read (None: not known, the defaults apply)
+        self.ffc_params = ffc_params or (lambda: None)
         self.measured = measured
         #: whether a segment reports clamping its setpoints (held by its own limits)
         self.clamped = clamped or (lambda _name: False)
@@ -180,6 +227,13 @@ class SliderDriver:
         self._stop.set()
         self._thread.join(timeout=2)
         self.halt("view closing")
+
+    def _ffc(self) -> FfcParams:
+        try:
+            got = self.ffc_params()
+        except Exception:  # noqa: BLE001 - not known now: the defaults
+            got = None
+        return got if isinstance(got, FfcParams) else DEFAULT_FFC
 
     def set_target(self, name: str, kappa: float, phi: float, label: str | None = None) -> None:
         """Drive ``name`` towards κ (1/m), φ (rad); ``label``: the page that asked (audit)."""
@@ -220,7 +274,7 @@ class SliderDriver:
             was = self.streaming
             self.streaming = False
             self.stopped_reason = reason
-            self.model.advance(time.monotonic(), self.kappa_max)
+            self.model.advance(time.monotonic(), self.kappa_max, self._ffc().horizon_s)
             self.model.sent(time.monotonic(), {})
         if was and names and send_zero:
             self._send({n: (0.0, 0.0) for n in names}, report=True, label=label)
@@ -257,12 +311,13 @@ class SliderDriver:
             self.halt(f"no slider input for {self.idle_s:g} s")
             return
         meas = self.measured()
+        ffc = self._ffc()
         now = time.monotonic()
         deflections: dict[str, tuple[float, float]] = {}
         rates: dict[str, tuple[float, float]] = {}
         with self.lock:
             model = self.model
-            model.advance(now, self.kappa_max)
+            model.advance(now, self.kappa_max, ffc.horizon_s)
             for name, m in meas.items():
                 v = kvec(m["kappa"], m["phi"])
                 last = self.still.get(name)
@@ -276,7 +331,9 @@ class SliderDriver:
                 if m is None:
                     continue  # no valid state: not moved (zero rate)
                 c = model.at.setdefault(name, list(kvec(m["kappa"], m["phi"])))
-                deflections[name], rates[name] = deflection(tgt, (c[0], c[1]), self.rate_max(name))
+                deflections[name], rates[name] = deflection(
+                    tgt, (c[0], c[1]), self.rate_max(name), ffc
+                )
         moving = any(r != (0.0, 0.0) for r in deflections.values())
         if not deflections or (not moving and not self.streaming):
             return

@@ -21,6 +21,7 @@ from host.api.reconnect import reconnect
 from host.api.schema import robot_description
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load, parse_string
+from view.control import FfcParams
 
 log = logging.getLogger("ucr.view")
 
@@ -340,6 +341,8 @@ class LiveSource:
         self.lock = threading.Lock()
         self.snap = Snapshot(connected=True)
         self.robot = None
+        #: the daemon's cFFC parameters (the slider drive's model), read once per connection
+        self.ffc_params: FfcParams | None = None
         self._robot_file = robot_file
         self._stop = threading.Event()
         self._events: dict[str, tuple[str, float]] = {}  # bendable -> (status, until)
@@ -666,7 +669,9 @@ class LiveSource:
             s.status[n] = st
 
     def _poll_status(self, client: Any, lost: threading.Event) -> None:
-        """Who has control (controllers, takeovers, goals), 5 times a second."""
+        """Who has control (controllers, takeovers, goals), 5 times a second; the cFFC's
+        parameters once per connection (a restarted daemon may have others)."""
+        self.ffc_params = None
         while not (self._stop.wait(0.2) or lost.is_set()):
             try:
                 st = client.status()
@@ -687,7 +692,11 @@ class LiveSource:
                 except ApiError:  # rebuilding right now: try again on the next poll
                     self._topo_dirty = True
             manual = list(st.get("manual_control") or [])
-            ffc = self._ffc_input(client, manual) if manual else None
+            ffc = None
+            if manual or self.ffc_params is None:
+                ffc, params = self._controllers(client, manual)
+                if params is not None:
+                    self.ffc_params = params
             with self.lock:
                 self._faults = set(st.get("faults") or {})
                 c = self.snap.control
@@ -698,21 +707,32 @@ class LiveSource:
                 c["ffc_input"] = ffc
 
     @staticmethod
-    def _ffc_input(client: Any, manual: list[str]) -> tuple[float, float, float] | None:
-        """When the manual cFFC's latest input was set, on our monotonic clock: ``(earliest,
-        latest, asked)`` from its ``input_age_s`` (``controllers.list``: the daemon describes it
-        between our request and its reply); None when it has no input now (none for longer than
-        its deadman) or it cannot be read. Who sent that input is told by the view
-        (``SliderDriver.sent_at``): the daemon does not say which client a manual source is."""
+    def _controllers(
+        client: Any, manual: list[str]
+    ) -> tuple[tuple[float, float, float] | None, FfcParams | None]:
+        """From ``controllers.list``: when the manual cFFC's latest input was set, on our
+        monotonic clock: ``(earliest, latest, asked)`` from its ``input_age_s`` (the daemon
+        describes it between our request and its reply; None when it has no input now, none for
+        longer than its deadman, or it cannot be read); and the parameters of the cFFC that
+        ``ffc.input`` drives (the first active one, else the first; None if unknown). Who sent
+        that input is told by the view (``SliderDriver.sent_at``): the daemon does not say which
+        client a manual source is."""
         t_ask = time.monotonic()
         try:
             ctrls = client.controllers()
         except Exception:  # noqa: BLE001 - not known this time
-            return None
+            return None, None
         t_got = time.monotonic()
-        for c in ctrls if isinstance(ctrls, list) else []:
-            if isinstance(c, dict) and c.get("name") in manual and c.get("type") == "ffc":
+        ffcs = (
+            [c for c in ctrls if isinstance(c, dict) and c.get("type") == "ffc"]
+            if isinstance(ctrls, list)
+            else []
+        )
+        driven = next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
+        params = None if driven is None else FfcParams.from_describe(driven)
+        for c in ffcs:
+            if c.get("name") in manual:
                 age = c.get("input_age_s")
                 if isinstance(age, int | float):
-                    return (t_ask - age - 0.001, t_got - age + 0.001, t_got)
-        return None
+                    return (t_ask - age - 0.001, t_got - age + 0.001, t_got), params
+        return None, params

@@ -142,4 +142,8 @@ class FeedForwardController(Controller):
         d = super().describe()
         d["input_age_s"] = None if not self._input else round(time.monotonic() - self._t_input, 3)
         d["deadman_tripped"] = self.deadman_tripped
+        # what a client steering the setpoint needs to know (ucr view's slider drive)
+        d["deadzone"] = self.deadzone
+        d["gain"] = self.gain
+        d["deadman_timeout_s"] = self.deadman_timeout
         return d

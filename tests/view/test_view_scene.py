@@ -103,6 +103,40 @@ def test_slider_deflection_cannot_carry_the_setpoint_past_the_target():
         assert cffc * HORIZON_S <= d + 1e-12, d
 
 
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"deadzone": 0.0},
+        {"deadzone": 0.2},
+        {"gain": 0.5},
+        {"deadman_timeout": 1.0},
+        {"deadzone": 0.0, "gain": 0.4, "deadman_timeout": 2.0},
+    ],
+)
+def test_slider_deflection_follows_the_daemons_cffc_parameters(params):
+    """docs/view.md "Limits" (2026-11-27): the drive assumed the cFFC's default deadzone,
+    gain and deadman; a cFFC configured otherwise (e.g. no deadzone, or a 1 s deadman) moved
+    faster, or longer on one input, than modelled and could carry its setpoint past a slider
+    target. With the cFFC's own parameters (its controllers.list entry) the rate that deflection
+    gives it is what the real cFFC does, and held as long as one input can stay in force it
+    stops at or before the target."""
+    from host.config import bendable_limits
+    from host.controllers.base import ControllerContext
+    from host.controllers.ffc import FeedForwardController
+    from view.control import FfcParams
+
+    robot = load(ROBOT)
+    ffc = FeedForwardController("ffc", params, ControllerContext(bendable_limits(robot), robot,
+                                                                 lambda _m: None))  # fmt: skip
+    known = FfcParams.from_describe(ffc.describe())
+    assert known is not None, ffc.describe()
+    for d in (0.021, 0.05, 0.2, 1.0, 1.75, 3.0, 6.0):
+        (ux, uy), (rx, ry) = deflection((d, 0.0), (0.0, 0.0), 5.0, known)
+        real = math.hypot(*ffc.rate_of(ux, uy, 5.0))
+        assert math.isclose(real, math.hypot(rx, ry), rel_tol=1e-9), (d, real, rx)
+        assert real * (ffc.deadman_timeout + 0.05) <= d + 1e-12, (d, real)
+
+
 def test_guard_allows_loopback_page_and_refuses_rebinding_and_cross_site():
     guard = page_guard("127.0.0.1", 8080)
     ok = {"Host": "127.0.0.1:8080", "Origin": "http://127.0.0.1:8080"}

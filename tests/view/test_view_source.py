@@ -88,6 +88,54 @@ def test_a_topology_push_rebuilds_the_scene_on_the_next_update(monkeypatch):
         app.stop()
 
 
+def test_the_view_reads_the_parameters_of_the_cffc_its_sliders_drive(monkeypatch):
+    """The slider drive models the daemon's cFFC (docs/view.md): the view reads that cFFC's
+    deadzone, gain and deadman from controllers.list (the active cFFC, else the first, as the
+    daemon's ffc.input picks it), once per connection."""
+    import view.source as vs
+    from view.control import FfcParams
+
+    class Daemon(_Daemon):
+        asked = 0
+
+        def status(self) -> dict:
+            return {"state": "connected", "segments": NAMES, "manual_control": [],
+                    "active_controllers": ["jtc"], "running_goals": []}  # fmt: skip
+
+        def controllers(self) -> list:
+            self.asked += 1
+            return [
+                {"name": "jtc", "type": "jtc", "state": "active"},
+                {
+                    "name": "slow",
+                    "type": "ffc",
+                    "state": "inactive",
+                    "deadzone": 0.0,
+                    "gain": 0.5,
+                    "deadman_timeout_s": 1.0,
+                },  # fmt: skip
+                {
+                    "name": "fast",
+                    "type": "ffc",
+                    "state": "inactive",
+                    "deadzone": 0.3,
+                    "gain": 1.0,
+                    "deadman_timeout_s": 0.3,
+                },  # fmt: skip
+            ]
+
+    daemon = Daemon()
+    monkeypatch.setattr(vs, "connect", lambda *a, **k: daemon)
+    src = vs.LiveSource("ws://127.0.0.1:9", None).start()
+    try:
+        assert wait_for(lambda: src.ffc_params is not None, 5)
+        assert src.ffc_params == FfcParams(deadzone=0.0, gain=0.5, deadman_timeout_s=1.0)
+        time.sleep(0.5)
+        assert daemon.asked == 1  # not polled while nobody holds manual control
+    finally:
+        src.stop()
+
+
 def test_the_latency_figure_counts_only_real_samples(tmp_path):
     """Defect (audit 15.6): every snapshot change counted as a latency sample aged from the last
     slider move, so saving the file offline showed "slider→page 3544.8 ms (p50)". Now only a
