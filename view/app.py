@@ -82,6 +82,8 @@ class _Page:
     execute: Any = None
     folder: Any = None
     sliders: dict[str, tuple[Any, Any]] = field(default_factory=dict)
+    #: per slider pair: the (κ, φ°) the server last showed on it (``ViewApp._follow_sliders``)
+    shown: dict[str, tuple[float, float]] = field(default_factory=dict)
     gizmo: Any = None
     extra: list[Any] = field(default_factory=list)  # its other handles (buttons)
     toggles: dict[str, Any] = field(default_factory=dict)  # display checkboxes (controls only)
@@ -406,10 +408,10 @@ class ViewApp:
             for name in model.bendables:
                 kmax, _ = model.limits(name)
                 cur = state.get(name, {"kappa": 0.0, "phi": 0.0})
-                k = gui.add_slider(
-                    f"{name} κ", 0.0, round(kmax, 3), 0.01, round(min(cur["kappa"], kmax), 2)
-                )
-                p = gui.add_slider(f"{name} φ", -180.0, 180.0, 1.0, round(math.degrees(cur["phi"])))
+                k0, p0 = round(min(cur["kappa"], kmax), 2), round(math.degrees(cur["phi"]))
+                k = gui.add_slider(f"{name} κ", 0.0, round(kmax, 3), 0.01, k0)
+                p = gui.add_slider(f"{name} φ", -180.0, 180.0, 1.0, p0)
+                page.shown[name] = (float(k0), float(p0))
                 k.on_update(lambda e, n=name: self._slider(e, n))
                 p.on_update(lambda e, n=name: self._slider(e, n))
                 page.sliders[name] = (k, p)
@@ -432,10 +434,19 @@ class ViewApp:
                 kappa = round(min(max(st["kappa"], 0.0), kmax), 2)
                 phi = round(math.degrees(st["phi"]))
                 try:
-                    if abs(float(k.value) - kappa) >= 0.01:
-                        k.value = kappa
-                    if kappa >= 0.01 and abs(float(p.value) - phi) >= 1.0:
-                        p.value = phi  # (straight: φ means nothing, the slider keeps its own)
+                    now_k, now_p = float(k.value), float(p.value)
+                    if (now_k, now_p) != page.shown.get(name):
+                        # the page moved it since: its callback sets a target (then this waits
+                        # for the drive to end), or refused it; never overwritten under a hand
+                        page.shown[name] = (now_k, now_p)
+                        continue
+                    if abs(now_k - kappa) >= 0.01:
+                        k.value = now_k = kappa
+                    if kappa >= 0.01 and abs(now_p - phi) >= 1.0:
+                        p.value = now_p = (
+                            phi  # (straight: φ means nothing, the slider keeps its own)
+                        )
+                    page.shown[name] = (float(now_k), float(now_p))
                 except Exception:  # noqa: BLE001, S110 - a page that went away meanwhile
                     pass
 
