@@ -714,7 +714,8 @@ class LiveSource:
         monotonic clock: ``(earliest, latest, asked)`` from its ``input_age_s`` (the daemon
         describes it between our request and its reply; None when it has no input now, none for
         longer than its deadman, or it cannot be read); and the parameters of the cFFC that
-        ``ffc.input`` drives (the first active one, else the first; None if unknown). Who sent
+        ``ffc.input`` drives (the first active one, else the first; its defaults when the daemon
+        does not say; None when the list could not be read). Who sent
         that input is told by the view (``SliderDriver.sent_at``): the daemon does not say which
         client a manual source is."""
         t_ask = time.monotonic()
@@ -729,7 +730,8 @@ class LiveSource:
             else []
         )
         driven = next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
-        params = None if driven is None else FfcParams.from_describe(driven)
+        # a daemon that does not say (older, or no cFFC): the cFFC's defaults, not asked again
+        params = (None if driven is None else FfcParams.from_describe(driven)) or FfcParams()
         for c in ffcs:
             if c.get("name") in manual:
                 age = c.get("input_age_s")

@@ -134,6 +134,17 @@ def test_the_view_reads_the_parameters_of_the_cffc_its_sliders_drive(monkeypatch
         assert daemon.asked == 1  # not polled while nobody holds manual control
     finally:
         src.stop()
+    # a daemon that does not give them (older, or no cFFC): the defaults, asked once
+    daemon = Daemon()
+    daemon.controllers = lambda: (setattr(daemon, "asked", daemon.asked + 1), [])[1]
+    src = vs.LiveSource("ws://127.0.0.1:9", None).start()
+    try:
+        assert wait_for(lambda: src.ffc_params is not None, 5)
+        assert src.ffc_params == FfcParams()
+        time.sleep(0.5)
+        assert daemon.asked == 1
+    finally:
+        src.stop()
 
 
 def test_the_latency_figure_counts_only_real_samples(tmp_path):
