@@ -214,6 +214,7 @@ class DaemonBridge:
 
     def _serve(self, req: dict) -> None:
         rid: Any = None
+        args: list | None = None
         try:
             rid, method, args = req["id"], req["m"], _args_for(req["m"], list(req["a"]))
             if method not in METHODS:
@@ -236,6 +237,11 @@ class DaemonBridge:
                 log.error("API: %s failed: %s", req.get("m"), message)
             text = S.encode({"id": rid, "ok": False, "code": code, "message": message})
             changed = False
+        # the request (a long goal's waypoints: ~15 MB parsed) is dropped before the answer
+        # goes: the pool's work item still holds ``req`` until this returns, which on a loaded
+        # host came after the API side had its answer
+        req.clear()
+        args = None
         if changed:
             self._send_status()
         self._send(b"A", text.encode())
