@@ -36,9 +36,11 @@ from ucrdf.ik import IKResult, IKSolver
 #: cFFC defaults (host/controllers/ffc.py): deadzone (fraction of full deflection); its gain is
 #: at most 1, so ``kappa_rate_max`` is the fastest a deflection moves the setpoint.
 FFC_DEADZONE = FeedForwardController.defaults["deadzone"]
-#: How long one input can stay in force: the cFFC's deadman (0.3 s) plus a loop period and
-#: margin. The setpoint speed is at most (distance to target) / HORIZON_S.
-HORIZON_S = FeedForwardController.defaults["deadman_timeout"] + 0.05
+#: Beyond its cFFC's deadman, how long one input can still be in force: a loop period and margin.
+HORIZON_MARGIN_S = 0.05
+#: How long one input can stay in force with the default cFFC: its deadman (0.3 s) plus
+#: :data:`HORIZON_MARGIN_S`. The setpoint speed is at most (distance to target) / HORIZON_S.
+HORIZON_S = FeedForwardController.defaults["deadman_timeout"] + HORIZON_MARGIN_S
 #: Smallest deflection sent above the deadzone (so the cFFC does move the setpoint).
 MIN_ABOVE_DEADZONE = 0.005
 #: Distance (1/m) of the modelled setpoint to the target accepted as "arrived".
@@ -70,7 +72,7 @@ class FfcParams:
     @property
     def horizon_s(self) -> float:
         """How long one input can stay in force: the deadman plus a loop period and margin."""
-        return self.deadman_timeout_s + 0.05
+        return self.deadman_timeout_s + HORIZON_MARGIN_S
 
     @classmethod
     def from_describe(cls, d: Any) -> FfcParams | None:
@@ -229,11 +231,7 @@ class SliderDriver:
         self.halt("view closing")
 
     def _ffc(self) -> FfcParams:
-        try:
-            got = self.ffc_params()
-        except Exception:  # noqa: BLE001 - not known now: the defaults
-            got = None
-        return got if isinstance(got, FfcParams) else DEFAULT_FFC
+        return self.ffc_params() or DEFAULT_FFC
 
     def set_target(self, name: str, kappa: float, phi: float, label: str | None = None) -> None:
         """Drive ``name`` towards κ (1/m), φ (rad); ``label``: the page that asked (audit)."""
