@@ -206,6 +206,10 @@ class DaemonBridge:
             if len(points) >= head["parts"]:
                 del self._partial[part["id"]]
                 head["a"][0] = points
+                # nothing of the request stays in this frame once it is handed over: the
+                # pool may serve and answer it before this thread runs again (a loaded CI
+                # host saw all 757 waypoints alive after the answer, held by these locals)
+                del points, part
                 self._pool.submit(self._serve, head)
         elif kind == b"U":
             self._set_subscribed(body.decode().split(",") if body else [])

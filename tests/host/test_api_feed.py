@@ -152,7 +152,9 @@ def test_a_long_goal_is_not_kept_alive_by_the_bridge_once_served(monkeypatch) ->
     its parsed waypoints stays alive in the daemon's process (the bridge's reader kept the last
     such request in its locals until the next one came: ~15 MB for 10,000 waypoints). And not
     even for the moment between the answer and the end of its handling (2026-11-27: a CI run
-    beside another worker saw all 757 alive there): here that moment lasts 0.5 s."""
+    beside another worker saw all 757 alive there): here that moment lasts 0.5 s. Nor while the
+    reader thread, which handed the request over, has not run again (the next CI run saw 757
+    alive again, held by the reader's locals): here it waits 0.5 s after the hand-over."""
     import gc
 
     from host.api.bridge import PART_POINTS, send_frame
@@ -180,7 +182,16 @@ def test_a_long_goal_is_not_kept_alive_by_the_bridge_once_served(monkeypatch) ->
         gc.collect()
         return sum(1 for o in gc.get_objects() if type(o) is dict and "bridge_probe" in o)
 
-    bridge = DaemonBridge(Facade(), ours, status_period=1.0).start()
+    bridge = DaemonBridge(Facade(), ours, status_period=1.0)
+    real_submit = bridge._pool.submit
+
+    def slow_reader_after_handover(*args, **kwargs):
+        future = real_submit(*args, **kwargs)
+        time.sleep(0.5)  # the reader thread is not scheduled again for a while
+        return future
+
+    bridge._pool.submit = slow_reader_after_handover
+    bridge.start()
     lock = threading.Lock()
     n = 3 * PART_POINTS + 7
     try:
