@@ -423,12 +423,14 @@ class Daemon:
         """Cancel a running goal (decelerates to rest); returns its status + ``canceled``."""
         return self.motion.cancel_trajectory(goal_id)
 
-    def ffc_input(self, rates: dict[str, Any]) -> dict[str, Any]:
+    def ffc_input(self, rates: dict[str, Any], source: Any = None) -> dict[str, Any]:
         """Stream cFFC stick input {bendable: [x, y]} (deflections in [-1, 1]).
 
         A deflected stick takes over from a running trajectory (arbitration); zero input to an
-        inactive cFFC changes nothing (the reply says so)."""
-        return self.motion.ffc_input(rates)
+        inactive cFFC changes nothing (the reply says so). ``source``: who sent it (the API
+        gives its connection's ``peer``, ``client`` and ``for``), which the cFFC's
+        description then names as ``input_from``."""
+        return self.motion.ffc_input(rates, source)
 
     def hand_back(self, manual: str | None = None) -> dict[str, Any]:
         """End a manual takeover: stop the cFFC, restart the controllers it preempted."""

@@ -287,7 +287,7 @@ class Motion:
             raise GoalNotFound(f"unknown goal id {goal_id!r}")
         return entry
 
-    def ffc_input(self, rates: dict[str, Any]) -> dict[str, Any]:
+    def ffc_input(self, rates: dict[str, Any], source: Any = None) -> dict[str, Any]:
         with self.lock:
             self._ready()
             ffcs = self.cm.of_type("ffc")
@@ -304,7 +304,7 @@ class Motion:
                     "takeover": None,
                     "reason": f"{ctrl.name!r} is inactive and the input is in the deadzone",
                 }
-            ctrl.set_input(parsed, time.monotonic())
+            ctrl.set_input(parsed, time.monotonic(), source)
         if takeover:
             self._emit(
                 "manual_takeover",

@@ -121,7 +121,8 @@ def classify(exc: BaseException) -> tuple[str, str]:
 def _args_for(method: str, args: list) -> list:
     """JSON brings lists where the facade takes tuples (cFFC deflections)."""
     if method == "ffc_input" and args and isinstance(args[0], dict):
-        return [{k: tuple(v) if isinstance(v, list) else v for k, v in args[0].items()}]
+        rates = {k: tuple(v) if isinstance(v, list) else v for k, v in args[0].items()}
+        return [rates, *args[1:]]  # (and who sent it)
     return args
 
 
@@ -206,10 +207,8 @@ class DaemonBridge:
             if len(points) >= head["parts"]:
                 del self._partial[part["id"]]
                 head["a"][0] = points
-                # nothing of the request stays in this frame once it is handed over: the
-                # pool may serve and answer it before this thread runs again (a loaded CI
-                # host saw all 757 waypoints alive after the answer, held by these locals)
-                del points, part
+                # none of it stays in these locals: the pool may answer it before this thread
+                del points, part  # runs again (CI saw 757 waypoints alive after the answer)
                 self._pool.submit(self._serve, head)
         elif kind == b"U":
             self._set_subscribed(body.decode().split(",") if body else [])

@@ -38,7 +38,7 @@ from websockets.exceptions import ConnectionClosed
 from host.api import schema as S
 from host.api.audit import audit_log
 from host.api.auth import CONTROL
-from host.api.session import _Request, _Session, _Subscription
+from host.api.session import _Request, _Session, _Subscription, input_source
 
 log = logging.getLogger("ucr.api")
 
@@ -397,12 +397,13 @@ class Connections:
             zeros = {name: (0.0, 0.0) for name in session.ffc_active}
             s = session
             audit_log(s.peer, s.who, s.scope, "ffc.input", None, "zeroed on disconnect", s.agent)
+            source = input_source(s)  # (no one it acts for: the API zeroes it)
             try:
-                await self._call("ffc_input", zeros)
+                await self._call("ffc_input", zeros, source)
             except Exception:  # noqa: BLE001 - e.g. a segment gone meanwhile: try one by one
                 for name in sorted(session.ffc_active):
                     with contextlib.suppress(Exception):
-                        await self._call("ffc_input", {name: (0.0, 0.0)})
+                        await self._call("ffc_input", {name: (0.0, 0.0)}, source)
 
     async def janitor(self) -> None:
         """Once a second: close clients that stopped reading; forget stale uploads; give memory

@@ -28,7 +28,7 @@ from host.api.audit import audit_log
 from host.api.auth import CONTROL, READ_OPS
 from host.api.bridge import BridgeClosed, RemoteError
 from host.api.connection import Outboxes
-from host.api.session import _Request, _Session, _Subscription, _Upload
+from host.api.session import _Request, _Session, _Subscription, _Upload, input_source
 
 #: The ``on_behalf_of`` of the request being served, for its audit line (a context variable:
 #: each request's task sees its own).
@@ -250,7 +250,8 @@ class Dispatcher:
             self._audit(session, "ffc.input", None, f"deflected {sorted(deflected)}")
         session.ffc_active.update(deflected)
         try:
-            result = await self._call("ffc_input", rates)
+            source = input_source(session, _ON_BEHALF_OF.get())
+            result = await self._call("ffc_input", rates, source)
         except RemoteError as exc:
             if exc.code == S.REJECTED:
                 session.ffc_active = before  # refused: the daemon did not take this input

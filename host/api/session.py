@@ -93,6 +93,16 @@ class _Session:
         self.t_progress = time.monotonic()  # last time the sender got a message out
 
 
+def input_source(session: _Session, on_behalf_of: str | None = None) -> dict[str, str]:
+    """Who sends a cFFC input (its connection's address and program, and whom it says it acts
+    for): the daemon keeps it as the cFFC's ``input_from``, which any client may read, so never
+    its token's label (the audit line has that)."""
+    source = {"peer": session.peer, "client": session.agent}
+    if on_behalf_of is not None:
+        source["for"] = on_behalf_of
+    return source
+
+
 def _peer(ws: Any) -> str:
     try:
         addr = ws.remote_address

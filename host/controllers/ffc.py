@@ -5,7 +5,9 @@ Input: per bendable a deflection (ux, uy), each in [-1, 1] (stick x/y), streamed
 ``Daemon.ffc_input``. Output: the commanded curvature vector integrates
     d(kx, ky)/dt = kappa_rate_max * gain * (ux, uy)   (|(ux, uy)| limited to 1, deadzone applied)
 clamped radially at kappa_max. When no input arrives for ``deadman_timeout`` s every rate drops
-to zero: the robot stops where it is (deadman).
+to zero: the robot stops where it is (deadman). Who sent the latest input (``input_from``: the
+API connection's peer, program and ``on_behalf_of``) is kept and described, so a
+client can tell its own input from another's.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ class FeedForwardController(Controller):
         self._t_input = -math.inf
         self.deadman_tripped = False
         self.clamped = False
+        #: who sent the latest input (see :meth:`source_of`), None: not said
+        self.input_from: dict[str, str] | None = None
 
     # -- input (called under the daemon lock, from any thread) ---------------------------------
     @staticmethod
@@ -74,11 +78,30 @@ class FeedForwardController(Controller):
             new[name] = self._pair(name, val)
         return new
 
-    def set_input(self, rates: dict[str, Any], now: float | None = None) -> None:
-        """Replace the stick input: {bendable: (ux, uy)}; bendables not named get zero rate."""
+    def set_input(
+        self, rates: dict[str, Any], now: float | None = None, source: Any = None
+    ) -> None:
+        """Replace the stick input: {bendable: (ux, uy)}; bendables not named get zero rate.
+        ``source``: who sent it (:meth:`source_of`)."""
         self._input = self.validate_input(rates)
         self._t_input = time.monotonic() if now is None else now
         self.deadman_tripped = False
+        self.input_from = self.source_of(source)
+
+    #: what ``input_from`` may say, each a string of at most SOURCE_CHARS characters
+    SOURCE_KEYS = ("peer", "client", "for")
+    SOURCE_CHARS = 80
+
+    @classmethod
+    def source_of(cls, source: Any) -> dict[str, str] | None:
+        """Who sent an input, as described: the known keys whose values are strings (longer
+        ones cut to SOURCE_CHARS); None for anything else (not said)."""
+        if not isinstance(source, dict):
+            return None
+        out = {
+            k: v[: cls.SOURCE_CHARS] for k in cls.SOURCE_KEYS if isinstance(v := source.get(k), str)
+        }
+        return out or None
 
     @staticmethod
     def has_deflection(rates: dict[str, Any], deadzone: float = 0.05) -> bool:
@@ -141,6 +164,7 @@ class FeedForwardController(Controller):
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d["input_age_s"] = None if not self._input else round(time.monotonic() - self._t_input, 3)
+        d["input_from"] = self.input_from  # who sent the latest input (kept after it ends)
         d["deadman_tripped"] = self.deadman_tripped
         # what a client steering the setpoint needs to know (ucr view's slider drive)
         d["deadzone"] = self.deadzone

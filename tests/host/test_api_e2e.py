@@ -191,6 +191,9 @@ def test_teleop_replay_moves_a_segment_and_deadman_stops_it(client, tmp_path):
         assert b == pytest.approx(a, abs=0.01)  # stopped without any further input
         ffc = next(c for c in client.controllers() if c["name"] == "ffc")
         assert ffc["state"] == "active" and ffc["deadman_tripped"] is True
+        # who sent the latest input, through the API's bridge into the real daemon's cFFC
+        me = client.session()
+        assert ffc["input_from"] == {"peer": me["peer"], "client": me["agent"]}
         names = []
         while (m := events.get(timeout=0.5)) is not None:
             names.append(m.get("event"))

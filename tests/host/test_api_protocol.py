@@ -21,7 +21,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect as ws_connect
 
 from host.api import schema
-from host.api.client import ApiAuthError, ApiConnectionError, ApiError, connect
+from host.api.client import ApiAuthError, ApiConnectionError, ApiError, connect, on_behalf_of
 from host.api.server import ApiServer, ApiServerError, check_bind, is_loopback
 
 pytestmark = pytest.mark.timeout(60)
@@ -36,6 +36,7 @@ class FacadeStub:
         self.subscribers: list[tuple[set[str], queue.Queue]] = []
         self.unsubscribed: list[queue.Queue] = []
         self.ffc_calls: list[dict] = []
+        self.ffc_sources: list[dict | None] = []  # who sent each (the API's input_source)
         self.switch_calls: list[tuple[list[str], list[str]]] = []
         self.goals: dict[str, dict] = {}
         self.fail_status = False
@@ -135,9 +136,10 @@ class FacadeStub:
     def cancel_trajectory(self, gid: str) -> bool:
         return gid in self.goals
 
-    def ffc_input(self, rates: dict) -> None:
+    def ffc_input(self, rates: dict, source: dict | None = None) -> None:
         with self.lock:
             self.ffc_calls.append(dict(rates))
+            self.ffc_sources.append(source)
 
     def subscribe(self, kinds: list[str]) -> queue.Queue:
         q: queue.Queue = queue.Queue(maxsize=500)
@@ -335,6 +337,17 @@ def test_valid_ops_reach_the_facade_with_canonical_params(server, stub):
         assert stub.switch_calls == [(["ffc"], ["jtc"])]
         c.ffc_input({"s1": (0.5, -0.25)})
         assert stub.ffc_calls[-1] == {"s1": (0.5, -0.25)}
+        # who sent it goes with it (the cFFC's input_from): the connection as the server sees
+        # it, and whom it acts for when it says; never its token's label
+        me = c.session()
+        assert stub.ffc_sources[-1] == {"peer": me["peer"], "client": me["agent"]}
+        with on_behalf_of("stick js0"):
+            c.ffc_input({"s1": (0.0, 0.0)})
+        assert stub.ffc_sources[-1] == {
+            "peer": me["peer"],
+            "client": me["agent"],
+            "for": "stick js0",
+        }
         with pytest.raises(ApiError) as info:
             c.switch(start=["nope"])
         assert info.value.code == schema.REJECTED and "nope" in info.value.message
@@ -369,6 +382,7 @@ def test_trajectory_progress_and_result_are_pushed_to_the_sender(server):
 def test_client_disconnect_mid_stream_releases_subscription_and_stops_ffc(server, stub):
     ws = ws_connect(server.url)
     assert rpc(ws, {"id": 1, "op": "subscribe", "kinds": ["joint_states", "events"]})["ok"]
+    peer = rpc(ws, {"id": 2, "op": "session"})["result"]["peer"]
     for i in range(5):
         assert rpc(ws, {"id": 10 + i, "op": "ffc.input", "rates": {"s1": [0.8, 0.0]}})["ok"]
     ws.recv(timeout=2)  # stream is flowing
@@ -381,6 +395,8 @@ def test_client_disconnect_mid_stream_releases_subscription_and_stops_ffc(server
     assert len(stub.unsubscribed) == 1
     # Its cFFC stream is ended with a zero command instead of waiting for the deadman.
     assert wait_for(lambda: stub.ffc_calls[-1] == {"s1": (0.0, 0.0)})
+    assert stub.ffc_sources[-1]["peer"] == peer  # in the vanished client's name
+    assert "for" not in stub.ffc_sources[-1]
     with connect(server.url) as c:  # and the server still serves
         assert c.ping() < 1.0
 

@@ -271,6 +271,33 @@ def test_ffc_recorded_stream_then_deadman_stops_motion(ctx):
     assert np.all(moving[stop_idx:] == 0.0)  # stopped after the deadman timeout
 
 
+@pytest.mark.parametrize(
+    ("source", "described"),
+    [
+        (None, None),
+        ("127.0.0.1:4000", None),  # not a mapping: not said
+        ({"peer": "127.0.0.1:4000", "client": "ucr view", "for": "view page=1"},
+         {"peer": "127.0.0.1:4000", "client": "ucr view", "for": "view page=1"}),
+        ({"peer": "[::1]:5", "token": "operator", "for": 7, "x": "y"}, {"peer": "[::1]:5"}),
+        ({"client": "c" * 500}, {"client": "c" * 80}),
+        ({"for": None}, None),
+    ],
+    ids=["none", "not-a-mapping", "all", "unknown-and-non-strings-dropped", "cut", "empty"],
+)  # fmt: skip
+def test_ffc_describes_who_sent_its_latest_input_and_only_that(ctx, source, described):
+    """The cFFC's description names the sender of its latest input (``input_from``), so a
+    client (ucr view) can tell its own input from another's exactly; whatever the caller gives,
+    only short strings under the known keys are kept (no token label: any client reads it)."""
+    ffc = FeedForwardController("ffc", {}, ctx)
+    ffc.on_activate(state_at(ctx.names, 0.0))
+    assert ffc.describe()["input_from"] is None
+    ffc.set_input({"segment_1": (0.5, 0.0)}, now=0.0, source=source)
+    assert ffc.describe()["input_from"] == described
+    # the next input replaces it, also when that one says nothing
+    ffc.set_input({"segment_1": (0.0, 0.0)}, now=0.1)
+    assert ffc.describe()["input_from"] is None
+
+
 def test_ffc_clamps_at_kappa_max(ctx):
     ffc = FeedForwardController("ffc", {"deadman_timeout": 100.0}, ctx)
     ffc.on_activate(state_at(ctx.names, 0.0))
