@@ -186,6 +186,8 @@ class ViewApp:
         #: who sent the manual cFFC's input: "page" (this view's sliders), "other" (another API
         #: client: gamepad/teleop), "" (not known: the takeover predates the view)
         self.manual_owner = ""
+        #: that other client as the daemon names it (program, for whom, address), "" unknown
+        self.manual_sender = ""
         self._ffc_seen = 0.0  # the last cFFC input observation used (its time asked)
         self.refusal = ""
         self.facts: dict[str, Any] = {}
@@ -207,6 +209,7 @@ class ViewApp:
                 kappa_max=self._kappa_max,
                 clamped=self._clamped,
                 ffc_params=lambda: source.ffc_params,
+                pages=self._page_ids,  # a page's slider targets end when it closes
             ).start()
         self.server.on_client_connect(self._client_connected)
         self.server.on_client_disconnect(self._client_gone)
@@ -233,6 +236,11 @@ class ViewApp:
         with self.source.lock:
             s = self.source.snap
             return {n: dict(v) for n, v in s.state.items() if s.valid.get(n, False)}
+
+    def _page_ids(self) -> list[int]:
+        """The ids of the pages with controls connected now."""
+        with self.lock:
+            return list(self.pages)
 
     def _clamped(self, name: str) -> bool:
         """Whether the segment reports clamping its setpoints (its status colour: clamped)."""
@@ -464,7 +472,7 @@ class ViewApp:
             self.refusal = ""
             _audit(page.id, page.peer, "slider",
                    f"{name} κ {kappa:.2f} 1/m φ {math.degrees(phi):.0f}°")  # fmt: skip
-            self.driver.set_target(name, kappa, phi, _label(page))
+            self.driver.set_target(name, kappa, phi, _label(page), page=page.id)
 
     def _mismatch_refused(self, what: str) -> bool:
         """Refuse ``what`` while the FILE given is not the daemon's robot (shown, logged)."""
@@ -774,38 +782,46 @@ class ViewApp:
             errors += "<br/>**visuals:** " + "<br/>".join(md(v) for v in self.visual_problems)
         self.g_errors.content = errors
         if self.live:
-            self.g_control.content = _who(snap.control, self.driver, self.manual_owner) + (
-                f"<br/>**refused:** {md(self.refusal)}" if self.refusal else ""
-            )
+            self.g_control.content = _who(
+                snap.control, self.driver, self.manual_owner, self.manual_sender
+            ) + (f"<br/>**refused:** {md(self.refusal)}" if self.refusal else "")
 
     def _whose_input(self, control: dict) -> None:
         """Who holds the manual control now (``manual_owner``), from the daemon's status (a cFFC
-        holds a manual takeover) and when its latest input was set (``ffc_input``): one of this
-        view's inputs, or another client's. Another client's input while the sliders stream
-        overrides the page: the sliders stop (no zero input sent over the other's) and the clash
-        is shown under refused."""
+        holds a manual takeover) and its latest input (``ffc_input``): who sent it, as the daemon
+        names it (``input_from``: one of this view's API connections, or another client's), or,
+        from a daemon that does not say, when it was set (one of this view's calls then, or not).
+        Another client's input while the sliders stream overrides the page: the sliders stop
+        (no zero input sent over the other's) and the clash is shown under refused."""
         driver = self.driver
         assert driver is not None
         if not control.get("manual"):
-            self.manual_owner = ""
+            self.manual_owner = self.manual_sender = ""
             driver.owns_control = False
             return
         seen = control.get("ffc_input")
         if not seen or seen[2] <= self._ffc_seen:
             return  # nothing new (no input now: whoever sent the last one keeps control)
         self._ffc_seen = seen[2]
-        if driver.sent_at(seen[0], seen[1]):
-            self.manual_owner = "page"
+        sender = seen[3] if len(seen) > 3 else None
+        own_peers = getattr(self.source, "own_peers", ())
+        if isinstance(sender, dict) and sender.get("peer") and own_peers:
+            ours = sender["peer"] in own_peers
+        else:  # the daemon does not say who: by the times of our own calls
+            ours = driver.sent_at(seen[0], seen[1])
+        if ours:
+            self.manual_owner, self.manual_sender = "page", ""
             driver.owns_control = True
             return
         self.manual_owner = "other"
+        self.manual_sender = _sender(sender)
         driver.owns_control = False
         driver.forget_setpoints()  # the other client moved the cFFC's setpoint
         if driver.targets:
+            who = self.manual_sender or "another client (gamepad/teleop)"
             why = (
-                "page slider input overridden: another client (gamepad/teleop) is streaming "
-                "ffc.input to the same cFFC; the sliders stopped (hand back or wait, then move "
-                "a slider again)"
+                f"page slider input overridden: {who} is streaming ffc.input to the same "
+                "cFFC; the sliders stopped (hand back or wait, then move a slider again)"
             )
             driver.halt(why, send_zero=False)
             self._refused(why)
@@ -920,16 +936,28 @@ def _solver(model: SceneModel):
     return IKSolver(model.kin, model.tip_link)
 
 
-def _who(control: dict, driver: SliderDriver | None, owner: str = "") -> str:
+def _sender(source: Any) -> str:
+    """A cFFC input's sender as the daemon names it (``input_from``), in words; "" unknown."""
+    if not isinstance(source, dict):
+        return ""
+    words = f"API client {source.get('client') or '-'!r}"
+    if source.get("for"):
+        words += f" for {source['for']!r}"
+    if source.get("peer"):
+        words += f" at {source['peer']}"
+    return words
+
+
+def _who(control: dict, driver: SliderDriver | None, owner: str = "", sender: str = "") -> str:
     """One line: who commands the robot now, and why (``owner``: who sent the manual cFFC's
-    latest input, see ViewApp._whose_input)."""
+    latest input, see ViewApp._whose_input; ``sender``: that other client, named)."""
     active, manual, goals = (control.get(k, []) for k in ("active", "manual", "goals"))
     if manual:
         if not owner and driver is not None and driver.owns_control:
             owner = "page"  # our input just took over (the next status poll confirms it)
         who = {
             "page": "this view's page sliders",
-            "other": "another API client (gamepad/teleop)",
+            "other": md(sender) or "another API client (gamepad/teleop)",  # sender: untrusted
         }.get(owner, "a manual source (gamepad/teleop)")
         line = (
             f"**control:** {who} via {md(', '.join(manual))} (manual takeover; trajectories wait)"

@@ -9,9 +9,10 @@ cFFC does (:class:`SetpointModel`), and bounds each deflection so that the setpo
 the target even if that input stayed in force until the cFFC's deadman (:class:`FfcParams`: the
 deadzone, gain and deadman of the daemon's cFFC, read from ``controllers.list``). So the robot
 never goes past a slider target, and stops at or before it whenever the inputs end (page closed,
-view killed). It streams only while a page is connected and the sliders were touched in
-the last ``idle_s``; when it stops it sends one zero input (the daemon's deadman would stop the
-robot anyway 0.3 s later).
+view killed). It streams only while every page that set one of the targets it drives is still
+connected (a page that stays open does not keep another's targets alive) and the sliders were
+touched in the last ``idle_s``; when it stops it sends one zero input (the daemon's deadman would
+stop the robot anyway 0.3 s later).
 
 Tip gizmo: :class:`MovePlanner` solves IK (:mod:`ucrdf.ik`) for the dragged target, keeps the
 reachable solution for the page to show, and on request sends it as one trajectory.
@@ -23,7 +24,7 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -188,6 +189,7 @@ class SliderDriver:
         kappa_max: Callable[[str], float] | None = None,
         clamped: Callable[[str], bool] | None = None,
         ffc_params: Callable[[], FfcParams | None] | None = None,
+        pages: Callable[[], Collection[int]] | None = None,
     ):
         self.client = client
         #: the daemon's cFFC parameters as last read (None: not known, the defaults apply)
@@ -200,6 +202,10 @@ class SliderDriver:
         self.rate_max = rate_max
         self.kappa_max = kappa_max or (lambda _name: math.inf)
         self.page_open = page_open
+        #: the ids of the pages connected now (None: only ``page_open`` is known)
+        self.pages = pages
+        #: the pages that set the targets being driven (since the last stop): the deadman
+        self.owners: set[int] = set()
         self.report = report
         self.period = 1.0 / rate_hz
         self.idle_s = idle_s
@@ -233,10 +239,15 @@ class SliderDriver:
     def _ffc(self) -> FfcParams:
         return self.ffc_params() or DEFAULT_FFC
 
-    def set_target(self, name: str, kappa: float, phi: float, label: str | None = None) -> None:
-        """Drive ``name`` towards κ (1/m), φ (rad); ``label``: the page that asked (audit)."""
+    def set_target(
+        self, name: str, kappa: float, phi: float, label: str | None = None, page: int | None = None
+    ) -> None:
+        """Drive ``name`` towards κ (1/m), φ (rad); ``label``: the page that asked (audit);
+        ``page``: its id, which must stay connected for the drive to go on (deadman)."""
         with self.lock:
             self.label = label
+            if page is not None:
+                self.owners.add(page)
             self.targets[name] = kvec(kappa, phi)
             self.t_touch = time.monotonic()
             self.stopped_reason = ""
@@ -268,6 +279,7 @@ class SliderDriver:
         with self.lock:
             names = list(self.targets) or list(self.last_names)
             self.targets.clear()
+            self.owners.clear()
             self.t_touch = -math.inf
             was = self.streaming
             self.streaming = False
@@ -299,10 +311,13 @@ class SliderDriver:
         """One tick: the next input towards the targets (none when nothing is to be done)."""
         with self.lock:
             targets = dict(self.targets)
+            owners = set(self.owners)
             idle = time.monotonic() - self.t_touch > self.idle_s
         if not targets:
             return
-        if not self.page_open():
+        if not self.page_open() or (
+            owners and self.pages is not None and not owners <= set(self.pages())
+        ):
             self.halt("page closed")
             return
         if idle:

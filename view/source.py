@@ -7,6 +7,7 @@ a slow reader; we read with a bounded queue of our own).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 import threading
@@ -33,6 +34,8 @@ SCOPE_PROBE_UPLOAD = 2**31 - 1
 #: Relative tolerance comparing FILE's segment geometry and limits with the daemon's ``topology``
 #: segments (a daemon older than ``robot.description``).
 CONTENT_RTOL = 1e-3
+#: How many of our API connections' addresses are remembered (``LiveSource.own_peers``).
+OWN_PEERS = 8
 #: Differences named in a mismatch message at most (then "and N more").
 MAX_NAMED_DIFFERENCES = 8
 #: The end of every mismatch message: what happens and what to do.
@@ -353,12 +356,15 @@ class LiveSource:
         self.scope = "control"
         #: how the scope was learnt: "session" (the daemon said) or "probe" (an older daemon)
         self.scope_from = ""
+        #: our API connections' addresses as the daemon saw them (its ``session``'s ``peer``;
+        #: the latest few): a cFFC input ``input_from`` one of them is this view's own
+        self.own_peers: collections.deque[str] = collections.deque(maxlen=OWN_PEERS)
         #: the daemon's ``robot.description`` (compared with FILE), None until asked / unknown
         self._description: dict | None = None
         self._no_description = False  # the daemon has no robot.description op (older)
         try:
             self._topology_locked_refresh()
-            self.scope, self.scope_from = self._ask_scope(self.client)
+            self.scope, self.scope_from = self._ask_scope(self.client, self.own_peers)
         except BaseException:  # no reply in time, no robot file: do not leave it connected
             self.client.close()
             raise
@@ -417,7 +423,7 @@ class LiveSource:
                 self._description, self._no_description = None, False  # and another daemon
                 self._topology_locked_refresh()
                 # the daemon's token config may change
-                self.scope, self.scope_from = self._ask_scope(client)
+                self.scope, self.scope_from = self._ask_scope(client, self.own_peers)
             except Exception:  # not ready (rebuilding): retried
                 try:
                     client.close()
@@ -446,12 +452,17 @@ class LiveSource:
 
     # -- scope ---------------------------------------------------------------------------------
     @classmethod
-    def _ask_scope(cls, client: Any) -> tuple[str, str]:
+    def _ask_scope(cls, client: Any, peers: collections.deque | None = None) -> tuple[str, str]:
         """What this connection's token may do, as the daemon says it (``session``): "read" or
         "control", and "session". A daemon older than that op (any refusal of it, e.g.
-        ``unknown_op``) is probed instead (:meth:`_probe_scope`, then "probe")."""
+        ``unknown_op``) is probed instead (:meth:`_probe_scope`, then "probe"). ``peers``
+        gets the connection's address as the daemon sees it, when it says."""
         try:
-            scope = client.call("session").get("scope")
+            answer = client.call("session")
+            scope = answer.get("scope")
+            peer = answer.get("peer")
+            if peers is not None and isinstance(peer, str) and peer not in peers:
+                peers.append(peer)
         except ApiError as exc:
             if isinstance(exc, ConnectionError | TimeoutError):
                 raise
@@ -709,15 +720,16 @@ class LiveSource:
     @staticmethod
     def _controllers(
         client: Any, manual: list[str]
-    ) -> tuple[tuple[float, float, float] | None, FfcParams | None]:
+    ) -> tuple[tuple[float, float, float, dict | None] | None, FfcParams | None]:
         """From ``controllers.list``: when the manual cFFC's latest input was set, on our
-        monotonic clock: ``(earliest, latest, asked)`` from its ``input_age_s`` (the daemon
-        describes it between our request and its reply; None when it has no input now, none for
-        longer than its deadman, or it cannot be read); and the parameters of the cFFC that
+        monotonic clock, and who sent it: ``(earliest, latest, asked, input_from)`` from its
+        ``input_age_s`` (the daemon describes it between our request and its reply; None when it
+        has no input now, none for longer than its deadman, or it cannot be read) and its
+        ``input_from`` (the sender's API connection as the daemon saw it: ``peer``, ``client``,
+        ``for``; None from a daemon that does not say, when the view tells its own
+        inputs by their times, ``SliderDriver.sent_at``); and the parameters of the cFFC that
         ``ffc.input`` drives (the first active one, else the first; its defaults when the daemon
-        does not say; None when the list could not be read). Who sent
-        that input is told by the view (``SliderDriver.sent_at``): the daemon does not say which
-        client a manual source is."""
+        does not say; None when the list could not be read)."""
         t_ask = time.monotonic()
         try:
             ctrls = client.controllers()
@@ -735,6 +747,8 @@ class LiveSource:
         for c in ffcs:
             if c.get("name") in manual:
                 age = c.get("input_age_s")
+                sender = c.get("input_from")
+                sender = sender if isinstance(sender, dict) else None
                 if isinstance(age, int | float):
-                    return (t_ask - age - 0.001, t_got - age + 0.001, t_got), params
+                    return (t_ask - age - 0.001, t_got - age + 0.001, t_got, sender), params
         return None, params

@@ -139,8 +139,10 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
     """Defect (audit 15.2): the slider drive steered the lagging measured κ while the cFFC's
     setpoint ran ahead: a target of κ 3.0 drove to ≈ κ_max 3.31 and back, and closing the page
     left the setpoint beyond the target. Now the measured κ never exceeds the target, and closing
-    the page mid-motion stops the robot at or before it, where it holds. segment_2's firmware
-    slews at 2 1/m/s here (the file says 5): a segment lagging well behind the setpoint."""
+    the page mid-motion stops the robot at or before it, where it holds, though another page
+    with controls stays open (which kept the drive going until its idle timeout before).
+    segment_2's firmware slews at 2 1/m/s here (the file says 5): a segment lagging well behind
+    the setpoint."""
     _, daemon, _ = rig
     tol = 0.03  # 1/m: the emulated segment's measurement and tracking
     ctx = browser.new_context(viewport={"width": 1000, "height": 700})
@@ -151,6 +153,7 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
     flashed = daemon.link.param_get(1, rate)
     daemon.link.param_set(1, rate, 2.0)
     sampler = _Sampler(daemon, "segment_2")
+    other = None
     try:
         set_number(pg, 2, 3.0)  # segment_2 kappa to 3 1/m at phi 0
         assert wait_for(lambda: abs(kvec(daemon, "segment_2")[0] - 3.0) < 0.1, 20), (
@@ -169,6 +172,11 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
         assert wait_for(lambda: abs(kvec(daemon, "segment_2")[0] + 3.0) < 0.1, 20)
         time.sleep(1.5)
         assert min(sampler.kx) >= -3.0 - tol, (min(sampler.kx), sampler.kx[-60::5])
+        # a second page with controls stays open: it set no target, so it does not keep the
+        # first page's drive alive (the deadman counted any page with controls before)
+        other = browser.new_context(viewport={"width": 800, "height": 600})
+        other.new_page().goto(live_view.url)
+        assert wait_for(lambda: len(live_view.pages) == 2, 30), live_view.pages
         # and back to phi 0; the person closes the tab near the target, mid-motion
         set_number(pg, 3, 0)
         assert wait_for(lambda: kvec(daemon, "segment_2")[0] > 1.5, 10)
@@ -191,6 +199,8 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
     finally:
         sampler.stop()
         daemon.link.param_set(1, rate, flashed)
+        if other is not None:
+            other.close()
     settle(daemon, live_view)
 
 
@@ -200,8 +210,10 @@ def test_who_has_control_follows_the_daemon_and_shows_another_clients_override(
     """Defect (audit 15.3): once the page had driven a slider, the control line kept crediting
     "this view's page sliders" while another client (a gamepad) streamed ffc.input, and a page
     slider moved meanwhile was not shown as overridden. Now the line follows who sent the manual
-    cFFC's input, and a page input overridden by another client is shown under refused."""
-    from host.api.client import connect
+    cFFC's input, and a page input overridden by another client is shown under refused, both
+    naming that client as the daemon saw it (program, whom it acts for, address: the cFFC's
+    input_from; before, "another API client (gamepad/teleop)", a guess from timing)."""
+    from host.api.client import connect, on_behalf_of
 
     _, daemon, srv = rig
     page.get_by_text("tubes: 3").wait_for(timeout=60000)
@@ -209,21 +221,23 @@ def test_who_has_control_follows_the_daemon_and_shows_another_clients_override(
     page.get_by_text("this view's page sliders").wait_for(timeout=20000)
     assert wait_for(lambda: abs(measured(daemon, "segment_1")[0] - 1.0) < 0.1, 20)
     pad = connect(srv.url, timeout=5, agent="gamepad")
+    named = f"API client 'gamepad' for 'stick js0' at {pad.session()['peer']}"
     done = threading.Event()
 
     def stream() -> None:
-        while not done.is_set():
-            pad.ffc_input({"segment_3": (0.12, 0.0)})
-            time.sleep(0.04)
-        pad.ffc_input({"segment_3": (0.0, 0.0)})
+        with on_behalf_of("stick js0"):
+            while not done.is_set():
+                pad.ffc_input({"segment_3": (0.12, 0.0)})
+                time.sleep(0.04)
+            pad.ffc_input({"segment_3": (0.0, 0.0)})
 
     th = threading.Thread(target=stream, daemon=True)
     th.start()
     try:
-        assert wait_for(lambda: "another API client" in live_view.g_control.content, 10), (
+        assert wait_for(lambda: named in live_view.g_control.content, 10), (
             live_view.g_control.content
         )
-        page.get_by_text("another API client (gamepad/teleop)").wait_for(timeout=10000)
+        page.get_by_text(named).first.wait_for(timeout=10000)
         assert "this view's page sliders" not in live_view.g_control.content
         # The takeover may already have overridden the page's first target (κ 1.0) and said so
         # (the view thread wrote that refusal before the control line above): forget it, so
@@ -236,9 +250,9 @@ def test_who_has_control_follows_the_daemon_and_shows_another_clients_override(
         assert wait_for(
             lambda: "overridden" in live_view.refusal and not live_view.driver.targets, 10
         ), (live_view.refusal, live_view.driver.targets, live_view.g_control.content)
-        page.get_by_text(re.compile("refused: page slider input overridden")).wait_for(
-            timeout=10000
-        )
+        assert named in live_view.refusal, live_view.refusal
+        overridden = re.compile("refused: page slider input overridden: " + re.escape(named))
+        page.get_by_text(overridden).wait_for(timeout=10000)
     finally:
         done.set()
         th.join(5)

@@ -318,3 +318,46 @@ def test_the_robot_file_check_compares_contents_not_a_path_named_by_the_daemon(t
     assert "is not the daemon's robot" in LiveSource._mismatch(me, robot, theirs)
     same = {"file": "elsewhere.ucrdf", "robot": robot.name, "expected": ["segment_1", "segment_2"]}
     assert LiveSource._mismatch(me, robot, same) == ""
+
+
+def test_the_slider_drive_stops_when_a_page_that_set_its_targets_closes_though_another_stays():
+    """Defect (docs/view.md "Limits"): the slider deadman counted any connected page with
+    controls, so a page closed mid-motion left its targets driven for as long as another page
+    stayed open (until the idle timeout, 10 s). Now the drive stops once any page that set one
+    of its targets is gone, with one zero input, and a page that set none does not stop it."""
+    from view.control import SliderDriver
+
+    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31)
+    open_pages = {1, 2, 3}
+    sent: list[dict] = []
+    real_input = sim.ffc_input
+
+    def recorded(rates: dict) -> dict:
+        sent.append(dict(rates))
+        return real_input(rates)
+
+    sim.ffc_input = recorded
+    driver = SliderDriver(
+        sim, sim.measured, lambda _n: 5.0, lambda: bool(open_pages), lambda _w: None,
+        pages=lambda: sorted(open_pages),
+    ).start()  # fmt: skip
+    try:
+        driver.set_target("segment_1", 3.0, 0.0, "view page=1", page=1)
+        driver.set_target("segment_1", 3.0, 0.0, "view page=2", page=2)
+        assert wait_for(lambda: driver.streaming, 5), driver.stopped_reason
+        open_pages.discard(3)  # a page that set no target: the drive goes on
+        time.sleep(0.3)
+        assert driver.targets and driver.stopped_reason == "", driver.stopped_reason
+        open_pages.discard(1)  # page 2 stays open, page 1 set a target and is gone
+        assert wait_for(lambda: driver.stopped_reason == "page closed", 2), (
+            driver.stopped_reason, driver.targets,
+        )  # fmt: skip
+        assert not driver.targets and not driver.owners
+        assert sent[-1] == {"segment_1": (0.0, 0.0)}, sent[-3:]
+        # page 2 moves its slider again: a new drive, which page 2 alone keeps alive
+        driver.set_target("segment_1", 2.0, 0.0, "view page=2", page=2)
+        time.sleep(0.3)
+        assert driver.targets and driver.stopped_reason == "", driver.stopped_reason
+    finally:
+        driver.close()
+        sim.stop()
