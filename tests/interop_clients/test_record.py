@@ -12,7 +12,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from .conftest import EXPECTED_TOPICS, GOAL, ROBOT_FILE
+from .conftest import EXPECTED_TOPICS, GOAL, REPO, ROBOT_FILE
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -198,6 +198,11 @@ def test_commanded_goal_is_recorded_as_joint_trajectory(recording):
     events = [json.loads(m.decoded_message.data) for m in msgs if m.channel.topic == "/ucr/events"]
     accepted = [e for e in events if e.get("event") == "goal_accepted"]
     assert [e["goal"] for e in accepted] == [result["id"]]
+    # and each event is a line for log panels on /rosout (rcl_interfaces/Log), as many
+    logs = [m.decoded_message for m in msgs if m.channel.topic == "/rosout"]
+    assert len(logs) == len(events)
+    lines = [(x.level, x.name) for x in logs if x.name == "ucr.goal_accepted"]
+    assert lines == [(20, "ucr.goal_accepted")]  # INFO
 
 
 def test_channels_carry_rosbag2_offered_qos_profiles(recording):
@@ -325,3 +330,73 @@ def test_foxglove_host_alone_serves_on_the_default_port_and_serve_options_need_a
     assert address("--foxglove-host", "0.0.0.0") == ("0.0.0.0", 8766)
     assert address("--foxglove-port", "9000") == ("127.0.0.1", 9000)
     assert address("--foxglove-host", "::1", "--foxglove-port", "0") == ("::1", 0)
+
+
+def test_rigid_joints_are_recorded_in_joint_states_and_tf(tmp_path):
+    """/joint_states carries every bendable "plus rigid joints" and /tf the whole tree; the
+    recorded rig (softrobot3) has no rigid joint, so a hybrid arm (three revolute joints and a
+    continuum wrist) is recorded to a real MCAP file here, with its joints away from zero, and
+    read back by rosbags' AnyReader: the rigid joints are in /joint_states with their positions
+    (velocity NaN: the daemon does not measure them), and /tf_static + /tf compose every link,
+    the tool among them, where the U(C)RDF's FK puts it (within the pseudo-rigid export's
+    error)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from interop import record
+    from interop.sinks import Fanout, channels_of
+    from interop.topics import TOPICS, RobotTopics
+    from ucrdf.fk import RobotKinematics
+    from ucrdf.parser import load
+
+    path = REPO / "robots" / "hybrid_arm.ucrdf"
+    robot = load(path)
+    topics = RobotTopics(robot, path.read_text(), 4)
+    rigid = {"shoulder_yaw": 0.4, "shoulder_pitch": -0.3, "elbow": 0.9}
+    js = {"t": 1.0, "names": ["wrist"], "kappa": [5.0], "phi": [0.7], "valid": [True],
+          "rigid": {k: {"position": v, "measured": False} for k, v in rigid.items()}}  # fmt: skip
+    out = tmp_path / "arm.mcap"
+    sink = record.McapSink(out, flush_interval=0.0)
+    fan = Fanout([sink])
+    fan.advertise(channels_of(TOPICS))
+    t_ns = 1_700_000_000_000_000_000
+    for m in [*topics.static_messages(t_ns), topics.joint_states(js, t_ns), topics.tf(js, t_ns)]:
+        fan.publish(m)
+    sink.close()
+
+    got: dict[str, object] = {}
+    with AnyReader([out], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _t, raw in reader.messages():
+            got[conn.topic] = reader.deserialize(raw, conn.msgtype)
+    state = got["/joint_states"]
+    pos = dict(zip(state.name, state.position, strict=True))
+    vel = dict(zip(state.name, state.velocity, strict=True))
+    for name, value in rigid.items():
+        assert pos[name] == pytest.approx(value), (name, state.name)
+        assert math.isnan(vel[name])
+    assert pos["wrist/kappa"] == pytest.approx(5.0) and pos["wrist/phi"] == pytest.approx(0.7)
+
+    edges = {}
+    for topic in ("/tf_static", "/tf"):
+        for tr in got[topic].transforms:
+            t = np.eye(4)
+            q = tr.transform.rotation
+            t[:3, :3] = _quat_matrix(q)
+            v = tr.transform.translation
+            t[:3, 3] = v.x, v.y, v.z
+            edges[tr.child_frame_id] = (tr.header.frame_id, t)
+
+    def world(frame):
+        if frame not in edges:
+            return np.eye(4)
+        parent, t = edges[frame]
+        return world(parent) @ t
+
+    config = {"wrist": {"kappa": 5.0, "phi": 0.7}, **rigid}
+    fk = RobotKinematics(robot).fk(config, strict=False)
+    for link in ("shoulder", "upper_arm", "forearm", "wrist_base"):  # rigid: exact
+        assert np.allclose(world(link), fk[link], atol=1e-9), link
+    assert np.linalg.norm(world("tool")[:3, 3] - fk["tool"][:3, 3]) < 2e-3
+    assert np.allclose(world("tool")[:3, :3], fk["tool"][:3, :3], atol=1e-6)
+    # and the joints moved it: not where the straight, zeroed arm has its tool
+    assert np.linalg.norm(world("tool")[:3, 3] - RobotKinematics(robot).fk()["tool"][:3, 3]) > 0.1

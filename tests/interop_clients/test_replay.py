@@ -790,3 +790,53 @@ def test_a_robot_file_the_daemon_names_but_cannot_be_read_here_is_one_line(monke
     err = capsys.readouterr().err
     assert err.startswith("ucr: cannot read the robot file") and "pass --robot FILE" in err, err
     assert closed == [True]
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0, 0.5])
+def test_playback_keeps_the_recorded_spacing_scaled_by_the_rate(tmp_path, monkeypatch, rate):
+    """`ucr replay --rate R` writes each message (R > 0) when its recorded time from the first
+    one, divided by R, has passed, and not before: on a clock the test drives (the pacer's
+    sleeps advance it), so the check is exact and does not depend on this machine's speed.
+    Every other replay test plays as fast as possible (rate 0), so a pacer that ignored the
+    rate, or ran ahead of it, passed them all."""
+    from interop import replay
+
+    recorded = [0.0, 0.1, 0.25, 0.25, 1.0, 1.8]  # s: uneven, two at once
+    path = tmp_path / "spaced.mcap"
+    _goals_and_states(path, [], [(t, [0.5 * t, 0.0, 0.0]) for t in recorded])
+    now = [1000.0]
+    monkeypatch.setattr(replay.time, "monotonic", lambda: now[0])
+
+    class DrivenStop:
+        """The pacer's stop event: never set; waiting advances the test's clock."""
+
+        def is_set(self) -> bool:
+            return False
+
+        def wait(self, seconds: float) -> bool:
+            assert 0 < seconds <= 0.05 + 1e-12  # in short steps (a sink's tick between)
+            now[0] += seconds
+            return False
+
+    written: list[tuple[float, int]] = []
+    ticks = [0]
+
+    class Sink:
+        def write(self, topic, typename, schema, data, t_ns) -> None:
+            if topic == "/joint_states":
+                written.append((now[0], t_ns))
+
+        def tick(self) -> None:
+            ticks[0] += 1
+
+        def close(self) -> None:
+            pass
+
+    n = replay.play(path, [Sink()], rate=rate, stop=DrivenStop(), advertise=False)
+    assert n >= len(recorded) and len(written) == len(recorded)
+    t0 = written[0][1]
+    for (wall, t_ns), rec in zip(written, recorded, strict=True):
+        due = 1000.0 + (t_ns - t0) / 1e9 / rate
+        assert due == pytest.approx(1000.0 + rec / rate)
+        assert due <= wall < due + 1e-9, (rec, wall - 1000.0, due - 1000.0)
+    assert ticks[0] >= int(recorded[-1] / rate / 0.05)  # the sinks were ticked while waiting
