@@ -83,20 +83,12 @@ def _quat_matrix(q) -> np.ndarray:
     )
 
 
-def test_tf_tree_and_arcs_follow_the_recorded_bend(recording):
-    """/tf_static + /tf compose to each segment's tip as the U(C)RDF FK places it (within the
-    pseudo-rigid export's error), and /ucr/arcs ends exactly at the FK tip."""
-    from ucrdf.fk import RobotKinematics
-    from ucrdf.parser import load
-
-    path, _, _ = recording
-    _, msgs = _read_all(path)
-    last = {}
-    for m in msgs:
-        last[m.channel.topic] = m.decoded_message
+def _tf_tree(*messages):
+    """(child -> (parent, 4x4 transform), world(frame) -> 4x4 in the root frame) from decoded
+    tf2_msgs/TFMessages (the later ones' edges replace the earlier ones')."""
     edges = {}
-    for topic in ("/tf_static", "/tf"):
-        for tr in last[topic].transforms:
+    for msg in messages:
+        for tr in msg.transforms:
             t = np.eye(4)
             t[:3, :3] = _quat_matrix(tr.transform.rotation)
             v = tr.transform.translation
@@ -108,6 +100,22 @@ def test_tf_tree_and_arcs_follow_the_recorded_bend(recording):
             return np.eye(4)
         parent, t = edges[frame]
         return world(parent) @ t
+
+    return edges, world
+
+
+def test_tf_tree_and_arcs_follow_the_recorded_bend(recording):
+    """/tf_static + /tf compose to each segment's tip as the U(C)RDF FK places it (within the
+    pseudo-rigid export's error), and /ucr/arcs ends exactly at the FK tip."""
+    from ucrdf.fk import RobotKinematics
+    from ucrdf.parser import load
+
+    path, _, _ = recording
+    _, msgs = _read_all(path)
+    last = {}
+    for m in msgs:
+        last[m.channel.topic] = m.decoded_message
+    edges, world = _tf_tree(last["/tf_static"], last["/tf"])
 
     def stamp_of(msg):
         return msg.header.stamp.sec, msg.header.stamp.nanosec
@@ -376,22 +384,7 @@ def test_rigid_joints_are_recorded_in_joint_states_and_tf(tmp_path):
         assert math.isnan(vel[name])
     assert pos["wrist/kappa"] == pytest.approx(5.0) and pos["wrist/phi"] == pytest.approx(0.7)
 
-    edges = {}
-    for topic in ("/tf_static", "/tf"):
-        for tr in got[topic].transforms:
-            t = np.eye(4)
-            q = tr.transform.rotation
-            t[:3, :3] = _quat_matrix(q)
-            v = tr.transform.translation
-            t[:3, 3] = v.x, v.y, v.z
-            edges[tr.child_frame_id] = (tr.header.frame_id, t)
-
-    def world(frame):
-        if frame not in edges:
-            return np.eye(4)
-        parent, t = edges[frame]
-        return world(parent) @ t
-
+    _, world = _tf_tree(got["/tf_static"], got["/tf"])
     config = {"wrist": {"kappa": 5.0, "phi": 0.7}, **rigid}
     fk = RobotKinematics(robot).fk(config, strict=False)
     for link in ("shoulder", "upper_arm", "forearm", "wrist_base"):  # rigid: exact
