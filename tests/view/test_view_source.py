@@ -327,7 +327,7 @@ def test_the_slider_drive_stops_when_a_page_that_set_its_targets_closes_though_a
     of its targets is gone, with one zero input, and a page that set none does not stop it."""
     from view.control import SliderDriver
 
-    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31)
+    sim = _SimulatedFfc(rate_max=1.0, kappa_max=3.31)  # seconds from the target: streaming
     open_pages = {1, 2, 3}
     sent: list[dict] = []
     real_input = sim.ffc_input
@@ -338,7 +338,7 @@ def test_the_slider_drive_stops_when_a_page_that_set_its_targets_closes_though_a
 
     sim.ffc_input = recorded
     driver = SliderDriver(
-        sim, sim.measured, lambda _n: 5.0, lambda: bool(open_pages), lambda _w: None,
+        sim, sim.measured, lambda _n: 1.0, lambda: bool(open_pages), lambda _w: None,
         pages=lambda: sorted(open_pages),
     ).start()  # fmt: skip
     try:
