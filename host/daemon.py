@@ -404,8 +404,11 @@ class Daemon:
         """Activate ``start`` and deactivate ``stop`` atomically (SwitchError on conflicts)."""
         return self.motion.switch_controllers(start or [], stop or [])
 
-    def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
+    def send_trajectory(
+        self, points: list[dict], controller: str | None = None, source: Any = None
+    ) -> str:
         """Start a trajectory on a cJTC (the active one by default); returns the goal id.
+        ``source``: who sent it (as for :meth:`ffc_input`), its status's ``from``.
 
         The goal is parsed and retimed outside the daemon lock (a long one takes a while and the
         loop must go on cycling meanwhile): under the lock only the controller's desired motion
@@ -413,7 +416,7 @@ class Daemon:
         its motion did not change meanwhile (else built once more, then rejected).
         Raises ControllerError (a ValueError) with the reason when it is rejected.
         """
-        return self.motion.send_trajectory(points, controller)
+        return self.motion.send_trajectory(points, controller, source)
 
     def trajectory_status(self, goal_id: str) -> dict[str, Any]:
         """Progress and result of a goal (GoalNotFound if unknown)."""
@@ -427,9 +430,8 @@ class Daemon:
         """Stream cFFC stick input {bendable: [x, y]} (deflections in [-1, 1]).
 
         A deflected stick takes over from a running trajectory (arbitration); zero input to an
-        inactive cFFC changes nothing (the reply says so). ``source``: who sent it (the API
-        gives its connection's ``peer``, ``client`` and ``for``), which the cFFC's
-        description then names as ``input_from``."""
+        inactive cFFC changes nothing (the reply says so). ``source``: who sent it (the API gives
+        its connection's ``peer``, ``client`` and ``for``), the cFFC's ``input_from``."""
         return self.motion.ffc_input(rates, source)
 
     def hand_back(self, manual: str | None = None) -> dict[str, Any]:

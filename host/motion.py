@@ -21,7 +21,7 @@ from typing import Any
 from host.arbitration import Arbitrator
 from host.config import DaemonConfig
 from host.controller_manager import ControllerManager, SwitchError
-from host.controllers.base import ControllerContext, ControllerError, RobotState
+from host.controllers.base import ControllerContext, ControllerError, RobotState, sender_of
 from host.controllers.jtc import StaleGoalError
 from host.errors import DaemonError, GoalNotFound
 from host.hwi import HardwareInterface
@@ -196,7 +196,9 @@ class Motion:
         )
         return res
 
-    def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
+    def send_trajectory(
+        self, points: list[dict], controller: str | None = None, source: Any = None
+    ) -> str:
         """Start a trajectory on a cJTC; see :meth:`host.daemon.Daemon.send_trajectory`."""
         lead = 0.05 + 2e-4 * (len(points) if isinstance(points, list | tuple) else 0)
         accepted = ""
@@ -221,6 +223,7 @@ class Motion:
                 t_build = time.monotonic()
                 start = ctrl.goal_snapshot(t_build + lead)
             goal, traj = ctrl.build_goal(points, start)  # the slow part, lock not held
+            goal.sender = sender_of(source)
             built_s = time.monotonic() - t_build
             with self.lock:
                 self._ready()

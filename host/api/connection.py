@@ -38,7 +38,7 @@ from websockets.exceptions import ConnectionClosed
 from host.api import schema as S
 from host.api.audit import audit_log
 from host.api.auth import CONTROL
-from host.api.session import _Request, _Session, _Subscription, input_source
+from host.api.session import _Request, _Session, _Subscription, command_source
 
 log = logging.getLogger("ucr.api")
 
@@ -397,7 +397,7 @@ class Connections:
             zeros = {name: (0.0, 0.0) for name in session.ffc_active}
             s = session
             audit_log(s.peer, s.who, s.scope, "ffc.input", None, "zeroed on disconnect", s.agent)
-            source = input_source(s)  # (no one it acts for: the API zeroes it)
+            source = command_source(s)  # (outside a request: for no one, the API zeroes it)
             try:
                 await self._call("ffc_input", zeros, source)
             except Exception:  # noqa: BLE001 - e.g. a segment gone meanwhile: try one by one

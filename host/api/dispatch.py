@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import contextvars
 import json
 import logging
 import math
@@ -28,12 +27,13 @@ from host.api.audit import audit_log
 from host.api.auth import CONTROL, READ_OPS
 from host.api.bridge import BridgeClosed, RemoteError
 from host.api.connection import Outboxes
-from host.api.session import _Request, _Session, _Subscription, _Upload, input_source
-
-#: The ``on_behalf_of`` of the request being served, for its audit line (a context variable:
-#: each request's task sees its own).
-_ON_BEHALF_OF: contextvars.ContextVar[str | None] = contextvars.ContextVar(
-    "ucr_on_behalf_of", default=None
+from host.api.session import (
+    ON_BEHALF_OF,
+    _Request,
+    _Session,
+    _Subscription,
+    _Upload,
+    command_source,
 )
 
 log = logging.getLogger("ucr.api")
@@ -132,7 +132,7 @@ class Dispatcher:
     async def serve(self, session: _Session, request: _Request) -> dict | str:
         """Run a parsed request; the reply (an error reply for any failure)."""
         rid, op, params, behalf = request
-        scope = _ON_BEHALF_OF.set(behalf)  # this request's task only (the audit reads it)
+        scope = ON_BEHALF_OF.set(behalf)  # this request's task only (the audit reads it)
         try:
             result = await self._dispatch(session, op, params)
         except S.RequestError as exc:
@@ -146,7 +146,7 @@ class Dispatcher:
             log.exception("API: op %s failed", op)
             return S.error_reply(rid, S.INTERNAL, f"internal error ({type(exc).__name__}): {exc}")
         finally:
-            _ON_BEHALF_OF.reset(scope)
+            ON_BEHALF_OF.reset(scope)
         if isinstance(result, _Raw):
             return f'{{"id":{json.dumps(rid)},"ok":true,"result":{result.text}}}'
         return S.ok_reply(rid, result)
@@ -160,7 +160,7 @@ class Dispatcher:
             goal,
             summary,
             session.agent,
-            on_behalf_of=_ON_BEHALF_OF.get(),
+            on_behalf_of=ON_BEHALF_OF.get(),
         )
 
     async def _dispatch(self, session: _Session, op: str, p: dict) -> Any:
@@ -250,8 +250,7 @@ class Dispatcher:
             self._audit(session, "ffc.input", None, f"deflected {sorted(deflected)}")
         session.ffc_active.update(deflected)
         try:
-            source = input_source(session, _ON_BEHALF_OF.get())
-            result = await self._call("ffc_input", rates, source)
+            result = await self._call("ffc_input", rates, command_source(session))
         except RemoteError as exc:
             if exc.code == S.REJECTED:
                 session.ffc_active = before  # refused: the daemon did not take this input
@@ -284,7 +283,8 @@ class Dispatcher:
             else f"controller {p['controller']!r}"
         )
         try:
-            goal = await self._call("send_trajectory", points, p["controller"])
+            source = command_source(session)
+            goal = await self._call("send_trajectory", points, p["controller"], source)
         except (RemoteError, S.RequestError) as exc:  # refused motion is logged too
             code = getattr(exc, "code", "error")
             self._audit(session, "trajectory.send", None, f"refused ({code}: {exc}): {summary}")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextvars
 import ipaddress
 import time
 from typing import Any, NamedTuple
@@ -19,6 +20,12 @@ from websockets.asyncio.server import ServerConnection
 from host.api import schema as S
 from host.api.auth import (
     Token,
+)
+
+#: The ``on_behalf_of`` of the request being served (a context variable: each request's task
+#: sees its own; None outside a request): its audit line's ``for=`` and its command's sender.
+ON_BEHALF_OF: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "ucr_on_behalf_of", default=None
 )
 
 
@@ -93,13 +100,13 @@ class _Session:
         self.t_progress = time.monotonic()  # last time the sender got a message out
 
 
-def input_source(session: _Session, on_behalf_of: str | None = None) -> dict[str, str]:
-    """Who sends a cFFC input (its connection's address and program, and whom it says it acts
-    for): the daemon keeps it as the cFFC's ``input_from``, which any client may read, so never
-    its token's label (the audit line has that)."""
+def command_source(session: _Session) -> dict[str, str]:
+    """Who sends a command (its connection's address and program, and the ``on_behalf_of`` of
+    the request being served): the daemon keeps it as the cFFC's ``input_from`` and a goal's
+    ``from``, which any client may read, so never its token's label (the audit line has it)."""
     source = {"peer": session.peer, "client": session.agent}
-    if on_behalf_of is not None:
-        source["for"] = on_behalf_of
+    if (behalf := ON_BEHALF_OF.get()) is not None:
+        source["for"] = behalf
     return source
 
 

@@ -162,6 +162,21 @@ class Controller:
         return None
 
 
+#: what a command's sender may say (cFFC ``input_from``, a goal's ``from``), each a string of at
+#: most SENDER_CHARS characters: the API connection's address and program and whom it acts for
+SENDER_KEYS = ("peer", "client", "for")
+SENDER_CHARS = 80
+
+
+def sender_of(source: Any) -> dict[str, str] | None:
+    """Who sent a command, as the daemon describes it: the SENDER_KEYS whose values are strings
+    (longer ones cut to SENDER_CHARS); None for anything else (not said)."""
+    if not isinstance(source, dict):
+        return None
+    out = {k: v[:SENDER_CHARS] for k in SENDER_KEYS if isinstance(v := source.get(k), str)}
+    return out or None
+
+
 def clamp_radial(kx: float, ky: float, kmax: float) -> tuple[float, float, bool]:
     """Scale (kx, ky) back onto the disc |kappa| <= kmax. Returns (kx, ky, clamped)."""
     k = math.hypot(kx, ky)

@@ -23,6 +23,7 @@ from host.controllers.base import (
     ControllerError,
     RobotState,
     clamp_radial,
+    sender_of,
 )
 
 
@@ -45,7 +46,7 @@ class FeedForwardController(Controller):
         self._t_input = -math.inf
         self.deadman_tripped = False
         self.clamped = False
-        #: who sent the latest input (see :meth:`source_of`), None: not said
+        #: who sent the latest input (:func:`host.controllers.base.sender_of`), None: not said
         self.input_from: dict[str, str] | None = None
 
     # -- input (called under the daemon lock, from any thread) ---------------------------------
@@ -82,26 +83,11 @@ class FeedForwardController(Controller):
         self, rates: dict[str, Any], now: float | None = None, source: Any = None
     ) -> None:
         """Replace the stick input: {bendable: (ux, uy)}; bendables not named get zero rate.
-        ``source``: who sent it (:meth:`source_of`)."""
+        ``source``: who sent it (:func:`host.controllers.base.sender_of`)."""
         self._input = self.validate_input(rates)
         self._t_input = time.monotonic() if now is None else now
         self.deadman_tripped = False
-        self.input_from = self.source_of(source)
-
-    #: what ``input_from`` may say, each a string of at most SOURCE_CHARS characters
-    SOURCE_KEYS = ("peer", "client", "for")
-    SOURCE_CHARS = 80
-
-    @classmethod
-    def source_of(cls, source: Any) -> dict[str, str] | None:
-        """Who sent an input, as described: the known keys whose values are strings (longer
-        ones cut to SOURCE_CHARS); None for anything else (not said)."""
-        if not isinstance(source, dict):
-            return None
-        out = {
-            k: v[: cls.SOURCE_CHARS] for k in cls.SOURCE_KEYS if isinstance(v := source.get(k), str)
-        }
-        return out or None
+        self.input_from = sender_of(source)
 
     @staticmethod
     def has_deflection(rates: dict[str, Any], deadzone: float = 0.05) -> bool:

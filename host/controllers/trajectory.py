@@ -288,6 +288,8 @@ class Goal:
         # True while a rebuild carries the goal from one controller instance to the next
         # (host/controller_manager.py): the old instance's deactivation must not end it
         self.carried = False
+        # who sent it (host.controllers.base.sender_of), None: not said
+        self.sender: dict[str, str] | None = None
 
     def finish(
         self,
@@ -340,4 +342,5 @@ class Goal:
             "final_error": dict(self.final_error),
             "abort": dict(self.abort) if self.abort else None,
             "done": self.state in TERMINAL_STATES,
+            "from": dict(self.sender) if self.sender else None,
         }

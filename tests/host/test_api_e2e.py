@@ -15,7 +15,7 @@ import pytest
 from websockets.sync.client import connect as ws_connect
 
 from host.api import schema
-from host.api.client import ApiError, connect
+from host.api.client import ApiError, connect, on_behalf_of
 from host.teleop import ReplaySource, Teleop
 
 pytestmark = pytest.mark.timeout(120)
@@ -102,9 +102,15 @@ def test_trajectory_through_the_client_reaches_the_goal(client):
             },
         },
     ]
-    result = client.send_trajectory(points, progress=seen.append, timeout=20)
+    with on_behalf_of("operator at bench 2"):
+        result = client.send_trajectory(points, progress=seen.append, timeout=20)
     assert result["state"] == "succeeded", result
     assert len(seen) >= 5 and seen[-1]["progress"] == pytest.approx(1.0)
+    # the goal names who sent it, through the API's bridge into the real daemon
+    me = client.session()
+    sender = {"peer": me["peer"], "client": me["agent"], "for": "operator at bench 2"}
+    assert result["from"] == sender
+    assert client.trajectory_status(result["id"])["from"] == sender
     # `status` comes from the API process's snapshot (every 50 ms, docs/api.md): the one read
     # right after the success may predate the measurement the success was judged on
     deadline = time.monotonic() + 1.0

@@ -174,7 +174,7 @@ def test_a_long_goal_is_not_kept_alive_by_the_bridge_once_served(monkeypatch) ->
         def status(self) -> dict:
             return {"state": "connected"}
 
-        def send_trajectory(self, points, controller=None) -> str:
+        def send_trajectory(self, points, controller=None, source=None) -> str:
             got.append(len(points))
             return "g1"
 

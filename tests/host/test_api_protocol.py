@@ -36,7 +36,8 @@ class FacadeStub:
         self.subscribers: list[tuple[set[str], queue.Queue]] = []
         self.unsubscribed: list[queue.Queue] = []
         self.ffc_calls: list[dict] = []
-        self.ffc_sources: list[dict | None] = []  # who sent each (the API's input_source)
+        self.ffc_sources: list[dict | None] = []  # who sent each (the API's command_source)
+        self.goal_sources: list[dict | None] = []  # who sent each goal
         self.switch_calls: list[tuple[list[str], list[str]]] = []
         self.goals: dict[str, dict] = {}
         self.fail_status = False
@@ -108,7 +109,10 @@ class FacadeStub:
         self.switch_calls.append((start, stop))
         return {"active": start}
 
-    def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
+    def send_trajectory(
+        self, points: list[dict], controller: str | None = None, source: dict | None = None
+    ) -> str:
+        self.goal_sources.append(source)
         for p in points:
             for name, target in p["segments"].items():
                 if name != "s1":
@@ -368,12 +372,14 @@ def test_subscribe_delivers_messages_and_max_rate_thins_them(server):
         assert msg.get("kind") == "joint_states"
 
 
-def test_trajectory_progress_and_result_are_pushed_to_the_sender(server):
+def test_trajectory_progress_and_result_are_pushed_to_the_sender(server, stub):
     seen: list[dict] = []
     with connect(server.url) as c:
         points = [{"time_from_start": 0.4, "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}]
         result = c.send_trajectory(points, progress=seen.append, timeout=5)
         assert result["state"] == "succeeded" and result["done"] is True
+        me = c.session()  # who sent it goes with the goal (its status's "from")
+        assert stub.goal_sources[-1] == {"peer": me["peer"], "client": me["agent"]}
         assert len(seen) >= 3  # several progress updates before the end
         progress = [s["progress"] for s in seen]
         assert progress == sorted(progress)

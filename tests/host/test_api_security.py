@@ -355,9 +355,9 @@ def test_refused_goals_are_audited_and_a_goal_whose_sender_left_is_canceled(stub
     canceled: list[str] = []
     build = stub.send_trajectory
 
-    def slow_send(points, controller=None):  # a long goal's build in the daemon
+    def slow_send(points, controller=None, source=None):  # a long goal's build in the daemon
         time.sleep(1.0)
-        return build(points, controller)
+        return build(points, controller, source)
 
     stub.send_trajectory = slow_send
     stub.cancel_trajectory = lambda gid: canceled.append(gid) or True

@@ -34,8 +34,10 @@ class RecordingStub(FacadeStub):
         super().__init__(publish_hz=20.0)
         self.sent: dict[str, list[dict]] = {}
 
-    def send_trajectory(self, points: list[dict], controller: str | None = None) -> str:
-        gid = super().send_trajectory(points, controller)
+    def send_trajectory(
+        self, points: list[dict], controller: str | None = None, source: dict | None = None
+    ) -> str:
+        gid = super().send_trajectory(points, controller, source)
         self.sent[gid] = points
         return gid
 
