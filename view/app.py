@@ -783,8 +783,20 @@ class ViewApp:
         self.g_errors.content = errors
         if self.live:
             self.g_control.content = _who(
-                snap.control, self.driver, self.manual_owner, self.manual_sender
-            ) + (f"<br/>**refused:** {md(self.refusal)}" if self.refusal else "")
+                snap.control, self.driver, self.manual_owner, self.manual_sender,
+                self._goal_by(snap.control),
+            ) + (f"<br/>**refused:** {md(self.refusal)}" if self.refusal else "")  # fmt: skip
+
+    def _goal_by(self, control: dict) -> str:
+        """Who sent the running goal, in words ("" not known): this view (its Execute move:
+        one of its own API connections) or another client as the daemon names it."""
+        known = control.get("goal_from")
+        sender = known[1] if isinstance(known, tuple) and len(known) == 2 else None
+        if not isinstance(sender, dict):
+            return ""
+        if sender.get("peer") in getattr(self.source, "own_peers", ()):
+            return "this view's page (Execute move)"
+        return _sender(sender)
 
     def _whose_input(self, control: dict) -> None:
         """Who holds the manual control now (``manual_owner``), from the daemon's status (a cFFC
@@ -948,9 +960,16 @@ def _sender(source: Any) -> str:
     return words
 
 
-def _who(control: dict, driver: SliderDriver | None, owner: str = "", sender: str = "") -> str:
+def _who(
+    control: dict,
+    driver: SliderDriver | None,
+    owner: str = "",
+    sender: str = "",
+    goal_by: str = "",
+) -> str:
     """One line: who commands the robot now, and why (``owner``: who sent the manual cFFC's
-    latest input, see ViewApp._whose_input; ``sender``: that other client, named)."""
+    latest input, see ViewApp._whose_input; ``sender``: that other client, named; ``goal_by``:
+    who sent the running goal, see ViewApp._goal_by)."""
     active, manual, goals = (control.get(k, []) for k in ("active", "manual", "goals"))
     if manual:
         if not owner and driver is not None and driver.owns_control:
@@ -964,6 +983,8 @@ def _who(control: dict, driver: SliderDriver | None, owner: str = "", sender: st
         )
     elif goals:
         line = f"**control:** trajectory {md(', '.join(goals))} ({md(', '.join(active))})"
+        if goal_by:
+            line += f" from {md(goal_by)}"  # goal_by: a client's own words (untrusted)
     else:
         line = f"**control:** nobody moving; holding ({md(', '.join(active)) or 'no controller'})"
     if driver is not None and driver.stopped_reason:

@@ -708,14 +708,31 @@ class LiveSource:
                 ffc, params = self._controllers(client, manual)
                 if params is not None:
                     self.ffc_params = params
+            goals = st.get("running_goals", [])
+            goals = goals if isinstance(goals, list) else []
+            with self.lock:
+                known = self.snap.control.get("goal_from")
+            if goals and (known is None or known[0] != goals[0]):
+                known = (goals[0], self._goal_sender(client, goals[0]))  # once per goal
             with self.lock:
                 self._faults = set(st.get("faults") or {})
                 c = self.snap.control
                 c["active"] = st.get("active_controllers", [])
                 c["manual"] = manual
-                c["goals"] = st.get("running_goals", [])
+                c["goals"] = goals
+                c["goal_from"] = known if goals else None
                 c["state"] = st.get("state", "")
                 c["ffc_input"] = ffc
+
+    @staticmethod
+    def _goal_sender(client: Any, goal: Any) -> dict | None:
+        """Who sent a running goal, as the daemon names it (its status's ``from``: ``peer``,
+        ``client``, ``for``); None when it does not say or cannot be asked now."""
+        try:
+            sender = client.trajectory_status(goal).get("from")
+        except Exception:  # noqa: BLE001 - not known this time (asked again for the next goal)
+            return None
+        return sender if isinstance(sender, dict) else None
 
     @staticmethod
     def _controllers(

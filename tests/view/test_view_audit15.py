@@ -255,6 +255,55 @@ def test_a_stop_reason_is_cleared_when_a_trajectory_takes_control(monkeypatch):
         app.stop()
 
 
+class _NamingDaemon(_Daemon):
+    """A daemon that names who sent each goal (trajectory.status "from") and tells the view its
+    own connection's address (session "peer")."""
+
+    VIEW_PEER = "127.0.0.1:50123"
+    senders = {
+        "jtc-7": {"peer": "10.0.0.5:4242", "client": "ucr zenoh", "for": "ros2 goal 7"},
+        "jtc-8": {"peer": VIEW_PEER, "client": "ucr view", "for": "view page=1 peer=x"},
+    }
+
+    def call(self, op: str, **params):
+        if op == "session":
+            return {"scope": self.scope, "authenticated": False, "peer": self.VIEW_PEER,
+                    "agent": "ucr view"}  # fmt: skip
+        return super().call(op, **params)
+
+    def trajectory_status(self, goal):
+        return {"id": goal, "from": self.senders.get(goal)}
+
+
+def test_the_control_line_names_who_sent_the_running_trajectory(monkeypatch):
+    """Issue 15: "always visible who has control (page, gamepad, trajectory)". The line said
+    "trajectory jtc-7" whoever sent it; now it names the sender as the daemon does (the goal's
+    "from": program, whom it acts for, address), and the view's own Execute move as such."""
+    daemon = _NamingDaemon()
+    src, app = _live(monkeypatch, daemon)
+    try:
+        assert wait_for(lambda: app.facts.get("tubes") == NAMES, 20), app.facts
+        assert list(src.own_peers) == [_NamingDaemon.VIEW_PEER]
+        daemon.goals = ["jtc-7"]
+        other = (
+            "trajectory jtc-7 (jtc) from API client 'ucr zenoh' for 'ros2 goal 7' at 10.0.0.5:4242"
+        )
+        assert wait_for(lambda: other in app.g_control.content, 5), app.g_control.content
+        daemon.goals = ["jtc-8"]
+        ours = "trajectory jtc-8 (jtc) from this view's page (Execute move)"
+        assert wait_for(lambda: ours in app.g_control.content, 5), app.g_control.content
+        daemon.goals = ["jtc-9"]  # a goal the daemon does not name the sender of
+
+        def unnamed() -> bool:
+            line = app.g_control.content.split("<br/>")[0]
+            return line == "**control:** trajectory jtc-9 (jtc)"
+
+        assert wait_for(unnamed, 5), app.g_control.content
+    finally:
+        daemon.goals = []
+        app.stop()
+
+
 # -- 5. named materials -------------------------------------------------------------------------
 def test_a_visual_naming_a_robot_level_material_gets_its_colour(tmp_path):
     """Defect (audit 15.5): `<material name="grey"/>` referring to a robot-level `<material>` was
