@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from host.api.client_behalf import sender_words
 from host.client_common import (
     add_connection_args,
     deg,
@@ -299,6 +300,8 @@ def cmd_goal(args: argparse.Namespace) -> int:
                 line += f", {100 * float(st['progress']):.0f} %"
             if st.get("reason"):
                 line += f" ({st['reason']})"
+            if sender_words(st.get("from")):
+                line += f"; sent by {sender_words(st.get('from'))}"
             if args.cancel:
                 done = "; canceled: decelerating to rest" if st.get("canceled") else "; not running"
                 line += done

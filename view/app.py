@@ -29,7 +29,7 @@ import viser
 import viser.transforms as vtf
 
 from host.api.audit import audit_logger
-from host.api.client import on_behalf_of
+from host.api.client import on_behalf_of, sender_words
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
 from view.guard import (
@@ -796,7 +796,7 @@ class ViewApp:
             return ""
         if sender.get("peer") in getattr(self.source, "own_peers", ()):
             return "this view's page (Execute move)"
-        return _sender(sender)
+        return sender_words(sender)
 
     def _whose_input(self, control: dict) -> None:
         """Who holds the manual control now (``manual_owner``), from the daemon's status (a cFFC
@@ -826,7 +826,7 @@ class ViewApp:
             driver.owns_control = True
             return
         self.manual_owner = "other"
-        self.manual_sender = _sender(sender)
+        self.manual_sender = sender_words(sender)
         driver.owns_control = False
         driver.forget_setpoints()  # the other client moved the cFFC's setpoint
         if driver.targets:
@@ -946,18 +946,6 @@ def _audit(page: int, peer: str, op: str, summary: str) -> None:
 
 def _solver(model: SceneModel):
     return IKSolver(model.kin, model.tip_link)
-
-
-def _sender(source: Any) -> str:
-    """A cFFC input's sender as the daemon names it (``input_from``), in words; "" unknown."""
-    if not isinstance(source, dict):
-        return ""
-    words = f"API client {source.get('client') or '-'!r}"
-    if source.get("for"):
-        words += f" for {source['for']!r}"
-    if source.get("peer"):
-        words += f" at {source['peer']}"
-    return words
 
 
 def _who(

@@ -29,7 +29,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection
 
 from host.api import default_url
-from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of
+from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of, sender_words
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
@@ -43,6 +43,7 @@ __all__ = [
     "Subscription",
     "connect",
     "on_behalf_of",
+    "sender_words",
     "read_token",
 ]
 

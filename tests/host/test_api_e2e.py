@@ -314,6 +314,8 @@ def test_cli_goal_shows_and_cancels_a_goal_sent_with_no_wait(rig, client, capsys
         assert ucr(["goal", gid, "--url", srv.url]) == 0
         out = capsys.readouterr().out
         assert out.startswith(f"goal {gid}: executing") and "%" in out, out
+        me = client.session()  # and who sent it, as the daemon names it
+        assert f"; sent by API client 'ucr python client' at {me['peer']}" in out, out
         assert ucr(["goal", "--url", srv.url]) == 0  # every running goal
         assert f"goal {gid}: executing" in capsys.readouterr().out
         assert ucr(["goal", "--cancel", "--url", srv.url]) == 0

@@ -332,3 +332,19 @@ def test_an_unknown_daemon_log_level_is_a_usage_error(capsys):
         ucr(["daemon", "--robot", "robots/softrobot3.ucrdf", "--log-level", "foo"])
     assert exc.value.code == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_a_command_sender_is_put_in_words_that_carry_no_control_character():
+    """``ucr goal`` and ``ucr view`` name who sent a goal or a cFFC input as the daemon says
+    (``from`` / ``input_from``); the client's own words come from any client (its User-Agent and
+    on_behalf_of), so they are quoted as literals: no escape sequence reaches a terminal."""
+    from host.api.client import sender_words
+
+    assert sender_words(None) == "" and sender_words("x") == ""
+    assert sender_words({"peer": "127.0.0.1:4", "client": "gamepad", "for": "stick js0"}) == (
+        "API client 'gamepad' for 'stick js0' at 127.0.0.1:4"
+    )
+    assert sender_words({"client": 7}) == "API client '-'"
+    evil = sender_words({"client": "\x1b[2Jx", "for": "a\nb", "peer": "p q\x07"})
+    assert "\x1b" not in evil and "\n" not in evil and "\x07" not in evil, evil
+    assert evil == r"API client '\x1b[2Jx' for 'a\nb' at 'p q\x07'"
