@@ -425,16 +425,20 @@ class ViewApp:
                 page.sliders[name] = (k, p)
 
     def _follow_sliders(self, snap: Any) -> None:
-        """Live: while the sliders drive nothing (no target held), each page's sliders show the
-        measured κ, φ of their segment, so after a trajectory, a gamepad or another page moved
-        the robot they show where it is, and the slider touched next starts from there. A value
-        set here is the server's, not a page's: ``_slider`` ignores it (no motion). Under
-        self.lock."""
+        """Live: each page's sliders show the measured κ, φ of their segment, except the one
+        whose target that page set and the slider drive still holds: so after a trajectory, a
+        gamepad or another page moved the robot, and while another page drives, they show
+        where it is, and the slider touched next starts from there. A value set here is the
+        server's, not a page's: ``_slider`` ignores it (no motion). Under self.lock."""
         driver, model = self.driver, self.model
-        if driver is None or model is None or driver.targets:
+        if driver is None or model is None:
             return
+        with driver.lock:
+            driven = dict(driver.target_page) if driver.targets else {}
         for page in list(self.pages.values()):
             for name, (k, p) in page.sliders.items():
+                if name in driven and driven[name] in (page.id, None):
+                    continue  # the page's own target stands (or one no page set)
                 st = snap.state.get(name)
                 if st is None or not snap.valid.get(name, False):
                     continue

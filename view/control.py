@@ -206,6 +206,8 @@ class SliderDriver:
         self.pages = pages
         #: the pages that set the targets being driven (since the last stop): the deadman
         self.owners: set[int] = set()
+        #: per driven segment, the page that set its target (None: not a page)
+        self.target_page: dict[str, int | None] = {}
         self.report = report
         self.period = 1.0 / rate_hz
         self.idle_s = idle_s
@@ -248,6 +250,7 @@ class SliderDriver:
             self.label = label
             if page is not None:
                 self.owners.add(page)
+            self.target_page[name] = page
             self.targets[name] = kvec(kappa, phi)
             self.t_touch = time.monotonic()
             self.stopped_reason = ""
@@ -280,6 +283,7 @@ class SliderDriver:
             names = list(self.targets) or list(self.last_names)
             self.targets.clear()
             self.owners.clear()
+            self.target_page.clear()
             self.t_touch = -math.inf
             was = self.streaming
             self.streaming = False

@@ -413,3 +413,48 @@ def test_the_latency_figure_is_shown_only_for_a_daemon_on_this_machine(monkeypat
         assert not app.latency_ms
     finally:
         app.stop()
+
+
+def test_while_one_page_drives_the_other_pages_sliders_show_the_measured_state(monkeypatch):
+    """docs/view.md "Limits": while one page's sliders drove, every page's sliders stayed
+    where they were, so a second page showed stale values while the robot moved. Now a slider
+    shows the measured κ, φ unless its own page set the target being driven."""
+    import math
+    from types import SimpleNamespace
+
+    from view.app import _Page
+
+    daemon = _Daemon()
+    src, app = _live(monkeypatch, daemon)
+    try:
+        assert wait_for(lambda: app.facts.get("tubes") == NAMES, 20), app.facts
+
+        def page(pid: int) -> _Page:
+            pg = _Page(SimpleNamespace(client_id=pid), f"127.0.0.1:{pid}")
+            for name in ("segment_1", "segment_2"):
+                pg.sliders[name] = (SimpleNamespace(value=0.0), SimpleNamespace(value=0.0))
+                pg.shown[name] = (0.0, 0.0)
+            return pg
+
+        a, b = page(101), page(102)
+        a.sliders["segment_1"][0].value = 2.0  # page a's own target, shown on page a
+        a.shown["segment_1"] = (2.0, 0.0)
+        with app.lock:
+            app.pages.update({101: a, 102: b})
+        app.driver.set_target("segment_1", 2.0, 0.0, "view page=101", page=101)
+        measured = {
+            "segment_1": {"kappa": 1.2, "phi": 0.5},
+            "segment_2": {"kappa": 0.4, "phi": -0.3},
+        }
+        snap = SimpleNamespace(state=measured, valid={"segment_1": True, "segment_2": True})
+        with app.lock:
+            app._follow_sliders(snap)
+        assert a.sliders["segment_1"][0].value == 2.0  # page a's target stands on page a
+        assert b.sliders["segment_1"][0].value == 1.2  # page b sees the robot move
+        assert b.sliders["segment_1"][1].value == round(math.degrees(0.5))
+        assert a.sliders["segment_2"][0].value == 0.4  # and a segment nobody drives, anywhere
+        assert b.sliders["segment_2"][1].value == round(math.degrees(-0.3))
+    finally:
+        with app.lock:
+            app.pages.clear()
+        app.stop()
