@@ -414,6 +414,10 @@ def cmd_controllers(args: argparse.Namespace) -> int:
             if ctl.get("error"):
                 line += f"  error: {ctl['error']}"
             print(line)
+            if sender_words(ctl.get("input_from")):  # a cFFC: who sent its latest input
+                age = ctl.get("input_age_s")
+                when = f"{age:.2f} s ago" if isinstance(age, int | float) else "none in force"
+                print(f"{'':<12} latest input from {sender_words(ctl['input_from'])} ({when})")
         return 0
 
     return with_client(args, body)

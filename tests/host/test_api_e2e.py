@@ -283,6 +283,9 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         out, err = capsys.readouterr()
         assert rc == 0, err
         assert "teleop ended (end" in out and "1 stops sent" in out
+        assert ucr(["controllers", "--url", srv.url]) == 0  # who drove the cFFC last
+        listed = capsys.readouterr().out
+        assert "latest input from API client 'ucr teleop' at 127.0.0.1:" in listed, listed
         if client.status()["topology_changes"] == changes:  # a rebuild resets the takeover
             assert "hand-back" in out  # tells the user how to give control back
         time.sleep(0.4)
