@@ -1,7 +1,7 @@
 """Client commands of ``ucr`` (talk to a running daemon over its API): status, watch, move,
 trajectory, controllers, teleop. This module registers them all and runs status, watch and
 controllers; the commands that move the robot live in :mod:`host.client_motion`, the connection
-and error helpers in :mod:`host.client_common`.
+and error helpers in :mod:`host.client_common`, the status's lines in :mod:`host.client_status`.
 
 Each command connects to ``--url`` (default ``$UCR_URL`` or ws://127.0.0.1:8765) with the token
 from ``--token-file`` (a 0600 file; default ``$UCR_TOKEN_FILE``, else ``$UCR_TOKEN``). Curvature
@@ -30,6 +30,7 @@ from host.client_common import (
     with_client,
 )
 from host.client_motion import cmd_move, cmd_teleop, cmd_trajectory
+from host.client_status import format_status, manual_senders
 
 SECONDS = number_arg(float, 0.0, False, " s")  # a finite number of s > 0
 
@@ -179,84 +180,6 @@ def register(subparsers: Any) -> None:
 
 
 # --------------------------------------------------------------------------- status
-def format_link_health(st: dict) -> tuple[str, list[str]]:
-    """The loop rate as the status line shows it, and the lines on a degraded link: which link,
-    its loss, the exchange latency, usable versus nominal rate (docs/daemon.md "Degrade, don't
-    stall"). Positions and links count from 1, as the daemon reports them."""
-    health = st.get("link_health") or {}
-    nominal = st.get("nominal_rate_hz", health.get("nominal_rate_hz", st.get("rate_hz", 0)))
-    usable = health.get("usable_rate_hz", st.get("rate_hz", 0)) or 0
-    if not health.get("degraded"):
-        return f"loop: {usable:g} Hz", []
-    rate = f"loop: {usable:g} Hz (slowed from {nominal:g} Hz: link degraded)"
-    last = health.get("last_change") or {}
-    link = last.get("link", last.get("position"))
-    into = f" (into {last['segment']})" if last.get("segment") else ""
-    where = f"link {link}{into}" if link is not None else "a link"
-    loss = last.get("loss")
-    lat = health.get("latency_ms_p90")
-    lines = [
-        f"link degraded: {where} is slow"
-        + (f", {loss:.0%} missed" if isinstance(loss, int | float) else "")
-        + (f" at {last['measured_at_hz']:g} Hz" if last.get("measured_at_hz") else "")
-        + f"; loop at {usable:g} Hz of {nominal:g} Hz nominal",
-    ]
-    per = health.get("loss") or []
-    if any(per) or lat is not None:
-        shares = ", ".join(f"{i + 1}: {x:.0%}" for i, x in enumerate(per))  # 1-based
-        lines.append(
-            f"  loss per position (last 30 exchanges) {shares or '-'}; exchange latency p90 "
-            + ("-" if lat is None else f"{lat:g} ms")
-        )
-    return rate, lines
-
-
-def format_status(st: dict, topo: dict | None = None) -> list[str]:
-    """Human lines for a daemon status; ``topo`` (the daemon's topology, if known) adds the
-    segments of the description that are missing and where the chain is cut."""
-    rate, degraded = format_link_health(st)
-    lines = [
-        (
-            f"daemon: {st.get('state')}  robot: {st.get('robot')}  port: {st.get('port')}  "
-            f"{rate}  up {st.get('uptime_s', 0):.0f} s"
-        ),
-        *degraded,
-    ]
-    if st.get("error"):
-        lines.append(f"  error: {st['error']}")
-    lines.append(
-        f"hardware interface: {st.get('hwi')}  controllers: "
-        f"{', '.join(st.get('active_controllers') or []) or 'none'}"
-    )
-    if st.get("manual_control"):
-        lines.append(
-            f"manual control: {', '.join(st['manual_control'])} (`ucr controllers "
-            "hand-back` to return to trajectories)"
-        )
-    if st.get("running_goals"):
-        lines.append(f"running goals: {', '.join(map(str, st['running_goals']))}")
-    js = st.get("joint_states") or {}
-    expected = topo.get("expected") if isinstance(topo, dict) else None
-    of = f" of {len(expected)}" if isinstance(expected, list) and len(expected) != len(js) else ""
-    lines.append(f"segments ({len(js)}{of}):")
-    faults = st.get("faults") or {}
-    for name, j in js.items():
-        flag = "" if j.get("valid", True) else "  (no answer)"
-        if name in faults:
-            f = faults[name]
-            flag += f"  FAULT {f.get('name')}: {f.get('text') or '?'}"
-        lines.append(
-            f"  {name:<16} kappa {kap(j.get('kappa'))} 1/m   phi {deg(j.get('phi'))}{flag}"
-        )
-    lines.extend(format_missing(topo))
-    if faults:
-        lines.append(
-            f"{len(faults)} segment(s) in FAULT, holding: `ucr clear-fault [SEGMENT]` clears it "
-            "once the cause is understood"
-        )
-    return lines
-
-
 def cmd_status(args: argparse.Namespace) -> int:
     def body(c: Any) -> int:
         st = c.status()
@@ -264,7 +187,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(st if topo is None else {**st, "topology": topo}, indent=2))
         else:
-            print("\n".join(format_status(st, topo)))
+            print("\n".join(format_status(st, topo, manual_senders(c, st))))
         return 0
 
     return with_client(args, body)

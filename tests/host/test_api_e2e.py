@@ -286,6 +286,10 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         assert ucr(["controllers", "--url", srv.url]) == 0  # who drove the cFFC last
         listed = capsys.readouterr().out
         assert "latest input from API client 'ucr teleop' at 127.0.0.1:" in listed, listed
+        assert ucr(["status", "--url", srv.url]) == 0  # and who holds the takeover
+        shown = capsys.readouterr().out
+        if client.status()["manual_control"]:  # (a rebuild on a loaded host ends it)
+            assert "  ffc: latest input from API client 'ucr teleop' at " in shown, shown
         if client.status()["topology_changes"] == changes:  # a rebuild resets the takeover
             assert "hand-back" in out  # tells the user how to give control back
         time.sleep(0.4)

@@ -348,3 +348,33 @@ def test_a_command_sender_is_put_in_words_that_carry_no_control_character():
     evil = sender_words({"client": "\x1b[2Jx", "for": "a\nb", "peer": "p q\x07"})
     assert "\x1b" not in evil and "\n" not in evil and "\x07" not in evil, evil
     assert evil == r"API client '\x1b[2Jx' for 'a\nb' at 'p q\x07'"
+
+
+def test_status_names_who_drives_a_manual_takeover():
+    """`ucr status` said "manual control: ffc" whoever streamed it; it now adds who sent the
+    cFFC's latest input (its input_from), asking controllers.list only during a takeover."""
+    from host.api.client import ApiError
+    from host.client_status import format_status, manual_senders
+
+    class Client:
+        asked = 0
+
+        def controllers(self):
+            Client.asked += 1
+            sender = {"peer": "127.0.0.1:4", "client": "gamepad", "for": "stick js0"}
+            return [{"name": "jtc", "type": "jtc"},
+                    {"name": "ffc", "type": "ffc", "input_from": sender}]  # fmt: skip
+
+    st = {"state": "connected", "manual_control": ["ffc"], "joint_states": {}}
+    senders = manual_senders(Client(), st)
+    assert senders == {"ffc": "API client 'gamepad' for 'stick js0' at 127.0.0.1:4"}
+    text = "\n".join(format_status(st, None, senders))
+    assert "manual control: ffc" in text
+    assert "  ffc: latest input from API client 'gamepad' for 'stick js0' at 127.0.0.1:4" in text
+    assert manual_senders(Client(), {"manual_control": []}) == {} and Client.asked == 1
+
+    class Refusing:
+        def controllers(self):
+            raise ApiError("forbidden", "no")
+
+    assert manual_senders(Refusing(), st) == {}  # the line just says less
