@@ -46,7 +46,7 @@ def manual_senders(c: Any, st: dict) -> dict[str, str]:
     """Per manual controller holding a takeover: who sent its latest input, in words (its
     ``controllers.list`` entry's ``input_from``); asked only during a takeover."""
     manual = st.get("manual_control") or []
-    if not manual:
+    if not manual or not isinstance(manual, list):
         return {}
     try:
         ctrls = c.controllers()
@@ -81,7 +81,7 @@ def format_status(
     )
     if st.get("manual_control"):
         lines.append(
-            f"manual control: {', '.join(st['manual_control'])} (`ucr controllers "
+            f"manual control: {', '.join(map(str, st['manual_control']))} (`ucr controllers "
             "hand-back` to return to trajectories)"
         )
         for name, who in (senders or {}).items():

@@ -378,3 +378,4 @@ def test_status_names_who_drives_a_manual_takeover():
             raise ApiError("forbidden", "no")
 
     assert manual_senders(Refusing(), st) == {}  # the line just says less
+    assert manual_senders(Client(), {"manual_control": "ffc"}) == {}  # not a list: nothing
