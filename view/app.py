@@ -756,8 +756,9 @@ class ViewApp:
                     tn.points = _segments(frame.tendons[name])
             self.nodes["trail"].points = np.asarray(self.trail, dtype=np.float32)
             if self.planner is not None and self.planner.result is None:
+                connected = self.server.get_clients()  # not a page whose close is in flight
                 for page in list(self.pages.values()):
-                    if page.gizmo is not None:
+                    if page.gizmo is not None and page.id in connected:
                         page.gizmo.position = frame.tip
         self.facts["tip"] = [round(float(v), 4) for v in frame.tip]
 
