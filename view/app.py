@@ -799,9 +799,18 @@ class ViewApp:
         sender = known[1] if isinstance(known, tuple) and len(known) == 2 else None
         if not isinstance(sender, dict):
             return ""
-        if sender.get("peer") in getattr(self.source, "own_peers", ()):
+        if self._sent_by_us(sender):
             return "this view's page (Execute move)"
         return sender_words(sender)
+
+    def _sent_by_us(self, sender: Any) -> bool | None:
+        """Whether a command the daemon names (a cFFC's ``input_from``, a goal's ``from``) came
+        from one of this view's own API connections (their ``session`` peers); None when that
+        cannot be told (no sender or address said, or no peer of ours known)."""
+        own_peers = getattr(self.source, "own_peers", ())
+        if not (isinstance(sender, dict) and sender.get("peer") and own_peers):
+            return None
+        return sender["peer"] in own_peers
 
     def _whose_input(self, control: dict) -> None:
         """Who holds the manual control now (``manual_owner``), from the daemon's status (a cFFC
@@ -821,10 +830,8 @@ class ViewApp:
             return  # nothing new (no input now: whoever sent the last one keeps control)
         self._ffc_seen = seen[2]
         sender = seen[3] if len(seen) > 3 else None
-        own_peers = getattr(self.source, "own_peers", ())
-        if isinstance(sender, dict) and sender.get("peer") and own_peers:
-            ours = sender["peer"] in own_peers
-        else:  # the daemon does not say who: by the times of our own calls
+        ours = self._sent_by_us(sender)
+        if ours is None:  # the daemon does not say who: by the times of our own calls
             ours = driver.sent_at(seen[0], seen[1])
         if ours:
             self.manual_owner, self.manual_sender = "page", ""
