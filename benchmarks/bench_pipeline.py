@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.figures import Figures  # noqa: E402
 from host.config import DaemonConfig  # noqa: E402
 from host.link import ChainLink  # noqa: E402
-from tools.emulator import EmulatedChain  # noqa: E402
+from tools.emulator import EmulatedChain, EmulatorProcess  # noqa: E402
 from tools.rig import start_daemon_on  # noqa: E402
 from ucrdf.compose import robot_from_descriptors  # noqa: E402
 
@@ -45,7 +45,7 @@ HEADERS = [
 ]
 
 
-def _robot(chain: EmulatedChain, n: int):
+def _robot(chain: EmulatedChain | EmulatorProcess, n: int):
     link = ChainLink(chain.host_port)
     try:
         end = time.monotonic() + 120.0
@@ -109,14 +109,22 @@ def main() -> int:
     ap.add_argument("--timing", choices=("off", "on"), default="off")
     ap.add_argument("--pipeline", default="off,on", help="which runs: off, on or off,on")
     ap.add_argument("--rt-priority", type=int, default=0, help="daemon SCHED_FIFO priority")
+    ap.add_argument(
+        "--emulator",
+        choices=("process", "thread"),
+        default="process",
+        help="the emulated chain in its own process (ucr emulate, default) or in a thread of "
+        "the daemon's, where it shares the interpreter lock with the daemon's threads",
+    )
     ap.add_argument("--figures", help="save the table for tools/docfigures.py")
     args = ap.parse_args()
     figs = Figures.from_argv("bench_pipeline")
     timing = args.timing == "on"
     modes = [{"off": False, "on": True}[m.strip()] for m in args.pipeline.split(",")]
+    where = "its own process (ucr emulate)" if args.emulator == "process" else "the daemon's"
     note = (
         f"{args.rate:.0f} Hz for {args.duration:.0f} s per run; emulator timing model "
-        f"{args.timing}; links throttled to the baud rate"
+        f"{args.timing}; links throttled to the baud rate; the emulator in {where}"
     )
     if args.rt_priority:
         note += f"; daemon --rt-priority {args.rt_priority}"
@@ -124,7 +132,8 @@ def main() -> int:
         figs.table("daemon", HEADERS, note=note)
     print(f"daemon pipelining, {note}")
     for n in [int(x) for x in args.segments.split(",")]:
-        with EmulatedChain(n, timing=timing) as chain:
+        make = EmulatorProcess if args.emulator == "process" else EmulatedChain
+        with make(n, timing=timing) as chain:
             robot = _robot(chain, n)
             chain.set_all_links(baud=args.baud)
             for pipeline in modes:

@@ -41,6 +41,26 @@ def test_throttle_takes_ten_bits_per_byte_and_keeps_order() -> None:
     assert chunks[0][0] > 0.0  # nothing arrives before its bytes were on the wire
 
 
+def test_a_fast_link_delivers_a_frame_in_small_pieces_not_whole() -> None:
+    """At 921600 baud a STATE frame (34 bytes) lasts 0.37 ms. A UART with the RX FIFO threshold
+    at 1 (how the firmware opens the chain UARTs on an ESP32, docs/firmware.md) hands its first
+    bytes on while the rest are still on the wire; a relaying segment then forwards them
+    cut-through. Released in 0.5 ms chunks, the whole frame came at once, after its last byte:
+    every hop was store-and-forward, whatever the firmware did."""
+    pipe = Pipe("p")
+    pipe.configure(baud=921_600, now=0.0)
+    byte_s = 10 / 921_600
+    frame = bytes(range(1, 35))
+    pipe.feed(frame, 0.0)
+    first = pipe.due(10 * byte_s)
+    assert 0 < len(first) <= 10  # the first bytes, before the frame has ended
+    rest = pipe.due(len(frame) * byte_s + 1e-9)
+    assert first + rest == frame
+    # no piece is released before its last byte was on the wire
+    pipe.feed(frame, 1.0)
+    assert pipe.due(1.0 + 7 * byte_s) == b""
+
+
 def test_latency_delays_every_byte() -> None:
     pipe = Pipe("p")
     pipe.configure(latency_s=0.005)

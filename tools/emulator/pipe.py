@@ -16,8 +16,14 @@ BITS_PER_BYTE = 10
 #: The largest latency a link takes (s): beyond it the link is better unplugged.
 MAX_LATENCY_S = 60.0
 #: Throttled bytes are released in chunks lasting at most this long (s), so a long burst arrives
-#: progressively as on a real wire, without one timer per byte.
+#: progressively as on a real wire, without one timer per byte ...
 CHUNK_S = 0.0005
+#: ... and of at most this many bytes. A segment's chain UART hands bytes on as they arrive (RX
+#: FIFO threshold 1 on an ESP32, docs/firmware.md), which cut-through forwarding relies on; in
+#: 0.5 ms chunks a fast link (46 bytes at 921600 baud) delivered a whole STATE frame at once,
+#: after its last byte, and made every hop store-and-forward. Eight bytes is 87 µs at 921600
+#: baud; smaller pieces cost the proxy thread more wake-ups for little.
+CHUNK_MAX_BYTES = 8
 
 
 class Pipe:
@@ -149,7 +155,7 @@ class Pipe:
             self._queue.append((now + self.latency_s, bytes(data), now))
             return
         byte_s = BITS_PER_BYTE / self.baud
-        chunk = max(1, int(CHUNK_S / byte_s))
+        chunk = max(1, min(CHUNK_MAX_BYTES, int(CHUNK_S / byte_s)))
         start = max(now, self._busy_until)
         for i in range(0, len(data), chunk):
             piece = bytes(data[i : i + chunk])

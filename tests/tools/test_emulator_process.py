@@ -1,0 +1,34 @@
+"""EmulatorProcess: `ucr emulate` in a child process, which the host-side benchmarks drive."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from host.link import ChainLink
+from tools.emulator import EmulatorError, EmulatorProcess
+
+
+def test_a_chain_in_its_own_process_answers_and_takes_link_settings() -> None:
+    with EmulatorProcess(2) as chain:
+        with ChainLink(chain.host_port) as link:
+            end = time.monotonic() + 60
+            while len(descs := link.discover(timeout=1.0)) != 2 and time.monotonic() < end:
+                time.sleep(0.1)
+            assert [d["position"] for d in descs] == [0, 1]
+            chain.set_all_links(baud=115200)
+            assert "link 2: plugged, 115200 bd" in chain.command("status")
+            states = link.sync([(0.5, 0.1)] * 2, timeout=1.0)
+            assert all(s is not None for s in states)
+            chain.set_all_links(baud=None)
+            assert "unthrottled" in chain.command("status")
+        with pytest.raises(EmulatorError, match="position must be 1..2"):
+            chain.command("baud 3 9600")
+        proc = chain._proc
+    assert proc.poll() is not None  # closed: the child is gone
+
+
+def test_an_emulator_that_cannot_start_says_why() -> None:
+    with pytest.raises(EmulatorError, match="ucr emulate exited"):
+        EmulatorProcess(0)
