@@ -68,16 +68,26 @@ async def _ws(url: str):
 
 
 async def gen_poll(url: str, clients: int, rate: float, seconds: float) -> dict:
-    """``clients`` connections, each asking ``status`` ``rate`` times per second."""
-    done = {"req": 0, "err": 0, "rtt": []}
+    """``clients`` connections, each asking ``status`` ``rate`` times per second. They connect
+    spread over half a second and retry a failed handshake, as independent clients would: 200
+    opened at once overflow the server's pending-handshake slots (64, the oldest evicted), and
+    before 2026-11-27 this phase polled with the 64-128 that got in. ``clients`` in the result
+    is how many polled."""
+    done = {"req": 0, "err": 0, "rtt": [], "clients": 0}
+    t_end = time.monotonic() + seconds
 
     async def one(k: int) -> None:
-        try:
-            ws = await _ws(url)
-        except Exception:  # noqa: BLE001 - counted
-            done["err"] += 1
+        await asyncio.sleep(k * 0.5 / clients)
+        for attempt in range(5):
+            try:
+                ws = await _ws(url)
+                break
+            except Exception:  # noqa: BLE001 - counted
+                done["err"] += 1
+                await asyncio.sleep(0.2 * (attempt + 1))
+        else:
             return
-        t_end = time.monotonic() + seconds
+        done["clients"] += 1
         await asyncio.sleep(k / clients / rate)  # spread the clients over the period
         i = 0
         while time.monotonic() < t_end:
@@ -373,6 +383,11 @@ _PHASE_LABELS = {
 }
 
 
+def _polled(results: list[dict]) -> int:
+    """How many of the poll phase's clients got in and polled."""
+    return sum(r.get("clients", 0) for r in results)
+
+
 def _chain(st: dict) -> str:
     """The overruns a late chain caused (host/loop.py), of all; the rest are the loop's own."""
     return str(st.get("overruns_waiting_on_chain", "?"))
@@ -392,10 +407,13 @@ def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: 
         note=f"100 Hz loop, 3 emulated segments, API mode {args.mode}, loop thread {sched}, "
         f"{args.seconds:g} s per phase; load from other processes at nice 15",
     )
-    for name, st, rss, rss_api, _ in rows:
+    for name, st, rss, rss_api, results in rows:
         cyc = max(st["cycles"], 1)
+        label = _PHASE_LABELS.get(name, name)
+        if name == "poll200":
+            label = label.replace("at 10 Hz (", f"at 10 Hz, {_polled(results)} of them in (")
         figs.row("loop", [
-            _PHASE_LABELS.get(name, name),
+            label,
             f"{st['overruns']} of {st['cycles']} ({100 * st['overruns'] / cyc:.2f} %)",
             f"{_chain(st)}",
             f"{st['jitter_us']['p99']:.0f} / {st['jitter_us']['max']:.0f} µs",
@@ -537,13 +555,15 @@ def main(argv: list[str] | None = None) -> int:
                 + (f", API process {base_rss[1]:.1f} -> {after[3]:.1f} MiB" if api_pid else ""),
                 flush=True,
             )
-            for name, st, *_ in rows:
+            for name, st, *_, results in rows:
                 if name == "poll200":
                     cyc = max(st["cycles"], 1)
+                    polled = _polled(results)
                     ok = st["overruns"] / cyc <= 0.001 and st["jitter_us"]["p99"] <= 1000
+                    ok = ok and polled == 200
                     print(
                         f"issue 12 target (200 clients at 10 Hz: <= 0.1 % overruns, jitter p99 "
-                        f"<= 1 ms): {'met' if ok else 'NOT met'}"
+                        f"<= 1 ms): {'met' if ok else 'NOT met'} ({polled} of 200 polled)"
                     )
             for name, *_, results in rows:
                 if name == "latency" and results and "p50_ms" in results[0]:

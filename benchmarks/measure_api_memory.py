@@ -196,8 +196,10 @@ def main() -> int:
             deflate=args.deflate,
             options={k: int(v) for k, v in (kv.split("=", 1) for kv in args.option)},
         )  # fmt: skip
+        from host.api.process import child_env  # the API process's allocator, as deployed
+
         child = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
-                                 stdout=subprocess.PIPE, text=True)  # fmt: skip
+                                 stdout=subprocess.PIPE, text=True, env=child_env())  # fmt: skip
         url, pid = f"ws://127.0.0.1:{child.stdout.readline().strip()}", child.pid
         time.sleep(1.0)
 

@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ctypes
-import gc
 import logging
 import time
 from collections.abc import Awaitable, Callable
@@ -38,6 +36,7 @@ from websockets.exceptions import ConnectionClosed
 from host.api import schema as S
 from host.api.audit import audit_log
 from host.api.auth import CONTROL
+from host.api.memory import MemoryRelease
 from host.api.session import _Request, _Session, _Subscription, command_source
 
 log = logging.getLogger("ucr.api")
@@ -407,22 +406,13 @@ class Connections:
 
     async def janitor(self) -> None:
         """Once a second: close clients that stopped reading; forget stale uploads; give memory
-        back to the OS once a crowd of connections has gone, or once the requests parsed since
-        the last time add up to RELEASE_AFTER_BYTES and a second passed without any."""
-        peak = 0
-        seen = released = 0  # self.bytes_in at the last tick and at the last release
+        back to the OS after a burst (:class:`host.api.memory.MemoryRelease`)."""
+        memory = MemoryRelease()
         while True:
             await asyncio.sleep(min(1.0, self.opts.slow_close_s / 2))
             now = time.monotonic()
-            total = self._tcp_total()
-            peak = max(peak, total)
-            crowd_gone = peak >= 32 and total <= peak // 8
-            quiet = self.bytes_in == seen
-            seen = self.bytes_in
-            if crowd_gone or (quiet and seen - released >= RELEASE_AFTER_BYTES):
-                peak, released = total, seen
+            if memory.tick(self._tcp_total(), self.bytes_in):
                 self.counters["memory_releases"] += 1
-                _release_memory()
             for session in list(self.sessions):
                 stuck = session.stream or session.priority
                 if stuck and now - session.t_progress > self.opts.slow_close_s:
@@ -432,15 +422,3 @@ class Connections:
                     session.closed = True
                     session.ws.transport.abort()
             self._requests.drop_stale_uploads(now)
-
-
-#: request bytes after which a quiet second returns free memory to the OS (see janitor)
-RELEASE_AFTER_BYTES = 8 * 1024 * 1024
-
-
-def _release_memory() -> None:
-    """Collect garbage and return free heap pages to the OS (glibc ``malloc_trim``), so the
-    process shrinks back after a burst of connections instead of keeping its peak."""
-    gc.collect()
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6").malloc_trim(0)

@@ -35,6 +35,17 @@ API_NICE = 5  # scheduling priority of the API process relative to the daemon (n
 TERM_GRACE_S = 3.0  # s the API process waits, after SIGTERM, for the daemon to stop it
 
 
+def child_env() -> dict[str, str]:
+    """The API process's environment: the daemon's, with CPython's small objects on the C
+    allocator (``PYTHONMALLOC=malloc``) unless the user chose an allocator. With CPython's own
+    arenas a few objects that outlive a flood of connections or requests pin whole 1 MiB arenas,
+    and the janitor's ``malloc_trim`` returns nothing of them (docs/api.md "Memory"); on the C
+    allocator it returns the free pages."""
+    env = dict(os.environ)
+    env.setdefault("PYTHONMALLOC", "malloc")
+    return env
+
+
 def _options_json(options: dict[str, Any]) -> dict[str, Any]:
     out = dict(options)
     if "tokens" in out:
@@ -103,6 +114,7 @@ class ApiProcess:
             child = subprocess.Popen(
                 [sys.executable, "-m", "host.api.process", str(theirs.fileno())],
                 pass_fds=[theirs.fileno()],
+                env=child_env(),
                 stdin=subprocess.DEVNULL,
                 # a process group of its own: a terminal's Ctrl-C (sent to the foreground group)
                 # reaches the daemon, which stops the API in order; before, it also reached the

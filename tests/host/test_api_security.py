@@ -675,9 +675,10 @@ def test_memory_goes_back_to_the_os_after_a_burst_of_large_requests(stub, server
     """Large invalid requests leave parsed garbage behind: once the bytes read since the last
     release pass the threshold and a second goes by without requests, the server returns free
     memory to the OS (gc + malloc_trim), counted in stats()."""
-    from host.api import connection
+    from host.api import memory
 
-    monkeypatch.setattr(connection, "RELEASE_AFTER_BYTES", 150_000)
+    monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 150_000)
+    monkeypatch.setattr(memory, "RELEASE_AFTER_GROWTH", 1 << 40)  # the byte rule alone here
     text = json.dumps({"id": 0, "op": "trajectory.send", "points": [{"t": "x" * 40}] * 800})
     with ws_connect(server.url, max_size=None) as ws:
         ws.send(text)  # ~40 KB: below the threshold, nothing released
@@ -690,6 +691,30 @@ def test_memory_goes_back_to_the_os_after_a_burst_of_large_requests(stub, server
         assert wait_for(lambda: server.stats()["memory_releases"] == 1, timeout=10)
         time.sleep(2.5)  # nothing new read: no further release
         assert server.stats()["memory_releases"] == 1
+
+
+def test_memory_goes_back_to_the_os_once_the_process_grew_without_many_request_bytes(
+    stub, monkeypatch
+):
+    """bench_api 2026-11-27: three 10,000-waypoint goals left the API process 15 MiB above its
+    baseline, never released: their requests stayed under the byte rule's 8 MiB. Growth of the
+    resident size since the last release is a rule of its own, once per growth."""
+    from host.api import memory
+
+    monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 1 << 40)  # the growth rule alone here
+    monkeypatch.setattr(memory, "RELEASE_AFTER_GROWTH", 2 * 1024 * 1024)
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    try:
+        time.sleep(2.5)  # nothing grew: nothing released
+        assert srv.stats()["memory_releases"] == 0
+        held = bytearray(b"x" * (4 * 1024 * 1024))  # the process grows by 4 MiB (pages touched)
+        assert wait_for(lambda: srv.stats()["memory_releases"] >= 1, timeout=10)
+        got = srv.stats()["memory_releases"]
+        time.sleep(2.5)  # no new growth: no further release
+        assert srv.stats()["memory_releases"] == got
+        del held
+    finally:
+        srv.stop()
 
 
 def test_ucr_token_writes_a_private_token_file_usable_by_server_and_cli(tmp_path, capsys):
