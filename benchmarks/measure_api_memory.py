@@ -191,10 +191,13 @@ def main() -> int:
     if args.url:
         url, pid = args.url, args.pid
     else:
+        from host.api.memory import RELEASE_AFTER_GROWTH  # the API process's setting
+
         code = _SERVER.format(
             repo=str(REPO), stub=str(REPO / "tests" / "host" / "test_api_protocol.py"),
             deflate=args.deflate,
-            options={k: int(v) for k, v in (kv.split("=", 1) for kv in args.option)},
+            options={"release_after_growth": RELEASE_AFTER_GROWTH,  # as the API process
+                     **{k: int(v) for k, v in (kv.split("=", 1) for kv in args.option)}},
         )  # fmt: skip
         from host.api.process import child_env  # the API process's allocator, as deployed
 

@@ -407,7 +407,7 @@ class Connections:
     async def janitor(self) -> None:
         """Once a second: close clients that stopped reading; forget stale uploads; give memory
         back to the OS after a burst (:class:`host.api.memory.MemoryRelease`)."""
-        memory = MemoryRelease()
+        memory = MemoryRelease(self.opts.release_after_growth)
         while True:
             await asyncio.sleep(min(1.0, self.opts.slow_close_s / 2))
             now = time.monotonic()

@@ -19,7 +19,8 @@ import os
 
 #: request bytes after which a quiet second returns free memory to the OS
 RELEASE_AFTER_BYTES = 8 * 1024 * 1024
-#: growth of the resident size (bytes) since the last release after which a quiet second does
+#: growth of the resident size (bytes) since the last release after which a quiet second does,
+#: in the API's own process (ServerOptions.release_after_growth)
 RELEASE_AFTER_GROWTH = 4 * 1024 * 1024
 
 
@@ -40,9 +41,11 @@ def release_memory() -> None:
 
 
 class MemoryRelease:
-    """The release rule, ticked once a second by the connection janitor."""
+    """The release rule, ticked once a second by the connection janitor; ``growth``: the
+    resident-size growth rule's threshold in bytes (0: off)."""
 
-    def __init__(self) -> None:
+    def __init__(self, growth: int = 0) -> None:
+        self.growth = growth
         self.peak = 0  # most TCP connections seen since the last release
         self.seen = self.released = 0  # bytes read: at the last tick, at the last release
         self.floor = rss_bytes()  # resident size after the last release (or at start)
@@ -55,7 +58,8 @@ class MemoryRelease:
         quiet = bytes_in == self.seen
         self.seen = bytes_in
         rss = rss_bytes()
-        grown = None not in (rss, self.floor) and rss - self.floor >= RELEASE_AFTER_GROWTH
+        known = self.growth > 0 and rss is not None and self.floor is not None
+        grown = known and rss - self.floor >= self.growth
         read = bytes_in - self.released >= RELEASE_AFTER_BYTES
         if not (crowd_gone or (quiet and (read or grown))):
             return False

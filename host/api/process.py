@@ -29,6 +29,7 @@ from typing import Any
 from host.api import DEFAULT_HOST, DEFAULT_PORT
 from host.api.auth import Token
 from host.api.bridge import BridgeClosed, DaemonBridge, DaemonLink, recv_frame, send_frame
+from host.api.memory import RELEASE_AFTER_GROWTH
 
 log = logging.getLogger("ucr.api")
 API_NICE = 5  # scheduling priority of the API process relative to the daemon (nice increment)
@@ -228,14 +229,12 @@ def main(argv: list[str] | None = None) -> int:
             nice_error,
         )
     link = DaemonLink(sock)
+    options = _options_from_json(config["options"])
+    options.setdefault("release_after_growth", RELEASE_AFTER_GROWTH)  # alone in this process
     try:
-        server = ApiServer(
-            link,
-            config["host"],
-            config["port"],
-            config["token"],
-            **_options_from_json(config["options"]),
-        ).start(timeout=15)
+        server = ApiServer(link, config["host"], config["port"], config["token"], **options).start(
+            timeout=15
+        )
     except (ApiServerError, OSError) as exc:
         send_frame(sock, lock, b"Y", json.dumps({"ok": False, "error": str(exc)}).encode())
         return 1

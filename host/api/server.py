@@ -178,6 +178,10 @@ class ServerOptions:
     status_period: float = 0.05  # s between status snapshots from the daemon
     goal_poll_s: float = 0.05  # s between goal status polls for trajectory pushes
     upload_points_total: int = 4 * S.MAX_POINTS  # pending chunked-upload points, all clients
+    #: resident-size growth (bytes) after which a quiet second returns memory to the OS (0: off;
+    #: the API's own process sets host.api.memory.RELEASE_AFTER_GROWTH: in the daemon's process
+    #: the release's full collection would hold up the control loop)
+    release_after_growth: int = 0
     origins: tuple[str, ...] = ()
     names: tuple[str, ...] = ()
     path: str = "/"

@@ -677,8 +677,7 @@ def test_memory_goes_back_to_the_os_after_a_burst_of_large_requests(stub, server
     memory to the OS (gc + malloc_trim), counted in stats()."""
     from host.api import memory
 
-    monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 150_000)
-    monkeypatch.setattr(memory, "RELEASE_AFTER_GROWTH", 1 << 40)  # the byte rule alone here
+    monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 150_000)  # (the growth rule is off here)
     text = json.dumps({"id": 0, "op": "trajectory.send", "points": [{"t": "x" * 40}] * 800})
     with ws_connect(server.url, max_size=None) as ws:
         ws.send(text)  # ~40 KB: below the threshold, nothing released
@@ -698,12 +697,12 @@ def test_memory_goes_back_to_the_os_once_the_process_grew_without_many_request_b
 ):
     """bench_api 2026-11-27: three 10,000-waypoint goals left the API process 15 MiB above its
     baseline, never released: their requests stayed under the byte rule's 8 MiB. Growth of the
-    resident size since the last release is a rule of its own, once per growth."""
+    resident size since the last release is a rule of its own (the API process turns it on),
+    once per growth."""
     from host.api import memory
 
     monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 1 << 40)  # the growth rule alone here
-    monkeypatch.setattr(memory, "RELEASE_AFTER_GROWTH", 2 * 1024 * 1024)
-    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    srv = ApiServer(stub, "127.0.0.1", 0, release_after_growth=2 * 1024 * 1024).start()
     try:
         time.sleep(2.5)  # nothing grew: nothing released
         assert srv.stats()["memory_releases"] == 0
@@ -712,6 +711,22 @@ def test_memory_goes_back_to_the_os_once_the_process_grew_without_many_request_b
         got = srv.stats()["memory_releases"]
         time.sleep(2.5)  # no new growth: no further release
         assert srv.stats()["memory_releases"] == got
+        del held
+    finally:
+        srv.stop()
+
+
+def test_an_api_server_in_the_daemons_process_does_not_release_on_growth(stub, monkeypatch):
+    """In the daemon's process a release's full collection would hold up the control loop, and
+    the daemon's own goals grow that process: there only the crowd and byte rules apply."""
+    from host.api import memory
+
+    monkeypatch.setattr(memory, "RELEASE_AFTER_BYTES", 1 << 40)
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    try:
+        held = bytearray(b"x" * (8 * 1024 * 1024))
+        time.sleep(2.5)
+        assert srv.stats()["memory_releases"] == 0
         del held
     finally:
         srv.stop()
