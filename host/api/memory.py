@@ -4,10 +4,11 @@ Bursts (a crowd of connections, large requests) leave free heap behind that the 
 otherwise keep at its peak. :class:`MemoryRelease` decides, once a second, whether to collect
 garbage and return free pages (glibc ``malloc_trim``): once a crowd of 32 or more connections has
 shrunk to an eighth; or, after a second without requests, once the requests read since the last
-release add up to :data:`RELEASE_AFTER_BYTES` or the process's resident size has grown by
-:data:`RELEASE_AFTER_GROWTH` since then (three 10,000-waypoint goals, 2026-11-27: 15 MiB kept,
-under the byte threshold). A release costs the server's event loop a full ``gc.collect()``, so it
-waits for a quiet second and never repeats without new growth.
+release add up to :data:`RELEASE_AFTER_BYTES` or (in the API's own process only) the process's
+resident size has grown by :data:`RELEASE_AFTER_GROWTH` since then (three 10,000-waypoint goals,
+2026-11-27: 15 MiB kept, under the byte threshold). A release is a full ``gc.collect()`` holding
+the interpreter lock, so it waits for a quiet second and never repeats without new growth; and
+in the daemon's process, where the control loop would wait for it, the growth rule is off.
 """
 
 from __future__ import annotations
