@@ -47,8 +47,10 @@ class Pipe:
         self.latency_s = 0.0
         self.corrupt_rate = 0.0
         self._rng = random.Random(seed)
-        # (delivery time, bytes, time the first of them started on the wire)
-        self._queue: deque[tuple[float, bytes, float]] = deque()
+        #: bytes in flight, in order: (delivery time, bytes, time the first of them started on
+        #: the wire); read-only outside this class (the proxy's loop looks at its head without a
+        #: call for every pipe on every wake-up)
+        self.queue: deque[tuple[float, bytes, float]] = deque()
         self._busy_until = 0.0
         self.bytes_in = 0
         self.bytes_out = 0
@@ -88,8 +90,8 @@ class Pipe:
             # bytes in flight follow the new setting (else `latency 1 1e9` then `latency 1 0`
             # left the link dead behind bytes still due in 30 years)
             shift = float(latency_s) - self.latency_s
-            if shift and self._queue:
-                self._queue = deque((t + shift, d, w) for t, d, w in self._queue)
+            if shift and self.queue:
+                self.queue = deque((t + shift, d, w) for t, d, w in self.queue)
             self.latency_s = float(latency_s)
         if corrupt_rate is not None:
             if not 0.0 <= corrupt_rate <= 1.0:
@@ -110,7 +112,7 @@ class Pipe:
         kept: deque[tuple[float, bytes, float]] = deque()
         rest = bytearray()
         wire_free = now
-        for t, d, w in self._queue:
+        for t, d, w in self.queue:
             if rest:
                 rest += d
                 continue
@@ -125,7 +127,7 @@ class Pipe:
                 kept.append((end + self.latency_s, d[:k], w))
                 wire_free = end
             rest += d[k:]
-        self._queue = kept
+        self.queue = kept
         self._busy_until = wire_free
         if rest:
             self._schedule(bytes(rest), wire_free)
@@ -134,8 +136,8 @@ class Pipe:
         """Plug (True) or pull (False) the cable; pulling loses the bytes still in flight."""
         self.enabled = enabled
         if not enabled:
-            self.dropped += sum(len(d) for _, d, _ in self._queue)
-            self._queue.clear()
+            self.dropped += sum(len(d) for _, d, _ in self.queue)
+            self.queue.clear()
             self._busy_until = 0.0
 
     # -- data -----------------------------------------------------------------------------------
@@ -152,7 +154,7 @@ class Pipe:
     def _schedule(self, data: bytes, now: float) -> None:
         """Queue ``data`` for the wire from ``now`` on at the current rate."""
         if self.baud is None:
-            self._queue.append((now + self.latency_s, bytes(data), now))
+            self.queue.append((now + self.latency_s, bytes(data), now))
             return
         byte_s = BITS_PER_BYTE / self.baud
         chunk = max(1, min(CHUNK_MAX_BYTES, int(CHUNK_S / byte_s)))
@@ -161,7 +163,7 @@ class Pipe:
             piece = bytes(data[i : i + chunk])
             w = start
             start += len(piece) * byte_s
-            self._queue.append((start + self.latency_s, piece, w))
+            self.queue.append((start + self.latency_s, piece, w))
         self._busy_until = start
 
     def _corrupt(self, data: bytes) -> bytes:
@@ -176,21 +178,21 @@ class Pipe:
 
     def due(self, now: float) -> bytes:
         """Bytes whose delivery time has come, in order."""
-        if not self._queue or self._queue[0][0] > now:
+        if not self.queue or self.queue[0][0] > now:
             return b""
         parts = []
-        while self._queue and self._queue[0][0] <= now:
-            parts.append(self._queue.popleft()[1])
+        while self.queue and self.queue[0][0] <= now:
+            parts.append(self.queue.popleft()[1])
         out = b"".join(parts)
         self.bytes_out += len(out)
         return out
 
     def next_deadline(self) -> float | None:
         """Time (s) of the next release, None when nothing is in flight."""
-        return self._queue[0][0] if self._queue else None
+        return self.queue[0][0] if self.queue else None
 
     def in_flight(self) -> int:
-        return sum(len(d) for _, d, _ in self._queue)
+        return sum(len(d) for _, d, _ in self.queue)
 
     def stats(self) -> dict:
         return {

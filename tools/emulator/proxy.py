@@ -175,21 +175,21 @@ class Proxy:
                         if mask & selectors.EVENT_WRITE:
                             self._flush(end)
                     now = time.monotonic()
-                    for pipe, dst in self._routes:
-                        data = pipe.due(now)
-                        if data:
-                            self._write(dst, data)
+                    for pipe, dst in self._routes:  # (no call for the idle ones: 30+ pipes)
+                        queue = pipe.queue
+                        if queue and queue[0][0] <= now:
+                            self._write(dst, pipe.due(now))
         except BaseException as exc:  # surfaced by EmulatedChain.stats()/close()
             self.error = exc
             raise
 
     def _next_timeout(self, now: float) -> float:
-        timeout = 0.1
+        soonest = now + 0.1
         for pipe, _ in self._routes:
-            t = pipe.next_deadline()
-            if t is not None:
-                timeout = min(timeout, max(0.0, t - now))
-        return timeout
+            queue = pipe.queue
+            if queue and queue[0][0] < soonest:
+                soonest = queue[0][0]
+        return max(0.0, soonest - now)
 
     def drain(self, end: PtyEnd) -> None:
         """Read now, on the caller's thread, everything waiting on ``end`` that the loop has not
