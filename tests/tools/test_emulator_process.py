@@ -19,8 +19,12 @@ def test_a_chain_in_its_own_process_answers_and_takes_link_settings() -> None:
             assert [d["position"] for d in descs] == [0, 1]
             chain.set_all_links(baud=115200)
             assert "link 2: plugged, 115200 bd" in chain.command("status")
-            states = link.sync([(0.5, 0.1)] * 2, timeout=1.0)
-            assert all(s is not None for s in states)
+            answered = False
+            for _ in range(5):  # a loaded machine may miss one cycle; a dead link misses all
+                answered = all(s is not None for s in link.sync([(0.5, 0.1)] * 2, timeout=1.0))
+                if answered:
+                    break
+            assert answered
             chain.set_all_links(baud=None)
             assert "unthrottled" in chain.command("status")
         with pytest.raises(EmulatorError, match="position must be 1..2"):
