@@ -18,6 +18,10 @@ p99/max and the daemon's RSS (plus the API process's, in process mode):
 - goal10k          a 10,000-waypoint goal about every second, cancelled once accepted
 - after            quiet again: memory back to the baseline?
 
+``--rounds N`` runs the phases N times in a row (the latency phase once) and prints the memory
+after each round: a later round that ends where the first did shows that what stays is a
+plateau (first-use imports and caches, the allocator's pools), not growth.
+
 ``--mode process`` (default) runs the API as ``ucr daemon`` does, in its own process
 (host.api.process); ``inprocess`` runs it as a thread of the daemon's process.
 ``--rt-priority N`` runs the daemon's loop and link reader threads SCHED_FIFO N, as the service
@@ -204,16 +208,19 @@ def _goal10k_sync(url: str, seconds: float) -> dict:
 
     points = wave(10_000)
     sent = failed = 0
+    why: list[str] = []  # the first few errors, said in the result
     end = time.monotonic() + seconds
     with connect(url, timeout=30) as c:
         while time.monotonic() < end:
             try:
                 c.cancel(c.send_trajectory(points, wait=False))
                 sent += 1
-            except ApiError:
+            except ApiError as exc:
                 failed += 1
+                if len(why) < 3:
+                    why.append(str(exc)[:160])
             time.sleep(1.0)
-    return {"goals": sent, "failed": failed}
+    return {"goals": sent, "failed": failed, **({"errors": why} if why else {})}
 
 
 async def gen_goal10k(url: str, seconds: float) -> dict:
@@ -393,6 +400,23 @@ def _chain(st: dict) -> str:
     return str(st.get("overruns_waiting_on_chain", "?"))
 
 
+def _save_memory(figs: Any, memory: list, args: argparse.Namespace) -> None:
+    """Resident sizes before any client and, for each round of the phases, its peak and 3 s
+    after it: a round after the first that ends where the first did shows no growth."""
+    figs.table(
+        "memory",
+        ["", "API process: peak → 3 s after", "daemon's process (and the emulated chain)"],
+        note=f"the phases run {args.rounds} times in a row ({args.seconds:g} s each; the loop "
+        "table holds the first round; the latency phase only in the first)",
+    )
+    for label, peak, (rss, rss_api) in memory:
+        if peak is None:
+            figs.row("memory", [label, f"{rss_api:.1f} MiB", f"{rss:.1f} MiB"])
+        else:
+            figs.row("memory", [label, f"{peak[1]:.1f} → {rss_api:.1f} MiB",
+                                f"{peak[0]:.1f} → {rss:.1f} MiB"])  # fmt: skip
+
+
 def _save(figs: Any, rows: list, args: argparse.Namespace, sched: str, pid_api: Any) -> None:
     """The loop table (one row per phase) and the publish → client latency, for the docs."""
     figs.table(
@@ -448,6 +472,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0, help="duration of each phase, s")
     ap.add_argument("--mode", choices=("process", "inprocess"), default="process")
     ap.add_argument("--only", default="", help="comma-separated phases to run (default: all)")
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="run the phases this many times in a row; the memory after each round shows "
+        "whether a second round grows what the first left (the latency phase runs once)",
+    )
     ap.add_argument(
         "--nice", type=int, default=-5, help="nice increment for daemon + chain (default -5)"
     )
@@ -539,15 +570,26 @@ def main(argv: list[str] | None = None) -> int:
                 ("badtraj", lambda: [_spawn("badtraj", url, 20, long)]),
                 ("goal10k", lambda: [_spawn("goal10k", url, 1, long)]),
             ]
-            for name, start in plan:
-                if only and name not in only:
-                    continue
-                results = phase(name, start(), settle=1.5)
-                if name == "latency":
-                    floor = measure_floor(daemon, args.seconds)
-                    results.append(floor)
-                    print(f"floor (the same hops, none of our code): {json.dumps(floor)}")
-            time.sleep(3.0)
+            memory = [("before any client", None, base_rss)]
+            for rnd in range(1, args.rounds + 1):
+                first = len(rows)
+                for name, start in plan:
+                    if (only and name not in only) or (rnd > 1 and name == "latency"):
+                        continue
+                    results = phase(name if rnd == 1 else f"{name} #{rnd}", start(), settle=1.5)
+                    if name == "latency":
+                        floor = measure_floor(daemon, args.seconds)
+                        results.append(floor)
+                        print(f"floor (the same hops, none of our code): {json.dumps(floor)}")
+                done = rows[first:]
+                peak = (max(r[2] for r in done), max(r[3] for r in done)) if done else None
+                if rnd > 1:
+                    del rows[first:]  # the loop table holds the first round
+                time.sleep(3.0)
+                memory.append((f"round {rnd}", peak, (_rss_mib(pid), _rss_mib(api_pid))))
+                print(f"memory after round {rnd}: daemon {memory[-1][2][0]:.1f} MiB"
+                      + (f", API process {memory[-1][2][1]:.1f} MiB" if api_pid else ""),
+                      flush=True)  # fmt: skip
             phase("after", [])
             after = rows[-1]
             print(
@@ -574,7 +616,9 @@ def main(argv: list[str] | None = None) -> int:
                     )
             print(f"topology changes during the run: {daemon.status()['topology_changes']}")
             if figs is not None:
-                _save(figs, rows, args, sched, pid_api=api_pid)
+                if api_pid and args.rounds > 1:
+                    _save_memory(figs, memory, args)
+                _save(figs, rows, args, sched, pid_api=api_pid)  # (saves the file)
         finally:
             rig.stop_daemon()
     return 0
