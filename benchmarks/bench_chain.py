@@ -59,19 +59,11 @@ from host import floors  # noqa: E402
 from host.link import ChainLink, LinkError  # noqa: E402
 from tools.emulator import EmulatedChain  # noqa: E402
 from tools.emulator.pipe import CHUNK_MAX_BYTES  # noqa: E402
-from tools.emulator.process import EmulatorProcess  # noqa: E402
+from tools.emulator.process import emulated_chain  # noqa: E402
 
 SETPOINT = (0.5, 0.3)  # kappa 1/m, phi rad
 RTT_PERIOD_S = 0.01  # round trips are this far apart: the period each must fit in
 FACTORS: dict[str, set[int]] = {}  # table -> the CPU factors its chains measured
-
-
-def emulated_chain(n: int, *, timing: bool, where: str) -> EmulatedChain | EmulatorProcess:
-    """The chain under test: in its own process (``where="process"``, the default) or in this
-    one (``"thread"``, as the tests run it)."""
-    if where == "process":
-        return EmulatorProcess(n, timing=timing)
-    return EmulatedChain(n, timing=timing)
 
 
 def rtt_deadline_s(n: int, baud: int) -> float:

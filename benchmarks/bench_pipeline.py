@@ -32,6 +32,7 @@ from benchmarks.figures import Figures  # noqa: E402
 from host.config import DaemonConfig  # noqa: E402
 from host.link import ChainLink  # noqa: E402
 from tools.emulator import EmulatedChain, EmulatorProcess  # noqa: E402
+from tools.emulator.process import emulated_chain  # noqa: E402
 from tools.rig import start_daemon_on  # noqa: E402
 from ucrdf.compose import robot_from_descriptors  # noqa: E402
 
@@ -132,8 +133,7 @@ def main() -> int:
         figs.table("daemon", HEADERS, note=note)
     print(f"daemon pipelining, {note}")
     for n in [int(x) for x in args.segments.split(",")]:
-        make = EmulatorProcess if args.emulator == "process" else EmulatedChain
-        with make(n, timing=timing) as chain:
+        with emulated_chain(n, timing=timing, where=args.emulator) as chain:
             robot = _robot(chain, n)
             chain.set_all_links(baud=args.baud)
             for pipeline in modes:

@@ -36,3 +36,10 @@ def test_a_chain_in_its_own_process_answers_and_takes_link_settings() -> None:
 def test_an_emulator_that_cannot_start_says_why() -> None:
     with pytest.raises(EmulatorError, match="ucr emulate exited"):
         EmulatorProcess(0)
+
+
+def test_a_benchmark_chain_is_in_a_process_or_a_thread_and_nothing_else() -> None:
+    from tools.emulator.process import emulated_chain
+
+    with pytest.raises(ValueError, match="where must be 'process' or 'thread'"):
+        emulated_chain(1, where="nowhere")

@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.emulator.chain import EmulatorError
+from tools.emulator.chain import EmulatedChain, EmulatorError
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -114,3 +114,14 @@ class EmulatorProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def emulated_chain(n: int, *, timing: bool = False, where: str = "process"):
+    """A chain of ``n`` emulated segments for a benchmark: in a process of its own
+    (``where="process"``, :class:`EmulatorProcess`) or in this one (``"thread"``,
+    :class:`~tools.emulator.EmulatedChain`, as the tests run it). Use it with ``with``."""
+    if where == "process":
+        return EmulatorProcess(n, timing=timing)
+    if where == "thread":
+        return EmulatedChain(n, timing=timing)
+    raise ValueError(f"where must be 'process' or 'thread', got {where!r}")
