@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -341,9 +342,24 @@ def cmd_controllers(args: argparse.Namespace) -> int:
                 age = ctl.get("input_age_s")
                 when = f"{age:.2f} s ago" if isinstance(age, int | float) else "none in force"
                 print(f"{'':<12} latest input from {sender_words(ctl['input_from'])} ({when})")
+            if isinstance(ctl.get("setpoint"), dict):  # an active cFFC: where it commands
+                print(f"{'':<12} setpoint {_setpoint_words(ctl['setpoint'])}")
         return 0
 
     return with_client(args, body)
+
+
+def _setpoint_words(setpoint: dict) -> str:
+    """A cFFC's setpoint ``{segment: [kx, ky]}`` as κ (1/m) and φ (degrees) per segment."""
+    out = []
+    for name, v in setpoint.items():
+        try:
+            kx, ky = float(v[0]), float(v[1])
+        except (TypeError, ValueError, IndexError):
+            continue
+        phi = math.degrees(math.atan2(ky, kx))
+        out.append(f"{name} κ {math.hypot(kx, ky):.3f} 1/m φ {phi:.1f}°")
+    return "; ".join(out) or "-"
 
 
 def cmd_token(args: argparse.Namespace) -> int:

@@ -308,13 +308,19 @@ class Motion:
                     "reason": f"{ctrl.name!r} is inactive and the input is in the deadzone",
                 }
             ctrl.set_input(parsed, time.monotonic(), source)
+            setpoint = ctrl.setpoint()  # where this input starts from (it integrates next cycle)
         if takeover:
             self._emit(
                 "manual_takeover",
                 message=f"{ctrl.name!r} took over from {takeover['preempted']}",
                 **{k: v for k, v in takeover.items() if k not in ("t", "event")},
             )
-        return {"accepted": True, "controller": ctrl.name, "takeover": takeover}
+        return {
+            "accepted": True,
+            "controller": ctrl.name,
+            "takeover": takeover,
+            "setpoint": setpoint,
+        }
 
     def hand_back(self, manual: str | None = None) -> dict[str, Any]:
         with self.lock:

@@ -4,15 +4,17 @@ Sliders: the page is a manual source. A κ/φ slider sets a target; :class:`Slid
 cFFC inputs (``ffc.input``, the same op a gamepad uses), so the arbitration, slew limits and the
 daemon's deadman apply unchanged. The cFFC integrates a setpoint from the stick deflection
 (host/controllers/ffc.py) and the segments follow it with a lag, so the driver steers that
-setpoint, not the lagging measurement: it integrates the setpoint from the inputs it sent, as the
-cFFC does (:class:`SetpointModel`), and bounds each deflection so that the setpoint could not pass
-the target even if that input stayed in force until the cFFC's deadman (:class:`FfcParams`: the
-deadzone, gain and deadman of the daemon's cFFC, read from ``controllers.list``). So the robot
-never goes past a slider target, and stops at or before it whenever the inputs end (page closed,
-view killed). It streams only while every page that set one of the targets it drives is still
-connected (a page that stays open does not keep another's targets alive) and the sliders were
-touched in the last ``idle_s``; when it stops it sends one zero input (the daemon's deadman would
-stop the robot anyway 0.3 s later).
+setpoint, not the lagging measurement: it reads the setpoint the daemon reports
+(``controllers.list`` when a move starts, each ``ffc.input`` reply after) and integrates its own
+inputs on top until the next report, as the cFFC does (:class:`SetpointModel`; from the measured
+state against a daemon that does not report it), and bounds each deflection so that the setpoint
+could not pass the target even if that input stayed in force until the cFFC's deadman
+(:class:`FfcParams`: the deadzone, gain and deadman of the daemon's cFFC, read from
+``controllers.list``). So the robot never goes past a slider target, and stops at or before it
+whenever the inputs end (page closed, view killed). It streams only while every page that set
+one of the targets it drives is still connected (a page that stays open does not keep another's
+targets alive) and the sliders were touched in the last ``idle_s``; when it stops it sends one
+zero input (the daemon's deadman would stop the robot anyway 0.3 s later).
 
 Tip gizmo: :class:`MovePlanner` solves IK (:mod:`ucrdf.ik`) for the dragged target, keeps the
 reachable solution for the page to show, and on request sends it as one trajectory.
@@ -125,15 +127,19 @@ def kvec(kappa: float, phi: float) -> tuple[float, float]:
 
 
 class SetpointModel:
-    """The cFFC's commanded curvature vector per segment, integrated from the inputs the driver
-    sent (``kx += rate * dt``, each input in force until the next one or for at most
-    :data:`HORIZON_S`, clamped radially at ``kappa_max``) and started from the measured state.
-    An upper bound of how far the setpoint went: the cFFC's gain is at most 1."""
+    """The cFFC's commanded curvature vector per segment: the daemon's last report of it (or,
+    from a daemon that does not report it, the measured state), integrated on from the inputs
+    the driver sent since (``kx += rate * dt``, each input in force until the next one or for at
+    most :data:`HORIZON_S`, clamped radially at ``kappa_max``). An upper bound of how far the
+    setpoint went: the cFFC's gain is at most 1."""
 
     def __init__(self) -> None:
         self.at: dict[str, list[float]] = {}
         self.rates: dict[str, tuple[float, float]] = {}
         self.t = -math.inf
+        #: the daemon reports its cFFC's setpoint (a newer daemon): ``at`` is its report,
+        #: advanced by our inputs since, and is never restarted from the measurement
+        self.reported = False
 
     def advance(
         self, now: float, kappa_max: Callable[[str], float], horizon_s: float = HORIZON_S
@@ -158,6 +164,20 @@ class SetpointModel:
     def forget(self) -> None:
         self.at.clear()
         self.rates = {}
+        self.reported = False
+
+    def report(self, setpoint: Any, names: Collection[str]) -> bool:
+        """Take the daemon's setpoint (``{segment: [kx, ky]}``, 1/m) for ``names``; False when it
+        gave none (an older daemon, or an inactive cFFC)."""
+        if not isinstance(setpoint, dict):
+            return False
+        for name in names:
+            v = setpoint.get(name)
+            ok = isinstance(v, list | tuple) and len(v) == 2
+            if ok and all(isinstance(x, int | float) and math.isfinite(x) for x in v):
+                self.at[name] = [float(v[0]), float(v[1])]
+        self.reported = True
+        return True
 
     def settle(self, measured: dict[str, dict[str, float]], at_rest: Callable[[str], bool]) -> None:
         """No moving input for :data:`SETTLE_S`: drop the modelled setpoint of each segment whose
@@ -223,6 +243,8 @@ class SliderDriver:
         #: whom the inputs are for (the page that set the latest target): their audit lines
         self.label: str | None = None
         self.model = SetpointModel()
+        #: the slider touch the model was last read from the daemon for (a move's start)
+        self.read_for_touch = -math.inf
         #: (start, end) monotonic times of our recent ffc.input calls: the daemon set each
         #: input in between (told apart from another client's, see sent_at)
         self.calls: collections.deque = collections.deque(maxlen=int(rate_hz * SENT_MEMORY_S) + 8)
@@ -267,6 +289,22 @@ class SliderDriver:
         starts the model from the measured state again."""
         with self.lock:
             self.model.forget()
+
+    def _read_setpoint(self) -> tuple[bool, dict | None]:
+        """``(reported, setpoint)`` of the cFFC that ``ffc.input`` drives (the active one, else
+        the first), from ``controllers.list``: ``reported`` False when the daemon does not say
+        (older) or cannot be asked; ``setpoint`` None while that cFFC is inactive (the input
+        that takes over starts it from the measured state)."""
+        try:
+            entries = self.client.controllers()
+            ffcs = [c for c in entries if isinstance(c, dict) and c.get("type") == "ffc"]
+        except Exception:  # noqa: BLE001 - not known: the model starts from the measurement
+            return False, None
+        chosen = next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
+        if chosen is None or "setpoint" not in chosen:
+            return False, None
+        sp = chosen["setpoint"] if chosen.get("state") == "active" else None
+        return True, sp if isinstance(sp, dict) else None
 
     def sent_at(self, earliest: float, latest: float, slack: float = 0.002) -> bool:
         """Whether the daemon's latest cFFC input, set between ``earliest`` and ``latest`` (our
@@ -329,19 +367,32 @@ class SliderDriver:
             return
         meas = self.measured()
         ffc = self._ffc()
+        with self.lock:
+            touch = self.t_touch
+            start = not self.streaming and (
+                touch != self.read_for_touch or any(n not in self.model.at for n in targets)
+            )
+        read = self._read_setpoint() if start else None  # a move starts: where is the setpoint?
         now = time.monotonic()
         deflections: dict[str, tuple[float, float]] = {}
         rates: dict[str, tuple[float, float]] = {}
         with self.lock:
             model = self.model
+            if read is not None:
+                self.read_for_touch = touch
+                if read[0]:  # the daemon's word, or (inactive cFFC) the measurement
+                    model.at.clear()
+                    if not model.report(read[1], targets):
+                        model.reported = True
             model.advance(now, self.kappa_max, ffc.horizon_s)
             for name, m in meas.items():
                 v = kvec(m["kappa"], m["phi"])
                 last = self.still.get(name)
                 if last is None or math.hypot(v[0] - last[0][0], v[1] - last[0][1]) > STEADY:
                     self.still[name] = (v, now)
-            if now - self.t_moving > SETTLE_S:
-                # the segments that caught up, or stand still unclamped, restart from there
+            if now - self.t_moving > SETTLE_S and not model.reported:
+                # (a daemon that does not report its setpoint) the segments that caught up, or
+                # stand still unclamped, restart from there
                 model.settle(meas, self._at_rest(now))
             for name, tgt in targets.items():
                 m = meas.get(name)
@@ -364,7 +415,11 @@ class SliderDriver:
             self.report(f"slider input refused: {exc}")
             return
         with self.lock:
-            if isinstance(reply, dict) and reply.get("takeover"):
+            if isinstance(reply, dict) and reply.get("setpoint") is not None:
+                # where this input starts from, as the daemon says; it integrates from about
+                # ``now`` (the call's start: the model runs ahead of it by the call's time)
+                self.model.report(reply["setpoint"], rates)
+            elif isinstance(reply, dict) and reply.get("takeover"):
                 # the cFFC was (re)activated by this input: it started from the measured state
                 self.model.forget()
                 for name, m in meas.items():

@@ -7,7 +7,8 @@ Input: per bendable a deflection (ux, uy), each in [-1, 1] (stick x/y), streamed
 clamped radially at kappa_max. When no input arrives for ``deadman_timeout`` s every rate drops
 to zero: the robot stops where it is (deadman). Who sent the latest input (``input_from``: the
 API connection's peer, program and ``on_behalf_of``) is kept and described, so a
-client can tell its own input from another's.
+client can tell its own input from another's; so is the setpoint (:meth:`setpoint`), which the
+reply to each input carries too.
 """
 
 from __future__ import annotations
@@ -147,8 +148,14 @@ class FeedForwardController(Controller):
             out[j] = (c[0], c[1])
         return out
 
+    def setpoint(self) -> dict[str, list[float]]:
+        """The commanded curvature vector per bendable, ``[kx, ky]`` in 1/m: what the inputs
+        integrated so far (a client steering it reads this instead of modelling it)."""
+        return {j: [round(c[0], 6), round(c[1], 6)] for j, c in self._cmd.items()}
+
     def describe(self) -> dict[str, Any]:
         d = super().describe()
+        d["setpoint"] = self.setpoint() if self.active else None  # inactive: a stale one
         d["input_age_s"] = None if not self._input else round(time.monotonic() - self._t_input, 3)
         d["input_from"] = self.input_from  # who sent the latest input (kept after it ends)
         d["deadman_tripped"] = self.deadman_tripped

@@ -290,6 +290,7 @@ def test_cli_teleop_replay_drives_a_segment_and_reports(rig, client, capsys, tmp
         if client.status()["topology_changes"] == changes:  # a rebuild resets the takeover
             assert "hand-back" in out  # tells the user how to give control back
             assert "latest input from API client 'ucr teleop' at 127.0.0.1:" in listed, listed
+            assert "setpoint segment_1 κ " in listed, listed  # where the active cFFC commands
             assert "  ffc: latest input from API client 'ucr teleop' at " in shown, shown
         time.sleep(0.4)
         after = joint(client, "segment_1")

@@ -298,6 +298,24 @@ def test_ffc_describes_who_sent_its_latest_input_and_only_that(ctx, source, desc
     assert ffc.describe()["input_from"] is None
 
 
+def test_ffc_describes_its_setpoint_only_while_active(ctx):
+    """A client steering the cFFC (ucr view's sliders) reads its setpoint instead of modelling
+    it: the integrated commanded curvature vector, [kx, ky] per bendable; none while inactive
+    (then it is stale: an activation starts from the measured state)."""
+    ffc = FeedForwardController("ffc", {"deadzone": 0.0}, ctx)
+    assert ffc.describe()["setpoint"] is None
+    ffc.on_activate(state_at(ctx.names, 0.0))
+    assert ffc.describe()["setpoint"] == {n: [0.0, 0.0] for n in ctx.names}
+    ffc.set_input({"segment_1": (1.0, 0.0)}, now=0.0)
+    for k in range(1, 11):
+        ffc.update(state_at(ctx.names, k * 0.01), 0.01)
+    sp = ffc.setpoint()
+    assert sp["segment_1"] == pytest.approx([0.5, 0.0])  # 5 1/m/s for 0.1 s
+    assert ffc.describe()["setpoint"] == sp
+    ffc.on_deactivate()
+    assert ffc.describe()["setpoint"] is None
+
+
 def test_ffc_clamps_at_kappa_max(ctx):
     ffc = FeedForwardController("ffc", {"deadman_timeout": 100.0}, ctx)
     ffc.on_activate(state_at(ctx.names, 0.0))

@@ -267,9 +267,15 @@ def test_ffc_takes_over_from_trajectory_and_deadman_stops_motion(ready):
     assert res["accepted"] and res["takeover"]["preempted"] == ["jtc"]
     st = d.trajectory_status(gid)
     assert st["state"] == "aborted" and "preempted by manual control" in st["reason"]
+    # the reply says where the setpoint starts from: the measured state at the takeover
+    assert set(res["setpoint"]) == set(NAMES)
+    start = res["setpoint"]["segment_1"]
     for _ in range(15):  # a stick held for 0.3 s, streamed at 50 Hz
-        d.ffc_input({"segment_1": [0.0, 1.0]})
+        last = d.ffc_input({"segment_1": [0.0, 1.0]})
         time.sleep(0.02)
+    # ... and each later reply where the inputs took it: along +ky, at most 5 1/m/s
+    moved = last["setpoint"]["segment_1"][1] - start[1]
+    assert 0.3 < moved <= 5.0 * 0.32 + 1e-6, (start, last["setpoint"])
     # the stream stops: within the deadman timeout (0.3 s) + the firmware's slew, motion stops
     time.sleep(0.6)
     a = d.status()["joint_states"]["segment_1"]

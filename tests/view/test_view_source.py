@@ -186,10 +186,13 @@ class _SimulatedFfc:
         lag_s: float = 0.25,
         slew: float = math.inf,
         meas_cap: float = math.inf,
+        reports: bool = True,
+        cmd: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         self.rate_max, self.kappa_max, self.lag_s = rate_max, kappa_max, lag_s
         self.slew, self.meas_cap = slew, meas_cap  # a slower firmware; a firmware limit
-        self.cmd = [0.0, 0.0]
+        self.reports = reports  # says its setpoint (this daemon) or not (an older one)
+        self.cmd = list(cmd)
         self.meas = [0.0, 0.0]
         self.u: tuple[float, float] | None = None
         self.t_u = -math.inf
@@ -203,7 +206,19 @@ class _SimulatedFfc:
         with self.lock:
             self.u = tuple(rates.get("segment_1", (0.0, 0.0)))
             self.t_u = time.monotonic()
+            if self.reports:
+                return {"accepted": True, "takeover": None, "setpoint": self._setpoint()}
         return {"accepted": True, "takeover": None}
+
+    def _setpoint(self) -> dict:
+        return {"segment_1": list(self.cmd)}
+
+    def controllers(self) -> list:
+        entry = {"name": "ffc", "type": "ffc", "state": "active"}
+        with self.lock:
+            if self.reports:
+                entry["setpoint"] = self._setpoint()
+        return [{"name": "jtc", "type": "jtc", "state": "inactive"}, entry]
 
     def _run(self) -> None:
         dt = 0.01
@@ -240,14 +255,27 @@ class _SimulatedFfc:
         self._thread.join(1)
 
 
-def test_the_slider_drive_never_lets_the_setpoint_pass_the_target():
+def _drive_and_watch(driver, sim: _SimulatedFfc, kappa: float, seconds: float) -> float:
+    """Set segment_1's slider target to ``kappa`` (phi 0) and watch the cFFC's setpoint for
+    ``seconds``; returns the largest |setpoint| seen."""
+    driver.set_target("segment_1", kappa, 0.0)
+    peak = 0.0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        peak = max(peak, math.hypot(*sim.cmd))
+        time.sleep(0.005)
+    return peak
+
+
+@pytest.mark.parametrize("reports", [True, False], ids=["daemon-says-setpoint", "older-daemon"])
+def test_the_slider_drive_never_lets_the_setpoint_pass_the_target(reports):
     """Defect (audit 15.2), on a simulated cFFC and lagging segment: the drive steered the
     measurement, so the cFFC's setpoint ran past the target (to kappa_max) and the segment
     followed it. Now neither the setpoint nor the segment passes the target, and the segment
-    gets there."""
+    gets there: steering the setpoint the daemon reports, or (an older daemon) a model of it."""
     from view.control import SliderDriver
 
-    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31)
+    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31, reports=reports)
     driver = SliderDriver(sim, sim.measured, lambda _n: 5.0, lambda: True, lambda _w: None).start()
     try:
         driver.set_target("segment_1", 3.0, 0.0)
@@ -266,9 +294,11 @@ def test_the_slider_drive_never_lets_the_setpoint_pass_the_target():
 
 @pytest.mark.parametrize(
     "segment",
-    [{"slew": 1.0}, {"meas_cap": 2.0}],
-    ids=["firmware-slower-than-the-file", "firmware-limit-below-the-target"],
-)
+    [{"slew": 1.0}, {"meas_cap": 2.0}, {"slew": 1.0, "reports": False},
+     {"meas_cap": 2.0, "reports": False}],
+    ids=["firmware-slower-than-the-file", "firmware-limit-below-the-target",
+         "firmware-slower-older-daemon", "firmware-limit-older-daemon"],
+)  # fmt: skip
 def test_a_segment_lagging_for_seconds_never_restarts_the_model_past_the_target(segment):
     """Defect (review of the fix above): one second after the last moving input the model was
     restarted from the measurement; a segment still lagging then (a firmware slewing slower than
@@ -284,17 +314,34 @@ def test_a_segment_lagging_for_seconds_never_restarts_the_model_past_the_target(
         clamped=lambda _n: held,
     ).start()  # fmt: skip
     try:
-        driver.set_target("segment_1", 3.0, 0.0)
-        peak_cmd = 0.0
-        end = time.monotonic() + 4.0
-        while time.monotonic() < end:
-            peak_cmd = max(peak_cmd, math.hypot(*sim.cmd))
-            time.sleep(0.005)
+        peak_cmd = _drive_and_watch(driver, sim, 3.0, seconds=4.0)
         # the defect ratcheted the setpoint up to kappa_max (3.31); on a loaded host the
         # simulated segment's thread can be starved long enough to look still, which costs a
         # few 1e-3 1/m here (the simulation's artefact: a real segment keeps moving)
         assert peak_cmd <= 3.0 + 0.02, peak_cmd
         assert sim.peak <= 3.0 + 0.02, sim.peak
+    finally:
+        driver.close()
+        sim.stop()
+
+
+def test_the_slider_drive_starts_from_the_setpoint_the_daemon_reports_not_the_measurement():
+    """Defect (issue 15: "the slider drive models the cFFC's setpoint because the daemon does
+    not publish it"): the model started from the measured state. A segment that stands short of
+    its setpoint without flagging it (a stalled servo, a tendon caught; here the cFFC's setpoint
+    is 2.5 1/m and the segment stays at 1.0) made the drive send full deflections from 1.0
+    towards 3.0, and the true setpoint ran from 2.5 on past the target to kappa_max. Now the
+    drive reads the setpoint (controllers.list at a move's start, each ffc.input reply after)
+    and steers that."""
+    from view.control import SliderDriver
+
+    sim = _SimulatedFfc(rate_max=5.0, kappa_max=3.31, meas_cap=1.0, cmd=(2.5, 0.0))
+    driver = SliderDriver(sim, sim.measured, lambda _n: 5.0, lambda: True, lambda _w: None)
+    driver.start()
+    try:
+        peak_cmd = _drive_and_watch(driver, sim, 3.0, seconds=3.0)
+        assert peak_cmd <= 3.0 + 1e-6, peak_cmd
+        assert abs(sim.cmd[0] - 3.0) < 0.05, sim.cmd  # the setpoint got there
     finally:
         driver.close()
         sim.stop()
