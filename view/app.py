@@ -861,7 +861,11 @@ class ViewApp:
                 due = now  # late: no burst of catch-up updates
             if self._stop.wait(due - now):
                 return
-            if not (self.always_update or self.server.get_clients()):
+            pages = bool(self.server.get_clients())
+            demand = getattr(self.source, "set_demand", None)  # a live source: its stream rate
+            if demand is not None:
+                demand(pages or self.always_update)
+            if not (self.always_update or pages):
                 self.idle_skips += 1
                 continue  # no page: nothing drawn; the first page gets the current scene
             with self.source.lock:

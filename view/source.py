@@ -8,6 +8,7 @@ a slow reader; we read with a bounded queue of our own).
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import logging
 import threading
@@ -28,6 +29,11 @@ log = logging.getLogger("ucr.view")
 
 #: A segment event keeps its colour this long (s).
 EVENT_HOLD_S = 1.5
+#: joint_states per second while no page is open (nothing is drawn; the first page's scene is at
+#: most this old until the full rate resumes, within :data:`DEMAND_CHECK_S`).
+IDLE_RATE_HZ = 2.0
+#: How often (s) the stream thread looks whether a page opened or the last one closed.
+DEMAND_CHECK_S = 0.1
 #: The upload id the scope probe cancels (none of ours: the reply is not_found or forbidden);
 #: sent only to a daemon older than the ``session`` op.
 SCOPE_PROBE_UPLOAD = 2**31 - 1
@@ -341,6 +347,12 @@ class LiveSource:
         #: offset from)
         self.local = daemon_is_local(url)
         self.rate_hz = rate_hz
+        #: a page is open (:meth:`set_demand`): joint_states at ``rate_hz``, else
+        #: :data:`IDLE_RATE_HZ` (what the daemon's API and this process spend on a view nobody
+        #: looks at); the rate subscribed now is ``stream_rate_hz``
+        self._demand = threading.Event()
+        self._demand.set()
+        self.stream_rate_hz: float | None = None
         self.lock = threading.Lock()
         self.snap = Snapshot(connected=True)
         self.robot = None
@@ -596,26 +608,49 @@ class LiveSource:
         )
 
     # -- streams -------------------------------------------------------------------------------
+    def set_demand(self, pages: bool) -> None:
+        """Whether a page is open: the stream runs at ``rate_hz`` while one is, at
+        :data:`IDLE_RATE_HZ` while none is (events and topology are never thinned)."""
+        if pages:
+            self._demand.set()
+        else:
+            self._demand.clear()
+
+    def _subscribe(self, client: Any) -> tuple[Any, bool]:
+        demand = self._demand.is_set()
+        rate = self.rate_hz if demand else IDLE_RATE_HZ
+        sub = client.subscribe(["joint_states", "events", "topology"], max_rate=rate)
+        self.stream_rate_hz = rate
+        return sub, demand
+
     def _stream(self, client: Any, lost: threading.Event) -> None:
+        sub = None
         try:
-            with client.subscribe(
-                ["joint_states", "events", "topology"], max_rate=self.rate_hz
-            ) as sub:
-                while not (self._stop.is_set() or lost.is_set()):
-                    msg = sub.get(timeout=0.5)
-                    if msg is None:
-                        continue
-                    kind = msg.get("kind")
-                    if kind == "joint_states":
-                        self._on_joints(msg)
-                    elif kind == "event":
-                        self._on_event(msg)
-                    elif kind == "topology":
-                        self._on_topology(msg)
+            sub, demand = self._subscribe(client)
+            while not (self._stop.is_set() or lost.is_set()):
+                if self._demand.is_set() != demand:
+                    # a page opened or the last one closed: the new rate's subscription first,
+                    # then the old one ends (no event or topology push falls in between)
+                    old, (sub, demand) = sub, self._subscribe(client)
+                    old.close()
+                msg = sub.get(timeout=DEMAND_CHECK_S)
+                if msg is None:
+                    continue
+                kind = msg.get("kind")
+                if kind == "joint_states":
+                    self._on_joints(msg)
+                elif kind == "event":
+                    self._on_event(msg)
+                elif kind == "topology":
+                    self._on_topology(msg)
         except StopIteration:
             self._lost(ConnectionError("subscription closed"), lost)
         except (ConnectionError, ApiError, OSError) as exc:
             self._lost(exc, lost)
+        finally:
+            if sub is not None:
+                with contextlib.suppress(Exception):
+                    sub.close()
 
     def _on_topology(self, msg: dict) -> None:
         """A topology push carries the whole topology: applied at once, so the scene is
