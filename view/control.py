@@ -93,6 +93,15 @@ class FfcParams:
 DEFAULT_FFC = FfcParams()
 
 
+def driven_ffc(entries: Any) -> dict | None:
+    """The cFFC ``ffc.input`` drives, from a ``controllers.list`` reply: the first active one,
+    else the first (as the daemon picks it); None when there is none or the reply is no list."""
+    if not isinstance(entries, list):
+        return None
+    ffcs = [c for c in entries if isinstance(c, dict) and c.get("type") == "ffc"]
+    return next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
+
+
 def deflection(
     target: tuple[float, float],
     setpoint: tuple[float, float],
@@ -166,18 +175,17 @@ class SetpointModel:
         self.rates = {}
         self.reported = False
 
-    def report(self, setpoint: Any, names: Collection[str]) -> bool:
-        """Take the daemon's setpoint (``{segment: [kx, ky]}``, 1/m) for ``names``; False when it
-        gave none (an older daemon, or an inactive cFFC)."""
+    def report(self, setpoint: Any, names: Collection[str]) -> None:
+        """Take the daemon's setpoint (``{segment: [kx, ky]}``, 1/m) for ``names``; anything
+        else (an inactive cFFC's None) is no report."""
         if not isinstance(setpoint, dict):
-            return False
+            return
         for name in names:
             v = setpoint.get(name)
             ok = isinstance(v, list | tuple) and len(v) == 2
             if ok and all(isinstance(x, int | float) and math.isfinite(x) for x in v):
                 self.at[name] = [float(v[0]), float(v[1])]
         self.reported = True
-        return True
 
     def settle(self, measured: dict[str, dict[str, float]], at_rest: Callable[[str], bool]) -> None:
         """No moving input for :data:`SETTLE_S`: drop the modelled setpoint of each segment whose
@@ -296,11 +304,9 @@ class SliderDriver:
         (older) or cannot be asked; ``setpoint`` None while that cFFC is inactive (the input
         that takes over starts it from the measured state)."""
         try:
-            entries = self.client.controllers()
-            ffcs = [c for c in entries if isinstance(c, dict) and c.get("type") == "ffc"]
+            chosen = driven_ffc(self.client.controllers())
         except Exception:  # noqa: BLE001 - not known: the model starts from the measurement
             return False, None
-        chosen = next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
         if chosen is None or "setpoint" not in chosen:
             return False, None
         sp = chosen["setpoint"] if chosen.get("state") == "active" else None
@@ -382,8 +388,8 @@ class SliderDriver:
                 self.read_for_touch = touch
                 if read[0]:  # the daemon's word, or (inactive cFFC) the measurement
                     model.at.clear()
-                    if not model.report(read[1], targets):
-                        model.reported = True
+                    model.report(read[1], targets)
+                    model.reported = True  # an inactive cFFC's too: the takeover reports next
             model.advance(now, self.kappa_max, ffc.horizon_s)
             for name, m in meas.items():
                 v = kvec(m["kappa"], m["phi"])

@@ -23,7 +23,7 @@ from host.api.reconnect import reconnect
 from host.api.schema import robot_description
 from ucrdf.errors import UcrdfError
 from ucrdf.parser import load, parse_string
-from view.control import FfcParams
+from view.control import FfcParams, driven_ffc
 
 log = logging.getLogger("ucr.view")
 
@@ -793,7 +793,7 @@ class LiveSource:
             if isinstance(ctrls, list)
             else []
         )
-        driven = next((c for c in ffcs if c.get("state") == "active"), ffcs[0] if ffcs else None)
+        driven = driven_ffc(ctrls)
         # a daemon that does not say (older, or no cFFC): the cFFC's defaults, not asked again
         params = (None if driven is None else FfcParams.from_describe(driven)) or FfcParams()
         for c in ffcs:
