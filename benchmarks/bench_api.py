@@ -284,7 +284,7 @@ async def gen_floor_relay(fd: int) -> dict:
                 body = await reader.readexactly(length)
             except asyncio.IncompleteReadError:
                 break
-            text = body.partition(b"\n")[2].decode()
+            text = body.split(b"\n", 2)[2].decode()  # kind, stamp, JSON
             for ws in list(clients):
                 await ws.send(f'{{"push":"stream","sub":1,"dropped":0,"msg":{text}}}')
                 sent += 1

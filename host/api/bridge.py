@@ -14,11 +14,17 @@ API side, :class:`DaemonLink`: the facade as the API server sees it — ``await 
 latest status snapshot (read without locks), and a callback per published message.
 
 Wire: frames ``[u32 length][u8 type][body]``; types ``Q`` request ``{"id", "m", "a"}``, ``A``
-answer ``{"id", "ok", "r" | "code", "message"}``, ``P`` publication ``kind "\\n" json``, ``S``
-status JSON, ``U`` the kinds clients subscribe to (comma-separated), ``Q``/``q`` a request whose
-waypoints follow in parts, ``C``/``Y`` configuration and ready message
-of a separate API process. JSON only: the API side never sends anything the daemon executes
+answer ``{"id", "ok", "r" | "code", "message"}``, ``P`` publication ``kind "\\n" stamp "\\n" json``
+(``stamp``: the message's time, by which subscriptions are thinned, host/api/feed.py), ``S``
+status JSON, ``U`` the kinds clients subscribe to (comma-separated; ``kind@p1;p2`` when every
+subscriber of a periodic kind thins it, with their distinct periods in s), ``Q``/``q`` a
+request whose waypoints follow in parts, ``C``/``Y`` configuration and ready message of a
+separate API process. JSON only: the API side never sends anything the daemon executes
 beyond the whitelisted facade methods with JSON arguments.
+
+One piece: the two classes are the two ends of this one wire (its frame types and what each
+body holds), which change together; each end is one class, and the feed's thinning and the ``U``
+frame's syntax live in host/api/feed.py.
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from host.api import schema as S
-from host.api.feed import HEAD, Feed, FrameSender, publication
+from host.api.feed import HEAD, Feed, FrameSender, format_wanted, parse_wanted, publication
 
 log = logging.getLogger("ucr.api")
 
@@ -211,7 +217,7 @@ class DaemonBridge:
                 del points, part  # runs again (CI saw 757 waypoints alive after the answer)
                 self._pool.submit(self._serve, head)
         elif kind == b"U":
-            self._set_subscribed(body.decode().split(",") if body else [])
+            self._set_subscribed(*parse_wanted(body.decode()))
         else:
             log.warning("API bridge: unexpected frame type %r", kind)
 
@@ -250,12 +256,18 @@ class DaemonBridge:
         self._send(b"A", text.encode())
 
     # -- published messages and status ---------------------------------------------------------
-    def _set_subscribed(self, kinds: list[str]) -> None:
+    def _set_subscribed(
+        self, kinds: list[str], caps: dict[str, tuple[float, ...]] | None = None
+    ) -> None:
         """Hold one daemon subscription to exactly the kinds some client wants (none: none), so
-        the daemon encodes nothing nobody reads (e.g. the large transforms)."""
+        the daemon encodes nothing nobody reads (e.g. the large transforms), thinned to what
+        the subscriptions' periods admit (``caps``, host/api/feed.py ``Feed.set_caps``)."""
         want = sorted({"event" if k == "events" else k for k in kinds} & set(DAEMON_KINDS))
+        caps = caps or {}
         with self._sub_lock:
             if want == self._sub_kinds:
+                if isinstance(self._sub, Feed):
+                    self._sub.set_caps(caps)
                 return
             if self._sub is not None:
                 q, self._sub = self._sub, None
@@ -266,6 +278,7 @@ class DaemonBridge:
                 try:
                     if "into" in inspect.signature(self.daemon.subscribe).parameters:
                         feed = Feed(self._sender, self.queue_size, self.counters)
+                        feed.set_caps(caps)
                         self._sub = self.daemon.subscribe(want, into=feed)
                     else:  # a facade without it (test stubs): a plain queue, all via the feeder
                         self._sub = self.daemon.subscribe(want)
@@ -335,14 +348,14 @@ class DaemonLink:
     """API side of the bridge: RPCs as awaitables, the latest status snapshot, publications.
 
     Runs in the API server's event loop (no thread: one hop less for every published message).
-    ``on_publish(kind, json_text)`` is called for every published message.
+    ``on_publish(kind, json_text, stamp)`` is called for every published message.
     """
 
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
         self._ids = 0
         self._pending: dict[int, asyncio.Future] = {}
-        self._on_publish: Callable[[str, str], None] | None = None
+        self._on_publish: Callable[[str, str, float], None] | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._task: asyncio.Task | None = None
         self.status_text: str | None = None  # replaced whole
@@ -350,7 +363,7 @@ class DaemonLink:
         self.closed = False
         self._subscribed = ""
 
-    async def start(self, on_publish: Callable[[str, str], None]) -> None:
+    async def start(self, on_publish: Callable[[str, str, float], None]) -> None:
         """Attach to the running event loop and start reading."""
         self._on_publish = on_publish
         reader, self._writer = await asyncio.open_connection(sock=self.sock, limit=MAX_FRAME)
@@ -370,9 +383,10 @@ class DaemonLink:
             raise BridgeClosed("the daemon side of the API is gone")
         self._writer.write(_HEAD.pack(len(body), kind[0]) + body)
 
-    def want_stream(self, kinds: set[str]) -> None:
-        """Tell the daemon side which kinds any client subscribes to (empty: none)."""
-        want = ",".join(sorted(kinds))
+    def want_stream(self, kinds: dict[str, tuple[float, ...] | None]) -> None:
+        """Tell the daemon side which kinds any client subscribes to (empty: none), each with
+        the distinct periods (s) its subscribers thin it to, or None (someone wants it whole)."""
+        want = format_wanted(kinds)
         if want != self._subscribed and not self.closed:
             self._subscribed = want
             with contextlib.suppress(BridgeClosed):
@@ -419,8 +433,9 @@ class DaemonLink:
                     break
                 body = await reader.readexactly(length)
                 if kind == 0x50:  # P
-                    k, _, text = body.partition(b"\n")
-                    self._on_publish(k.decode(), text.decode())
+                    k, _, rest = body.partition(b"\n")
+                    ts, _, text = rest.partition(b"\n")
+                    self._on_publish(k.decode(), text.decode(), float(ts))
                 elif kind == 0x53:  # S
                     self.status_text = body.decode()
                     self.status_t = time.monotonic()

@@ -100,11 +100,16 @@ class Requests(Protocol):
 class Outboxes:
     """Subscriptions by kind and every client's outbox (``queued_bytes``: all of them).
 
-    ``want_stream(kinds)`` tells the daemon side which kinds anyone subscribes to.
+    ``want_stream(kinds)`` tells the daemon side which kinds anyone subscribes to, each with
+    the distinct periods its subscribers thin it to (None: someone wants every message), so the
+    daemon sends only what some subscription admits (host/api/feed.py, "Thinning").
     """
 
     def __init__(
-        self, opts: Any, counters: dict[str, int], want_stream: Callable[[set[str]], None]
+        self,
+        opts: Any,
+        counters: dict[str, int],
+        want_stream: Callable[[dict[str, tuple[float, ...] | None]], None],
     ) -> None:
         self.opts = opts
         self.counters = counters
@@ -123,14 +128,16 @@ class Outboxes:
             self.by_kind[kind].pop(sub, None)
         self._update_stream_wanted()
 
-    def publish(self, kind: str, text: str) -> None:
-        """One published message (JSON text, encoded once) to every subscriber of its kind."""
+    def publish(self, kind: str, text: str, stamp: float | None = None) -> None:
+        """One published message (JSON text, encoded once) to every subscriber of its kind;
+        ``stamp``: its time (s, the daemon's monotonic clock), by which ``max_rate`` thins
+        (default: now)."""
         subs = self.by_kind.get(kind)
         if not subs:
             return
-        now = time.monotonic()
+        t = time.monotonic() if stamp is None else stamp
         for sub, session in list(subs.items()):
-            if session.closed or not sub.admit(kind, now):
+            if session.closed or not sub.admit(kind, t):
                 continue
             push = f'{{"push":"stream","sub":{sub.sid},"dropped":{sub.dropped},"msg":{text}}}'
             self._push_stream(session, sub, push)
@@ -193,7 +200,14 @@ class Outboxes:
         self._update_stream_wanted()
 
     def _update_stream_wanted(self) -> None:
-        self._want_stream({kind for kind, subs in self.by_kind.items() if subs})
+        wanted: dict[str, tuple[float, ...] | None] = {}
+        for kind, subs in self.by_kind.items():
+            if not subs:
+                continue
+            periods = {sub.min_period for sub in subs}
+            thinned = kind in S.RATE_LIMITED_KINDS and min(periods) > 0.0
+            wanted[kind] = tuple(sorted(periods)) if thinned else None
+        self._want_stream(wanted)
 
 
 class Connections:

@@ -11,6 +11,15 @@ costs no waiting: the socket is free (a lock taken without blocking), nothing is
 message (order is kept), and the socket takes bytes without blocking. Everything else, and any
 message that finds the way busy, queues for the feeder thread as before.
 
+Thinning (:meth:`Feed.set_caps`): while every subscriber of a periodic kind
+(``schema.RATE_LIMITED_KINDS``) asked for a ``max_rate``, the API side sends each distinct period
+(``U`` frame, host/api/bridge.py) and the feed passes on only the messages that at least one of
+those subscriptions will admit: the rule of ``session._Subscription.admit`` (:func:`admits`: a
+message stamped at least 0.9 period after the last one admitted), run here on the same time stamps
+(the message's ``t``, sent in the frame). Nothing a subscriber would have received is lost, and
+nobody encodes, writes, reads or fans out the rest (``ucr view`` with no page open subscribes at
+2 Hz to a 50 Hz stream).
+
 :class:`FrameSender` is the bridge socket's one writing discipline: frames are written whole and in
 order. ``send`` blocks (the bridge's own threads); ``try_send`` never does: a frame the socket takes
 only in part leaves its rest as the *tail*, which the next writer sends before anything else (the
@@ -25,10 +34,12 @@ before it.
 
 from __future__ import annotations
 
+import math
 import queue
 import socket
 import struct
 import threading
+import time
 from collections import deque
 from typing import Any
 
@@ -36,13 +47,62 @@ from host.api import schema as S
 
 HEAD = struct.Struct("!IB")  # [u32 length][u8 type]: the bridge's frame header
 DIRECT_KINDS = frozenset({"joint_states"})  # small (a few hundred bytes), and latency matters
+#: A subscription admits a message stamped at least this share of its period after the last one
+#: it admitted (slack, so a 100 Hz stream thinned to 50 Hz does not alias down to 33 Hz).
+ADMIT_SLACK = 0.9
+#: Distinct periods per kind the feed thins by; more (many subscribers at many rates): that kind
+#: is not thinned, which costs what it cost before thinning existed.
+MAX_CAPS = 8
 
 
-def publication(msg: Any) -> bytes:
-    """The body of a ``P`` frame: ``kind "\\n" json``. Raises TypeError/ValueError/RecursionError
-    for a message JSON cannot carry."""
+def stamp(msg: Any) -> float:
+    """A message's time stamp (s, the daemon's monotonic clock): its ``t`` when that is a finite
+    number, else now. Subscriptions thin by it, not by when a message reaches the API process
+    (which the scheduling of two processes jitters)."""
+    t = msg.get("t") if isinstance(msg, dict) else None
+    if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
+        return float(t)
+    return time.monotonic()
+
+
+def admits(t: float, last: float | None, period: float) -> bool:
+    """The admission rule of a subscription thinned to one message per ``period`` s: the first
+    message, then each stamped at least :data:`ADMIT_SLACK` periods after the last admitted."""
+    return last is None or t - last >= period * ADMIT_SLACK
+
+
+def publication(msg: Any, t: float | None = None) -> bytes:
+    """The body of a ``P`` frame: ``kind "\\n" stamp "\\n" json`` (``stamp``: ``t``, default
+    :func:`stamp`, as ``repr``, which a float round-trips exactly). Raises
+    TypeError/ValueError/RecursionError for a message JSON cannot carry."""
     kind = msg.get("kind", "") if isinstance(msg, dict) else ""
-    return S.normalize_kind(str(kind)).encode() + b"\n" + S.encode(msg).encode()
+    ts = repr(stamp(msg) if t is None else t).encode()
+    return S.normalize_kind(str(kind)).encode() + b"\n" + ts + b"\n" + S.encode(msg).encode()
+
+
+def format_wanted(kinds: dict[str, tuple[float, ...] | None]) -> str:
+    """The ``U`` frame's body: ``kind`` or ``kind@p1;p2`` (periods in s, ``repr``: exact)."""
+    parts = []
+    for kind in sorted(kinds):
+        periods = kinds[kind]
+        parts.append(kind + ("@" + ";".join(map(repr, periods)) if periods else ""))
+    return ",".join(parts)
+
+
+def parse_wanted(text: str) -> tuple[list[str], dict[str, tuple[float, ...]]]:
+    """(kinds, caps) of a ``U`` frame's body; a period that is not a number leaves its kind
+    unthinned (everything is sent, as before thinning existed)."""
+    kinds: list[str] = []
+    caps: dict[str, tuple[float, ...]] = {}
+    for item in text.split(",") if text else []:
+        kind, _, periods = item.partition("@")
+        kinds.append(kind)
+        if periods:
+            try:
+                caps[kind] = tuple(float(p) for p in periods.split(";"))
+            except ValueError:
+                pass
+    return kinds, caps
 
 
 class FrameSender:
@@ -109,12 +169,47 @@ class Feed:
         self._cond = threading.Condition(threading.Lock())
         self.maxsize = maxsize
         # "published" (also the direct ones), "direct" (written by the publishing thread),
-        # "unencodable" (messages JSON cannot carry: dropped): the bridge's counters
+        # "unencodable" (messages JSON cannot carry: dropped), "thinned" (no subscription would
+        # admit them: not sent): the bridge's counters
         self.counters = counters if counters is not None else {}
-        for key in ("published", "direct", "unencodable"):
+        for key in ("published", "direct", "unencodable", "thinned"):
             self.counters.setdefault(key, 0)
+        #: kind -> {period (s): stamp of the last message that period's rule admitted}
+        self._caps: dict[str, dict[float, float | None]] = {}
+
+    def set_caps(self, caps: dict[str, tuple[float, ...]]) -> None:
+        """Thin each kind of ``caps`` to what one of its periods (s) admits (module docstring);
+        a kind not named, or named with no usable period or more than :data:`MAX_CAPS`, is
+        passed on whole. A period kept from the previous caps keeps its state, so a subscription
+        that stays is not re-phased by another one coming or going."""
+        old = self._caps
+        new: dict[str, dict[float, float | None]] = {}
+        for kind, periods in caps.items():
+            ps = sorted({float(p) for p in periods})
+            if ps and len(ps) <= MAX_CAPS and all(math.isfinite(p) and p > 0.0 for p in ps):
+                prev = old.get(kind, {})
+                new[kind] = {p: prev.get(p) for p in ps}
+        self._caps = new  # replaced whole: the publishing threads read it without a lock
+
+    def _admitted(self, msg: Any) -> float | None:
+        """The message's stamp if it is to be sent (some subscription admits it; every rule
+        that admits it moves on), else None."""
+        t = stamp(msg)
+        rules = self._caps.get(msg.get("kind")) if isinstance(msg, dict) else None
+        if rules is None:
+            return t
+        passed = False
+        for p, last in rules.items():
+            if admits(t, last, p):
+                rules[p] = t
+                passed = True
+        return t if passed else None
 
     def put_nowait(self, msg: Any) -> None:
+        t = self._admitted(msg)
+        if t is None:
+            self.counters["thinned"] += 1
+            return
         if (
             not self._items
             and isinstance(msg, dict)
@@ -122,7 +217,7 @@ class Feed:
             and not self._sender.lock.locked()
         ):
             try:
-                body = publication(msg)
+                body = publication(msg, t)
             except (TypeError, ValueError, RecursionError):
                 self.counters["unencodable"] += 1
                 return

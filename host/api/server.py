@@ -367,7 +367,7 @@ class ApiServer:
         """The latest status snapshot the daemon sent (JSON text), None before the first."""
         return self._link.status_text
 
-    def _want_stream(self, kinds: set[str]) -> None:
+    def _want_stream(self, kinds: dict[str, tuple[float, ...] | None]) -> None:
         self._link.want_stream(kinds)
 
     def _run(self) -> None:

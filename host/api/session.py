@@ -21,6 +21,7 @@ from host.api import schema as S
 from host.api.auth import (
     Token,
 )
+from host.api.feed import admits
 
 #: The ``on_behalf_of`` of the request being served (a context variable: each request's task
 #: sees its own; None outside a request): its audit line's ``for=`` and its command's sender.
@@ -50,15 +51,15 @@ class _Subscription:
         self.thinned = 0  # skipped on purpose because of max_rate
         self.sent = 0
 
-    def admit(self, kind: str, now: float) -> bool:
+    def admit(self, kind: str, t: float) -> bool:
+        """Whether a message of ``kind`` stamped ``t`` (s) goes to this subscription: the rule
+        the daemon side thins by too (host/api/feed.py ``admits``, with its slack)."""
         if self.min_period <= 0.0 or kind not in S.RATE_LIMITED_KINDS:
             return True
-        last = self.last_sent.get(kind)
-        # A little slack so a 100 Hz source thinned to 50 Hz does not alias down to 33 Hz.
-        if last is not None and now - last < self.min_period * 0.9:
+        if not admits(t, self.last_sent.get(kind), self.min_period):
             self.thinned += 1
             return False
-        self.last_sent[kind] = now
+        self.last_sent[kind] = t
         return True
 
 

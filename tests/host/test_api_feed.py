@@ -1,5 +1,6 @@
 """The bridge's feed (host/api/feed.py): joint_states leave the daemon's process from the
-publishing thread itself, never making it wait, never out of order, never as a torn frame."""
+publishing thread itself, never making it wait, never out of order, never as a torn frame; and
+only the messages some subscription admits leave it at all ("Thinning")."""
 
 from __future__ import annotations
 
@@ -10,10 +11,22 @@ import threading
 import time
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from host.api.bridge import DaemonBridge, recv_frame
-from host.api.feed import Feed, FrameSender, publication
+from host.api.client import connect
+from host.api.feed import MAX_CAPS, Feed, FrameSender, format_wanted, parse_wanted, publication
+from host.api.server import ApiServer
+from host.api.session import _Subscription
 from host.publisher import Fanout
+
+
+def _split(body: bytes) -> tuple[bytes, float, bytes]:
+    """A P frame's body: (kind, stamp, JSON text)."""
+    k, _, rest = body.partition(b"\n")
+    ts, _, text = rest.partition(b"\n")
+    return k, float(ts), text
 
 
 def _frames(sock: socket.socket, n: int, timeout: float = 10.0) -> list[tuple[bytes, dict]]:
@@ -23,7 +36,7 @@ def _frames(sock: socket.socket, n: int, timeout: float = 10.0) -> list[tuple[by
     while len(out) < n:
         kind, body = recv_frame(sock)
         if kind == b"P":
-            k, _, text = body.partition(b"\n")
+            k, _, text = _split(body)
             out.append((k, json.loads(text)))
     return out
 
@@ -110,7 +123,7 @@ def test_publishing_never_waits_for_a_full_socket_and_every_frame_arrives_whole_
                 break
             if kind != b"P":
                 continue
-            k, _, text = body.partition(b"\n")
+            k, _, text = _split(body)
             msg = json.loads(text)  # a torn frame would not parse (or would misalign the next)
             assert k.decode() == {"event": "events"}.get(msg["kind"], msg["kind"])
             seqs.append(msg["seq"])
@@ -213,3 +226,125 @@ def test_a_long_goal_is_not_kept_alive_by_the_bridge_once_served(monkeypatch) ->
     finally:
         bridge.stop()
         theirs.close()
+
+
+# ------------------------------------------------------------------ thinning
+class _FanoutFacade:
+    """A daemon facade whose subscriptions are host.publisher.Fanout's (``into=``: the bridge's
+    Feed, as in the daemon), publishing joint_states at ``hz`` stamped with the daemon's clock."""
+
+    def __init__(self, hz: float = 100.0) -> None:
+        self.fanout = Fanout()
+        self.published = 0
+        self._stop = threading.Event()
+        self._period = 1.0 / hz
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._period):
+            self.published += 1
+            self.fanout.publish(_js(self.published))
+
+    def subscribe(self, kinds, maxsize=1000, into=None):
+        return self.fanout.subscribe(kinds, maxsize, into)
+
+    def unsubscribe(self, q) -> None:
+        self.fanout.unsubscribe(q)
+
+    def status(self) -> dict:
+        return {"state": "connected"}
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+
+
+def test_only_what_some_subscription_admits_leaves_the_daemons_process() -> None:
+    """A 5 Hz subscriber alone: the daemon side encodes and sends about 5 of the 100 messages a
+    second, not all of them (before: all, for the API process to drop); a subscriber that wants
+    every message turns thinning off; when it leaves, thinning is back."""
+    facade = _FanoutFacade(hz=100.0)
+    srv = ApiServer(facade, "127.0.0.1", 0).start()
+    try:
+        counters = srv._bridge.counters
+        with connect(srv.url) as c:
+            slow = c.subscribe(["joint_states"], max_rate=5)
+            t_sub = time.monotonic()
+            time.sleep(0.3)  # the U frame has reached the daemon side
+            p0, n0 = counters["published"], facade.published
+            time.sleep(1.5)
+            sent, offered = counters["published"] - p0, facade.published - n0
+            assert offered > 60  # the stub published (a loaded host: fewer than 150)
+            assert 4 <= sent <= 12, (sent, offered)  # 5 Hz (+ slack), not 100 Hz
+            assert counters["thinned"] >= offered - sent - 2
+            fast = c.subscribe(["joint_states"])  # wants everything: no thinning
+            time.sleep(0.3)
+            p1, n1 = counters["published"], facade.published
+            time.sleep(0.5)
+            assert counters["published"] - p1 >= 0.8 * (facade.published - n1)
+            fast.close()
+            time.sleep(0.3)
+            p2, n2 = counters["published"], facade.published
+            time.sleep(1.0)
+            assert counters["published"] - p2 <= 0.2 * (facade.published - n2) + 3
+            stats = slow.close()
+            held = time.monotonic() - t_sub
+        # 5 Hz (a message every 0.9 x 0.2 s at most) through all three phases
+        assert 3.0 * held <= stats["sent"] <= held * 5 / 0.9 + 2, (stats, held)
+    finally:
+        srv.stop()
+        facade.close()
+
+
+def _admitted(periods: list[float], stamps: list[float]) -> list[list[float]]:
+    """What a subscription of each period admits from ``stamps`` (the API side's own rule)."""
+    subs = [_Subscription(i, ["joint_states"], 1.0 / p) for i, p in enumerate(periods)]
+    for sub, p in zip(subs, periods, strict=True):
+        sub.min_period = p  # exactly the period sent in the U frame
+    return [[t for t in stamps if sub.admit("joint_states", t)] for sub in subs]
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    periods=st.lists(st.sampled_from([0.02, 0.0333, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0]),
+                     min_size=1, max_size=MAX_CAPS),
+    gaps=st.lists(st.floats(0.001, 0.05), min_size=1, max_size=300),
+)  # fmt: skip
+def test_every_subscription_gets_from_the_thinned_stream_what_it_got_from_the_whole(
+    periods: list[float], gaps: list[float]
+) -> None:
+    """The daemon side's thinning loses nothing any subscription would admit: each period's
+    subscription admits the same messages from the thinned stream as from the whole one."""
+    stamps, t = [], 100.0
+    for g in gaps:
+        t += g
+        stamps.append(t)
+    feed = Feed(FrameSender(socket.socket()))  # never written to: only the rule is used
+    feed.set_caps({"joint_states": tuple(periods)})
+    thinned = [ts for ts in stamps if feed._admitted({"kind": "joint_states", "t": ts})]
+    assert _admitted(periods, thinned) == _admitted(periods, stamps)
+    assert len(thinned) <= len(stamps)
+
+
+def test_the_wanted_kinds_round_trip_and_odd_caps_thin_nothing() -> None:
+    wanted = {"joint_states": (0.1, 0.5), "events": None, "transforms": (1.0 / 3.0,)}
+    text = format_wanted(wanted)
+    assert text == "events,joint_states@0.1;0.5,transforms@0.3333333333333333"
+    kinds, caps = parse_wanted(text)
+    assert kinds == ["events", "joint_states", "transforms"]
+    assert caps == {"joint_states": (0.1, 0.5), "transforms": (1.0 / 3.0,)}
+    assert parse_wanted("") == ([], {})
+    assert parse_wanted("joint_states@x") == (["joint_states"], {})  # not a number: whole
+    feed = Feed(FrameSender(socket.socket()))
+    js = {"kind": "joint_states", "t": 1.0}
+    for caps in ({"joint_states": (float("nan"),)}, {"joint_states": (0.0,)},
+                 {"joint_states": (-1.0,)}, {"joint_states": ()},
+                 {"joint_states": tuple(0.1 * k for k in range(1, MAX_CAPS + 2))}):  # fmt: skip
+        feed.set_caps(caps)
+        assert all(feed._admitted({**js, "t": 1.0 + k * 1e-3}) for k in range(5)), caps
+    feed.set_caps({"joint_states": (1.0,)})
+    assert feed._admitted(js) and not feed._admitted({**js, "t": 1.5})
+    assert feed._admitted({"kind": "event", "t": 1.5})  # a kind without caps: always
+    feed.set_caps({"joint_states": (1.0, 0.2)})  # 1.0 keeps its state, 0.2 starts fresh
+    assert feed._admitted({**js, "t": 1.6}) and not feed._admitted({**js, "t": 1.7})
