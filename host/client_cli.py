@@ -117,8 +117,15 @@ def register(subparsers: Any) -> None:
     add_connection_args(p)
     p.add_argument("--segment", required=True, help="bendable name (see `ucr status`)")
     p.add_argument("--kappa", type=float, required=True, help="curvature K, 1/m (>= 0)")
-    p.add_argument("--phi", type=float, default=0.0, help="bending-plane angle P, degrees (0)")
-    p.add_argument("--duration", type=SECONDS, default=2.0, help="time to get there T, s (2; > 0)")
+    p.add_argument(
+        "--phi", type=float, default=0.0, help="bending-plane angle P, degrees (0; within ±360)"
+    )
+    p.add_argument(
+        "--duration",
+        type=number_arg(float, 0.0, False, " s", high=604_800.0),  # schema.MAX_TIME_S: a week
+        default=2.0,
+        help="time to get there T, s (2; > 0, at most a week)",
+    )
     p.add_argument("--no-wait", action="store_true", help="print the goal id and return at once")
     p.set_defaults(func=cmd_move)
 
@@ -267,9 +274,14 @@ def format_message(msg: dict) -> str:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
+    from host.api.schema import MAX_RATE_HZ, MIN_RATE_HZ  # noqa: PLC0415
+
     kinds = args.kind or ["joint_states"]
-    if not (0 < args.rate <= 1000):
-        say_error("--rate must be in (0, 1000] Hz")
+    if not (MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ):  # (NaN too) the daemon's own bounds
+        say_error(
+            f"--rate must be in [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] lines/s per kind, "
+            f"got {args.rate:g}"
+        )
         return 2
     if args.count is not None and (args.count < 0 or args.count == 0 and "topology" not in kinds):
         say_error("--count must be >= 1 (0 only with --kind topology: the current one alone)")

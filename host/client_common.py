@@ -19,6 +19,15 @@ _PROG = "ucr"
 class CliError(Exception):
     """A user-facing failure: printed as one line, exit code 1."""
 
+    exit_code = 1
+
+
+class CliUsageError(CliError):
+    """A command line that cannot work (a malformed URL, a refused option): one line, exit 2,
+    as argparse's own usage errors."""
+
+    exit_code = 2
+
 
 def say_error(message: str) -> None:
     """One error line on stderr, prefixed ``ucr:``."""
@@ -59,9 +68,11 @@ def bound_text(kind: type, low: float, low_ok: bool, unit: str = "") -> str:
     return f"must be a finite number{' of' + unit if unit else ''} {bound}"
 
 
-def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
-    """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``); an
-    impossible value is a usage error (exit 2) naming the bound."""
+def number_arg(
+    kind: type, low: float, low_ok: bool, unit: str = "", high: float | None = None
+) -> Any:
+    """An argparse ``type``: a finite number above ``low`` (or equal to it if ``low_ok``) and at
+    most ``high``; an impossible value is a usage error (exit 2) naming the bound."""
 
     def parse(text: str) -> Any:
         try:
@@ -70,14 +81,18 @@ def number_arg(kind: type, low: float, low_ok: bool, unit: str = "") -> Any:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
         if not math.isfinite(v) or v < low or (v == low and not low_ok):
             raise argparse.ArgumentTypeError(f"{bound_text(kind, low, low_ok, unit)}, got {text}")
+        if high is not None and v > high:
+            raise argparse.ArgumentTypeError(f"must be <= {high:g}{unit}, got {text}")
         return v
 
     parse.__name__ = kind.__name__  # argparse names the type in its own messages
     return parse
 
 
-# a timeout of 0 or less made every call time out at once, reported as "is ucr daemon running?"
-_seconds = number_arg(float, 0.0, False, " s")
+# a timeout of 0 or less made every call time out at once, reported as "is ucr daemon running?";
+# one beyond a day overflowed the socket's timeout (OverflowError: a traceback)
+MAX_TIMEOUT_S = 86400.0
+_seconds = number_arg(float, 0.0, False, " s", high=MAX_TIMEOUT_S)
 
 
 def port_arg(text: str) -> int:
@@ -116,10 +131,12 @@ def connect_daemon(args: argparse.Namespace) -> Any:
         read_token,
     )
 
+    if args.url is not None and not args.url.strip():
+        raise CliUsageError("--url is empty: give ws://HOST:PORT (or leave --url out)")
     url = args.url or default_url()
     try:
         if getattr(args, "token", None):
-            raise CliError(
+            raise CliUsageError(
                 "--token is refused: a token on the command line is visible to every user in "
                 f"/proc; use --token-file FILE (mode 0600), ${ENV_TOKEN_FILE} or ${ENV_TOKEN}"
             )
@@ -134,7 +151,9 @@ def connect_daemon(args: argparse.Namespace) -> Any:
     except ApiAuthError as exc:
         raise CliError(exc.message) from None
     except ApiConnectionError as exc:
-        if exc.code in ("bad_url", "tls", "busy"):
+        if exc.code == "bad_url":
+            raise CliUsageError(exc.message) from None
+        if exc.code in ("tls", "busy", "timeout"):
             raise CliError(exc.message) from None
         raise CliError(unreachable_message(url, args.url)) from None
 
@@ -147,12 +166,12 @@ def with_client(args: argparse.Namespace, body: Any) -> int:
         client = connect_daemon(args)
     except CliError as exc:
         say_error(str(exc))
-        return 1
+        return exc.exit_code
     try:
         return int(body(client) or 0)
     except CliError as exc:
         say_error(str(exc))
-        return 1
+        return exc.exit_code
     except ApiConnectionError as exc:
         say_error(f"{exc.message}")
         return 1

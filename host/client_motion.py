@@ -91,8 +91,9 @@ def cmd_move(args: argparse.Namespace) -> int:
     if not math.isfinite(args.duration) or args.duration <= 0:  # argparse refuses it first
         say_error(f"--duration {bound_text(float, 0.0, False, ' s')}, got {args.duration}")
         return 2
-    if not math.isfinite(args.phi):
-        say_error("--phi must be a number of degrees")
+    why = phi_deg_problem(args.phi)
+    if why:
+        say_error(f"--phi {why}")
         return 2
     phi = math.remainder(math.radians(args.phi), 2 * math.pi)
     points = [
@@ -124,6 +125,30 @@ def _check_segment(topo: dict, segment: str) -> None:
         )
 
 
+#: the largest bending-plane angle in degrees a command takes: one turn either way (the API
+#: refuses beyond ±2π rad the same way); 1e308 degrees names no plane a float can tell
+MAX_PHI_DEG = 360.0
+
+
+def phi_deg_problem(v: object) -> str | None:
+    """Why ``v`` cannot be a bending-plane angle in degrees, or None."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return "must be a number of degrees"
+    if not math.isfinite(v) or abs(v) > MAX_PHI_DEG:
+        return f"must be a number of degrees within ±{MAX_PHI_DEG:g}, got {v:g}"
+    return None
+
+
+def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict:
+    """json.loads' object hook: a key given twice is an error, never "the last one wins"."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"duplicate key {k!r} in an object (which one was meant?)")
+        out[k] = v
+    return out
+
+
 def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
     """Read a YAML/JSON waypoint file into API points (phi in rad); raises CliError naming the
     file, the line (YAML) and the waypoint (from 1) of every problem (the first 20 in full).
@@ -136,9 +161,15 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise CliError(f"cannot read {p}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        bad = exc.object[exc.start : exc.start + 1].hex()
+        raise CliError(
+            f"{p}: not UTF-8 text (byte 0x{bad} at offset {exc.start}): a trajectory file is "
+            "YAML or JSON text"
+        ) from None
     try:
         if p.suffix.lower() == ".json":
-            doc = json.loads(text)
+            doc = json.loads(text, object_pairs_hook=_no_duplicate_keys)
         else:
             from host.yamlload import safe_load  # noqa: PLC0415
 
@@ -189,8 +220,8 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
                     v = target.pop("phi_deg")
                     if "phi" in target:
                         problems.add(f"{at(i)}: {name}: give phi (rad) or phi_deg, not both")
-                    elif isinstance(v, bool) or not isinstance(v, int | float):
-                        problems.add(f"{at(i)}: {name}: phi_deg must be a number")
+                    elif why := phi_deg_problem(v):
+                        problems.add(f"{at(i)}: {name}: phi_deg {why}")
                     else:
                         target["phi"] = math.remainder(math.radians(v), 2 * math.pi)
                 conv[str(name)] = target

@@ -330,8 +330,13 @@ def load_config(path: str | Path | None) -> DaemonConfig:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        bad = exc.object[exc.start : exc.start + 1].hex()
+        raise ConfigError(
+            str(p), "", f"not UTF-8 text (byte 0x{bad} at offset {exc.start})"
+        ) from None
     try:
-        data = safe_load(text)
+        data = safe_load(text)  # (a key given twice is an error: host/yamlload.py)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "YAML"

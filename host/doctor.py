@@ -277,7 +277,9 @@ def register(subparsers: Any) -> None:
         "1 if anything is wrong, 130 after Ctrl-C (the findings so far are kept).",
     )
     p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
-    p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
+    p.add_argument(
+        "--baud", type=number_arg(int, 1, True), default=921600, help="bit/s (default 921600)"
+    )
     p.add_argument("--robot", help="U(C)RDF to compare the chain with")
     p.add_argument(
         "--seconds",
@@ -302,6 +304,15 @@ def cmd_doctor(args: argparse.Namespace) -> int:
     """Text: each finding printed as it is made, progress on stderr before each slow step. On
     Ctrl-C the findings so far stay (JSON: printed then), a one-line note says so, exit 130."""
     found: list[Finding] = []
+    if args.robot:  # a file that cannot be read is a usage error, whatever the chain says
+        from ucrdf.errors import UcrdfError  # noqa: PLC0415
+        from ucrdf.parser import load  # noqa: PLC0415
+
+        try:
+            load(args.robot)
+        except UcrdfError as exc:
+            print(f"ucr: --robot: {exc}", file=sys.stderr)
+            return 2
 
     def show(f: Finding) -> None:
         found.append(f)

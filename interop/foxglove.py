@@ -116,7 +116,7 @@ def run(args: Any) -> int:
         client = connect_daemon(args)
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code
     sink = None
     try:
         robot, text = robot_for(client, args.robot)

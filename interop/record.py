@@ -217,7 +217,7 @@ def run(args: Any) -> int:
         client = connect_daemon(args)
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code
     sinks: list[Any] = []
     try:
         robot, text = robot_for(client, args.robot)

@@ -719,7 +719,7 @@ def execute(args: Any) -> int:
         return 0 if result.get("state") == "succeeded" else 1
     except (RecordingError, UcrdfError, CliError, FeedError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
-        return 1
+        return getattr(exc, "exit_code", 1)  # a CliUsageError: 2
     except ApiError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1

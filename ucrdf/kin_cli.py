@@ -18,7 +18,13 @@ from ucrdf.units import phi_beyond_a_turn
 
 
 class _CliError(Exception):
-    """A user mistake on the command line: printed as one line, exit 1."""
+    """A failure the user can act on (a file that cannot be written, a configuration the robot
+    cannot take): printed as one line, exit 1."""
+
+
+class _UsageError(_CliError):
+    """An option value that cannot work (not JSON, not three numbers, out of its range):
+    printed as one line, exit 2, as argparse's own usage errors."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -86,7 +92,7 @@ def _guard(func):
             return 1
         except (_CliError, ModelError) as exc:
             print(f"ucr {args.command}: error: {exc}", file=sys.stderr)
-            return 1
+            return 2 if isinstance(exc, _UsageError) else 1
 
     return run
 
@@ -99,26 +105,26 @@ def _json_arg(text: str, option: str) -> Any:
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
-            raise _CliError(f"cannot read {option} file {str(path)!r}: {exc.strerror}") from None
+            raise _UsageError(f"cannot read {option} file {str(path)!r}: {exc.strerror}") from None
         source = f"{option} file {str(path)!r}"
     try:
         value = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise _CliError(
+        raise _UsageError(
             f"{source} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
         ) from None
     except (ValueError, RecursionError) as exc:  # e.g. an integer of 5000 digits, deep nesting
         reason = str(exc).split(";")[0] if isinstance(exc, ValueError) else "nested too deeply"
-        raise _CliError(f"{source} is not usable JSON: {reason}") from None
+        raise _UsageError(f"{source} is not usable JSON: {reason}") from None
     if not isinstance(value, dict):
-        raise _CliError(f"{source} must be a JSON object mapping names to values")
+        raise _UsageError(f"{source} must be a JSON object mapping names to values")
     for name, variables in value.items():  # a unit mistake, not an angle to wrap
         phi = variables.get("phi") if isinstance(variables, dict) else None
         why = None
         if isinstance(phi, (int, float)) and not isinstance(phi, bool):
             why = phi_beyond_a_turn(phi)
         if why is not None:
-            raise _CliError(f"{source}: {name}: phi = {why}")
+            raise _UsageError(f"{source}: {name}: phi = {why}")
     return value
 
 
@@ -156,7 +162,7 @@ def _target(text: str) -> tuple[float, float, float]:
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise _CliError(f"--target must be three numbers x,y,z in m, got {text!r}")
+        raise _UsageError(f"--target must be three numbers x,y,z in m, got {text!r}")
     return values  # type: ignore[return-value]
 
 
@@ -167,7 +173,7 @@ def run_ik(args: argparse.Namespace) -> int:
     target = _target(args.target)
     initial = _json_arg(args.initial, "--initial") if args.initial else None
     if not (args.tol > 0.0 and math.isfinite(args.tol)):
-        raise _CliError(f"--tol must be a positive number of metres, got {args.tol}")
+        raise _UsageError(f"--tol must be a positive number of metres, got {args.tol}")
     robot = _load(args.file)
     if initial is not None:  # a start outside the limits is refused as by fk --config
         from ucrdf.fk import RobotKinematics  # noqa: PLC0415
@@ -197,7 +203,9 @@ def run_export(args: argparse.Namespace) -> int:
     from ucrdf.export import MAX_SUBDIVISIONS, export_urdf  # noqa: PLC0415
 
     if not 1 <= args.subdivisions <= MAX_SUBDIVISIONS:
-        raise _CliError(f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}, got {args.subdivisions}")
+        raise _UsageError(
+            f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}, got {args.subdivisions}"
+        )
     config = _json_arg(args.config, "--config") if args.config else None
     robot = _load(args.file)
     text = export_urdf(robot, args.subdivisions, config)

@@ -17,7 +17,7 @@ from websockets.sync.client import ClientConnection
 from websockets.sync.client import connect as ws_connect
 
 from host.api import ENV_CA, ENV_TOKEN, ENV_TOKEN_FILE
-from host.api.auth import AuthConfigError, read_token_file
+from host.api.auth import AuthConfigError, check_token_text, read_token_file
 from host.api.client_errors import ApiAuthError, ApiConnectionError
 from host.api.guard import is_loopback
 
@@ -41,7 +41,13 @@ def read_token(token_file: str | None = None) -> str | None:
         except AuthConfigError as exc:
             where = "" if token_file else f" (from ${ENV_TOKEN_FILE})"
             raise ApiAuthError(f"{exc}{where}") from None
-    return os.environ.get(ENV_TOKEN) or None
+    text = os.environ.get(ENV_TOKEN) or None
+    if text is None:
+        return None
+    try:  # the same rule as a token file's (a short or blank-holding one is a typo, not a token)
+        return check_token_text(text, f"${ENV_TOKEN}")
+    except AuthConfigError as exc:
+        raise ApiAuthError(str(exc)) from None
 
 
 def token_may_travel(url: str) -> None:
@@ -54,12 +60,40 @@ def token_may_travel(url: str) -> None:
         )
 
 
+def check_url(url: str, cafile: str | None = None) -> None:
+    """Refuse, before any connection, a URL that cannot name a daemon (code ``bad_url``): not
+    ``ws://`` or ``wss://``, no host, a port that is not a number in 1..65535, broken IPv6
+    brackets; and a ``cafile`` given for a ``ws://`` URL (it would be ignored)."""
+    try:
+        parts = urlsplit(url)
+        port = parts.port  # ValueError: not a number, or out of 0..65535
+    except ValueError as exc:
+        raise ApiConnectionError(f"bad URL {url!r}: {exc}", code="bad_url") from None
+    if parts.scheme not in ("ws", "wss"):
+        raise ApiConnectionError(
+            f"bad URL {url!r}: give ws://HOST:PORT or wss://HOST:PORT", code="bad_url"
+        )
+    if not parts.hostname:
+        raise ApiConnectionError(f"bad URL {url!r}: no host", code="bad_url")
+    if port == 0:
+        raise ApiConnectionError(f"bad URL {url!r}: port 0 names no server", code="bad_url")
+    if cafile and parts.scheme == "ws":
+        raise ApiConnectionError(
+            f"a CA file ({cafile}) verifies a wss:// daemon; {url} is plain ws://: use wss:// "
+            "or leave the CA file out",
+            code="bad_url",
+        )
+
+
 def open_websocket(
     url: str, token: str | None, timeout: float, cafile: str | None, agent: str | None = None
 ) -> ClientConnection:
     """The WebSocket to ``url`` (``token`` as a Bearer header; ``cafile`` or ``$UCR_CA`` to
     verify ``wss://``; ``agent``: the User-Agent, the program's name in the daemon's audit
-    lines). Raises :class:`ApiAuthError` / :class:`ApiConnectionError`."""
+    lines). Raises :class:`ApiAuthError` / :class:`ApiConnectionError` (``code``: ``bad_url``
+    for a URL or CA file that cannot work, ``tls``, ``timeout`` when the daemon did not answer
+    the handshake within ``timeout`` s, ``busy``, else ``connection``)."""
+    check_url(url, cafile)
     headers = {"Authorization": f"Bearer {token}"} if token else None
     if token:
         token_may_travel(url)
@@ -69,7 +103,10 @@ def open_websocket(
         try:
             ssl_ctx = ssl.create_default_context(cafile=cafile)
         except (OSError, ssl.SSLError) as exc:
-            raise ApiConnectionError(f"cannot load CA file {cafile!r}: {exc}") from None
+            why = getattr(exc, "strerror", None) or exc
+            raise ApiConnectionError(
+                f"cannot load the CA file {cafile!r}: {why}", code="tls"
+            ) from None
     try:
         return ws_connect(
             url,
@@ -110,5 +147,11 @@ def open_websocket(
             "a certificate from another authority needs --ca FILE",
             code="tls",
         ) from None
-    except (OSError, TimeoutError, WebSocketException) as exc:
+    except TimeoutError:
+        raise ApiConnectionError(
+            f"no answer from {url} within {timeout:g} s (the reply timeout, --timeout): the "
+            "host is unreachable, the daemon is overloaded, or that port is not a ucr daemon",
+            code="timeout",
+        ) from None
+    except (OSError, WebSocketException) as exc:
         raise ApiConnectionError(f"cannot reach the daemon at {url}: {exc}") from None

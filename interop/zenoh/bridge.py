@@ -201,7 +201,7 @@ def run(args: Any) -> int:
         link = DaemonLink(connect_daemon(args))
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code
     session = node = commands = fjt = watch = None
     try:
         robot, robot_text = robot_for(link, args.robot)

@@ -196,7 +196,7 @@ def test_cli_refuses_a_token_on_the_command_line(capsys):
 
     rc = ucr(["status", "--url", "ws://127.0.0.1:9", "--token", CONTROL_TOKEN])
     err = capsys.readouterr().err
-    assert rc == 1 and "/proc" in err and "--token-file" in err
+    assert rc == 2 and "/proc" in err and "--token-file" in err  # a usage error: exit 2
 
 
 @pytest.fixture(scope="module")

@@ -71,7 +71,7 @@ def test_no_traceback_from_a_real_process_when_daemon_is_down():
 
 def test_bad_url_and_wrong_token_are_one_line_errors(capsys, tmp_path):
     rc, _, err = run(capsys, "status", "--url", "http://nope")
-    assert rc == 1 and "bad URL" in err and err.count("\n") == 1
+    assert rc == 2 and "bad URL" in err and err.count("\n") == 1  # usage: exit 2
     stub = FacadeStub()
     srv = ApiServer(stub, "127.0.0.1", 0, token="s3cret-token-0123456").start()
     wrong, right = tmp_path / "wrong.token", tmp_path / "right.token"

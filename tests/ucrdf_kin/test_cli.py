@@ -77,18 +77,18 @@ def test_fk_config_from_file(robot_file, tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    "config,message",
-    [
-        ("{bad", "--config is not valid JSON"),
-        ("[1, 2]", "must be a JSON object"),
-        ('{"s9": {}}', "unknown name(s) in configuration: 's9'"),
-        ('{"s1": {"kappa": 7}}', "kappa = 7 1/m is outside its limits [0, 3]"),
-        ("@/nonexistent/cfg.json", "cannot read --config file"),
+    "config,message,exit_code",
+    [  # not a configuration at all: a usage error (2); one the robot refuses: 1
+        ("{bad", "--config is not valid JSON", 2),
+        ("[1, 2]", "must be a JSON object", 2),
+        ('{"s9": {}}', "unknown name(s) in configuration: 's9'", 1),
+        ('{"s1": {"kappa": 7}}', "kappa = 7 1/m is outside its limits [0, 3]", 1),
+        ("@/nonexistent/cfg.json", "cannot read --config file", 2),
     ],
 )
-def test_fk_bad_config_is_one_clear_line(robot_file, capsys, config, message):
+def test_fk_bad_config_is_one_clear_line(robot_file, capsys, config, message, exit_code):
     code, out, err = run(["fk", str(robot_file), "--config", config], capsys)
-    assert code == 1 and out == ""
+    assert code == exit_code and out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("ucr fk: error:") and message in lines[0]
 
@@ -116,7 +116,7 @@ def test_ik_success_and_failure_exit_codes(robot_file, capsys):
     code, out, err = run(["ik", str(robot_file), "--target", "5,0,0"], capsys)
     assert code == 1 and not json.loads(out)["success"] and "no solution" in err
     code, _, err = run(["ik", str(robot_file), "--target", "1,x,2"], capsys)
-    assert code == 1 and "--target must be three numbers" in err
+    assert code == 2 and "--target must be three numbers" in err  # usage: exit 2
     code, _, err = run(["ik", str(robot_file), "--target", "0,0,0.5", "--tip", "zz"], capsys)
     assert code == 1 and "tip link 'zz' is not in the robot" in err
 
@@ -129,7 +129,7 @@ def test_export_urdf_writes_a_loadable_file(robot_file, tmp_path, capsys):
     urdf = yourdfpy.URDF.load(str(out_path), load_meshes=False)
     assert len(urdf.actuated_joint_names) == 2 * (2 * 6 + 1)
     code, _, err = run(["export-urdf", str(robot_file), "-n", "0", "-o", str(out_path)], capsys)
-    assert code == 1 and "--subdivisions must be in 1..1000" in err
+    assert code == 2 and "--subdivisions must be in 1..1000" in err  # usage: exit 2
 
 
 def test_commands_on_the_example_robot(capsys):

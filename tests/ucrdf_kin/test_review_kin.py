@@ -31,7 +31,7 @@ def test_huge_integer_in_json_option_is_one_line(option, capsys, tmp_path):
         "export": ["export-urdf", SOFTROBOT2, "-o", str(tmp_path / "x.urdf"), "--config", huge],
     }[option]
     code, out, err = run(argv, capsys)
-    assert code == 1 and out == ""
+    assert code == 2 and out == ""  # a bad option value: usage, exit 2
     assert err.count("\n") == 1 and "digits" in err and "is not usable JSON" in err
 
 
@@ -56,7 +56,7 @@ def test_subdivisions_have_an_upper_bound(capsys, tmp_path):
     code, _, err = run(
         ["export-urdf", SOFTROBOT2, "-n", "100000000", "-o", str(tmp_path / "x.urdf")], capsys
     )
-    assert code == 1 and f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}" in err
+    assert code == 2 and f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}" in err
     with pytest.raises(ConfigError, match="1..1000"):
         export_urdf(load(SOFTROBOT2), MAX_SUBDIVISIONS + 1)
 
