@@ -39,9 +39,13 @@ def _group_name(gid: int) -> str:
         return f"gid {gid}"
 
 
-def holders(path: str, proc: Path = Path("/proc")) -> list[tuple[int, str]]:
+def holders(
+    path: str, proc: Path = Path("/proc"), device_ends: list[tuple[int, str]] | None = None
+) -> list[tuple[int, str]]:
     """(pid, command name) of the other processes that have ``path`` open, as far as this user
-    can see them (another user's /proc/PID/fd is unreadable without privileges)."""
+    can see them (another user's /proc/PID/fd is unreadable without privileges). A process with
+    the pty's master is the device's end, not a competitor: it goes to ``device_ends`` if given
+    (an emulator; a daemon running in its process, as ``ucr demo``'s, is hidden behind it)."""
     try:
         target = os.path.realpath(path)
     except OSError:
@@ -69,12 +73,15 @@ def holders(path: str, proc: Path = Path("/proc")) -> list[tuple[int, str]]:
                 continue
         # the process with the pty's master is its other end (`ucr emulate`: the emulated
         # segment, as a board is a USB port's), not a program competing for the port
-        if holds and not master:
+        if holds:
             try:
                 comm = (entry / "comm").read_text().strip()
             except OSError:
                 continue
-            found.append((int(entry.name), comm))
+            if not master:
+                found.append((int(entry.name), comm))
+            elif device_ends is not None:
+                device_ends.append((int(entry.name), comm))
     return sorted(found)
 
 
@@ -108,10 +115,17 @@ def _permission(path: str) -> str:
 
 
 def _busy(path: str) -> str:
-    held = holders(path)
+    ends: list[tuple[int, str]] = []
+    held = holders(path, device_ends=ends)
     if held:
         names = ", ".join(f"PID {pid} ({comm})" for pid, comm in held)
         return f"busy: held by {names}; stop it, then retry"
+    if ends:  # e.g. `ucr demo`: its emulator and its daemon are one process
+        names = ", ".join(f"PID {pid} ({comm})" for pid, comm in sorted(ends))
+        return (
+            f"busy: held inside {names}, the process that emulates this port (its own daemon, "
+            "e.g. `ucr demo`'s, uses it); stop that daemon or talk to it through its API"
+        )
     return (
         "busy: another process holds it, not one this user can see "
         f"(sudo fuser -v {path}; on a Pi often a serial console: raspi-config, Serial Port)"

@@ -145,3 +145,32 @@ def test_permission_error_names_the_dialout_group_and_the_fix(pty_port) -> None:
     assert proc.returncode == 0, proc.stderr
     assert "permission denied" in msg and "'nobody'" in msg, msg
     assert "group 'dialout'" in msg and "usermod -aG dialout nobody" in msg, msg
+
+
+def test_a_port_busy_inside_the_process_that_emulates_it_names_that_process() -> None:
+    """Review 2026-11-27: with `ucr demo` (emulator and daemon in one process) `ucr doctor` on
+    its chain port said "another process holds it, not one this user can see"; the holder is
+    visible: it is the emulating process itself."""
+    from host.serialport import _busy
+
+    script = textwrap.dedent(
+        """
+        import fcntl, os, sys, termios
+        master, slave = os.openpty()  # the emulated device and, in the same process, its user
+        user = os.open(os.ttyname(slave), os.O_RDWR | os.O_NOCTTY)
+        fcntl.ioctl(user, termios.TIOCEXCL)  # held exclusively, as pyserial's exclusive=True
+        print(os.ttyname(slave), flush=True)
+        sys.stdin.read()
+        """
+    )
+    demo = subprocess.Popen(
+        [sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        path = demo.stdout.readline().strip()
+        msg = _busy(path)
+        assert f"held inside PID {demo.pid} (" in msg and "not one this user can see" not in msg
+        assert holders(path) == []  # still not a competitor
+    finally:
+        demo.stdin.close()
+        demo.wait(timeout=30)
