@@ -61,7 +61,12 @@ def start_view_process(api_url: str, port: int = 0, timeout: float = 60.0) -> Vi
     while not found and proc.poll() is None and time.monotonic() < end:
         time.sleep(0.05)
     if not found:
+        rc = proc.poll()
         ViewProcess(proc, "").stop()
-        why = next((ln for ln in reversed(lines) if ln.startswith("ucr")), "no URL printed")
+        why = next((ln for ln in reversed(lines) if ln.startswith("ucr")), None)
+        if why is None:  # no line of its own: say how it ended and what it printed last
+            how = f"exited with status {rc}" if rc is not None else f"no URL in {timeout:g} s"
+            last = next((ln for ln in reversed(lines) if ln.strip()), "")
+            why = f"{how}{'; its last output: ' + last[:300] if last else ', no output'}"
         raise RuntimeError(f"view did not start: {why}")
     return ViewProcess(proc, found[0], lines)
