@@ -33,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="ucr", description="Modular soft continuum robots: U(C)RDF, segments, host daemon."
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser.commands = sub  # type: ignore[attr-defined] - main() finds a command's own parser
     for name in _AREAS:
         try:
             module = importlib.import_module(name)
@@ -46,7 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # the command's own usage, not the dispatcher's (`ucr status --bogus`)
+        command = parser.commands.choices.get(args.command, parser)
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

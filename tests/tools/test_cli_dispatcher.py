@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tools.cli import build_parser
 
 REPO = Path(__file__).resolve().parents[2]
@@ -43,3 +45,18 @@ def test_a_reader_leaving_the_pipe_ends_the_command_quietly_without_a_traceback(
     )
     assert b"Traceback" not in proc.stderr and b"Exception ignored" not in proc.stderr, proc.stderr
     assert proc.returncode == 141
+
+
+def test_an_unknown_option_shows_the_commands_own_usage(capsys):
+    """`ucr status --bogus` printed the dispatcher's `usage: ucr [-h] COMMAND ...`, which says
+    nothing about what status takes (review 2026-11-27)."""
+    from tools.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["status", "--bogus"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2
+    assert (
+        err.startswith("usage: ucr status ")
+        and "ucr status: error: unrecognized arguments: --bogus" in err
+    )
