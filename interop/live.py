@@ -89,10 +89,17 @@ def next_due(due: float, period: float, now: float) -> float:
     return nxt if nxt > now else now + period
 
 
+def _everything(topic: str) -> bool:
+    """``wants`` of an output that takes every topic (one without the method)."""
+    return True
+
+
 class LiveFeed:
     """Publishes the live robot. ``viz_rate`` (Hz) caps /tf and /ucr/arcs (FK is the costly
     part), ``status_period`` (s) the segment diagnostics and loop statistics; joint states go
-    out as the daemon publishes them (cJSB, 50 Hz by default), up to ``js_rate``."""
+    out as the daemon publishes them (cJSB, 50 Hz by default), up to ``js_rate``. Those three
+    are computed only when the output ``wants`` them (a Zenoh sink: while a subscriber
+    matches; a recording: always)."""
 
     def __init__(
         self,
@@ -246,12 +253,17 @@ class LiveFeed:
         t = msg.get("t")
         t_ns = self._t_ns(t)
         if kind == "joint_states":
-            self.out.publish(self.topics.joint_states(msg, t_ns))
+            wants = getattr(self.out, "wants", None) or _everything
+            if wants("/joint_states"):
+                self.out.publish(self.topics.joint_states(msg, t_ns))
             at = float(t) if isinstance(t, int | float) else time.monotonic()
             if at >= next_viz:
                 next_viz = next_due(next_viz, self.viz_period, at)
-                self.out.publish(self.topics.tf(msg, t_ns))
-                self.out.publish(self.topics.arcs(msg, t_ns))
+                # the FK and the CDR of these two are most of a bridge's CPU: only for a reader
+                if wants("/tf"):
+                    self.out.publish(self.topics.tf(msg, t_ns))
+                if wants("/ucr/arcs"):
+                    self.out.publish(self.topics.arcs(msg, t_ns))
         elif kind in ("event", "topology"):
             for m in self.topics.event(msg, t_ns):
                 self.out.publish(m)

@@ -70,6 +70,21 @@ class Fanout:
             except Exception as exc:  # noqa: BLE001 - one broken sink never stops the others
                 self._drop(s, exc)
 
+    def wants(self, topic: str) -> bool:
+        """Whether any sink would take a message on ``topic`` now: a sink without ``wants``
+        (a recording) takes everything; a Zenoh sink only while a subscriber matches. The feed
+        asks before it computes and encodes a periodic topic (FK, CDR: most of its CPU)."""
+        for s in self.sinks:
+            wants = getattr(s, "wants", None)
+            if wants is None:
+                return True
+            try:
+                if wants(topic):
+                    return True
+            except Exception:  # noqa: BLE001 - it cannot tell: send, as before
+                return True
+        return False
+
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
         self.messages += 1
         for s in list(self.sinks):

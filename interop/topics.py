@@ -112,7 +112,7 @@ class _UrdfJoint:
 def _parse_joints(urdf: str) -> list[_UrdfJoint]:
     root = etree.fromstring(urdf.encode())
     out = []
-    for j in root.iter("joint"):
+    for j in root.findall("joint"):  # the robot's joints (a <transmission> names joints too)
         o = j.find("origin")
         xyz = tuple(float(v) for v in o.get("xyz", "0 0 0").split()) if o is not None else (0,) * 3
         rpy = tuple(float(v) for v in o.get("rpy", "0 0 0").split()) if o is not None else (0,) * 3

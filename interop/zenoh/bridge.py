@@ -53,6 +53,12 @@ class ZenohSink:
         self.pubs[topic] = pub
         return pub
 
+    def wants(self, topic: str) -> bool:
+        """Whether a subscriber matches ``topic`` now (a latched or undeclared topic: always):
+        with nobody listening, the feed neither computes nor encodes its periodic topics."""
+        pub = self.pubs.get(topic)
+        return True if pub is None else pub.matching()
+
     def write(self, topic: str, typename: str, schema: str, data: bytes, t_ns: int) -> None:
         pub = self.pubs.get(topic) or self._declare(topic, typename)
         pub.publish(data, t_ns)

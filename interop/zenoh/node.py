@@ -81,6 +81,16 @@ class RmwPublisher:
         self._token = node.liveliness.declare_token(self.token_key)
         self.published = 0
 
+    def matching(self) -> bool:
+        """Whether some subscriber on the network matches this topic now (Zenoh's matching
+        status; a latched topic: always, its cache serves late joiners from what was put)."""
+        if self.qos.transient_local:
+            return True
+        try:
+            return bool(self._pub.matching_status.matching)
+        except Exception:  # noqa: BLE001 - cannot tell (a closing session): publish, as before
+            return True
+
     def publish(self, data: bytes, t_ns: int | None = None) -> None:
         """Send CDR ``data`` with an attachment stamped ``t_ns`` (default: now)."""
         with self._lock:

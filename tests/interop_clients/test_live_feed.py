@@ -197,3 +197,40 @@ def test_slow_status_polls_do_not_hold_back_the_joint_states():
     feed.run(threading.Event(), duration=3.0)
     gaps = sorted(b - a for a, b in zip(t_real, t_real[1:], strict=False))
     assert len(t_real) > 100 and gaps[-3] < 0.2, gaps[-5:]  # a hiccup of the machine aside
+
+
+def test_a_topic_no_output_wants_is_neither_computed_nor_sent(monkeypatch):
+    """`ucr zenoh` with no subscriber spent about a quarter of a core on FK and CDR for /tf,
+    /ucr/arcs and /joint_states that went nowhere (252 ms/s; 26 with this): the feed asks its
+    output first, and an output that cannot say (a recording) still gets everything."""
+    clock = _Clock()
+    monkeypatch.setattr(live, "time", SimpleNamespace(monotonic=clock.monotonic, time=time.time))
+    built: list[str] = []
+
+    class Topics(_Topics):
+        def __getattr__(self, name):
+            def make(*args):
+                built.append(name)
+                return Message(name, "", {}, 0)
+
+            return make
+
+    wanted = {"/tf"}
+
+    class Picky(_Out):
+        def wants(self, topic: str) -> bool:
+            return topic in wanted
+
+    out = Picky(clock)
+    live.LiveFeed(_Daemon(_Stream(clock)), Topics(), out, viz_rate=20.0).run(
+        threading.Event(), duration=2.0
+    )
+    assert "tf" in built and "arcs" not in built and "joint_states" not in built
+    sent = {topic for topic, _ in out.sent}  # (+ the 1 Hz polled ones: segments, loop_stats)
+    assert "tf" in sent and not sent & {"arcs", "joint_states"}
+    wanted.update({"/joint_states", "/ucr/arcs"})  # a subscriber came: everything again
+    built.clear()
+    live.LiveFeed(_Daemon(_Stream(clock)), Topics(), out, viz_rate=20.0).run(
+        threading.Event(), duration=1.0
+    )
+    assert {"tf", "arcs", "joint_states"} <= set(built)

@@ -417,6 +417,30 @@ def test_transient_local_publishers_send_sample_miss_heartbeats(session):
         node.close()
 
 
+# ---------------------------------------------------------------- nobody listening
+def test_the_bridge_sink_wants_a_periodic_topic_only_while_a_subscriber_matches(session):
+    """With no subscriber the feed skips the FK and CDR of /tf, /ucr/arcs and /joint_states
+    (interop/live.py): the sink says whether one matches now; a latched topic always (its cache
+    serves a late reader from what was put)."""
+    from interop.zenoh.bridge import ZenohSink
+    from interop.zenoh.node import RmwNode
+
+    node = RmwNode(session, name="t", namespace="/r")
+    sink = ZenohSink(node)
+    try:
+        assert not sink.wants("/tf") and not sink.wants("/joint_states")
+        assert sink.wants("/robot_description") and sink.wants("/tf_static")
+        sub = session.declare_subscriber(sink.pubs["/tf"].key, lambda s: None)
+        try:
+            assert wait_for(lambda: sink.wants("/tf"), 10), "a subscriber did not match"
+            assert not sink.wants("/joint_states")  # only the topic it reads
+        finally:
+            sub.undeclare()
+        assert wait_for(lambda: not sink.wants("/tf"), 10), "still matching after it left"
+    finally:
+        sink.close()
+
+
 # ---------------------------------------------------------------- the daemon away
 def test_status_service_says_the_daemon_is_away_and_stop_cancels_nothing():
     from interop.live import DaemonLink
