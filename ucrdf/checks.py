@@ -45,6 +45,7 @@ from ucrdf.model import (
     Ros2Control,
 )
 from ucrdf.models.base import CurvatureModel, ModelError
+from ucrdf.numtext import number, shown, whole
 from ucrdf.units import beyond_a_turn, degrees_hint
 
 # Key of a line-number table entry: ("bendable", name, "limits"), ("ros2_control", 0, "joint", 2)…
@@ -52,6 +53,12 @@ LineKey = tuple[object, ...]
 LineTable = dict[LineKey, int]
 
 _PHI_SLACK = 1e-9  # rad: tolerance on the (-pi, pi] bending-plane range when written as decimals
+
+#: Largest length or position (m) a description may give: origins, backbone length and radius,
+#: spool radius, prismatic limits (a tendon radius is bounded by d*kappa_max < 1 already). No
+#: robot comes near 1000 km; a larger value is a mistake, and where FK, IK and the export add and
+#: square such values they overflow (1e308 + 1e308 is inf) into output that is no number at all.
+MAX_LENGTH_M = 1e6
 
 
 def _exceeds(value: float, bound: float) -> bool:
@@ -158,14 +165,17 @@ HW_WATCHDOG_STORE_MS = 1000
 def segment_ms_param(name: str, value: object) -> int:
     """A segment hardware param (``SEGMENT_MS_PARAMS``) as the int ms flashed; ValueError with
     the reason if the firmware could not run it (``ucr check`` and ``ucr flash`` both use this)."""
-    lo, hi, whole, _ = SEGMENT_MS_PARAMS[name]
-    try:
-        ms = float(value)  # type: ignore[arg-type]
+    lo, hi, whole_ms, _ = SEGMENT_MS_PARAMS[name]
+    try:  # the text of a <param>, as every reader of the file reads it (not 2_00)
+        ms = number(value) if isinstance(value, str) else float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number of ms, got {value!r}") from None
+        ms = None
+    if ms is None:
+        shown_value = shown(value) if isinstance(value, str) else repr(value)
+        raise ValueError(f"{name} must be a number of ms, got {shown_value}")
     if not (math.isfinite(ms) and lo <= ms <= hi):
         raise ValueError(f"{name} {ms:g} is outside {lo}..{hi} ms")
-    if whole and ms != int(ms):
+    if whole_ms and ms != int(ms):
         raise ValueError(f"{name} {ms:g} is not a whole number of ms")
     if name == "hw_watchdog_ms" and 0 < ms < HW_WATCHDOG_MIN_MS:
         raise ValueError(f"{name} {ms:g} must be 0 (off) or {HW_WATCHDOG_MIN_MS}..{hi} ms")
@@ -502,10 +512,12 @@ class _Checker:
     def joint(self, joint: Joint) -> None:
         where = f"joint {joint.name!r}"
         line = joint.line
+        oline = self.line(("joint", joint.name, "origin"), line)
         if not all(map(math.isfinite, (*joint.origin.xyz, *joint.origin.rpy))):
             self.error(line, f"{where}: origin has a non-finite value")
         else:
-            self.rpy(joint.origin.rpy, where, self.line(("joint", joint.name, "origin"), line))
+            self.rpy(joint.origin.rpy, where, oline)
+            self.far(joint.origin.xyz, "origin xyz", where, oline)
         if joint.type in ("revolute", "prismatic") and joint.limit is None:
             self.error(
                 line, f"{where}: a {joint.type} joint needs <limit lower upper effort velocity>"
@@ -518,6 +530,8 @@ class _Checker:
                 self.error(lline, f"{where}: <limit> has a non-finite value")
             elif lim.lower > lim.upper:
                 self.error(lline, f"{where}: limit lower {lim.lower} > upper {lim.upper}")
+            elif joint.type == "prismatic":
+                self.far((lim.lower, lim.upper), "limit", where, lline)
             elif joint.type == "revolute":
                 for attr, value in (("lower", lim.lower), ("upper", lim.upper)):
                     if beyond_a_turn(value):  # -135 for -2.356: degrees for radians
@@ -530,10 +544,39 @@ class _Checker:
             if lim.effort < 0 or lim.velocity < 0:
                 self.error(lline, f"{where}: limit effort and velocity must be >= 0")
         if joint.type in ("revolute", "continuous", "prismatic", "planar"):
-            norm = math.sqrt(sum(a * a for a in joint.axis))
-            if not math.isfinite(norm) or norm < 1e-12:
-                aline = self.line(("joint", joint.name, "axis"), line)
-                self.error(aline, f"{where}: axis {joint.axis} has no direction (zero length)")
+            self.axis(joint, where, self.line(("joint", joint.name, "axis"), line))
+
+    def axis(self, joint: Joint, where: str, line: int) -> None:
+        """A joint axis is a direction: finite, not (near) zero, and normalisable by a reader that
+        divides by sqrt(x² + y² + z²) (urdfdom, numpy), whose squares must not overflow."""
+        axis = joint.axis
+        text = " ".join(f"{a:g}" for a in axis)
+        if not all(map(math.isfinite, axis)):
+            self.error(line, f"{where}: axis ({text}) is not finite")
+            return
+        norm = math.hypot(*axis)  # scaled: no overflow where the sum of squares has one
+        if norm < 1e-12:
+            self.error(line, f"{where}: axis ({text}) has no direction (zero length)")
+        elif not math.isfinite(math.fsum(a * a for a in axis)):
+            unit = " ".join(f"{a / norm:.6g}" for a in axis)
+            self.error(
+                line,
+                f"{where}: axis ({text}) is too long to normalise (its squared length overflows); "
+                f"write the unit vector ({unit})",
+            )
+
+    def far(self, values: tuple[float, ...], what: str, where: str, line: int) -> bool:
+        """A length or position beyond ±MAX_LENGTH_M is reported (once for ``values``); True
+        then."""
+        for value in values:
+            if abs(value) > MAX_LENGTH_M:
+                self.error(
+                    line,
+                    f"{where}: {what} {value:g} m is beyond ±{MAX_LENGTH_M:g} m: no robot is that "
+                    "large (a unit mistake?)",
+                )
+                return True
+        return False
 
     def rpy(self, rpy: tuple[float, float, float], where: str, line: int) -> None:
         """An ``<origin rpy>`` beyond 2*pi is degrees written for radians (like revolute limits
@@ -555,6 +598,7 @@ class _Checker:
             self.error(line, f"{where}: <inertial> has a non-finite origin or inertia value")
             return
         self.rpy(inertial.origin.rpy, f"{where}: <inertial>", oline or line)
+        self.far(inertial.origin.xyz, "<inertial> origin xyz", where, oline or line)
         problem = inertia_problem(inertial.inertia)
         if problem:
             self.error(line, f"{where}: <inertia> is not physically possible: {problem}")
@@ -564,10 +608,12 @@ class _Checker:
         key = ("bendable", b.name)
         where = f"bendable {b.name!r}"
         spec = b.model
+        oline = self.line((*key, "origin"), b.line)
         if not all(map(math.isfinite, (*b.origin.xyz, *b.origin.rpy))):
             self.error(b.line, f"{where}: origin has a non-finite value")
         else:
-            self.rpy(b.origin.rpy, where, self.line((*key, "origin"), b.line))
+            self.rpy(b.origin.rpy, where, oline)
+            self.far(b.origin.xyz, "origin xyz", where, oline)
         if b.inertial is not None:
             iline = self.line((*key, "inertial"), b.line)
             self.inertial(b.inertial, where, iline, self.line((*key, "inertial", "origin"), iline))
@@ -578,8 +624,12 @@ class _Checker:
         if not (math.isfinite(bb.length) and bb.length > 0):
             self.error(bline, f"{where}: backbone length must be > 0 m, got {bb.length}")
             sound = False
+        elif self.far((bb.length,), "backbone length", where, bline):
+            sound = False
         if not (math.isfinite(bb.radius) and bb.radius >= 0):
             self.error(bline, f"{where}: backbone radius must be >= 0 m, got {bb.radius}")
+        else:
+            self.far((bb.radius,), "backbone radius", where, bline)
         for attr, unit in (("youngs_modulus", "Pa"), ("bending_stiffness", "N m^2")):
             value = getattr(bb, attr)
             if value is not None and not (math.isfinite(value) and value > 0):
@@ -711,6 +761,8 @@ class _Checker:
             )
         if not (math.isfinite(act.spool_radius) and act.spool_radius > 0):
             self.error(aline, f"{where}: spool radius must be > 0 m, got {act.spool_radius}")
+        else:
+            self.far((act.spool_radius,), "spool radius", where, aline)
         if not act.driver.strip():
             self.error(aline, f"{where}: empty servo driver name")
         elif act.driver not in FIRMWARE_DRIVERS:
@@ -1012,15 +1064,12 @@ class _Checker:
                     f"URL without spaces, got {value!r}",
                 )
             elif pname == "baudrate":
-                try:
-                    baud = int(value, 10)
-                except ValueError:
-                    baud = None
+                baud = whole(value)
                 if baud is None or baud < MIN_BAUDRATE:
                     self.error(
                         pline,
                         f"{where}: hardware param baudrate must be a whole number of bit/s >= "
-                        f"{MIN_BAUDRATE}, got {value!r}",
+                        f"{MIN_BAUDRATE}, got {shown(value)}",
                     )
 
     def control_joint(self, cjoint: ControlJoint, jkey: LineKey, jline: int) -> None:
@@ -1119,7 +1168,8 @@ class _Checker:
                 continue
             value = iface.params[pname]
             if isinstance(value, str) or not math.isfinite(value):
-                self.error(line, f"{label}: param {pname} must be a finite number, got {value!r}")
+                got = shown(value) if isinstance(value, str) else repr(value)
+                self.error(line, f"{label}: param {pname} must be a finite number, got {got}")
                 continue
             values[pname] = float(value)
         lo, hi = values.get("min"), values.get("max")

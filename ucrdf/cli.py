@@ -51,28 +51,41 @@ def run_check(args: argparse.Namespace) -> int:
     except UcrdfError as exc:
         for diagnostic in exc.diagnostics:
             print(diagnostic, file=sys.stderr)
-        count = len(exc.diagnostics)
-        print(f"{args.file}: {count} error{'s' if count != 1 else ''}", file=sys.stderr)
+        count, path = len(exc.diagnostics), args.file or "''"
+        print(f"{path}: {count} error{'s' if count != 1 else ''}", file=sys.stderr)
         return 1
     _print_warnings(args.file, robot)
     if not args.quiet:
         try:
-            print(summary(robot), flush=True)
+            print_out(summary(robot))
         except BrokenPipeError:  # e.g. `ucr check FILE | head`: the reader left, not an error
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, sys.stdout.fileno())  # keep the interpreter's final flush quiet
+            pass
+        except OSError as exc:  # e.g. `> /dev/full`
+            reason = exc.strerror or str(exc)
+            print(f"ucr check: error: cannot write the summary: {reason}", file=sys.stderr)
+            return 1
     return 0
+
+
+def print_out(text: str, end: str = "\n") -> None:
+    """``print(text, end=end)``, flushed. When stdout cannot take it the OSError propagates
+    (BrokenPipeError: the reader left; another: e.g. a full disk), and stdout then points to
+    /dev/null, so the interpreter's final flush of what is left does not fail again."""
+    try:
+        print(text, end=end, flush=True)
+    except OSError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        raise
 
 
 def _print_warnings(path: str, robot: Robot) -> None:
     """``path:line: warning: …`` on stderr for what a usable file still lacks (exit code 0)."""
-    from pathlib import Path  # noqa: PLC0415
-
     from ucrdf.checks import warnings  # noqa: PLC0415
-    from ucrdf.parser import parse_with_lines  # noqa: PLC0415
+    from ucrdf.parser import parse_with_lines, read_file  # noqa: PLC0415
 
     try:
-        _, lines = parse_with_lines(Path(path).read_bytes(), path)
+        _, lines = parse_with_lines(read_file(path), path)
     except Exception:  # noqa: BLE001 - it loaded a moment ago; lines are a nicety
         lines = {}
     for diagnostic in warnings(robot, lines):
@@ -88,17 +101,44 @@ def _deg(angle_rad: float) -> str:
     return f"{math.degrees(angle_rad):.1f}°"
 
 
-def _interface(iface: Interface) -> str:
-    parts = [iface.name]
+def _interface(iface: Interface, unit: str | None) -> str:
+    """``kappa [0, 3.314] 1/m, init 0 1/m``: the interface's bounds and initial value."""
+    per = f" {unit}" if unit else ""
+    details = []
     lo, hi = iface.params.get("min"), iface.params.get("max")
     if lo is not None or hi is not None:
         lo_text = _num(lo) if isinstance(lo, float) else "-"
         hi_text = _num(hi) if isinstance(hi, float) else "-"
-        parts.append(f"[{lo_text}, {hi_text}]")
+        details.append(f"[{lo_text}, {hi_text}]{per}")
     init = iface.params.get("initial_value")
     if isinstance(init, float):
-        parts.append(f"init {_num(init)}")
-    return " ".join(parts)
+        details.append(f"init {_num(init)}{per}")
+    return f"{iface.name} {', '.join(details)}" if details else iface.name
+
+
+#: Units of a rigid joint's interfaces: (revolute or continuous, prismatic)
+_JOINT_UNITS = {
+    "position": ("rad", "m"),
+    "velocity": ("rad/s", "m/s"),
+    "acceleration": ("rad/s^2", "m/s^2"),
+    "effort": ("N m", "N"),
+}
+
+
+def _interface_units(robot: Robot, name: str) -> dict[str, str]:
+    """The unit of each interface of the bendable or joint ``name`` (those known)."""
+    if name in robot.bendables:
+        from ucrdf.checks import model_registry  # noqa: PLC0415
+
+        try:
+            model = model_registry()[0](robot.bendables[name].model.type)
+            return {v.name: v.unit for v in model.variables()}
+        except Exception:  # noqa: BLE001 - a summary of a checked robot; units are a nicety
+            return {}
+    joint = robot.joints.get(name)
+    if joint is None or joint.type not in ("revolute", "continuous", "prismatic"):
+        return {}
+    return {k: units[joint.type == "prismatic"] for k, units in _JOINT_UNITS.items()}
 
 
 def _joint_line(joint: Joint) -> str:
@@ -217,10 +257,13 @@ def summary(robot: Robot) -> str:
         for cj in control.joints:
             kind = "bendable" if cj.name in robot.bendables else "joint"
             lines.append(f"  {kind} {cj.name}")
+            units = _interface_units(robot, cj.name)
             if cj.command_interfaces:
-                commands = "; ".join(_interface(i) for i in cj.command_interfaces)
+                commands = "; ".join(
+                    _interface(i, units.get(i.name)) for i in cj.command_interfaces
+                )
                 lines.append(f"    command: {commands}")
             if cj.state_interfaces:
-                states = "; ".join(_interface(i) for i in cj.state_interfaces)
+                states = "; ".join(_interface(i, units.get(i.name)) for i in cj.state_interfaces)
                 lines.append(f"    state: {states}")
     return "\n".join(lines)

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ucrdf.cli import print_out
+from ucrdf.numtext import number, shown, whole
 from ucrdf.units import phi_beyond_a_turn
 
 
@@ -58,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--target", required=True, help="target position x,y,z in m (root frame)")
     p.add_argument("--tip", help="link to place (default: the robot's one end link)")
     p.add_argument("--initial", help="start configuration (JSON or @file), like fk --config")
-    p.add_argument("--tol", type=float, default=1e-4, help="position tolerance in m (1e-4)")
+    p.add_argument("--tol", default="1e-4", help="position tolerance in m (1e-4)")
     p.set_defaults(func=_guard(run_ik))
 
     p = subparsers.add_parser(
@@ -69,16 +71,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "baked into fixed joints.",
     )
     p.add_argument("file", metavar="FILE", help="U(C)RDF file")
-    p.add_argument(
-        "--subdivisions", "-n", type=int, default=10, help="per bendable (10; at most 1000)"
-    )
+    p.add_argument("--subdivisions", "-n", default="10", help="per bendable (10; at most 1000)")
     p.add_argument("-o", "--output", required=True, help="output URDF path ('-' for stdout)")
     p.add_argument("--config", help="bake this configuration (JSON or @file) as fixed joints")
     p.set_defaults(func=_guard(run_export))
 
 
 def _guard(func):
-    """Turn expected errors into stderr lines and exit code 1."""
+    """Turn expected errors into stderr lines and exit code 1 (2 for a usage error)."""
 
     def run(args: argparse.Namespace) -> int:
         from ucrdf.errors import UcrdfError  # noqa: PLC0415
@@ -98,7 +98,8 @@ def _guard(func):
 
 
 def _json_arg(text: str, option: str) -> Any:
-    """Parse a JSON option value; ``@path`` reads the file."""
+    """Parse a JSON option value; ``@path`` reads the file (UTF-8). A key given twice in one
+    object is refused (json would keep the last one silently)."""
     source = option
     if text.startswith("@"):
         path = Path(text[1:])
@@ -106,9 +107,22 @@ def _json_arg(text: str, option: str) -> Any:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise _UsageError(f"cannot read {option} file {str(path)!r}: {exc.strerror}") from None
+        except UnicodeDecodeError as exc:
+            raise _UsageError(
+                f"cannot read {option} file {str(path)!r}: not UTF-8 text (byte {exc.start})"
+            ) from None
         source = f"{option} file {str(path)!r}"
+
+    def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        obj: dict[str, Any] = {}
+        for key, value in pairs:
+            if key in obj:
+                raise _UsageError(f"{source}: key {shown(key)} is given twice")
+            obj[key] = value
+        return obj
+
     try:
-        value = json.loads(text)
+        value = json.loads(text, object_pairs_hook=unique)
     except json.JSONDecodeError as exc:
         raise _UsageError(
             f"{source} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
@@ -134,14 +148,30 @@ def _load(path: str):
     return load(path)
 
 
+def _print(text: str, end: str = "\n") -> None:
+    """``text`` on stdout; a stdout that cannot take it (``> /dev/full``) is one error line."""
+    try:
+        print_out(text, end)
+    except BrokenPipeError:
+        raise  # the reader left: the dispatcher stops quietly
+    except OSError as exc:
+        raise _CliError(f"cannot write the output: {exc.strerror or exc}") from None
+
+
 def run_fk(args: argparse.Namespace) -> int:
+    import numpy as np  # noqa: PLC0415
+
     from ucrdf.fk import RobotKinematics  # noqa: PLC0415
 
     config = _json_arg(args.config, "--config")
     robot = _load(args.file)
-    frames = RobotKinematics(robot).fk(config)
+    with np.errstate(all="ignore"):  # an overflow is reported below, once
+        frames = RobotKinematics(robot).fk(config)
     out = {name: [[float(x) for x in row] for row in t.tolist()] for name, t in frames.items()}
-    print(matrices_json(out))
+    for name, rows in out.items():  # JSON has no NaN or Infinity: an error, not invalid output
+        if not all(math.isfinite(x) for row in rows for x in row):
+            raise _CliError(f"the transform of link {name!r} is not finite (numbers overflow)")
+    _print(matrices_json(out))
     return 0
 
 
@@ -156,24 +186,23 @@ def matrices_json(frames: dict[str, list[list[float]]]) -> str:
 
 
 def _target(text: str) -> tuple[float, float, float]:
-    parts = text.split(",")
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise _UsageError(f"--target must be three numbers x,y,z in m, got {text!r}")
-    return values  # type: ignore[return-value]
+    values = [number(p) for p in text.split(",")]
+    if len(values) != 3 or not all(v is not None and math.isfinite(v) for v in values):
+        raise _UsageError(f"--target must be three numbers x,y,z in m, got {shown(text, 60)}")
+    return tuple(values)  # type: ignore[return-value]
 
 
 def run_ik(args: argparse.Namespace) -> int:
+    import numpy as np  # noqa: PLC0415
+
     from ucrdf.fk import ConfigError  # noqa: PLC0415
     from ucrdf.ik import solve_ik  # noqa: PLC0415
 
     target = _target(args.target)
     initial = _json_arg(args.initial, "--initial") if args.initial else None
-    if not (args.tol > 0.0 and math.isfinite(args.tol)):
-        raise _UsageError(f"--tol must be a positive number of metres, got {args.tol}")
+    tol = number(args.tol)
+    if tol is None or not (tol > 0.0 and math.isfinite(tol)):
+        raise _UsageError(f"--tol must be a positive number of metres, got {shown(args.tol)}")
     robot = _load(args.file)
     if initial is not None:  # a start outside the limits is refused as by fk --config
         from ucrdf.fk import RobotKinematics  # noqa: PLC0415
@@ -182,7 +211,8 @@ def run_ik(args: argparse.Namespace) -> int:
             RobotKinematics(robot).resolve(initial)
         except ConfigError as exc:
             raise _CliError(f"--initial: {exc}") from None
-    result = solve_ik(robot, target, tip=args.tip, initial=initial, tol=args.tol)
+    with np.errstate(all="ignore"):  # an overflow is reported below, once
+        result = solve_ik(robot, target, tip=args.tip, initial=initial, tol=tol)
     out = {
         "success": result.success,
         "residual": result.residual,
@@ -192,8 +222,13 @@ def run_ik(args: argparse.Namespace) -> int:
         "target": list(target),
         "config": result.config,
     }
-    json.dump(out, sys.stdout, indent=1)
-    print()
+    try:  # JSON has no NaN or Infinity: an error, not invalid output
+        text = json.dumps(out, indent=1, allow_nan=False)
+    except ValueError:
+        raise _CliError(
+            f"the solution is not finite (residual {result.residual}): numbers overflow"
+        ) from None
+    _print(text)
     if not result.success:
         print(f"ucr ik: {result.message}", file=sys.stderr)
     return 0 if result.success else 1
@@ -202,20 +237,21 @@ def run_ik(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     from ucrdf.export import MAX_SUBDIVISIONS, export_urdf  # noqa: PLC0415
 
-    if not 1 <= args.subdivisions <= MAX_SUBDIVISIONS:
+    n = whole(args.subdivisions)
+    if n is None or not 1 <= n <= MAX_SUBDIVISIONS:
         raise _UsageError(
-            f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}, got {args.subdivisions}"
+            f"--subdivisions must be in 1..{MAX_SUBDIVISIONS}, got {shown(args.subdivisions)}"
         )
     config = _json_arg(args.config, "--config") if args.config else None
     robot = _load(args.file)
-    text = export_urdf(robot, args.subdivisions, config)
+    text = export_urdf(robot, n, config)
     if args.output == "-":
-        sys.stdout.write(text)
+        _print(text, end="")
         return 0
     try:
         Path(args.output).write_text(text, encoding="utf-8")
     except OSError as exc:
         raise _CliError(f"cannot write {args.output!r}: {exc.strerror}") from None
-    print(f"wrote {args.output} ({len(robot.bendables)} bendable(s) x {args.subdivisions} "
+    print(f"wrote {args.output} ({len(robot.bendables)} bendable(s) x {n} "
           "subdivisions)", file=sys.stderr)  # fmt: skip
     return 0

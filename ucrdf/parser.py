@@ -40,9 +40,12 @@ from ucrdf.model import (
     Servo,
     Vec3,
 )
+from ucrdf.numtext import MAX_WHOLE_DIGITS, number, shown, whole
 
 # Joint children stored verbatim in Joint.extensions (valid URDF we do not interpret).
 _JOINT_OPAQUE = ("calibration", "dynamics", "mimic", "safety_controller")
+# The interface params read as numbers; the others pass through as the text written
+_NUMERIC_INTERFACE_PARAMS = ("initial_value", "min", "max")
 
 
 @lru_cache(maxsize=1)
@@ -52,24 +55,50 @@ def schema() -> etree.XMLSchema:
     return etree.XMLSchema(etree.fromstring(data))
 
 
+#: Largest file :func:`read_file` reads, in bytes. A robot description is kilobytes (meshes are
+#: files of their own); a bigger file is the wrong one, and /dev/zero must not fill the memory.
+MAX_FILE_BYTES = 64 * 1024 * 1024
+
+
 def load(path: str | Path, *, check: bool = True) -> Robot:
     """Parse and (by default) semantically check the U(C)RDF file at ``path``.
 
     Raises UcrdfError with one diagnostic per problem; a missing or unreadable file is one
     diagnostic too, so callers need to handle only that one exception type.
     """
+    return parse_bytes(read_file(path), source=str(path), check=check)
+
+
+def read_file(path: str | Path) -> bytes:
+    """The bytes of the file at ``path``, at most :data:`MAX_FILE_BYTES` of them; UcrdfError with
+    one diagnostic when it cannot be read, is larger, or ``path`` is empty."""
     source = str(path)
+    if not source:  # Path("") is the current directory: "Is a directory" would mislead
+        raise UcrdfError([Diagnostic("''", 0, "cannot read file: the path is empty")])
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as file:
+            data = file.read(MAX_FILE_BYTES + 1)
     except OSError as exc:
         reason = exc.strerror or str(exc)
         raise UcrdfError([Diagnostic(source, 0, f"cannot read file: {reason}")]) from None
-    return parse_bytes(data, source=source, check=check)
+    if len(data) > MAX_FILE_BYTES:
+        message = f"file is larger than {MAX_FILE_BYTES >> 20} MiB: not a robot description"
+        raise UcrdfError([Diagnostic(source, 0, message)])
+    return data
+
+
+# the encoding="…" of an XML declaration at the start of a text
+_ENCODING_DECLARATION = re.compile(r"""\A(\ufeff?<\?xml\s[^>]*?)\s+encoding\s*=\s*(["'])[^"']*\2""")
 
 
 def parse_string(text: str, source: str = "<string>", *, check: bool = True) -> Robot:
-    """Parse U(C)RDF from a string; ``source`` names it in diagnostics."""
-    return parse_bytes(text.encode("utf-8"), source=source, check=check)
+    """Parse U(C)RDF from a string; ``source`` names it in diagnostics.
+
+    The text is already decoded: an ``encoding="…"`` in its XML declaration names what the bytes
+    once were and is dropped (it would make the parser decode the text a second time)."""
+    text = _ENCODING_DECLARATION.sub(r"\1", text, count=1)
+    # a lone surrogate is not text: it reaches the XML parser as invalid UTF-8, a syntax error
+    return parse_bytes(text.encode("utf-8", "surrogatepass"), source=source, check=check)
 
 
 def parse_bytes(data: bytes, source: str = "<bytes>", *, check: bool = True) -> Robot:
@@ -94,8 +123,8 @@ def parse_with_lines(data: bytes, source: str = "<bytes>") -> tuple[Robot, LineT
 def _build(data: bytes, source: str) -> tuple[Robot, LineTable, list[Diagnostic]]:
     """Syntax and schema errors raise at once (nothing to build on); document-level problems are
     returned so the semantic checks can add theirs to the same report."""
-    root = _parse_xml(data, source)
-    _refuse_entities(root, data, source)
+    root, log = _parse_xml(data, source)
+    _refuse_dtd(root, data, source, log)
     if root.tag != "robot":
         line = root.sourceline or 0
         raise UcrdfError(
@@ -163,35 +192,113 @@ def _refuse_xacro(root: etree._Element, source: str) -> None:
         raise UcrdfError(found)
 
 
-def _refuse_entities(root: etree._Element, data: bytes, source: str) -> None:
-    """Entity declarations in a DTD are refused (they are never expanded nor read: a description
-    must not pull in files, and text hidden behind an entity hides what the robot is)."""
-    dtd = root.getroottree().docinfo.internalDTD
-    entities = list(dtd.iterentities()) if dtd is not None else []
-    if not entities:
+# the pieces of a prolog and of an internal DTD subset, in a document libxml2 has parsed (so
+# well-formed): white space, processing instructions, comments, a DOCTYPE up to its subset, and
+# the declarations in the subset (with their kind and name)
+_PROLOG = re.compile(r"\s+|<\?.*?\?>|<!--.*?-->", re.DOTALL)
+_DOCTYPE = re.compile(r"""<!DOCTYPE\s(?:[^\[>"']|"[^"]*"|'[^']*')*""")
+_SUBSET = re.compile(
+    r"""\s+|<\?.*?\?>|<!--.*?-->|%[^;]*;"""
+    r"""|<!(?P<kind>[A-Z]+)\s+(?:%\s+)?(?P<name>[^\s>]+)(?:[^"'>]|"[^"]*"|'[^']*')*>""",
+    re.DOTALL,
+)
+
+
+def _doctype(text: str) -> tuple[int, list[re.Match[str]]]:
+    """Offset of the ``<!DOCTYPE`` of ``text`` (-1: none) and the declarations of its internal
+    subset, in order."""
+    pos = 1 if text.startswith("\ufeff") else 0
+    while (m := _PROLOG.match(text, pos)) is not None:
+        pos = m.end()
+    head = _DOCTYPE.match(text, pos)
+    if head is None:
+        return -1, []
+    declarations = []
+    if text.startswith("[", head.end()):
+        pos = head.end() + 1
+        while (m := _SUBSET.match(text, pos)) is not None:
+            if m.group("kind"):
+                declarations.append(m)
+            pos = m.end()
+    return head.start(), declarations
+
+
+def _refuse_dtd(root: etree._Element, data: bytes, source: str, log: etree._ListErrorLog) -> None:
+    """A ``<!DOCTYPE>`` may name the root element and nothing more. An external DTD (``SYSTEM``
+    or ``PUBLIC``), entity declarations, the other declarations of an internal subset
+    (``<!ATTLIST>`` defaults, ``<!ELEMENT>``, ``<!NOTATION>``) and references to entities nothing
+    defines are refused, each at its line: nothing is read or expanded (a description must not
+    pull in files, and text hidden behind an entity or a default hides what the robot is), and
+    nothing is silently dropped (libxml2 leaves an undefined entity out of an attribute)."""
+    docinfo = root.getroottree().docinfo
+    dtd = docinfo.internalDTD
+    undefined = [e for e in log if e.type == etree.ErrorTypes.WAR_UNDECLARED_ENTITY]
+    if dtd is None and not undefined:
         return
+    try:  # the text, for the lines of the declarations
+        text = data.decode(docinfo.encoding or "utf-8", "replace")
+    except LookupError:  # an encoding libxml2 knows and Python does not
+        text = data.decode("utf-8", "replace")
+    start, declarations = _doctype(text)
+
+    def line(offset: int) -> int:
+        return text.count("\n", 0, offset) + 1 if offset >= 0 else 1
+
     found = []
-    for entity in entities:
-        m = re.search(rb"<!ENTITY\s+(?:%\s+)?" + re.escape(entity.name.encode()) + rb"\b", data)
-        line = data.count(b"\n", 0, m.start()) + 1 if m else 1
-        if entity.system_url is not None:
-            what = f"external entity {entity.name!r} ({entity.system_url}): never read"
-        else:
-            what = f"entity {entity.name!r}"
+    if docinfo.system_url is not None or docinfo.public_id is not None:
+        names = " ".join(repr(n) for n in (docinfo.public_id, docinfo.system_url) if n)
         found.append(
             Diagnostic(
                 source,
-                line,
-                f"DTD entity declarations are not supported in U(C)RDF ({what}); write the text "
-                "in place (the predefined entities such as &amp; and character references work)",
+                line(start),
+                f"external DTD {names}: never read; a U(C)RDF file has no DTD (remove it from "
+                "the <!DOCTYPE>)",
             )
         )
-    raise UcrdfError(found)
+    entities = {e.name: e for e in dtd.iterentities()} if dtd is not None else {}
+    hint = (
+        "write the text in place (the predefined entities such as &amp; and character "
+        "references work)"
+    )
+    for m in declarations:
+        kind, name = m.group("kind", "name")
+        if kind == "ENTITY":
+            entity = entities.pop(name, None)
+            url = entity.system_url if entity is not None else None
+            what = f"external entity {name!r} ({url}): never read" if url else f"entity {name!r}"
+            message = f"DTD entity declarations are not supported in U(C)RDF ({what}); {hint}"
+        elif kind == "ATTLIST":
+            message = (
+                f"DTD declaration <!ATTLIST {name} …> is not supported in U(C)RDF: its defaults "
+                "are never applied; write the attributes in the elements"
+            )
+        else:
+            message = (
+                f"DTD declaration <!{kind} {name} …> is not supported in U(C)RDF (ucrdf.xsd "
+                "defines the structure); remove it"
+            )
+        found.append(Diagnostic(source, line(m.start()), message))
+    for name in entities:  # declared in a way the scan above did not see: still refused
+        message = f"DTD entity declarations are not supported in U(C)RDF (entity {name!r}); {hint}"
+        found.append(Diagnostic(source, line(start), message))
+    for entry in undefined:
+        name = re.search(r"'([^']*)'", entry.message)
+        found.append(
+            Diagnostic(
+                source,
+                entry.line,
+                f"entity {name.group(1) if name else '?'!r} is not defined: U(C)RDF never "
+                f"expands entities; {hint}",
+            )
+        )
+    if found:
+        raise UcrdfError(found)
 
 
-def _parse_xml(data: bytes, source: str) -> etree._Element:
-    # entities are never expanded: a document declaring any is refused after parsing
-    # (_refuse_entities), so a description never reads files or the network
+def _parse_xml(data: bytes, source: str) -> tuple[etree._Element, etree._ListErrorLog]:
+    """The root element and the parser's log (its warnings name undefined entities)."""
+    # entities are never expanded: a document declaring or using any is refused after parsing
+    # (_refuse_dtd), so a description never reads files or the network
     parser = etree.XMLParser(
         resolve_entities=False, no_network=True, load_dtd=False, huge_tree=False
     )
@@ -209,12 +316,17 @@ def _parse_xml(data: bytes, source: str) -> etree._Element:
         raise UcrdfError([diagnostic]) from None
     if root is None:
         raise UcrdfError([Diagnostic(source, 0, "empty document")])
-    return root
+    return root, parser.error_log
+
+
+# a quoted value in a libxml2 schema message: long ones are cut (shown())
+_QUOTED = re.compile(r"'([^']{25,})'")
 
 
 def _clean_schema_message(message: str) -> str:
     """libxml2's schema messages, minus the noise of namespace braces and trailing dots."""
-    return message.replace("{http://www.w3.org/2001/XMLSchema}", "xs:").rstrip(".")
+    message = message.replace("{http://www.w3.org/2001/XMLSchema}", "xs:").rstrip(".")
+    return _QUOTED.sub(lambda m: shown(m.group(1)), message)
 
 
 def normalise_xml(element: etree._Element) -> str:
@@ -253,22 +365,26 @@ def _children(element: etree._Element) -> list[etree._Element]:
 
 
 def _float(text: str) -> float:
-    return float(text.strip())
+    """``xs:double`` text as a float; ValueError for anything else (``1_5``, ``infinity``: what
+    Python reads but a C++ reader of the file does not)."""
+    value = number(text)
+    if value is None:
+        raise ValueError(f"not a number: {shown(text)}")
+    return value
 
 
 def _number_or_text(text: str) -> float | str:
-    """Parameter values: a float when the text is a number, else the stripped text."""
+    """Parameter values: a float when the text is ``xs:double`` text, else the stripped text (for
+    whoever needs a number to report)."""
     stripped = text.strip()
-    try:
-        return float(stripped)
-    except ValueError:
-        return stripped
+    value = number(stripped)
+    return stripped if value is None else value
 
 
 def _vec3(text: str | None, default: Vec3) -> Vec3:
     if text is None:
         return default
-    x, y, z = (float(v) for v in text.split())
+    x, y, z = (_float(v) for v in text.split())
     return (x, y, z)
 
 
@@ -289,6 +405,22 @@ class _Builder:
     def error(self, element: etree._Element | int, message: str) -> None:
         line = element if isinstance(element, int) else (element.sourceline or 0)
         self.diagnostics.append(Diagnostic(self.source, line, message))
+
+    def whole(
+        self, element: etree._Element, attr: str, owner: str, default: str = ""
+    ) -> int | None:
+        """The whole-number attribute ``attr`` of ``element`` (``default`` when absent); None,
+        reported at the element's line, when it has more than MAX_WHOLE_DIGITS digits (the
+        schema has checked the rest of its syntax)."""
+        text = element.get(attr, default)
+        value = whole(text)
+        if value is None:
+            self.error(
+                element,
+                f"{owner} <{element.tag} {attr}={shown(text)}> is out of range: a whole number "
+                f"has at most {MAX_WHOLE_DIGITS} digits here",
+            )
+        return value
 
     # -- robot ---------------------------------------------------------------------------------
     def build(self, root: etree._Element) -> Robot:
@@ -349,7 +481,7 @@ class _Builder:
         inertia = (0.0,) * 6
         if inertia_el is not None:
             inertia = tuple(
-                float(inertia_el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+                _float(inertia_el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
             )
         return Inertial(
             mass=_float(mass_el.get("value")),
@@ -411,10 +543,10 @@ class _Builder:
         limit = None
         if limit_el is not None:
             limit = JointLimit(
-                lower=float(limit_el.get("lower", "0")),
-                upper=float(limit_el.get("upper", "0")),
-                effort=float(limit_el.get("effort")),
-                velocity=float(limit_el.get("velocity")),
+                lower=_float(limit_el.get("lower", "0")),
+                upper=_float(limit_el.get("upper", "0")),
+                effort=_float(limit_el.get("effort")),
+                velocity=_float(limit_el.get("velocity")),
             )
             self.lines[("joint", name, "limit")] = limit_el.sourceline or 0
         if axis is not None:
@@ -509,7 +641,7 @@ class _Builder:
             try:
                 extra[attr] = _float(value)
             except ValueError:
-                self.error(limits_el, f"{owner}: <limits {attr}={value!r}> is not a number")
+                self.error(limits_el, f"{owner}: <limits {attr}={shown(value)}> is not a number")
         rate = limits_el.get("kappa_rate_max")
         limits = CurvatureLimits(
             kappa_max=_float(limits_el.get("kappa_max")),
@@ -528,11 +660,14 @@ class _Builder:
         )
         return ModelSpec(type=element.get("type"), limits=limits, backbone=backbone, params=params)
 
-    def actuation(self, element: etree._Element, bendable: str) -> Actuation:
+    def actuation(self, element: etree._Element, bendable: str) -> Actuation | None:
+        """The bendable's ``<actuation>``; None when its ``count`` is unusable (reported)."""
         key = ("bendable", bendable)
         owner = f"bendable {bendable!r}: <actuation>"
         self.lines[(*key, "actuation")] = element.sourceline or 0
-        count = int(element.get("count"))
+        count = self.whole(element, "count", f"bendable {bendable!r}:")
+        if count is None:  # reported; the tendons and servos cannot be judged against it
+            return None
         tendons: dict[int, float] = {}
         servos: dict[int, Servo] = {}
         uarts: dict[str, dict[str, int]] = {}
@@ -555,7 +690,11 @@ class _Builder:
                     range=_float(child.get("range", repr(PwmPulse.range))),
                 )
                 continue
-            index = int(child.get("index"))
+            index = self.whole(child, "index", owner)
+            if index is None:
+                if child.tag == "servo":  # reported: not again as a missing servo
+                    self.lines[(*key, "servo_reported")] = child.sourceline or 0
+                continue
             if child.tag == "pwm":
                 if index in pwm_pins:
                     self.error(child, f"{owner} has two <pwm> with index {index}")
@@ -563,9 +702,9 @@ class _Builder:
                     self.error(
                         child, f"{owner} <pwm index={index}> is out of range: count is {count}"
                     )
-                else:
+                elif (pin := self.whole(child, "pin", owner)) is not None:
                     self.lines[(*key, "pwm", index)] = child.sourceline or 0
-                    pwm_pins[index] = int(child.get("pin"))
+                    pwm_pins[index] = pin
                 continue
             table = tendons if child.tag == "tendon" else servos
             if child.tag == "servo" and (index in table or index >= count):
@@ -584,18 +723,20 @@ class _Builder:
             self.lines[(*key, child.tag, index)] = child.sourceline or 0
             if child.tag == "tendon":
                 tendons[index] = _float(child.get("angle"))
-            else:
-                servos[index] = Servo(
-                    id=int(child.get("id")),
-                    zero_offset=_float(child.get("zero_offset", "0")),
-                    direction=int(child.get("direction", "1")),
-                    min_angle=_float(child.get("min_angle", repr(-math.pi))),
-                    max_angle=_float(child.get("max_angle", repr(math.pi))),
-                )
-                given[index] = (
-                    child.get("min_angle") is not None,
-                    child.get("max_angle") is not None,
-                )
+                continue
+            servo_id = self.whole(child, "id", owner)
+            direction = self.whole(child, "direction", owner, "1")
+            if servo_id is None or direction is None:
+                self.lines[(*key, "servo_reported")] = child.sourceline or 0
+                continue
+            servos[index] = Servo(
+                id=servo_id,
+                zero_offset=_float(child.get("zero_offset", "0")),
+                direction=direction,
+                min_angle=_float(child.get("min_angle", repr(-math.pi))),
+                max_angle=_float(child.get("max_angle", repr(math.pi))),
+            )
+            given[index] = (child.get("min_angle") is not None, child.get("max_angle") is not None)
         if len(tendons) != count:
             self.error(
                 element,
@@ -634,10 +775,10 @@ class _Builder:
             self.error(child, f"{owner} has two <uart role={role!r}>")
             return
         self.lines[(*key, "uart", role)] = child.sourceline or 0
-        entry = {k: int(child.get(k)) for k in ("id", "tx", "rx")}
-        if child.get("baud") is not None:
-            entry["baud"] = int(child.get("baud"))
-        uarts[role] = entry
+        attrs = ("id", "tx", "rx", "baud") if child.get("baud") is not None else ("id", "tx", "rx")
+        entry = {k: self.whole(child, k, owner) for k in attrs}
+        if None not in entry.values():  # else reported
+            uarts[role] = entry
 
     # -- ros2_control --------------------------------------------------------------------------
     def params(self, elements: list[etree._Element], owner: str, key: LineKey) -> dict[str, str]:
@@ -693,8 +834,10 @@ class _Builder:
                     f"ros2_control joint {jname!r} <{kind} {iname}>",
                     ikey,
                 )
-                target.append(
-                    Interface(name=iname, params={k: _number_or_text(v) for k, v in raw.items()})
-                )
+                params = {
+                    k: _number_or_text(v) if k in _NUMERIC_INTERFACE_PARAMS else v
+                    for k, v in raw.items()
+                }
+                target.append(Interface(name=iname, params=params))
             control.joints.append(joint)
         return control

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -22,7 +23,7 @@ def test_check_valid_file_prints_tree_and_exits_0():
     assert out.startswith("robot softrobot3: 4 links, 0 joints, 3 bendables")
     assert "bendable segment_3 (model pcc, length 0.316 m)" in out
     assert "kappa_max 3.314 1/m (60.0° bend)" in out
-    assert "command: kappa [0, 3.314] init 0; phi [-3.142, 3.142] init 0" in out
+    assert "command: kappa [0, 3.314] 1/m, init 0 1/m; phi [-3.142, 3.142] rad, init 0 rad" in out
     assert result.stderr == ""
 
 
@@ -88,3 +89,51 @@ def test_closed_pipe_is_not_a_traceback():
             proc.wait()
     assert "Traceback" not in err
     assert proc.returncode == 0
+
+
+def test_check_prints_interface_units_of_rigid_joints_too():
+    out = run_ucr("check", str(ROBOTS / "hybrid_arm.ucrdf")).stdout
+    assert "command: position [-1.571, 1.571] rad" in out and "state: position init 0 rad" in out
+
+
+def test_an_empty_path_says_so():
+    result = run_ucr("check", "")
+    assert result.returncode == 1
+    assert result.stderr == "'': cannot read file: the path is empty\n'': 1 error\n"
+
+
+def test_a_file_beyond_the_size_limit_is_one_diagnostic(tmp_path, monkeypatch):
+    from ucrdf import parser  # noqa: PLC0415
+    from ucrdf.errors import UcrdfError  # noqa: PLC0415
+
+    big = tmp_path / "big.ucrdf"
+    big.write_text(VALID + "<!--" + "x" * (1 << 20) + "-->\n")
+    monkeypatch.setattr(parser, "MAX_FILE_BYTES", 1 << 20)
+    with pytest.raises(UcrdfError) as info:
+        parser.load(big)
+    assert str(info.value) == f"{big}: file is larger than 1 MiB: not a robot description"
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_an_endless_input_is_refused_not_read_to_the_end():
+    result = run_ucr("check", "/dev/zero", timeout=60)
+    assert result.returncode == 1
+    assert result.stderr.splitlines()[0] == (
+        "/dev/zero: file is larger than 64 MiB: not a robot description"
+    )
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_stdout_that_cannot_take_the_summary_is_one_line():
+    with open("/dev/full", "w") as full:
+        result = subprocess.run(
+            [sys.executable, "-m", "tools.cli", "check", str(ROBOTS / "softrobot3.ucrdf")],
+            cwd=REPO,
+            stdout=full,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+            timeout=60,
+        )
+    assert result.returncode == 1
+    assert result.stderr == "ucr check: error: cannot write the summary: No space left on device\n"
