@@ -1,6 +1,7 @@
 """Per-bendable interface limits: the model's ``<limits>`` intersected with the U(C)RDF
-``<ros2_control>`` block. Shared by the configuration, the HWI and the controllers, so it imports
-neither of them (it sits below both in the import order)."""
+``<ros2_control>`` block (the intersection itself is ucrdf/limits.py, which FK and IK use too).
+Shared by the configuration, the HWI and the controllers, so it imports neither of them (it sits
+below both in the import order)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from typing import Any
 
 from host.errors import ConfigError
 from protocol import constants as C
+from ucrdf.limits import narrow_curvature
+from ucrdf.models.base import ModelError
 
 
 @dataclass
@@ -159,31 +162,24 @@ def bendable_limits(robot: Any) -> dict[str, BendableLimits]:
                     )
             bl.command_interfaces = cmds
             bl.state_interfaces = sts or cmds
+            bounds = {}
             for itf in cj.command_interfaces:
                 w = f"{where}.command_interface[{itf.name}]"
-                lo = _fparam(itf.params, "min", src, w)
-                hi = _fparam(itf.params, "max", src, w)
+                bounds[itf.name] = (
+                    _fparam(itf.params, "min", src, w),
+                    _fparam(itf.params, "max", src, w),
+                )
                 init = _fparam(itf.params, "initial_value", src, w)
-                if itf.name == "kappa":
-                    if hi is not None:
-                        if hi <= 0:
-                            raise ConfigError(src, w + ".max", f"must be > 0, got {hi}")
-                        bl.kappa_max = min(bl.kappa_max, hi)
-                    if lo is not None and lo > 0:
-                        raise ConfigError(
-                            src,
-                            w + ".min",
-                            "kappa is a magnitude; a minimum above 0 is not supported",
-                        )
-                    if init is not None:
-                        bl.kappa_initial = init
-                else:
-                    if lo is not None:
-                        bl.phi_min = max(bl.phi_min, lo)
-                    if hi is not None:
-                        bl.phi_max = min(bl.phi_max, hi)
-                    if init is not None:
-                        bl.phi_initial = init
+                if init is not None and itf.name == "kappa":
+                    bl.kappa_initial = init
+                elif init is not None:
+                    bl.phi_initial = init
+            try:  # the intersection FK and IK use too (ucrdf/limits.py)
+                narrowed = narrow_curvature(lim, bounds)
+            except ModelError as exc:
+                raise ConfigError(src, where, str(exc)) from None
+            bl.kappa_max = float(narrowed.kappa_max)
+            bl.phi_min, bl.phi_max = narrowed.phi_min, narrowed.phi_max
             if bl.phi_min >= bl.phi_max:
                 raise ConfigError(src, where, f"empty phi range [{bl.phi_min}, {bl.phi_max}]")
             if not 0.0 <= bl.kappa_initial <= bl.kappa_max:

@@ -17,8 +17,15 @@ model's tip orientation; its position converges as O(1/N^2) (docs/kinematics.md 
 ``export_urdf(robot, N)`` writes movable joints (zero = straight); :func:`urdf_joint_positions`
 gives their values for a configuration. ``export_urdf(robot, N, config)`` bakes the configuration
 into fixed joints instead (a static snapshot): the pseudo-rigid joints of every bendable and every
-movable rigid joint (at its configured value, else its initial value / 0). N is 1..1000. Rigid
-joints, links, inertials, visuals and collisions are copied.
+movable rigid joint (at its configured value, else its initial value / 0). N is 1..1000.
+
+The rigid part is copied whole: links (inertial, visuals, collisions, extension children), joints
+(origin, axis, limit, calibration, dynamics, mimic, safety_controller, extension children) and the
+top-level extensions (global materials, gazebo, transmission, any other) in document order, the
+part up to the last global material before the links. The bendables are replaced by their chains;
+the ``<ros2_control>`` blocks are not written. What cannot be carried over is named in a warning
+(``warn``, stderr by default), never dropped silently: a ``<mimic>`` of a joint the baked export
+fixes. An extension that refers to a bendable by name is kept, with a warning.
 
 Physics (:func:`distribute_inertial`): a bendable's mass is split evenly over its N subdivision
 links so that, in the straight pose, their total mass, centre of mass and inertia about it equal
@@ -35,7 +42,8 @@ with the robot's own links or joints are refused with a clear error.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import sys
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from lxml import etree
@@ -44,6 +52,7 @@ from ucrdf.fk import Config, ConfigError, RobotKinematics, joint_motion
 from ucrdf.model import Inertial, Origin, Robot
 from ucrdf.models.base import CurvatureModel
 from ucrdf.models.pcc import PCCModel, pcc_transforms
+from ucrdf.writer import split_extensions
 
 
 def _fmt(x: float) -> str:
@@ -290,9 +299,28 @@ def _joint_el(
     return el
 
 
-def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -> str:
+def _stderr_warning(message: str) -> None:
+    print(f"warning: URDF export: {message}", file=sys.stderr)
+
+
+def _bendable_references(xml: str, robot: Robot) -> list[str]:
+    """Bendables a top-level extension names as a ``reference`` (gazebo) or ``<joint name>``
+    (transmission): the plain URDF has no link or joint of that name."""
+    el = etree.fromstring(xml)
+    names = [el.get("reference"), *(j.get("name") for j in el.iter("joint"))]
+    return sorted({name for name in names if name in robot.bendables})
+
+
+def export_urdf(
+    robot: Robot,
+    subdivisions: int,
+    config: Config | None = None,
+    *,
+    warn: Callable[[str], None] = _stderr_warning,
+) -> str:
     """Plain URDF text of ``robot`` with every bendable as a ``subdivisions``-part pseudo-rigid
-    chain: movable revolute joints when ``config`` is None, else fixed joints posed at it."""
+    chain: movable revolute joints when ``config`` is None, else fixed joints posed at it.
+    ``warn`` gets one line per element that could not be carried over as it was."""
     _check_subdivisions(subdivisions)
     kin = RobotKinematics(robot)
     baked = config is not None
@@ -302,27 +330,47 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
         f" exported from U(C)RDF by ucrdf.export: {subdivisions} subdivisions per bendable, "
         + ("fixed pose " if baked else "movable universal joints ") + "(see docs/kinematics.md) "
     ))  # fmt: skip
+    leading, trailing = split_extensions(robot.extensions)
+    for xml in robot.extensions:
+        for name in _bendable_references(xml, robot):
+            tag = etree.QName(etree.fromstring(xml)).localname
+            warn(
+                f"top-level <{tag}> refers to bendable {name!r}, which the plain URDF replaces by "
+                f"the joints {name}_prb…: copied unchanged, it names nothing there"
+            )
+    for xml in leading:
+        root.append(etree.fromstring(xml))
     for link in robot.links.values():
         el = etree.SubElement(root, "link", name=link.name)
         if link.inertial is not None:
             _inertial_el(el, link.inertial)
-        for geom in link.geometry:
-            el.append(etree.fromstring(geom.xml))
+        for xml in [g.xml for g in link.geometry] + link.extensions:
+            el.append(etree.fromstring(xml))
     for joint in robot.joints.values():
+        extensions = joint.extensions
         if baked and joint.name in positions:  # a movable joint posed at its configured value
             el = kin.elements[joint.name]
             t = el.origin @ joint_motion(el, positions[joint.name])
-            _joint_el(root, joint.name, "fixed", joint.parent, joint.child, tuple(t[:3, 3]),
-                      _rpy(t[:3, :3]))  # fmt: skip
-            continue
-        limit = None
-        if joint.limit is not None:
-            lim = joint.limit
-            limit = {"lower": lim.lower, "upper": lim.upper, "effort": lim.effort,
-                     "velocity": lim.velocity}  # fmt: skip
-        axis = joint.axis if joint.type not in ("fixed",) else None
-        _joint_el(root, joint.name, joint.type, joint.parent, joint.child, joint.origin.xyz,
-                  joint.origin.rpy, axis, limit)  # fmt: skip
+            jel = _joint_el(root, joint.name, "fixed", joint.parent, joint.child, tuple(t[:3, 3]),
+                            _rpy(t[:3, :3]))  # fmt: skip
+            mimic = kin.mimics.get(joint.name)
+            if mimic is not None:  # a fixed joint follows nothing: its position is baked in
+                extensions = [x for x in extensions if etree.fromstring(x).tag != "mimic"]
+                warn(
+                    f"joint {joint.name!r}: <mimic joint={mimic.joint!r}> not carried over: the "
+                    f"fixed pose bakes its position ({positions[joint.name]:g}) into a fixed joint"
+                )
+        else:
+            limit = None
+            if joint.limit is not None:
+                lim = joint.limit
+                limit = {"lower": lim.lower, "upper": lim.upper, "effort": lim.effort,
+                         "velocity": lim.velocity}  # fmt: skip
+            axis = joint.axis if joint.type not in ("fixed",) else None
+            jel = _joint_el(root, joint.name, joint.type, joint.parent, joint.child,
+                            joint.origin.xyz, joint.origin.rpy, axis, limit)  # fmt: skip
+        for xml in extensions:  # calibration, dynamics, mimic, safety_controller, namespaced
+            jel.append(etree.fromstring(xml))
     taken = set(robot.links) | set(robot.joints)
     for b in robot.bendables.values():
         made = {f"{b.name}_prb_{x}" for x in ("end_link", "end", "twist")}
@@ -395,6 +443,8 @@ def export_urdf(robot: Robot, subdivisions: int, config: Config | None = None) -
             _joint_el(root, f"{b.name}_prb_end", "fixed", parent, tw_link, (0.0, 0.0, h / 2))
             _joint_el(root, f"{b.name}_prb_twist", "continuous", tw_link, b.child, axis=(0, 0, 1),
                       limit={"effort": effort, "velocity": rate * g_twist})  # fmt: skip
+    for xml in trailing:
+        root.append(etree.fromstring(xml))
     return etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="utf-8").decode()
 
 

@@ -3,7 +3,11 @@
 A configuration maps each bendable name to its model variables (``{"kappa": 1/m, "phi": rad}`` for
 PCC) and each movable rigid joint name to its position (rad or m). Anything left out takes the
 ``initial_value`` of its ``<ros2_control>`` interface when declared, else the model variable's
-default (0 for joints). Transforms are 4x4 numpy arrays in the root link frame.
+default (0 for joints). Values are checked against the effective limits (ucrdf/limits.py): the
+model's ``<limits>`` (a joint's ``<limit>``) narrowed by its ``<ros2_control>`` command interface
+``min``/``max``, the bounds the daemon enforces. A joint with a URDF ``<mimic joint multiplier
+offset>`` follows its master (position = multiplier * master + offset) and takes no value of its
+own. Transforms are 4x4 numpy arrays in the root link frame.
 
 :class:`RobotKinematics` precomputes the tree, the constant origin matrices and one model instance
 per bendable, so repeated calls (the host's state publisher runs FK at 100+ Hz) only evaluate the
@@ -14,10 +18,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from lxml import etree
 
+from ucrdf.limits import command_bounds, narrow_curvature, narrow_interval
 from ucrdf.model import Joint, Robot
 from ucrdf.models import create
 from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError
@@ -60,6 +66,44 @@ class Element:
     model: CurvatureModel | None = None  # bendables only
 
 
+@dataclass(frozen=True)
+class Mimic:
+    """A joint's URDF ``<mimic joint multiplier offset>``: it follows ``joint``, its master."""
+
+    joint: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+    def position(self, master: float) -> float:
+        """The mimic joint's position (rad or m) for its master's position."""
+        return self.multiplier * master + self.offset
+
+
+def _mimic(joint: Joint) -> Mimic | None:
+    """The ``<mimic>`` the parser kept among the joint's extension children, if any."""
+    found = [etree.fromstring(x) for x in joint.extensions if x.startswith("<mimic")]
+    found = [el for el in found if el.tag == "mimic"]
+    if not found:
+        return None
+    where = f"joint {joint.name!r}: <mimic>"
+    if len(found) > 1:
+        raise ModelError(f"joint {joint.name!r} has more than one <mimic>")
+    master = found[0].get("joint")
+    if not master:
+        raise ModelError(f"{where} needs a joint attribute naming the joint it follows")
+    numbers = []
+    for attr, default in (("multiplier", 1.0), ("offset", 0.0)):
+        text = found[0].get(attr)
+        try:
+            value = default if text is None else float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise ModelError(f"{where} {attr} must be a finite number, got {text!r}")
+        numbers.append(value)
+    return Mimic(master, *numbers)
+
+
 def joint_motion(el: Element, q: float) -> np.ndarray:
     t = np.eye(4)
     if el.joint_type in ("revolute", "continuous"):
@@ -79,17 +123,48 @@ class RobotKinematics:
         except ValueError as exc:
             raise ModelError(str(exc)) from None
         self.models: dict[str, CurvatureModel] = {}
+        # narrowed by the command interfaces: the model / joint bounds as the file gives them
+        self._file_models: dict[str, CurvatureModel] = {}
+        self._file_bounds: dict[str, tuple[float, float]] = {}
+        #: bendable -> variable -> (lower, upper) for variables other than kappa/phi whose command
+        #: interface narrows the model's bounds (kappa and phi are narrowed in the model itself)
+        self.variable_bounds: dict[str, dict[str, tuple[float, float]]] = {}
+        bounds = command_bounds(robot)
         children: dict[str, list[Element]] = {}
         for b in robot.bendables.values():
+            own = bounds.get(b.name, {})
             try:
-                model = create(b.model)
+                model = create(b.model)  # valid as the file gives it ...
+                limits = narrow_curvature(b.model.limits, own)
+                if limits != b.model.limits:  # ... and bounded as the daemon bounds it
+                    self._file_models[b.name] = model
+                    model = create(replace(b.model, limits=limits))
+                for var, declared in own.items():
+                    if var in ("kappa", "phi") or var not in _var_names(model):
+                        continue
+                    lo, hi = model.limits().get(var, (-math.inf, math.inf))
+                    narrowed = narrow_interval(lo, hi, declared)
+                    if narrowed != (lo, hi):
+                        self.variable_bounds.setdefault(b.name, {})[var] = narrowed
             except ModelError as exc:
                 raise ModelError(f"bendable {b.name!r}: {exc}") from None
             self.models[b.name] = model
             el = Element("bendable", b.name, b.parent, b.child, b.origin.matrix(), model=model)
             children.setdefault(b.parent, []).append(el)
         for j in robot.joints.values():
-            children.setdefault(j.parent, []).append(self._joint_element(j))
+            el = self._joint_element(j)
+            position = bounds.get(j.name, {}).get("position")
+            if position is not None and el.joint_type in _MOVABLE:
+                try:
+                    lo, hi = narrow_interval(el.lower, el.upper, position)
+                except ModelError as exc:
+                    raise ModelError(f"joint {j.name!r}: {exc}") from None
+                if (lo, hi) != (el.lower, el.upper):
+                    self._file_bounds[j.name] = (el.lower, el.upper)
+                    el.lower, el.upper = lo, hi
+            children.setdefault(j.parent, []).append(el)
+        #: mimic joint -> its <mimic>
+        self.mimics = self._mimics(robot)
         # breadth-first order from the root: parents always before children
         self.order: list[Element] = []
         seen = {self.root}
@@ -117,6 +192,35 @@ class RobotKinematics:
         self.defaults = self._initial_values()
         self._pcc = [n for n, m in self.models.items() if type(m) is PCCModel]
         self._pcc_len = np.array([self.models[n].length for n in self._pcc])
+
+    @staticmethod
+    def _mimics(robot: Robot) -> dict[str, Mimic]:
+        """Every ``<mimic>``, checked: a movable joint following another movable joint, which
+        follows nobody itself."""
+        out: dict[str, Mimic] = {}
+        for j in robot.joints.values():
+            mimic = _mimic(j)
+            if mimic is None:
+                continue
+            where = f"joint {j.name!r}: <mimic joint={mimic.joint!r}>"
+            master = robot.joints.get(mimic.joint)
+            if j.type not in _MOVABLE:
+                raise ModelError(f"{where}: a {j.type} joint has no position to take from another")
+            if master is None:
+                what = "a bendable" if mimic.joint in robot.bendables else "nothing in the robot"
+                raise ModelError(f"{where} names {what}: a joint can mimic a movable joint only")
+            if master.name == j.name:
+                raise ModelError(f"{where}: a joint cannot mimic itself")
+            if master.type not in _MOVABLE:
+                raise ModelError(f"{where} names a {master.type} joint, which does not move")
+            out[j.name] = mimic
+        for name, mimic in out.items():
+            if mimic.joint in out:
+                raise ModelError(
+                    f"joint {name!r}: <mimic joint={mimic.joint!r}> names a joint that mimics "
+                    f"{out[mimic.joint].joint!r} itself: a chain of mimic joints is not supported"
+                )
+        return out
 
     @staticmethod
     def _joint_element(j: Joint) -> Element:
@@ -150,13 +254,22 @@ class RobotKinematics:
     def resolve(
         self, config: Config | None = None, *, strict: bool = True
     ) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
-        """Complete configuration: (bendable -> model variables, movable joint -> position).
+        """Complete configuration: (bendable -> model variables, movable joint -> position,
+        mimic joints included, each at its master's position times multiplier plus offset).
 
-        Unknown names, non-numbers and (when ``strict``) values outside the limits raise
-        ConfigError; missing entries take initial values / defaults."""
+        Unknown names, a value for a mimic joint, non-numbers and (when ``strict``) values outside
+        the effective limits raise ConfigError; missing entries take initial values / defaults."""
         config = config or {}
         if not isinstance(config, Mapping):
             raise ConfigError("configuration must be an object mapping names to values")
+        for name in config:
+            mimic = self.mimics.get(name)
+            if mimic is not None:
+                raise ConfigError(
+                    f"joint {name!r} mimics {mimic.joint!r} (position = {mimic.multiplier:g} * "
+                    f"{mimic.joint} + {mimic.offset:g}) and takes no value of its own: give "
+                    f"{mimic.joint!r}"
+                )
         unknown = [k for k in config if k not in self.models and k not in self.movable_joints]
         if unknown:
             fixed = [k for k in unknown if k in self.elements]
@@ -180,6 +293,7 @@ class RobotKinematics:
             try:
                 if strict:
                     bend[name] = model.check_config(merged)
+                    self.check_variable_bounds(name, bend[name])
                 else:
                     unknown_vars = sorted(set(given) - _var_names(model))
                     if unknown_vars:
@@ -189,24 +303,44 @@ class RobotKinematics:
                         for v in model.variables()
                     }
             except ModelError as exc:
-                raise ConfigError(f"bendable {name!r}: {exc}") from None
-        joints: dict[str, float] = {}
+                file_model = self._file_models.get(name)  # did only the interfaces refuse it?
+                narrowed = file_model is not None and _accepts(file_model, merged)
+                note = _NARROWED if narrowed and not str(exc).endswith(_NARROWED) else ""
+                raise ConfigError(f"bendable {name!r}: {exc}{note}") from None
+        values: dict[str, float] = {}
         for name in self.movable_joints:
-            el = self.elements[name]
+            if name in self.mimics:
+                continue
             default = self.defaults.get(name, {}).get("position", 0.0)
             raw = config.get(name, default)
             if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
                 raise ConfigError(f"joint {name!r} needs a finite number, got {raw!r}")
-            value = float(raw)
+            values[name] = float(raw)
+        joints: dict[str, float] = {}
+        for name in self.movable_joints:
+            mimic = self.mimics.get(name)
+            value = values[name] if mimic is None else mimic.position(values[mimic.joint])
             if strict:
-                slack = LIMIT_SLACK * max(1.0, abs(el.lower), abs(el.upper))
-                if value < el.lower - slack or value > el.upper + slack:
-                    raise ConfigError(
-                        f"joint {name!r} = {value:g} is outside its limits "
-                        f"[{el.lower:g}, {el.upper:g}]"
+                el = self.elements[name]
+                lo, hi = self._file_bounds.get(name, (math.inf, -math.inf))
+                note = _NARROWED if lo <= value <= hi else ""  # only the interfaces refuse it
+                if mimic is not None:
+                    note = (
+                        f" (mimicking {mimic.joint!r}: {mimic.multiplier:g} * "
+                        f"{values[mimic.joint]:g} + {mimic.offset:g}){note}"
                     )
+                try:
+                    _check_bound(f"joint {name!r}", value, el.lower, el.upper, note)
+                except ModelError as exc:
+                    raise ConfigError(str(exc)) from None
             joints[name] = value
         return bend, joints
+
+    def check_variable_bounds(self, name: str, values: Mapping[str, float]) -> None:
+        """ModelError if a variable of bendable ``name`` other than kappa and phi (which its model
+        checks) lies outside the bounds of its command interface."""
+        for var, (lo, hi) in self.variable_bounds.get(name, {}).items():
+            _check_bound(var, values[var], lo, hi, _NARROWED)
 
     def coordinates(self, config: Config | None = None, *, strict: bool = True):
         """(bendable -> coordinate vector, joint -> position) for a configuration."""
@@ -239,7 +373,13 @@ class RobotKinematics:
                     seg = el.model.transform_coordinates(coords[el.name])
                 t = t @ seg
             elif el.joint_type in _MOVABLE:
-                t = t @ joint_motion(el, joints.get(el.name, 0.0))
+                mimic = self.mimics.get(el.name)
+                q = (
+                    joints.get(el.name, 0.0)
+                    if mimic is None
+                    else mimic.position(joints.get(mimic.joint, 0.0))
+                )
+                t = t @ joint_motion(el, q)
             frames[el.child] = t
         return frames
 
@@ -290,6 +430,25 @@ def _finite(value: object, name: str) -> float:
 
 def _var_names(model: CurvatureModel) -> set[str]:
     return {v.name for v in model.variables()}
+
+
+#: Appended to a limit violation that only the command interface bounds make one.
+_NARROWED = " (its <ros2_control> command interface bounds, tighter than the model's)"
+
+
+def _check_bound(label: str, value: float, lo: float, hi: float, note: str = "") -> None:
+    """ModelError unless ``value`` lies in [lo, hi] (with LIMIT_SLACK)."""
+    slack = LIMIT_SLACK * max(1.0, abs(lo), abs(hi))
+    if value < lo - slack or value > hi + slack:
+        raise ModelError(f"{label} = {value:g} is outside its limits [{lo:g}, {hi:g}]{note}")
+
+
+def _accepts(model: CurvatureModel, config: Mapping[str, float]) -> bool:
+    try:
+        model.check_config(config)
+    except ModelError:
+        return False
+    return True
 
 
 def robot_fk(robot: Robot, config: Config | None = None) -> dict[str, np.ndarray]:

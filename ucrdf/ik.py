@@ -2,8 +2,11 @@
 
 Unknowns are the coordinates of every bendable on the path from the root to the tip link (PCC:
 the curvature vector (kx, ky), never (kappa, phi), so crossing "straight" is smooth) plus the
-positions of movable rigid joints on that path. Each step solves (J J^T + lambda I) y = e,
-dq = J^T y, then projects q back into the limits (PCC: the disc |k| <= kappa_max). lambda adapts:
+positions of movable rigid joints on that path (a mimic joint's unknown is its master's position).
+Each step solves (J J^T + lambda I) y = e, dq = J^T y, then projects q back into the effective
+limits (ucrdf/limits.py: the model's, narrowed by the ``<ros2_control>`` command interface bounds
+the daemon enforces; PCC: the disc |k| <= kappa_max; a master joint also within what its mimic
+joints' limits allow). lambda adapts:
 smaller after a step that lowers the error, larger after one that does not. When a start point
 stalls, the solver restarts from further seeds (deterministic pseudo-random points in the limits).
 It never returns a bad answer silently: ``success`` is False with the best residual and a message.
@@ -24,6 +27,7 @@ import numpy as np
 
 from ucrdf.fk import Config, ConfigError, RobotKinematics
 from ucrdf.model import Robot
+from ucrdf.models.base import ModelError
 from ucrdf.models.pcc import _A, _B, _C, _DA, _DB, SERIES_T, PCCModel, project_disc
 
 #: A start point is abandoned when this many iterations have not halved its error.
@@ -44,9 +48,10 @@ class IKResult:
     """Outcome of :func:`solve_ik`.
 
     success: both residuals within tolerance. config: complete configuration (bendable ->
-    {"kappa", "phi"} or the model's variables; movable joint -> position) of the best solution
-    found. residual: tip position error (m). rotation_residual: tip orientation error (rad), None
-    without an orientation target. iterations: total over all restarts."""
+    {"kappa", "phi"} or the model's variables; movable joint -> position; mimic joints follow
+    their masters and are not part of it) of the best solution found. residual: tip position
+    error (m). rotation_residual: tip orientation error (rad), None without an orientation
+    target. iterations: total over all restarts."""
 
     success: bool
     config: dict[str, dict[str, float] | float]
@@ -182,8 +187,11 @@ class _Chain:
         path.reverse()
         self.ops: list[tuple] = []  # ("const", T) | ("pcc", name, l, i, model) | ...
         self.names: list[tuple[str, str, int, int]] = []  # (kind, name, start, size)
+        #: unknown index of each joint -> its (lower, upper), narrowed by every mimic joint that
+        #: follows it on the path (a mimic joint's unknown is its master's position)
+        self.bounds: dict[int, tuple[float, float]] = {}
         const = _IDENTITY
-        n = 0
+        self.size = 0
         for el in path:
             const = _mul(const, _tuple(el.origin))
             if el.kind == "joint" and el.joint_type not in ("revolute", "continuous", "prismatic"):
@@ -193,25 +201,49 @@ class _Chain:
             const = _IDENTITY
             if el.kind == "bendable":
                 model = el.model
-                size = len(model.coordinate_names())
                 kind = "pcc" if type(model) is PCCModel else "model"
-                self.ops.append((kind, el.name, model.length, n, model, model.full_circle()))
-            else:
-                size = 1
-                kind = "pri" if el.joint_type == "prismatic" else "rev"
-                lo, hi = el.lower, el.upper
-                self.ops.append((kind, el.name, tuple(el.axis.tolist()), n, (lo, hi)))
-            self.names.append((kind, el.name, n, size))
-            n += size
+                self.ops.append((kind, el.name, model.length, self.size, model,
+                                 model.full_circle()))  # fmt: skip
+                self.names.append((kind, el.name, self.size, len(model.coordinate_names())))
+                self.size += len(model.coordinate_names())
+                continue
+            kind = "pri" if el.joint_type == "prismatic" else "rev"
+            mimic = kin.mimics.get(el.name)
+            i = self._joint_index(kin, el.name if mimic is None else mimic.joint)
+            scale, offset = (1.0, 0.0) if mimic is None else (mimic.multiplier, mimic.offset)
+            if mimic is not None:  # its own limits bound the master's position
+                if scale != 0.0:
+                    a, b = sorted(((el.lower - offset) / scale, (el.upper - offset) / scale))
+                else:  # a constant position: within its limits, or no master position will do
+                    a, b = (-math.inf, math.inf) if el.lower <= offset <= el.upper else (1.0, 0.0)
+                lo, hi = self.bounds[i]
+                self.bounds[i] = (max(lo, a), min(hi, b))
+                if self.bounds[i][0] > self.bounds[i][1]:
+                    raise ConfigError(
+                        f"the limits of mimic joint {el.name!r} leave no position of "
+                        f"{mimic.joint!r} within its own limits"
+                    )
+            self.ops.append((kind, el.name, tuple(el.axis.tolist()), i, scale, offset))
         if const != _IDENTITY:
             self.ops.append(("const", const))
-        self.size = n
+
+    def _joint_index(self, kin: RobotKinematics, name: str) -> int:
+        """The unknown of joint ``name`` (added at the end when new, with its limits)."""
+        for kind, known, start, _size in self.names:
+            if known == name and kind in ("rev", "pri"):
+                return start
+        el = kin.elements[name]
+        kind = "pri" if el.joint_type == "prismatic" else "rev"
+        self.names.append((kind, name, self.size, 1))
+        self.bounds[self.size] = (el.lower, el.upper)
+        self.size += 1
+        return self.size - 1
 
     def evaluate(self, q: list[float], want_rot: bool, rot_weight: float = 1.0):
         """Tip transform and the Jacobian rows (3, or 6 with the angular rows scaled by
         ``rot_weight`` m/rad, each a list of length size)."""
         tw = _IDENTITY
-        cols: list[tuple] = []  # (Rb*jv, Rb*jw, p_end) per coordinate
+        cols: list[tuple] = []  # (index, Rb*jv, Rb*jw, p_end, scale) per coordinate
         for op in self.ops:
             kind = op[0]
             if kind == "const":
@@ -222,9 +254,10 @@ class _Chain:
             if kind == "pcc":
                 local, jv, jw = _pcc_local(q[i], q[i + 1], op[2])
                 tw = _mul(tw, local)
-                for v, w in zip(jv, jw, strict=True):
+                for j, (v, w) in enumerate(zip(jv, jw, strict=True)):
                     cols.append(
                         (
+                            i + j,
                             (
                                 r0 * v[0] + r1 * v[1] + r2 * v[2],
                                 r3 * v[0] + r4 * v[1] + r5 * v[2],
@@ -236,21 +269,23 @@ class _Chain:
                                 r6 * w[0] + r7 * w[1] + r8 * w[2],
                             ),
                             tw,
+                            1.0,
                         )
                     )
             elif kind in ("rev", "pri"):
                 ax, ay, az = op[2]
                 wa = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az,
                       r6 * ax + r7 * ay + r8 * az)  # fmt: skip
+                scale = op[4]
+                d = scale * q[i] + op[5]  # the joint's position (a mimic joint's from its master)
                 if kind == "rev":
-                    rot = _axis_rot(op[2], q[i])
+                    rot = _axis_rot(op[2], d)
                     tw = _mul(tw, (*rot, 0.0, 0.0, 0.0))
-                    cols.append(((0.0, 0.0, 0.0), wa, tw))
+                    cols.append((i, (0.0, 0.0, 0.0), wa, tw, scale))
                 else:
-                    d = q[i]
                     tw = _mul(tw, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, ax * d, ay * d,
                                    az * d))  # fmt: skip
-                    cols.append((wa, (0.0, 0.0, 0.0), None))
+                    cols.append((i, wa, (0.0, 0.0, 0.0), None, scale))
             else:  # generic model through its numpy interface
                 model = op[4]
                 k = len(model.coordinate_names())
@@ -261,10 +296,10 @@ class _Chain:
                 tw = _mul(tw, local)
                 jvw, jww = rb @ jv, rb @ jw
                 for j in range(k):
-                    cols.append((tuple(jvw[:, j]), tuple(jww[:, j]), tw))
+                    cols.append((i + j, tuple(jvw[:, j]), tuple(jww[:, j]), tw, 1.0))
         px, py, pz = tw[9], tw[10], tw[11]
-        rows: list[list[float]] = [[], [], []] + ([[], [], []] if want_rot else [])
-        for v, w, te in cols:
+        rows = [[0.0] * self.size for _ in range(6 if want_rot else 3)]
+        for i, v, w, te, scale in cols:  # a joint and its mimic joints add up in one column
             if te is None:
                 lin = v
             else:
@@ -274,13 +309,13 @@ class _Chain:
                     v[1] + w[2] * dx - w[0] * dz,
                     v[2] + w[0] * dy - w[1] * dx,
                 )
-            rows[0].append(lin[0])
-            rows[1].append(lin[1])
-            rows[2].append(lin[2])
+            rows[0][i] += scale * lin[0]
+            rows[1][i] += scale * lin[1]
+            rows[2][i] += scale * lin[2]
             if want_rot:
-                rows[3].append(rot_weight * w[0])
-                rows[4].append(rot_weight * w[1])
-                rows[5].append(rot_weight * w[2])
+                rows[3][i] += scale * rot_weight * w[0]
+                rows[4][i] += scale * rot_weight * w[1]
+                rows[5][i] += scale * rot_weight * w[2]
         return tw, rows
 
     def active(self, q: list[float], dq: list[float]) -> list[tuple[int, float, float | None]]:
@@ -296,11 +331,9 @@ class _Chain:
                 kmax = op[4].spec.limits.kappa_max
                 if k > 0.0 and k >= kmax * (1.0 - 1e-9) and kx * dq[i] + ky * dq[i + 1] > 0.0:
                     out.append((i, -ky / k, kx / k))
-            elif kind in ("rev", "pri"):
-                i = op[3]
-                lo, hi = op[4]
-                if (q[i] <= lo and dq[i] < 0.0) or (q[i] >= hi and dq[i] > 0.0):
-                    out.append((i, 0.0, None))
+        for i, (lo, hi) in self.bounds.items():
+            if (q[i] <= lo and dq[i] < 0.0) or (q[i] >= hi and dq[i] > 0.0):
+                out.append((i, 0.0, None))
         return out
 
     def project(self, q: list[float]) -> list[float]:
@@ -316,9 +349,8 @@ class _Chain:
                 model = op[4]
                 k = len(model.coordinate_names())
                 q[i : i + k] = model.project(np.array(q[i : i + k])).tolist()
-            else:
-                lo, hi = op[4]
-                q[i] = min(max(q[i], lo), hi)
+        for i, (lo, hi) in self.bounds.items():
+            q[i] = min(max(q[i], lo), hi)
         return q
 
 
@@ -373,7 +405,7 @@ class IKSolver:
             # the path this finds targets at full stretch, where bent starts crawl along a valley
             scale = 0.1 if (i % 2 and self._has_joints) else 1.0
             q = []
-            for kind, name, _start, _size in self.chain.names:
+            for kind, name, start, _size in self.chain.names:
                 if kind == "pcc":
                     kmax = self.kin.models[name].spec.limits.kappa_max * scale
                     r = kmax * math.sqrt(rng.random())
@@ -387,9 +419,9 @@ class IKSolver:
                     )
                     q += model.project(base).tolist()
                 else:
-                    el = self.kin.elements[name]
-                    lo = el.lower if math.isfinite(el.lower) else -math.pi
-                    hi = el.upper if math.isfinite(el.upper) else math.pi
+                    lo, hi = self.chain.bounds[start]
+                    lo = lo if math.isfinite(lo) else min(-math.pi, hi - 2 * math.pi)
+                    hi = hi if math.isfinite(hi) else max(math.pi, lo + 2 * math.pi)
                     q.append(rng.uniform(lo, hi))
             yield self.chain.project(q)
 
@@ -446,16 +478,23 @@ class IKSolver:
         _cost, q, perr, rerr = best
         success = perr <= tol and (not want_rot or rerr <= rot_tol)
         config: dict[str, dict[str, float] | float] = {n: dict(c) for n, c in bend.items()}
-        config.update(joints)
+        config.update((n, v) for n, v in joints.items() if n not in self.kin.mimics)
         out_coords = {n: c.tolist() for n, c in coords.items()}
+        beyond = ""
         for kind, name, start, size in self.chain.names:
             if kind in ("pcc", "model"):
                 qq = np.array(q[start : start + size])
                 config[name] = self.kin.models[name].from_coordinates(qq, bend[name])
                 out_coords[name] = qq.tolist()
+                try:  # bounds the projection does not know (a plugin variable's interface)
+                    self.kin.check_variable_bounds(name, config[name])
+                except ModelError as exc:
+                    success, beyond = False, f"bendable {name!r}: {exc}"
             else:
                 config[name] = q[start]
-        if success:
+        if beyond:
+            msg = f"the best configuration found breaks a command interface bound: {beyond}"
+        elif success:
             msg = f"converged after {total} iterations ({tries} start point(s))"
         else:
             msg = (
@@ -516,7 +555,9 @@ class IKSolver:
                 if dq2 is None:
                     break
                 dq = dq2
-                active = chain.active(q, dq)
+                # a limit joins once: a step along a held kappa_max circle's tangent can still
+                # point outwards by a rounding error (k . t ~ 1e-16), which looped here forever
+                active = [a for a in chain.active(q, dq) if a[0] not in {h[0] for h in held}]
             qn = chain.project([a + b for a, b in zip(q, dq, strict=True)])
             twn, rowsn = chain.evaluate(qn, want_rot, w)
             en, perrn, rerrn = errors(twn)

@@ -198,12 +198,22 @@ def _ros2_control(parent: etree._Element, control: Ros2Control) -> None:
             _interface(jel, "state_interface", iface)
 
 
+def split_extensions(extensions: list[str]) -> tuple[list[str], list[str]]:
+    """Top-level extensions in document order, cut after the last global ``<material>``: the
+    first part goes before the links (URDF readers resolve a visual's ``<material name>`` against
+    materials defined earlier), the rest after everything else."""
+    cut = 0
+    for i, ext in enumerate(extensions):
+        if etree.fromstring(ext).tag == "material":
+            cut = i + 1
+    return extensions[:cut], extensions[cut:]
+
+
 def to_element(robot: Robot) -> etree._Element:
     """The robot as an lxml element tree (links, joints, bendables, ros2_control, extensions)."""
     root = etree.Element("robot", name=robot.name)
-    # global materials first: URDF readers resolve <material name> references in visuals
-    materials = [ext for ext in robot.extensions if ext.startswith("<material")]
-    for ext in materials:
+    leading, trailing = split_extensions(robot.extensions)
+    for ext in leading:
         _raw(root, ext)
     for link in robot.links.values():
         _link(root, link)
@@ -213,9 +223,8 @@ def to_element(robot: Robot) -> etree._Element:
         _bendable(root, bendable)
     for control in robot.ros2_control:
         _ros2_control(root, control)
-    for ext in robot.extensions:
-        if not ext.startswith("<material"):
-            _raw(root, ext)
+    for ext in trailing:
+        _raw(root, ext)
     return root
 
 

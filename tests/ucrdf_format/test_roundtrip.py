@@ -32,7 +32,7 @@ from ucrdf.model import (
 from ucrdf.parser import load, parse_string
 from ucrdf.writer import dump, dumps
 
-from .conftest import EXAMPLES
+from .conftest import EXAMPLES, ROBOTS
 
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
@@ -52,6 +52,25 @@ def test_round_trip_is_not_vacuous():
     text = dumps(robot)
     changed = parse_string(text.replace('kappa_rate_max="', 'kappa_rate_max="1', 1), check=False)
     assert changed != robot
+
+
+def test_top_level_extensions_keep_their_document_order():
+    """A <gazebo> written before a global <material>: the writer wrote every material first, so
+    the two came back swapped and parse(dumps(r)) != r. Materials still precede the links."""
+    extras = '<gazebo><x/></gazebo><material name="m"><color rgba="1 0 0 1"/></material>'
+    text = (ROBOTS / "listing1.ucrdf").read_text(encoding="utf-8")
+    robot = parse_string(text.replace('<link name="base"/>', extras + '<link name="base"/>', 1))
+    assert [e[:9] for e in robot.extensions] == ["<gazebo><", "<material"]
+    written = dumps(robot)
+    assert parse_string(written) == robot
+    assert written.index("<gazebo>") < written.index("<material") < written.index("<link ")
+
+
+def test_extensions_after_the_last_material_are_written_at_the_end():
+    text = (ROBOTS / "hybrid_arm.ucrdf").read_text(encoding="utf-8")
+    written = dumps(parse_string(text))
+    assert written.index("<material") < written.index("<link ")
+    assert written.index("</ros2_control>") < written.index("<gazebo") < written.index("<transm")
 
 
 # -- random valid robots ---------------------------------------------------------------------------

@@ -103,3 +103,131 @@ def test_bad_subdivisions_and_name_clashes():
     robot.joints["j"] = Joint("j", "fixed", "link1", "seg1_prb1")
     with pytest.raises(ConfigError, match="seg1_prb1 already used"):
         export_urdf(robot, 4)
+
+
+# -- what the export carries over from the rigid part ----------------------------------------------
+EXTENDED = """<robot name="r" xmlns:v="http://example.com/vendor">
+  <material name="red"><color rgba="1 0 0 1"/></material>
+  <link name="a">
+    <visual><geometry><box size="0.1 0.1 0.1"/></geometry><material name="red"/></visual>
+    <v:note k="1"/>
+  </link>
+  <link name="b"/><link name="c"/><link name="d"/>
+  <joint name="j1" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/>
+    <dynamics damping="0.7" friction="0.1"/><calibration rising="0.1"/>
+    <safety_controller soft_lower_limit="-0.9" soft_upper_limit="0.9" k_position="10"
+                       k_velocity="1"/></joint>
+  <joint name="j2" type="revolute"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/>
+    <origin xyz="0.2 0 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/>
+    <mimic joint="j1" multiplier="2" offset="0.1"/></joint>
+  <bendable name="seg"><parent link="c"/><child link="d"/>
+    <curvature><model type="pcc"><limits kappa_max="3.0" kappa_rate_max="1.0"/>
+      <backbone length="0.3" radius="0.003" youngs_modulus="1e11"/></model></curvature>
+  </bendable>
+  <gazebo reference="a"><material>Gazebo/Red</material></gazebo>
+  <transmission name="t"><type>transmission_interface/SimpleTransmission</type>
+    <joint name="j1"><hardwareInterface>hardware_interface/EffortJointInterface</hardwareInterface>
+    </joint><actuator name="m"><mechanicalReduction>1</mechanicalReduction></actuator>
+  </transmission>
+  <v:extra x="1"><v:y/></v:extra>
+</robot>
+"""
+_URDF_JOINT_PARTS = ("origin", "parent", "child", "axis", "limit")
+
+
+def _children(el, skip=()):
+    from ucrdf.parser import normalise_xml
+
+    return [normalise_xml(c) for c in el if isinstance(c.tag, str) and c.tag not in skip]
+
+
+def test_export_keeps_materials_joint_children_and_extensions(tmp_path):
+    """The export dropped global materials (visuals then named a colour defined nowhere),
+    <dynamics>, <calibration>, <safety_controller>, <mimic>, link and top-level extensions."""
+    from lxml import etree
+
+    from ucrdf.parser import parse_string
+
+    robot = parse_string(EXTENDED)
+    warned = []
+    text = export_urdf(robot, 3, warn=warned.append)
+    assert warned == []
+    out = etree.fromstring(text.encode())
+    top = [e for e in out if isinstance(e.tag, str) and e.tag not in ("link", "joint")]
+    assert _children(top) == robot.extensions  # every one, unchanged, in document order
+    assert out.index(out.find("material")) < out.index(out.find("link"))
+    for joint in robot.joints.values():
+        exported = out.find(f"joint[@name='{joint.name}']")
+        assert _children(exported, _URDF_JOINT_PARTS) == joint.extensions, joint.name
+    assert _children(out.find("link[@name='a']"), ("visual",)) == robot.links["a"].extensions
+    urdf = load(tmp_path, text)
+    assert urdf.validate()
+    assert urdf.robot.materials[0].color.rgba.tolist() == [1, 0, 0, 1]
+    assert float(urdf.joint_map["j1"].dynamics.damping) == 0.7
+    mimic = urdf.joint_map["j2"].mimic
+    assert (mimic.joint, mimic.multiplier, mimic.offset) == ("j1", 2.0, 0.1)
+    assert "j2" not in urdf.actuated_joint_names
+    config = {"j1": 0.3, "seg": {"kappa": 2.0, "phi": 0.4}}
+    q = urdf_joint_positions(robot, 3, config)
+    urdf.update_cfg({name: q[name] for name in urdf.actuated_joint_names})
+    exact = RobotKinematics(robot).fk(config)
+    assert np.allclose(urdf.get_transform("c", "a"), exact["c"], atol=1e-12)  # 0.3 + 0.7 rad
+
+
+def test_hybrid_arm_export_keeps_its_dynamics_gazebo_transmission_and_material(tmp_path):
+    from lxml import etree
+
+    from ucrdf.parser import load as load_ucrdf
+
+    robot = load_ucrdf(ROBOTS_DIR / "hybrid_arm.ucrdf")
+    warned = []
+    text = export_urdf(robot, 4, warn=warned.append)
+    assert warned == []
+    out = etree.fromstring(text.encode())
+    assert [e.tag for e in out if e.tag in ("material", "gazebo", "transmission")] == [
+        "material", "gazebo", "transmission"
+    ]  # fmt: skip
+    assert _children(out.find("joint[@name='shoulder_yaw']"), _URDF_JOINT_PARTS) == [
+        '<dynamics damping="0.1" friction="0.0"></dynamics>'
+    ]
+    assert out.find("ros2_control") is None  # replaced, as the bendables are
+    urdf = load(tmp_path, text)
+    assert urdf.robot.materials[0].name == "grey"
+    assert urdf.robot.materials[0].color.rgba.tolist() == [0.6, 0.6, 0.6, 1.0]
+
+
+def test_baked_export_names_the_mimic_it_cannot_keep(tmp_path, capsys):
+    """A fixed joint follows nothing: the baked export leaves out <mimic>, with a warning on
+    stderr, and keeps the joint's other children."""
+    from lxml import etree
+
+    from ucrdf.parser import parse_string
+
+    robot = parse_string(EXTENDED)
+    config = {"j1": 0.3, "seg": {"kappa": 2.0, "phi": 0.4}}
+    text = export_urdf(robot, 3, config)
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        (
+            "warning: URDF export: joint 'j2': <mimic joint='j1'> not carried over: the fixed "
+            "pose bakes its position (0.7) into a fixed joint"
+        )
+    ]
+    out = etree.fromstring(text.encode())
+    assert _children(out.find("joint[@name='j2']"), _URDF_JOINT_PARTS) == []
+    kept = _children(out.find("joint[@name='j1']"), _URDF_JOINT_PARTS)
+    assert kept == robot.joints["j1"].extensions
+    baked = load(tmp_path, text)
+    exact = RobotKinematics(robot).fk(config)
+    assert np.allclose(baked.get_transform("c", "a"), exact["c"], atol=1e-12)
+
+
+def test_an_extension_naming_a_bendable_is_kept_with_a_warning():
+    from ucrdf.parser import parse_string
+
+    text = EXTENDED.replace('<gazebo reference="a">', '<gazebo reference="seg">')
+    warned = []
+    out = export_urdf(parse_string(text), 2, warn=warned.append)
+    assert '<gazebo reference="seg">' in out
+    assert len(warned) == 1 and "top-level <gazebo> refers to bendable 'seg'" in warned[0]

@@ -177,3 +177,26 @@ def test_phi_is_held_for_straight_segments_off_the_path():
     res = solve_ik(robot, [0.0, 0.0, 2 * 0.316], tip="link2")
     assert res.success
     assert res.iterations == 0 and res.config["seg1"] == {"kappa": 0.0, "phi": 1.25}
+
+
+BENT_BASE = """<robot name="r"><link name="a"/><link name="d"/><link name="e"/>
+  <joint name="mount" type="fixed"><parent link="a"/><child link="d"/>
+    <origin xyz="0.1 0 0" rpy="0 1.5707963267948966 0"/></joint>
+  <bendable name="seg"><parent link="d"/><child link="e"/>
+    <curvature><model type="pcc"><limits kappa_max="3.0" kappa_rate_max="1.0"/>
+      <backbone length="0.2" radius="0.003" youngs_modulus="1e11"/></model></curvature>
+  </bendable></robot>"""
+
+
+@pytest.mark.timeout(60)
+def test_a_step_along_the_kappa_max_circle_does_not_loop_forever():
+    """Held at kappa_max with phi = pi/2, the step along the circle's tangent still pointed
+    outwards by a rounding error (k . t ~ 1e-16): the same limit was held again and again and
+    the solver never returned. The target needs kappa = 3.5 > kappa_max = 3 (unreachable)."""
+    from ucrdf.parser import parse_string
+
+    kin = RobotKinematics(parse_string(BENT_BASE))
+    target = kin.fk({"seg": {"kappa": 3.5, "phi": math.pi / 2}}, strict=False)["e"][:3, 3]
+    result = IKSolver(kin).solve(target)
+    assert not result.success
+    assert result.config["seg"]["kappa"] <= 3.0 + 1e-9
