@@ -228,6 +228,8 @@ class RobotTopics:
         """Every movable joint of the exported URDF for an API joint_states message (rad / m)."""
         coords, rigid = self._coords(js)
         out = dict(rigid)
+        for name, mimic in self.kin.mimics.items():  # follows its master (ucrdf/fk.py)
+            out[name] = mimic.position(rigid.get(mimic.joint, 0.0))
         for name, model in self.kin.models.items():
             angles, twist = subdivision_angles(model, coords[name], self.subdivisions)
             for k, (a, b) in enumerate(angles):

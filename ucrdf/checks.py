@@ -429,7 +429,18 @@ class _Checker:
             self.bendable(bendable)
         self.diagnostics += board_plans(robot, self.lines)  # ucrdf/boards.py: wiring per board
         self.tree()
+        self.mimics()
         self.ros2_control()
+
+    def mimics(self) -> None:
+        """Each ``<mimic>`` FK cannot follow, at its joint: the rule of ucrdf/fk.py (``mimics``),
+        so whatever ``ucr check`` accepts, ``ucr fk`` and the exports take."""
+        from ucrdf.fk import mimics  # noqa: PLC0415 - numpy: only for a robot that has joints
+
+        if not any(j.extensions for j in self.robot.joints.values()):
+            return
+        for name, message in mimics(self.robot)[1]:
+            self.error(self.robot.joints[name].line, message)
 
     # -- kinematic tree ----------------------------------------------------------------------------
     def tree(self) -> None:
@@ -1145,6 +1156,12 @@ class _Checker:
             self.error(line, f"{label}: param max must be > 0 1/m, got {hi}")
         elif why := kappa_resolution_problem(float(hi)):
             self.error(line, f"{label}: param max {why}")
+        if isinstance(lo, (int, float)) and math.isfinite(lo) and 0 < lo <= hi:
+            self.error(
+                line,
+                f"{label}: param min {lo:g} 1/m: kappa is a magnitude (commanded in [0, max]); a "
+                "minimum above 0 is not supported (the daemon and ucr fk refuse it too)",
+            )
 
     @staticmethod
     def _interfaces(cjoint: ControlJoint) -> list[tuple[str, Interface]]:

@@ -28,6 +28,7 @@ from ucrdf.model import Joint, Robot
 from ucrdf.models import create
 from ucrdf.models.base import LIMIT_SLACK, CurvatureModel, ModelError
 from ucrdf.models.pcc import PCCModel, pcc_transforms
+from ucrdf.numtext import number
 
 Config = Mapping[str, "Mapping[str, float] | float"]
 
@@ -94,14 +95,51 @@ def _mimic(joint: Joint) -> Mimic | None:
     numbers = []
     for attr, default in (("multiplier", 1.0), ("offset", 0.0)):
         text = found[0].get(attr)
-        try:
-            value = default if text is None else float(text)
-        except ValueError:
-            value = math.nan
-        if not math.isfinite(value):
+        value = default if text is None else number(text)  # the schema's spelling only
+        if value is None or not math.isfinite(value):
             raise ModelError(f"{where} {attr} must be a finite number, got {text!r}")
         numbers.append(value)
     return Mimic(master, *numbers)
+
+
+def mimics(robot: Robot) -> tuple[dict[str, Mimic], list[tuple[str, str]]]:
+    """Every usable ``<mimic>`` (a movable joint following another movable joint, which follows
+    nobody itself) and the problems of the others, as (joint name, message): FK refuses the
+    first, ``ucr check`` reports each at its joint (ucrdf/checks.py), one rule for both."""
+    out: dict[str, Mimic] = {}
+    problems: list[tuple[str, str]] = []
+    for j in robot.joints.values():
+        try:
+            mimic = _mimic(j)
+        except ModelError as exc:
+            problems.append((j.name, str(exc)))
+            continue
+        if mimic is None:
+            continue
+        where = f"joint {j.name!r}: <mimic joint={mimic.joint!r}>"
+        master = robot.joints.get(mimic.joint)
+        if j.type not in _MOVABLE:
+            why = f"{where}: a {j.type} joint has no position to take from another"
+        elif master is None:
+            what = "a bendable" if mimic.joint in robot.bendables else "nothing in the robot"
+            why = f"{where} names {what}: a joint can mimic a movable joint only"
+        elif master.name == j.name:
+            why = f"{where}: a joint cannot mimic itself"
+        elif master.type not in _MOVABLE:
+            why = f"{where} names a {master.type} joint, which does not move"
+        else:
+            out[j.name] = mimic
+            continue
+        problems.append((j.name, why))
+    for name, mimic in list(out.items()):
+        if mimic.joint in out:
+            problems.append((name, (
+                f"joint {name!r}: <mimic joint={mimic.joint!r}> names a joint that mimics "
+                f"{out[mimic.joint].joint!r} itself: a chain of mimic joints is not supported"
+            )))  # fmt: skip
+    for name, _ in problems:
+        out.pop(name, None)
+    return out, problems
 
 
 def joint_motion(el: Element, q: float) -> np.ndarray:
@@ -195,31 +233,10 @@ class RobotKinematics:
 
     @staticmethod
     def _mimics(robot: Robot) -> dict[str, Mimic]:
-        """Every ``<mimic>``, checked: a movable joint following another movable joint, which
-        follows nobody itself."""
-        out: dict[str, Mimic] = {}
-        for j in robot.joints.values():
-            mimic = _mimic(j)
-            if mimic is None:
-                continue
-            where = f"joint {j.name!r}: <mimic joint={mimic.joint!r}>"
-            master = robot.joints.get(mimic.joint)
-            if j.type not in _MOVABLE:
-                raise ModelError(f"{where}: a {j.type} joint has no position to take from another")
-            if master is None:
-                what = "a bendable" if mimic.joint in robot.bendables else "nothing in the robot"
-                raise ModelError(f"{where} names {what}: a joint can mimic a movable joint only")
-            if master.name == j.name:
-                raise ModelError(f"{where}: a joint cannot mimic itself")
-            if master.type not in _MOVABLE:
-                raise ModelError(f"{where} names a {master.type} joint, which does not move")
-            out[j.name] = mimic
-        for name, mimic in out.items():
-            if mimic.joint in out:
-                raise ModelError(
-                    f"joint {name!r}: <mimic joint={mimic.joint!r}> names a joint that mimics "
-                    f"{out[mimic.joint].joint!r} itself: a chain of mimic joints is not supported"
-                )
+        """Every ``<mimic>``, checked (:func:`mimics`); ModelError for the first problem."""
+        out, problems = mimics(robot)
+        if problems:
+            raise ModelError(problems[0][1])
         return out
 
     @staticmethod

@@ -58,6 +58,14 @@ def test_a_long_value_in_a_schema_message_is_cut():
     assert line == line_of(text, HUGE) and "(5002 characters)" in message and len(message) < 300
 
 
+def test_a_short_bad_value_keeps_the_whole_schema_message():
+    """The cut of long values took the text *between* two quoted values for one ("… '0.3m' is
+    not a valid value of'… (41 characters)xs:double'"): every bad number's message was garbled."""
+    text = edit('kappa_max="3.0"', 'kappa_max="3.0m"')
+    _, message = only(text)
+    assert message.endswith("'3.0m' is not a valid value of the atomic type 'xs:double'"), message
+
+
 # -- 3: DTDs and entity references ----------------------------------------------------------------
 DECLARATION = '<?xml version="1.0"?>'
 

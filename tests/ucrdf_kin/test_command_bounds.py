@@ -148,3 +148,21 @@ def test_example_robots_take_their_initial_values():
     for path in sorted(ROBOTS_DIR.glob("*.ucrdf")):
         frames = RobotKinematics(load(path)).fk()
         assert all(np.isfinite(t).all() for t in frames.values()), path.name
+
+
+def test_ucr_check_refuses_a_kappa_minimum_above_zero_as_fk_and_the_daemon_do(tmp_path):
+    """A kappa command interface with min > 0 passed `ucr check`, then FK and the daemon
+    refused the robot: the check says it, at the interface."""
+    from ucrdf.errors import UcrdfError
+
+    text = LISTING1.read_text().replace(
+        '<param name="max">3</param>', '<param name="max">3</param>\n<param name="min">0.5</param>'
+    )
+    f = tmp_path / "kmin.ucrdf"
+    f.write_text(text)
+    with pytest.raises(UcrdfError) as info:
+        load(f)
+    assert any(
+        "command_interface 'kappa': param min 0.5 1/m: kappa is a magnitude" in str(d)
+        for d in info.value.diagnostics
+    )

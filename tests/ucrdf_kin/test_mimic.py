@@ -149,3 +149,42 @@ def test_a_mimic_joint_no_master_position_can_satisfy_is_refused_by_ik():
         kin.fk({"j1": 0.0})
     with pytest.raises(ConfigError, match="limits of mimic joint 'j2' leave no position of 'j1'"):
         IKSolver(kin)
+
+
+def test_ucr_check_reports_each_mimic_fk_cannot_follow_at_its_joint(tmp_path, capsys):
+    """Whatever `ucr check` accepts, `ucr fk` takes: a <mimic> naming nothing (or a chain of
+    them) passed the check and failed only in fk."""
+    from tools.cli import main as ucr
+
+    def check(path) -> tuple[int, str]:
+        code = ucr(["check", str(path)])
+        return code, capsys.readouterr().err
+
+    bad = MIMIC.format(offset="").replace('<mimic joint="j1"', '<mimic joint="nothere"')
+    f = tmp_path / "bad.ucrdf"
+    f.write_text(bad)
+    code, err = check(f)
+    line = bad[: bad.index("nothere")].count("\n") - 1  # the <joint name="j2"> line
+    assert code == 1
+    assert f"{f}:{line}: joint 'j2': <mimic joint='nothere'> names nothing in the robot" in err
+    f.write_text(MIMIC.format(offset=""))
+    assert check(f)[0] == 0
+
+
+def test_the_tf_of_a_mimic_joint_follows_its_master():
+    """/tf (interop/topics.py) gave a mimic joint 0 unless the daemon's state named it; it is
+    multiplier * master + offset, as ucr fk computes it."""
+    from interop.topics import RobotTopics
+    from ucrdf.writer import dumps
+
+    robot = mimic_robot(' offset="0.1"')
+    topics = RobotTopics(robot, dumps(robot), 2)
+    js = {"names": ["seg"], "kappa": [0.0], "phi": [0.0], "rigid": {"j1": {"position": 0.3}}}
+    q = topics.joint_positions(js)
+    assert q["j2"] == pytest.approx(2 * 0.3 + 0.1)
+    frames = RobotKinematics(robot).fk_coordinates({"seg": np.zeros(2)}, {"j1": 0.3})
+    tf = {t["child_frame_id"]: t for t in topics.tf(js, 0).msg["transforms"]}
+    quat = tf["c"]["transform"]["rotation"]
+    yaw = 2 * math.atan2(quat["z"], quat["w"])
+    assert yaw == pytest.approx(0.7)  # the joint's own rotation: 2 * 0.3 + 0.1 rad
+    assert frames["c"][:3, :3] == pytest.approx(rz(1.0))  # j1 then j2: 0.3 + 0.7 rad
