@@ -92,7 +92,8 @@ def open_websocket(
     verify ``wss://``; ``agent``: the User-Agent, the program's name in the daemon's audit
     lines). Raises :class:`ApiAuthError` / :class:`ApiConnectionError` (``code``: ``bad_url``
     for a URL or CA file that cannot work, ``tls``, ``timeout`` when the daemon did not answer
-    the handshake within ``timeout`` s, ``busy``, else ``connection``)."""
+    the handshake within ``timeout`` s, ``busy``, ``not_daemon`` for an HTTP server that refuses
+    without the reason a daemon always gives, else ``connection``)."""
     check_url(url, cafile)
     headers = {"Authorization": f"Bearer {token}"} if token else None
     if token:
@@ -136,6 +137,12 @@ def open_websocket(
                 code="busy",
             ) from None
         if status in (400, 403, 404, 421):
+            if not reason:  # the daemon always says why: this is some other HTTP server
+                raise ApiConnectionError(
+                    f"the server at {url} answered HTTP {status} with no reason: not a ucr "
+                    "daemon's API (check --url / $UCR_URL)",
+                    code="not_daemon",
+                ) from None
             raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
         raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None
     except InvalidURI as exc:

@@ -190,3 +190,33 @@ def test_the_daemons_config_file_refuses_a_key_given_twice_and_names_a_non_utf8_
     binary.write_bytes(b"\xff\xfe")
     with pytest.raises(ConfigError, match=r"bin.yaml.*not UTF-8 text \(byte 0xff at offset 0\)"):
         load_config(binary)
+
+
+def test_an_http_server_that_is_no_daemon_is_not_called_a_daemon(capsys):
+    """A URL at some other HTTP server answering 404 with an empty body said "the daemon at …
+    refused the connection: " (an empty reason): it is no daemon (the daemon always says why)."""
+    import http.server
+
+    class NotFound(http.server.BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"  # as any web server today (websockets wants 1.1)
+
+        def do_GET(self):  # noqa: N802 - the stdlib's name
+            self.send_response(404)
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+
+        def log_message(self, *args):
+            pass
+
+    srv = http.server.HTTPServer(("127.0.0.1", 0), NotFound)
+    t = threading.Thread(target=srv.serve_forever, daemon=True)
+    t.start()
+    try:
+        url = f"ws://127.0.0.1:{srv.server_address[1]}"
+        rc, _, err = run(capsys, "status", "--url", url)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert rc == 1 and one_line(err), err
+    assert "answered HTTP 404 with no reason: not a ucr daemon's API" in err
+    assert "the daemon at" not in err
