@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import sys
 from typing import Any
@@ -71,7 +72,7 @@ CLIENT_NICE = 5
 
 
 def _lower_priority(nice: int) -> None:
-    if nice > 0 and hasattr(os, "nice"):
+    if nice > 0 and hasattr(os, "nice"):  # >= 0: nice_arg
         try:
             os.nice(nice)
         except OSError as exc:  # not fatal: recording works at any priority
@@ -81,7 +82,20 @@ def _lower_priority(nice: int) -> None:
 POSITIVE_S = number_arg(float, 0.0, False, " s")
 POSITIVE_HZ = number_arg(float, 0.0, False, " Hz")
 NON_NEGATIVE_S = number_arg(float, 0.0, True, " s")
-AT_LEAST_ONE = number_arg(int, 1, True)
+#: ``ucrdf.export``'s bound: pseudo-rigid links per bendable in /robot_description and /tf
+SUBDIVISIONS = number_arg(int, 1, True, high=1000)
+
+
+def nice_arg(text: str) -> int:
+    """An argparse ``type``: a nice increment >= 0. Only lowering the priority is offered
+    (raising it needs privileges and would compete with the daemon's control loop)."""
+    v = number_arg(int, -math.inf, False)(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(
+            f"must be >= 0, got {text}: only lowering this process's priority is offered "
+            "(the daemon's control loop keeps the CPU first)"
+        )
+    return v
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -93,10 +107,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--nice",
-        type=int,
+        type=nice_arg,
         default=CLIENT_NICE,
-        help=f"lower this process's scheduling priority by this much (default {CLIENT_NICE}: "
-        "a daemon on the same machine keeps the CPU first; 0: unchanged)",
+        help=f"lower this process's scheduling priority by this much, >= 0 (default "
+        f"{CLIENT_NICE}: a daemon on the same machine keeps the CPU first; 0: unchanged)",
     )
 
 
@@ -156,9 +170,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
         "--subdivisions",
-        type=AT_LEAST_ONE,
+        type=SUBDIVISIONS,
         default=10,
-        help="pseudo-rigid links per bendable in /robot_description and /tf (10)",
+        help="pseudo-rigid links per bendable in /robot_description and /tf, 1..1000 (10)",
     )
     p.add_argument(
         "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
@@ -249,7 +263,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--port", type=port_arg, default=8766, help="port (8766; 0: any free port)")
     p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
-        "--subdivisions", type=AT_LEAST_ONE, default=10, help="pseudo-rigid links per bendable (10)"
+        "--subdivisions",
+        type=SUBDIVISIONS,
+        default=10,
+        help="pseudo-rigid links per bendable, 1..1000 (10)",
     )
     p.add_argument(
         "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"

@@ -10,6 +10,7 @@ token rule, ``Origin`` and ``Host`` checks and speaks the protocol itself
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import sys
@@ -81,10 +82,23 @@ class FoxgloveSink:
         self.guard.stop()
 
 
-def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
+def listen_failure(host: str, port: int, exc: OSError, option: str = "--port") -> str:
+    """One sentence for a server that cannot bind ``host:port`` (asyncio's own text repeats the
+    address and the errno), with a hint naming ``option`` where one helps."""
+    why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+    hint = {
+        errno.EADDRINUSE: f" (another program uses the port: {option} P, or 0 for any free port)",
+        errno.EADDRNOTAVAIL: " (not an address of this machine)",
+        errno.EACCES: " (ports below 1024 need privileges)",
+    }.get(exc.errno or 0, "")
+    return f"cannot listen on {host}:{port}: {why}{hint}"
+
+
+def sink_from_args(host: str, port: int, args: Any, option: str = "--port") -> FoxgloveSink:
     """A FoxgloveSink with the token of ``--serve-token-file`` (or $UCR_FOXGLOVE_TOKEN), the
     allowed origins, ``--tls-cert``/``--tls-key`` and ``--insecure``. GuardError for a token
-    given on the command line."""
+    given on the command line, or an address that cannot be bound (``option``: its port's
+    option, in the advice)."""
     if getattr(args, "serve_token", None):
         raise GuardError(
             "--serve-token is refused: a token on the command line is visible to every user in "
@@ -96,15 +110,20 @@ def sink_from_args(host: str, port: int, args: Any) -> FoxgloveSink:
             token = read_token_file(args.serve_token_file)
         except AuthConfigError as exc:
             raise GuardError(str(exc)) from None
-    return FoxgloveSink(
-        host,
-        port,
-        token=token,
-        allowed_origins=args.allow_origin or (),
-        insecure=getattr(args, "insecure", False),
-        tls_cert=getattr(args, "tls_cert", None),
-        tls_key=getattr(args, "tls_key", None),
-    )
+    try:
+        return FoxgloveSink(
+            host,
+            port,
+            token=token,
+            allowed_origins=args.allow_origin or (),
+            insecure=getattr(args, "insecure", False),
+            tls_cert=getattr(args, "tls_cert", None),
+            tls_key=getattr(args, "tls_key", None),
+        )
+    except OSError as exc:
+        if exc.errno is None or isinstance(exc, FileNotFoundError | PermissionError):
+            raise  # not the bind (a certificate file): the caller's message
+        raise GuardError(listen_failure(host, port, exc, option)) from None
 
 
 def run(args: Any) -> int:

@@ -19,10 +19,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from host.api.client_errors import ApiConnectionError, ApiError
 from interop.sinks import Fanout, channels_of
 from interop.topics import TOPICS, CommandedGoals, Message, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
-from ucrdf.parser import load
+from ucrdf.parser import load, parse_string
 
 
 class FeedError(RuntimeError):
@@ -30,21 +31,50 @@ class FeedError(RuntimeError):
 
 
 def robot_for(client: Any, robot_path: str | None) -> tuple[Any, str]:
-    """The robot (parsed U(C)RDF) and its text: ``robot_path`` or the file the daemon reports."""
+    """The robot (parsed U(C)RDF) and its text: ``robot_path`` or the file the daemon reports.
+    A ``robot_path`` whose bendables or joints differ from the daemon's robot is refused."""
     path = robot_path or client.topology().get("file")
     if not path:
         raise FeedError("the daemon reports no robot file; pass --robot FILE")
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except OSError as exc:
         raise FeedError(
             f"cannot read the robot file {path} ({exc.strerror}); pass --robot FILE"
         ) from None
     try:
-        return load(p), text
+        robot = load(p)
+        text = data.decode("utf-8")
     except UcrdfError as exc:
         raise FeedError(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise FeedError(
+            f"{path}: not UTF-8 text (byte {data[exc.start]:#04x} at offset {exc.start}): a "
+            "recording carries the robot file as UTF-8"
+        ) from None
+    if robot_path:
+        differs = None
+        try:
+            theirs = client.robot_description().get("text")
+            if theirs:  # None: too large to send, nothing to compare
+                differs = robot_mismatch(robot, parse_string(theirs, "the daemon's robot"))
+        except ApiConnectionError:
+            raise
+        except (UcrdfError, ApiError):  # a daemon without the op, a text this parser refuses:
+            pass  # nothing to compare with (as before the comparison existed)
+        if differs:
+            raise FeedError(f"{path} is not the daemon's robot ({differs}): refused")
+    return robot, text
+
+
+def robot_mismatch(robot: Any, other: Any) -> str | None:
+    """How ``robot``'s bendables and joints differ from ``other``'s (by name), else None."""
+    for kind in ("bendables", "joints"):
+        ours, theirs = list(getattr(robot, kind)), list(getattr(other, kind))
+        if ours != theirs:
+            return f"{kind} {', '.join(ours) or 'none'} here, {', '.join(theirs) or 'none'} there"
+    return None
 
 
 class DaemonLink:

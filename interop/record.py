@@ -25,6 +25,7 @@ from interop import ros2
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
 from interop.topics import LATCHED, RobotTopics
+from ucrdf.errors import UcrdfError
 
 PROFILE = "ros2"  # the MCAP profile rosbag2 writes
 
@@ -175,10 +176,14 @@ class Progress:
 
 def output_refusal(path: str | os.PathLike[str], overwrite: bool) -> str | None:
     """Why ``ucr record -o path`` must not start, else None: an existing recording is kept
-    unless ``--overwrite`` (as ``ros2 bag record``); a directory or a missing directory never."""
+    unless ``--overwrite`` (as ``ros2 bag record``); a directory, a missing directory or a
+    symlink to nothing never."""
     p = Path(path)
     if p.is_dir():
         return f"{p} is a directory: give a file name, e.g. {p / 'run.mcap'}"
+    if p.is_symlink() and not p.exists():
+        return (f"{p} is a symlink to {os.readlink(p)}, which does not exist: refused, "
+                "not followed")  # fmt: skip
     if p.exists() and not overwrite:
         return f"{p} exists: refused, it is kept (--overwrite replaces it)"
     if not p.parent.is_dir():
@@ -201,10 +206,15 @@ def foxglove_address(args: Any) -> tuple[str, int | None]:
 
 
 def run(args: Any) -> int:
-    """The ``ucr record`` command."""
+    """The ``ucr record`` command: 0 at the end (``--duration``, SIGTERM), 130 after Ctrl-C,
+    1 when the file cannot be written (the recording stops at once)."""
     stop = threading.Event()
+    interrupted = threading.Event()
+    failed: list[str] = []  # why the file sink was dropped
 
     def on_signal(signum: int, frame: Any) -> None:
+        if signum == signal.SIGINT:
+            interrupted.set()
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
@@ -226,27 +236,58 @@ def run(args: Any) -> int:
         if port is not None:  # before the file: a refused address or port leaves no file behind
             from interop.foxglove import sink_from_args  # noqa: PLC0415 - only when asked
 
-            fox = sink_from_args(host, port, args)
+            fox = sink_from_args(host, port, args, option="--foxglove-port")
             sinks.append(fox)
             print(f"ucr: Foxglove WebSocket server on {fox.url}", file=sys.stderr, flush=True)
+        if interrupted.is_set():  # Ctrl-C while starting: no file
+            print("ucr: interrupted (Ctrl-C) before recording", file=sys.stderr)
+            return 130
         try:
             sink = McapSink(args.output, compression=args.compression,
                             flush_interval=args.flush_interval,
                             overwrite=getattr(args, "overwrite", False))  # fmt: skip
         except FileExistsError:
-            print(f"ucr: {output_refusal(args.output, False)}", file=sys.stderr)
+            why = output_refusal(args.output, False) or f"{args.output} appeared meanwhile"
+            print(f"ucr: {why}: refused", file=sys.stderr)
+            return 1
+        except OSError as exc:
+            print(f"ucr: cannot create {args.output}: {exc.strerror or exc}", file=sys.stderr)
             return 1
         sinks.insert(0, sink)
-        out = Fanout(sinks)
+
+        def on_drop(dropped: Any, exc: Exception) -> None:
+            if dropped is sink:  # the recording itself failed (disk full, I/O error): stop
+                failed.append(getattr(exc, "strerror", None) or f"{type(exc).__name__}: {exc}")
+                stop.set()
+            else:  # the live Foxglove server: the recording goes on
+                print(f"ucr: the Foxglove server stopped: {exc}", file=sys.stderr)
+
+        out = Fanout(sinks, on_drop=on_drop)
         progress = Progress(sink)
         feed = LiveFeed(client, topics, out, viz_rate=args.viz_rate)
         feed.run(stop, duration=args.duration, on_tick=progress)
+        if not failed:
+            try:
+                sink.close()  # the summary, fsynced: may fail as any write
+            except OSError as exc:
+                failed.append(exc.strerror or str(exc))
+        if failed:
+            end = "\n" if progress.tty else ""  # after the progress line written in place
+            print(f"{end}ucr: recording stopped: cannot write {sink.path}: {failed[0]}",
+                  file=sys.stderr)  # fmt: skip
+            return 1
         progress(final=True)
         if feed.dropped:
             print(f"ucr: {feed.dropped} stream messages were dropped (recorder too slow)",
                   file=sys.stderr)  # fmt: skip
+        if interrupted.is_set():
+            print(f"ucr: interrupted (Ctrl-C): {sink.path} closed", file=sys.stderr)
+            return 130
         return 0
-    except (FeedError, ValueError, OSError, RuntimeError) as exc:
+    except OSError as exc:
+        print(f"ucr: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except (FeedError, ValueError, RuntimeError, UcrdfError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     except ApiError as exc:
@@ -254,5 +295,8 @@ def run(args: Any) -> int:
         return 1
     finally:
         for s in sinks:
-            s.close()
+            try:
+                s.close()
+            except OSError:  # the file sink's failure is reported above
+                pass
         client.close()

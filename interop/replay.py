@@ -34,11 +34,11 @@ from host.client_common import CliError, connect_daemon
 from host.errors import ConfigError
 from host.limits import KAPPA_EPS, BendableLimits, Problems, bendable_limits, kappa_exceeds
 from interop import ros2
-from interop.live import FeedError, robot_for
+from interop.live import FeedError, robot_for, robot_mismatch
 from interop.sinks import Fanout
 from interop.topics import CommandedGoals
 from ucrdf.errors import UcrdfError
-from ucrdf.parser import load
+from ucrdf.parser import load, parse_string
 
 MAGIC = b"\x89MCAP0\r\n"  # MCAP files start (and, when complete, end) with it
 
@@ -652,6 +652,7 @@ def run_goals(client: Any, plan: Plan) -> dict:
     is shown on stderr."""
     t0 = time.monotonic()
     result: dict = {}
+    tty = sys.stderr.isatty()  # in place on a terminal, a line per state or 10 % else
     for i, (start, points) in enumerate(plan.goals):
         time.sleep(max(0.0, t0 + start - time.monotonic()))
         gid = client.send_trajectory(points, wait=False)
@@ -659,15 +660,21 @@ def run_goals(client: Any, plan: Plan) -> dict:
               file=sys.stderr, flush=True)  # fmt: skip
         end = (plan.goals[i + 1][0] + t0) if i + 1 < len(plan.goals) else math.inf
         deadline = time.monotonic() + points[-1]["time_from_start"] * 3 + 30
+        shown = None
         while True:
             result = client.trajectory_status(gid)
             pct = 100 * (result.get("progress") or 0)
-            print(f"\r  {result.get('state', '?'):10s} {pct:5.1f} %", end="", file=sys.stderr,
-                  flush=True)  # fmt: skip
+            line = f"  {result.get('state', '?'):10s} {pct:5.1f} %"
+            if tty:
+                print(f"\r{line}", end="", file=sys.stderr, flush=True)
+            elif (result.get("state"), int(pct // 10)) != shown:
+                shown = (result.get("state"), int(pct // 10))
+                print(line, file=sys.stderr, flush=True)
             if result.get("done") or time.monotonic() >= min(end, deadline):
                 break
             time.sleep(0.1)
-        print(file=sys.stderr)
+        if tty:
+            print(file=sys.stderr)
         if result.get("done") and result.get("state") != "succeeded" and end < math.inf:
             break  # an aborted goal (limits, tolerance, takeover): stop here, as the daemon did
     return result
@@ -729,16 +736,18 @@ def execute(args: Any) -> int:
 
 
 def run(args: Any) -> int:
-    """The ``ucr replay`` command."""
+    """The ``ucr replay`` command: 0 at the end of the file (or SIGTERM), 130 after Ctrl-C."""
     if args.execute:
         return execute(args)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    interrupted = threading.Event()
     sinks: list[Any] = []
     app = None
-    try:
+    n = 0
+    try:  # while starting, Ctrl-C raises KeyboardInterrupt: nothing can block it
         next(iter(read_recording(args.file)), None)  # readable at all, before serving anything
+        if getattr(args, "view", False) and getattr(args, "robot", None):
+            _check_recorded_robot(args.file, args.robot)
         if not getattr(args, "no_foxglove", False):
             from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
                 FoxgloveBindError,
@@ -754,38 +763,90 @@ def run(args: Any) -> int:
             print(f"ucr: Foxglove server on {sink.url}", file=sys.stderr, flush=True)
         if getattr(args, "view", False):
             try:
+                _check_listen(args.view_host, args.view_port, "--view-port")
                 app = _start_view(args)
             except (ImportError, OSError, RuntimeError, UcrdfError) as exc:
-                print(f"ucr: cannot serve the view: {exc}", file=sys.stderr)
+                why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+                print(f"ucr: cannot serve the view: {why}", file=sys.stderr)
                 return 1
             sinks.append(app.source)
             print(f"ucr view: {app.url}  (replay)", file=sys.stderr, flush=True)
         if not sinks:
             print("ucr: nothing to play into (--no-foxglove without --view)", file=sys.stderr)
             return 2
+
+        def on_int(*_: Any) -> None:
+            interrupted.set()
+            stop.set()
+
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())  # a requested stop: exit 0
+        signal.signal(signal.SIGINT, on_int)
         advertise_recording(args.file, sinks)  # before a client connects (--wait-client)
         speed = f"at {args.rate:g}x" if args.rate > 0 else "as fast as possible (--rate 0)"
         print(f"ucr: replaying {args.file} {speed}", file=sys.stderr, flush=True)
         if args.wait_client > 0:
-            time.sleep(args.wait_client)
+            stop.wait(args.wait_client)
         report = ReadReport()
-        n = play(args.file, sinks, rate=args.rate, stop=stop, report=report, advertise=False)
+        if not stop.is_set():
+            n = play(args.file, sinks, rate=args.rate, stop=stop, report=report, advertise=False)
         for line in report.warnings(args.file):
             print(f"ucr: warning: {line}", file=sys.stderr, flush=True)
-        print(f"ucr: {n} messages replayed", file=sys.stderr, flush=True)
+        cut = "interrupted (Ctrl-C): " if interrupted.is_set() else ""
+        print(f"ucr: {cut}{n} messages replayed", file=sys.stderr, flush=True)
         if app is not None and not stop.is_set():
             print("ucr: end of the recording; the view stays up (Ctrl-C to stop)",
                   file=sys.stderr, flush=True)  # fmt: skip
             stop.wait()
-        return 0
-    except RecordingError as exc:
+        if interrupted.is_set() and not cut:  # at the end of the file, in the view
+            print("ucr: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130 if interrupted.is_set() else 0
+    except KeyboardInterrupt:
+        print("ucr: interrupted (Ctrl-C) while starting", file=sys.stderr)
+        return 130
+    except (RecordingError, UcrdfError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
     finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # closing: as while starting
         for s in sinks:
             s.close()
         if app is not None:
             app.stop()
+
+
+def _check_listen(host: str, port: int, option: str) -> None:
+    """OSError with one sentence when ``host:port`` cannot be listened on, before a server
+    starts (viser's server thread fails to bind in the background and the caller waits)."""
+    import socket  # noqa: PLC0415
+
+    from interop.foxglove import listen_failure  # noqa: PLC0415
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        raise OSError(f"cannot listen on {host}:{port}: {exc.strerror}") from None
+    family, kind, proto, _, addr = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers do
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            raise OSError(listen_failure(host, port, exc, option)) from None
+
+
+def _check_recorded_robot(path: str | Path, robot_file: str) -> None:
+    """RecordingError unless ``robot_file`` has the bendables and joints of the robot the
+    recording carries (``/ucr/robot_description_ucrdf``); a recording without it passes."""
+    for m in read_recording(path):
+        if m.topic == "/ucr/robot_description_ucrdf":
+            text = ros2.codec(m.typename).decode(m.data).data
+            recorded = parse_string(text, f"{path}:/ucr/robot_description_ucrdf")
+            differs = robot_mismatch(load(robot_file), recorded)
+            if differs:
+                raise RecordingError(
+                    f"{robot_file} is not the robot of {path} ({differs}): refused"
+                )
+            return
 
 
 def _start_view(args: Any) -> Any:

@@ -3,14 +3,15 @@
 A sink takes messages already CDR-encoded (so a recording replays byte for byte and a live feed
 encodes each message once for every sink). :class:`Fanout` encodes a
 :class:`~interop.topics.Message` once and hands the bytes to each sink; a sink that fails is
-reported and dropped, never allowed to stop the others.
+reported and dropped, never allowed to stop the others; its owner learns of it through
+``on_drop`` (``ucr record`` stops when its file fails).
 """
 
 from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Protocol
 
 from interop import ros2
@@ -47,11 +48,15 @@ def channels_of(topics: Mapping[str, str]) -> list[Channel]:
 
 
 class Fanout:
-    """Encode once, write to every sink."""
+    """Encode once, write to every sink. A sink that fails is closed and dropped; the others go
+    on. ``on_drop(sink, exc)`` is then called instead of the default one line on stderr."""
 
-    def __init__(self, sinks: list[Sink]) -> None:
+    def __init__(
+        self, sinks: list[Sink], on_drop: Callable[[Sink, Exception], None] | None = None
+    ) -> None:
         self.sinks = list(sinks)
         self.messages = 0
+        self.on_drop = on_drop
 
     def publish(self, m: Message) -> None:
         c = ros2.codec(m.typename)
@@ -101,13 +106,17 @@ class Fanout:
                 self._drop(s, exc)
 
     def _drop(self, sink: Sink, exc: Exception) -> None:
-        print(f"ucr: {type(sink).__name__} stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
         log.debug("sink failed", exc_info=exc)
         self.sinks.remove(sink)
         try:
             sink.close()
         except Exception:  # noqa: BLE001, S110 - already failed
             pass
+        if self.on_drop is not None:
+            self.on_drop(sink, exc)
+        else:
+            print(f"ucr: {type(sink).__name__} stopped: {type(exc).__name__}: {exc}",
+                  file=sys.stderr)  # fmt: skip
 
     def close(self) -> None:
         for s in self.sinks:

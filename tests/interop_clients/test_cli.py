@@ -114,6 +114,14 @@ def test_the_recording_sink_refuses_a_file_that_appeared_meanwhile(tmp_path):
         (["record", "-o", "r.mcap", "--tls-cert", "c.pem", "--tls-key", "k.pem"],
          "--tls-cert, --tls-key only with a Foxglove server"),
         (["record", "-o", "r.mcap", "--allow-origin", "https://x"], "--allow-origin only with"),
+        # were checked only after contacting the daemon (exit 1), or silently ignored (--nice)
+        (["record", "-o", "r.mcap", "--subdivisions", "1000000000"],
+         "argument --subdivisions: must be <= 1000, got 1000000000"),
+        (["foxglove", "--subdivisions", "1001"], "argument --subdivisions: must be <= 1000"),
+        (["record", "-o", "r.mcap", "--nice", "-5"],
+         ("argument --nice: must be >= 0, got -5: only lowering this process's priority is "
+         "offered")),
+        (["replay", "x.mcap", "--nice", "-1"], "argument --nice: must be >= 0, got -1"),
     ],
 )  # fmt: skip
 def test_impossible_option_values_are_usage_errors(tmp_path, argv, message):
@@ -135,3 +143,91 @@ def test_rate_zero_still_means_as_fast_as_possible(tmp_path):
 
     args = build_parser().parse_args(["replay", "x.mcap", "--rate", "0", "--wait-client", "0"])
     assert args.rate == 0 and args.wait_client == 0
+
+
+def test_a_dangling_symlink_as_output_is_refused_by_name(tmp_path):
+    """Defect: `ucr: None` (the refusal found nothing, then open(..., "xb") failed)."""
+    link = tmp_path / "dang.mcap"
+    link.symlink_to(tmp_path / "x" / "target.mcap")
+    for extra in ((), ("--overwrite",)):  # never followed: it would create the target
+        res = run_ucr("record", "-o", str(link), "--duration", "1", "--url", "ws://127.0.0.1:9",
+                      *extra)  # fmt: skip
+        assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+            (
+                f"ucr: {link} is a symlink to {tmp_path / 'x' / 'target.mcap'}, which does not "
+                "exist: refused, not followed"
+            )
+        ], res.stderr
+
+
+class _Daemon:
+    """The API calls robot_for makes, for a daemon running ``robot``."""
+
+    def __init__(self, robot) -> None:
+        self.text = robot.read_text()
+
+    def topology(self):
+        return {"file": "/elsewhere/robot.ucrdf"}
+
+    def robot_description(self):
+        return {"text": self.text}
+
+
+def test_a_robot_file_that_is_not_utf8_is_named(tmp_path):
+    """Defect: `ucr: 'utf-8' codec can't decode byte 0xff ...`, no file named."""
+    from interop.live import FeedError, robot_for
+
+    text = (REPO / "robots/softrobot3.ucrdf").read_text()
+    latin = tmp_path / "latin.ucrdf"  # valid XML (its declaration says ISO-8859-1), not UTF-8
+    body = text.split("?>", 1)[1] if text.startswith("<?xml") else text
+    latin.write_bytes(b'<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- \xe9 -->' + body.encode())
+    with pytest.raises(FeedError, match=rf"^{latin}: not UTF-8 text \(byte 0xe9 at offset 49\)"):
+        robot_for(_Daemon(REPO / "robots/softrobot3.ucrdf"), str(latin))
+    garbage = tmp_path / "garbage.ucrdf"
+    garbage.write_bytes(b"\xff\xfe<robot/>")
+    with pytest.raises(FeedError, match=rf"^{garbage}:1: "):
+        robot_for(_Daemon(REPO / "robots/softrobot3.ucrdf"), str(garbage))
+
+
+def test_a_robot_file_that_is_not_the_daemons_robot_is_refused():
+    """Defect: `--robot softrobot2.ucrdf` against a 3-segment daemon recorded an inconsistent
+    file without a word."""
+    from interop.live import FeedError, robot_for
+
+    daemon = _Daemon(REPO / "robots/softrobot3.ucrdf")
+    two = REPO / "robots/softrobot2.ucrdf"
+    with pytest.raises(
+        FeedError,
+        match=r"softrobot2.ucrdf is not the daemon's robot \(bendables "
+        r"segment_1, segment_2 here, segment_1, segment_2, segment_3 there\)",
+    ):
+        robot_for(daemon, str(two))
+    robot, _ = robot_for(daemon, str(REPO / "robots/softrobot3.ucrdf"))  # the same robot: fine
+    assert list(robot.bendables) == ["segment_1", "segment_2", "segment_3"]
+
+
+def test_fanout_tells_its_owner_which_sink_failed_and_feeds_the_others():
+    """`ucr record` stops when its file fails; other owners keep the rest going."""
+    from interop.sinks import Fanout
+
+    class Sink:
+        def __init__(self, fail: bool) -> None:
+            self.fail, self.got, self.closed = fail, 0, False
+
+        def write(self, *a):
+            if self.fail:
+                raise OSError(28, "No space left on device")
+            self.got += 1
+
+        def tick(self):
+            pass
+
+        def close(self):
+            self.closed = True
+
+    bad, good = Sink(True), Sink(False)
+    dropped = []
+    out = Fanout([bad, good], on_drop=lambda s, e: dropped.append((s, e.strerror)))
+    out.write("/t", "std_msgs/msg/String", "", b"", 0)
+    out.write("/t", "std_msgs/msg/String", "", b"", 1)
+    assert dropped == [(bad, "No space left on device")] and bad.closed and good.got == 2

@@ -393,3 +393,29 @@ def test_rigid_joints_are_recorded_in_joint_states_and_tf(tmp_path):
     assert np.allclose(world("tool")[:3, :3], fk["tool"][:3, :3], atol=1e-6)
     # and the joints moved it: not where the straight, zeroed arm has its tool
     assert np.linalg.norm(world("tool")[:3, 3] - RobotKinematics(robot).fk()["tool"][:3, 3]) > 0.1
+
+
+def test_a_write_error_stops_the_recording_at_once_exit_1(rig, tmp_path):
+    """Defect: after `No space left on device` the recorder went on "recording" for the whole
+    --duration and exited 0."""
+    from tests.cli_run import run_ucr
+
+    t = time.monotonic()
+    res = run_ucr("record", "-o", "/dev/full", "--overwrite", "--duration", "30",
+                  "--flush-interval", "0.2", "--url", rig.url,
+                  "--robot", str(ROBOT_FILE))  # fmt: skip
+    assert time.monotonic() - t < 25, res.stderr
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if not ln.startswith("recording ")]
+    assert lines == ["ucr: recording stopped: cannot write /dev/full: No space left on device"]
+
+
+def test_a_file_that_cannot_be_created_is_a_sentence(rig):
+    """Defect: `ucr: [Errno 2] No such file or directory: '/proc/x.mcap'`."""
+    from tests.cli_run import run_ucr
+
+    res = run_ucr("record", "-o", "/proc/x.mcap", "--duration", "1", "--url", rig.url,
+                  "--robot", str(ROBOT_FILE))  # fmt: skip
+    assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+        "ucr: cannot create /proc/x.mcap: No such file or directory"
+    ], res.stderr

@@ -4,6 +4,7 @@ against the robot file; `--execute --go` on the emulated chain reproduces the re
 from __future__ import annotations
 
 import re
+import signal
 import time
 
 import numpy as np
@@ -102,7 +103,7 @@ def test_execute_reproduces_the_recorded_kappa_on_the_emulated_chain(rig, record
                 out, err = proc.communicate(timeout=180)
                 time.sleep(1.0)
             finally:
-                code, _, rec_err = stop(rec)
+                code, _, rec_err = stop(rec, signal.SIGTERM)
             assert code == 0, rec_err
             final = {n: s["kappa"] for n, s in c.status()["joint_states"].items()}
         if proc.returncode == 0 or not any(w in out + err for w in environment):
@@ -192,7 +193,7 @@ def test_ucr_replay_view_serves_the_page_and_plays_to_the_end(recording):
         assert any(re.search(r"\d+ messages replayed", ln) for ln in lines), lines
     finally:
         code, _, err = stop(proc)
-    assert code == 0, "".join(lines) + err
+    assert code == 130 and "ucr: interrupted (Ctrl-C)" in err, "".join(lines) + err
 
 
 def _synthetic(path, goals: list[dict], finish: bool = True) -> None:
@@ -840,3 +841,95 @@ def test_playback_keeps_the_recorded_spacing_scaled_by_the_rate(tmp_path, monkey
         assert due == pytest.approx(1000.0 + rec / rate)
         assert due <= wall < due + 1e-9, (rec, wall - 1000.0, due - 1000.0)
     assert ticks[0] >= int(recorded[-1] / rate / 0.05)  # the sinks were ticked while waiting
+
+
+def test_a_view_address_that_cannot_be_bound_is_one_line_not_a_hang(tmp_path):
+    """Defect: `--view-host 192.0.2.55` hung for ever (viser's thread failed to bind, the main
+    thread waited) and Ctrl-C/SIGTERM did nothing."""
+    path = tmp_path / "m.mcap"
+    _measured(path, [0.0, 0.1])
+    t = time.monotonic()
+    res = run_ucr("replay", str(path), "--view", "--view-host", "192.0.2.55", "--view-port", "0",
+                  "--no-foxglove", timeout=60)  # fmt: skip
+    assert time.monotonic() - t < 30
+    assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+        (
+            "ucr: cannot serve the view: cannot listen on 192.0.2.55:0: cannot assign requested "
+            "address (not an address of this machine)"
+        )
+    ], res.stderr
+
+
+def test_a_foxglove_port_in_use_is_a_sentence(tmp_path):
+    """Defect: `ucr: [Errno 98] error while attempting to bind on address (...)`."""
+    import socket
+
+    path = tmp_path / "m.mcap"
+    _measured(path, [0.0, 0.1])
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        code, _, err = _ucr_run("replay", str(path), "--port", str(port))
+    assert code == 1 and err.strip().splitlines() == [
+        (
+            f"ucr: cannot listen on 127.0.0.1:{port}: address already in use (another program uses "
+            "the port: --port P, or 0 for any free port)"
+        )
+    ], err
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 0)])
+def test_ctrl_c_exits_130_and_says_so_sigterm_is_a_clean_stop(tmp_path, sig, code):
+    """Defect: Ctrl-C exited 0 and printed "N messages replayed" as if the file had ended."""
+    path = tmp_path / "m.mcap"
+    _measured(path, [0.0, 0.1])
+    proc = ucr("replay", str(path), "--port", "0", "--wait-client", "60")
+    try:
+        assert wait_for(lambda: proc.poll() is not None or _replaying(proc), 60)
+    finally:
+        got, _, err = stop(proc, sig)
+    assert got == code, err
+    assert ("ucr: interrupted (Ctrl-C): 0 messages replayed" in err) == (sig == signal.SIGINT)
+    assert "Traceback" not in err, err
+
+
+def _replaying(proc) -> bool:
+    line = proc.stderr.readline()
+    return line.startswith("ucr: replaying")
+
+
+def test_a_robot_file_that_is_not_the_recordings_is_refused_for_the_view(recording):
+    """Defect: `--view --robot softrobot2.ucrdf` drew a 3-segment recording on a 2-segment robot
+    without a word."""
+    from .conftest import REPO
+
+    path, _, _ = recording
+    other = REPO / "robots" / "softrobot2.ucrdf"
+    code, _, err = _ucr_run("replay", str(path), "--view", "--view-port", "0", "--no-foxglove",
+                            "--robot", str(other))  # fmt: skip
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert f"{other} is not the robot of {path} (bendables segment_1, segment_2 here" in err
+
+
+def test_goal_progress_is_whole_lines_when_not_on_a_terminal(capsys):
+    """Defect: `--execute --go > file` wrote progress with carriage returns."""
+    from interop.replay import Plan, run_goals
+
+    class Client:
+        polls = 0
+
+        def send_trajectory(self, points, wait):
+            return "g1"
+
+        def trajectory_status(self, gid):
+            self.polls += 1
+            done = self.polls >= 3
+            return {"id": gid, "state": "succeeded" if done else "executing",
+                    "progress": self.polls / 3, "done": done}  # fmt: skip
+
+    plan = Plan(source="commanded", segments=[], points=[], lead_in=0.0)
+    plan.goals = [(0.0, [{"time_from_start": 0.1, "segments": {}}])]
+    assert run_goals(Client(), plan)["state"] == "succeeded"
+    err = capsys.readouterr().err
+    assert "\r" not in err and "succeeded" in err.splitlines()[-1], repr(err)
