@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -193,6 +194,27 @@ def _option_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _path_problem(args: argparse.Namespace) -> str | None:
+    """Why --control-socket or --workdir cannot work, checked before any segment starts (the
+    last check: it creates the workdir)."""
+    from tools.emulator.control import socket_path_problem  # noqa: PLC0415 - keeps `ucr --help` fast
+
+    if args.control_socket is not None:
+        why = socket_path_problem(args.control_socket)
+        if why:
+            return f"--control-socket {why}"
+    if args.workdir is not None:
+        try:
+            args.workdir.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            return f"--workdir {args.workdir}: exists and is not a directory"
+        except OSError as exc:
+            return f"--workdir {args.workdir}: cannot create it ({exc.strerror})"
+        if not os.access(args.workdir, os.W_OK | os.X_OK):
+            return f"--workdir {args.workdir}: not writable"
+    return None
+
+
 def cmd_emulate(args: argparse.Namespace) -> int:
     from tools.emulator import EmulatedChain, EmulatorError  # noqa: PLC0415 - keeps `ucr --help` fast
     from tools.emulator.control import ControlSocket, execute  # noqa: PLC0415 - keeps `ucr --help` fast
@@ -225,6 +247,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         return _error("give the number of segments or --robot")
     if not 1 <= n <= 64:
         return _error(f"number of segments must be 1..64, got {n}")
+    problem = _path_problem(args)
+    if problem:
+        return _error(problem)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     control = None
     rc = 0

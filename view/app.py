@@ -36,6 +36,7 @@ from view.guard import (
     GuardError,
     PageGate,
     PageToken,
+    check_bindable,
     guarded_viser,
     page_guard,
     peer_address,
@@ -132,6 +133,7 @@ class ViewApp:
         # the guard is set once the port is known (port 0: any free port); until then everything
         # is refused
         self.gate = PageGate(self.page_token)
+        check_bindable(host, port)  # else viser waits forever
         self.server = guarded_viser(
             lambda: viser.ViserServer(host=host, port=port, verbose=False), self.gate, log.warning
         )

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from host.api import ENV_TOKEN_FILE
-from host.client_common import number_arg
+from host.client_common import number_arg, port_arg
 from host.extras import install_command
 
 INSTALL_HINT = f"ucr view needs the `view` extra (viser): {install_command('view')}"
@@ -49,7 +49,9 @@ def register(subparsers: Any) -> None:
         help="seconds to wait for the daemon's replies (default 5)",
     )
     p.add_argument("--host", default="127.0.0.1", help="address to serve the page on (loopback)")
-    p.add_argument("--port", type=int, default=8080, help="port of the page (8080)")
+    p.add_argument(
+        "--port", type=port_arg, default=8080, help="port of the page (8080; 0: any free)"
+    )
     p.add_argument(
         "--allow-host",
         action="append",
@@ -61,13 +63,27 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--nice",
-        type=int,
+        type=_nice_arg,
         default=VIEW_NICE,
         help=f"lower the view's scheduling priority by this much (default {VIEW_NICE}: a daemon "
         "on the same machine keeps the CPU first; 0: unchanged)",
     )
     p.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_view)
+
+
+def _nice_arg(text: str) -> int:
+    """An argparse ``type``: how much to lower the view's priority (0 or more: raising it is
+    not offered, the daemon on the same machine comes first)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(
+            f"must be >= 0, got {text}: the view only lowers its priority (0: unchanged)"
+        )
+    return v
 
 
 def _token(args: argparse.Namespace) -> str | None:
@@ -123,13 +139,18 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"ucr view: priority unchanged ({exc.strerror})", file=sys.stderr)
     from host.api.client import ApiError
     from view.app import ViewApp
-    from view.guard import GuardError, is_loopback
+    from view.guard import GuardError, check_bindable, is_loopback
     from view.source import LiveSource, OfflineSource, RobotFileError
 
     if not 0 < args.rate <= 1000:
         print(f"ucr: --rate must be in (0, 1000] updates per second, got {args.rate:g}",
               file=sys.stderr)  # fmt: skip
         return 2
+    try:  # before anything starts: else viser waits forever on an address it cannot bind
+        check_bindable(args.host, args.port)
+    except OSError as exc:
+        print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        return 1
     control = True
     if not is_loopback(args.host):
         # the page can move hardware and has no login of its own: off loopback it only shows

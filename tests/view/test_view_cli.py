@@ -166,3 +166,39 @@ def test_with_a_file_a_daemon_too_slow_falls_back_to_the_file(silent_daemon):
     said = "the daemon does not answer (timeout: no reply to 'topology' within 0.5 s)"
     assert f"ucr view: {said}; offline on" in err
     assert "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("mode", [["--offline"], ["--url", "http://127.0.0.1:9"]])
+def test_a_port_out_of_range_is_a_usage_error(mode):
+    """Defect: viser's thread died (OverflowError: a traceback) and the view hung until Ctrl-C."""
+    res = _view(str(ROBOT), *mode, "--port", "70000", timeout=30)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert "argument --port: must be a port 0..65535" in res.stderr
+    assert "http://" not in res.stdout
+
+
+def test_an_address_not_on_this_machine_is_one_line():
+    """Defect: "serving on 192.0.2.55 (not loopback)…", then nothing: viser retried ports
+    forever and its constructor never returned."""
+    res = _view(str(ROBOT), "--offline", "--host", "192.0.2.55", "--port", "8123", timeout=30)
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    [line] = res.stderr.strip().splitlines()
+    assert line.startswith("ucr: cannot serve the view on 192.0.2.55:8123: [Errno "), line
+    assert "http://" not in res.stdout
+
+
+def test_check_bindable_refuses_what_viser_could_not_serve():
+    from view.guard import check_bindable
+
+    with pytest.raises(OSError, match="^port must be 0..65535, got 70000$"):
+        check_bindable("127.0.0.1", 70000)  # (getaddrinfo took it as port 4464)
+    with pytest.raises(OSError):
+        check_bindable("192.0.2.55", 0)
+    check_bindable("127.0.0.1", 0)
+
+
+def test_a_negative_nice_is_a_usage_error():
+    """Defect: ``--nice -5`` was accepted and silently ignored (only lowering is offered)."""
+    res = _view(str(ROBOT), "--offline", "--nice", "-5", "--port", "0", timeout=30)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert "argument --nice: must be >= 0, got -5: the view only lowers its priority" in res.stderr

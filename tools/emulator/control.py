@@ -169,19 +169,56 @@ def execute(chain: EmulatedChain, line: str) -> str:
     return f"error: unhandled command {cmd!r}"
 
 
+#: The longest path a unix socket address holds (Linux: 108 bytes with the final NUL).
+MAX_SOCKET_PATH = 107
+
+
+def socket_path_problem(path: str | os.PathLike) -> str | None:
+    """Why a control socket cannot listen on ``path``, else None. A socket file nobody listens
+    on (left by an emulator that was killed) may be replaced; one that accepts a connection is
+    another emulator's control socket (or another program's), and anything else is not ours."""
+    p = Path(path)
+    if len(os.fsencode(p)) > MAX_SOCKET_PATH:
+        return f"{p}: too long for a unix socket (at most {MAX_SOCKET_PATH} bytes)"
+    if not p.parent.is_dir():
+        return f"{p}: no such directory {p.parent}"
+    if not os.access(p.parent, os.W_OK | os.X_OK):
+        return f"{p}: cannot create it (the directory {p.parent} is not writable)"
+    if not os.path.lexists(p):
+        return None
+    if not p.is_socket():
+        return f"{p} exists and is not a socket (not replaced): choose another path"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        probe.settimeout(2.0)
+        try:
+            probe.connect(str(p))
+        except ConnectionRefusedError:
+            return None  # stale: nobody listens
+        except OSError as exc:
+            return f"{p}: cannot tell whether something listens on it ({exc}): choose another path"
+    return (
+        f"{p} is the control socket of a running emulator (or another program): choose another path"
+    )
+
+
 class ControlSocket:
     """A unix socket server: one command per line, each answer followed by an empty line."""
 
     def __init__(self, chain: EmulatedChain, path: str | os.PathLike) -> None:
         self.chain = chain
         self.path = Path(path)
-        if self.path.exists():
-            if not self.path.is_socket():
-                raise EmulatorError(f"{self.path} exists and is not a socket")
-            self.path.unlink()
+        why = socket_path_problem(self.path)
+        if why:
+            raise EmulatorError(why)
+        if os.path.lexists(self.path):
+            self.path.unlink()  # a stale socket: nobody listens on it
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._sock.bind(str(self.path))
-        self._sock.listen(4)
+        try:
+            self._sock.bind(str(self.path))
+            self._sock.listen(4)
+        except OSError as exc:
+            self._sock.close()
+            raise EmulatorError(f"{self.path}: cannot listen on it ({exc.strerror})") from None
         self._closed = False
         self._thread = threading.Thread(
             target=self._serve, name="ucr-emulator-control", daemon=True
