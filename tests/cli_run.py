@@ -7,19 +7,22 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def run_ucr(
-    *args: str, timeout: float = 120.0, env: dict[str, str] | None = None
+    *args: str, timeout: float = 120.0, env: dict[str, str] | None = None, stdout: Any = None
 ) -> subprocess.CompletedProcess[str]:
-    """Run ``ucr ARGS...`` to its end (``env``: variables added to this process's)."""
+    """Run ``ucr ARGS...`` to its end (``env``: variables added to this process's; ``stdout``: a
+    file its output goes to instead of being captured, e.g. /dev/full)."""
     return subprocess.run(
         [sys.executable, "-m", "tools.cli", *args],
         cwd=REPO,
         env=None if env is None else {**os.environ, **env},
-        capture_output=True,
+        stdout=subprocess.PIPE if stdout is None else stdout,
+        stderr=subprocess.PIPE,
         text=True,
         timeout=timeout,
         stdin=subprocess.DEVNULL,

@@ -126,14 +126,6 @@ def test_an_endless_input_is_refused_not_read_to_the_end():
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
 def test_a_stdout_that_cannot_take_the_summary_is_one_line():
     with open("/dev/full", "w") as full:
-        result = subprocess.run(
-            [sys.executable, "-m", "tools.cli", "check", str(ROBOTS / "softrobot3.ucrdf")],
-            cwd=REPO,
-            stdout=full,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            text=True,
-            timeout=60,
-        )
+        result = run_ucr("check", str(ROBOTS / "softrobot3.ucrdf"), timeout=60, stdout=full)
     assert result.returncode == 1
     assert result.stderr == "ucr check: error: cannot write the summary: No space left on device\n"

@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yourdfpy
 
+from tests.cli_run import run_ucr
 from ucrdf.export import export_urdf
 from ucrdf.fk import ConfigError, RobotKinematics
 from ucrdf.parser import load
@@ -198,15 +197,7 @@ def test_a_robot_whose_numbers_overflow_never_reaches_fk(tmp_path, capsys):
 )
 def test_a_stdout_that_cannot_take_the_output_is_one_line(argv):
     with open("/dev/full", "w") as full:
-        result = subprocess.run(
-            [sys.executable, "-m", "tools.cli", *argv],
-            cwd=REPO,
-            stdout=full,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            text=True,
-            timeout=120,
-        )
+        result = run_ucr(*argv, stdout=full)
     assert result.returncode == 1
     assert (
         result.stderr == f"ucr {argv[0]}: error: cannot write the output: No space left on device\n"
