@@ -139,21 +139,16 @@ def phi_deg_problem(v: object) -> str | None:
     return None
 
 
-def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict:
-    """json.loads' object hook: a key given twice is an error, never "the last one wins"."""
-    out: dict = {}
-    for k, v in pairs:
-        if k in out:
-            raise ValueError(f"duplicate key {k!r} in an object (which one was meant?)")
-        out[k] = v
-    return out
-
-
 def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
     """Read a YAML/JSON waypoint file into API points (phi in rad); raises CliError naming the
     file, the line (YAML) and the waypoint (from 1) of every problem (the first 20 in full).
     Format: docs/api.md "Trajectory files"."""
-    from host.api.schema import MAX_POINTS, RequestError, validate_points  # noqa: PLC0415
+    from host.api.schema import (  # noqa: PLC0415
+        MAX_POINTS,
+        RequestError,
+        unique_keys,
+        validate_points,
+    )
     from host.limits import Problems  # noqa: PLC0415
 
     p = Path(path)
@@ -169,7 +164,7 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
         ) from None
     try:
         if p.suffix.lower() == ".json":
-            doc = json.loads(text, object_pairs_hook=_no_duplicate_keys)
+            doc = json.loads(text, object_pairs_hook=unique_keys)
         else:
             from host.yamlload import safe_load  # noqa: PLC0415
 

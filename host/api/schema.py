@@ -455,7 +455,7 @@ def _leading_id(data: str) -> Any:
     return int(m.group(1)) if m.group(1) is not None else m.group(2)
 
 
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict:
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict:
     """A JSON object whose keys are unique: a repeated key (e.g. two "op") is an error, never
     "the last one wins" (RFC 8259 leaves it to the reader; we refuse to guess)."""
     obj = dict(pairs)
@@ -510,7 +510,7 @@ def parse_request(
     if len(data.encode("utf-8", "surrogatepass")) > max_bytes:
         raise RequestError(TOO_LARGE, f"request exceeds {max_bytes} bytes", _leading_id(data))
     try:
-        obj = json.loads(data, parse_constant=_reject_constant, object_pairs_hook=_no_duplicates)
+        obj = json.loads(data, parse_constant=_reject_constant, object_pairs_hook=unique_keys)
     except (ValueError, RecursionError) as exc:
         raise RequestError(BAD_JSON, f"invalid JSON: {exc}") from None
     if not isinstance(obj, dict):
