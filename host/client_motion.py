@@ -157,11 +157,9 @@ def load_trajectory_file(path: str) -> tuple[list[dict], str | None]:
     except OSError as exc:
         raise CliError(f"cannot read {p}: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
-        bad = exc.object[exc.start : exc.start + 1].hex()
-        raise CliError(
-            f"{p}: not UTF-8 text (byte 0x{bad} at offset {exc.start}): a trajectory file is "
-            "YAML or JSON text"
-        ) from None
+        from host.errors import not_utf8  # noqa: PLC0415
+
+        raise CliError(f"{p}: {not_utf8(exc)}: a trajectory file is YAML or JSON text") from None
     try:
         if p.suffix.lower() == ".json":
             doc = json.loads(text, object_pairs_hook=unique_keys)

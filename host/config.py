@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 
 from host.controllers import known_types
-from host.errors import ConfigError
+from host.errors import ConfigError, not_utf8
 from host.limits import DEFAULT_KAPPA_RATE_MAX, BendableLimits, bendable_limits
 from host.yamlload import safe_load
 
@@ -331,10 +331,7 @@ def load_config(path: str | Path | None) -> DaemonConfig:
     except OSError as exc:
         raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
-        bad = exc.object[exc.start : exc.start + 1].hex()
-        raise ConfigError(
-            str(p), "", f"not UTF-8 text (byte 0x{bad} at offset {exc.start})"
-        ) from None
+        raise ConfigError(str(p), "", not_utf8(exc)) from None
     try:
         data = safe_load(text)  # (a key given twice is an error: host/yamlload.py)
     except yaml.YAMLError as exc:

@@ -5,6 +5,12 @@ from __future__ import annotations
 from typing import Any
 
 
+def not_utf8(exc: UnicodeDecodeError) -> str:
+    """Why bytes are not text, where: ``not UTF-8 text (byte 0xff at offset 0)``."""
+    bad = exc.object[exc.start : exc.start + 1].hex()
+    return f"not UTF-8 text (byte 0x{bad} at offset {exc.start})"
+
+
 class ConfigError(ValueError):
     """A configuration file or value is wrong; ``str()`` is one line: ``file: key: problem``."""
 

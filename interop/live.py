@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from host.api.client_errors import ApiConnectionError, ApiError
+from host.errors import not_utf8
 from interop.sinks import Fanout, channels_of
 from interop.topics import TOPICS, CommandedGoals, Message, RobotTopics, commanded
 from ucrdf.errors import UcrdfError
@@ -50,8 +51,7 @@ def robot_for(client: Any, robot_path: str | None) -> tuple[Any, str]:
         raise FeedError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise FeedError(
-            f"{path}: not UTF-8 text (byte {data[exc.start]:#04x} at offset {exc.start}): a "
-            "recording carries the robot file as UTF-8"
+            f"{path}: {not_utf8(exc)}: a recording carries the robot file as UTF-8"
         ) from None
     if robot_path:
         differs = None
