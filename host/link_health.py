@@ -4,14 +4,15 @@ Fed once per cycle with which positions answered the last exchange and how long 
 a short window and decides the *usable* period: when replies from some position keep missing
 (loss: a reply later than the reply time counts as missing), the loop slows down (period ×2,
 never slower than the floor that keeps the segments' watchdogs fed); once every position has
-answered every exchange, each within the nominal rate's reply time, for ``recover_s`` (and
-RECOVER_MIN_EXCHANGES exchanges) at the lower rate, the loop tries the nominal rate again.
+answered every exchange within the lower rate's reply time for ``recover_s`` (and
+RECOVER_MIN_EXCHANGES exchanges), RECOVER_FIT_SHARE of them within the nominal rate's, the loop
+tries the nominal rate again (a host's hiccup now and then does not restart the wait).
 A return that fails at once (within RECOVER_FAIL_S) doubles the clean time asked for next (up
 to RECOVER_MAX_S): a link that stays bad is not probed at full rate over and over; a return
 that holds RECOVER_HOLD_S resets it, so the next slow spell returns as promptly as the first.
-Exchanges that all fit the lowered rate's reply time but not the nominal one's for ``recover_s``
-climb to the rate they need (``eased``, :meth:`LinkHealth._ease`): a link partly restored is
-used at what it now carries, and one reported too slow is no longer (``too_slow`` cleared).
+Such a stretch with fewer of them within the nominal rate's reply time climbs to the rate they
+need (``eased``, :meth:`LinkHealth._ease`): a link partly restored is used at what it now
+carries, and one reported too slow is no longer (``too_slow`` cleared).
 
 One rule slows the loop, on either path (:meth:`LinkHealth.observe` every cycle,
 :meth:`LinkHealth.stall` after a silent stretch that found the same chain): a position missed
@@ -57,6 +58,9 @@ LOSSY_CLEAR = 0.05  # ... until its loss over a full window is below this
 GARBLED_S = 1.0  # garbled frames this recent make missing replies lost ones at once (s)
 RECOVER_S = 1.0  # clean time at the lower rate before trying the nominal rate again (s)
 RECOVER_MIN_EXCHANGES = 10  # ... and at least this many clean exchanges
+#: ... of which at least this share fit the nominal rate's reply time (the rest, a host's
+#: hiccups, would be a few late replies at the nominal rate: DEGRADE_LOSS is far above them)
+RECOVER_FIT_SHARE = 0.9
 #: a lowered rate whose exchanges all fit its reply time, the last not the nominal one's, for
 #: RECOVER_S climbs to the rate they need with this to spare (``eased``) ...
 EASE_SPARE = 1.25
@@ -93,10 +97,10 @@ class LinkHealth:
         self._late_prev: list[int] | None = None  # the link's last late-reply reading
         self._late_seen: object = None  # ... the very object read (a repeated one adds none)
         self._latency: deque[float] = deque(maxlen=50)
-        self._clean_since: float | None = None
-        self._clean_n = 0
-        self._fit_since: float | None = None  # complete exchanges within the current reply time
-        self._fit_n, self._fit_max = 0, 0.0  # ... how many, the longest of them (s)
+        # the recovery stretch: since when every exchange was complete within the current
+        # (lowered) rate's reply time, and how long each took (s)
+        self._fit_since: float | None = None
+        self._fit_times: list[float] = []
         self._cleared: dict[str, Any] | None = None  # a loss_cleared change not returned yet
         self._lossy_n = 0  # exchanges in a row that looked lossy
         self._garbled_at: float | None = None  # when the link last received garbled frames
@@ -137,9 +141,8 @@ class LinkHealth:
         self._late = []
         self._late_prev = None
         self._latency.clear()
-        self._clean_since = None
-        self._clean_n = 0
         self._fit_since = None
+        self._fit_times = []
         self._lossy_n = 0
 
     def observe(
@@ -206,20 +209,28 @@ class LinkHealth:
                 self._t_restored = None  # the return held: the next one is prompt again
                 self.recover_s = RECOVER_S
             return None
-        # clean: every position answered, within the nominal rate's reply time
+        # the recovery stretch: every position answered, within the current rate's reply time
         if not complete or exchange_s > self.reply_share * self.period:
-            self._clean_since = self._fit_since = None
-            self._clean_n = 0
+            self._fit_since = None
+            self._fit_times = []
             return None
-        if exchange_s > self.reply_share * self.nominal:
-            self._clean_since = None
-            self._clean_n = 0
-            return self._ease(exchange_s, now)
-        self._clean_n += 1
-        if self._clean_since is None:
-            self._clean_since = now
-        if now - self._clean_since < self.recover_s or self._clean_n < RECOVER_MIN_EXCHANGES:
+        return self._recover(exchange_s, now)
+
+    def _recover(self, exchange_s: float, now: float) -> dict[str, Any] | None:
+        """One more exchange of the recovery stretch (all complete within the lowered rate's
+        reply time). After ``recover_s`` (and RECOVER_MIN_EXCHANGES) of them: when at least
+        RECOVER_FIT_SHARE fit the nominal rate's reply time, return to it (``restored``; a few
+        slower ones — a host's hiccup — would be a few late replies there, far from what
+        slows the loop); otherwise climb to what they need (:meth:`_ease`)."""
+        if self._fit_since is None:
+            self._fit_since, self._fit_times = now, []
+        self._fit_times.append(exchange_s)
+        if now - self._fit_since < self.recover_s or len(self._fit_times) < RECOVER_MIN_EXCHANGES:
             return None
+        times = sorted(self._fit_times)
+        fit = sum(t <= self.reply_share * self.nominal for t in times)
+        if fit < RECOVER_FIT_SHARE * len(times):
+            return self._ease(times, now)
         p90 = self._latency_p90()
         measured_at = 1.0 / self.period
         self.period = self.nominal
@@ -241,22 +252,18 @@ class LinkHealth:
             "cause": cause,
         }
 
-    def _ease(self, exchange_s: float, now: float) -> dict[str, Any] | None:
-        """Every exchange answered within the current (lowered) rate's reply time, the last
-        not within the nominal one's: after ``recover_s`` (and RECOVER_MIN_EXCHANGES) of these,
-        the line carries more than the current rate — climb to the rate the longest of them
-        needs with EASE_SPARE to spare, when that is a step (EASE_STEP) up; and a link reported
-        too slow is not (``too_slow`` cleared). Change ``eased`` (event ``link_recovered``)."""
-        if self._fit_since is None:
-            self._fit_since, self._fit_n, self._fit_max = now, 0, 0.0
-        self._fit_n += 1
-        self._fit_max = max(self._fit_max, exchange_s)
-        if now - self._fit_since < self.recover_s or self._fit_n < RECOVER_MIN_EXCHANGES:
-            return None
-        target = max(self.nominal, EASE_SPARE * self._fit_max / self.reply_share)
+    def _ease(self, times: list[float], now: float) -> dict[str, Any] | None:
+        """A recovery stretch (``times``: its exchanges, sorted, s) that fits the lowered rate
+        but not the nominal one: the line carries more than the current rate — climb to the
+        rate the longest of them needs with EASE_SPARE to spare, when that is a step
+        (EASE_STEP) up; and a link reported too slow is not (``too_slow`` cleared).
+        Change ``eased`` (event ``link_recovered``)."""
+        need = times[-1]
+        target = max(self.nominal, EASE_SPARE * need / self.reply_share)
         climb = target < EASE_STEP * self.period
         if not climb and self.too_slow is None:
             self._fit_since = None  # nothing to change: measure afresh
+            self._fit_times = []
             return None
         measured_at = 1.0 / self.period
         was_too_slow = self.too_slow is not None
@@ -264,9 +271,8 @@ class LinkHealth:
             self.period = target
             self._t_restored = now  # a climb that fails at once backs off like a return
         self.too_slow = None
-        p90 = self._fit_max
         self._forget()
-        self.last = self._faster(measured_at, p90, "eased")
+        self.last = self._faster(measured_at, need, "eased")
         return {
             "period": self.period,
             "change": "eased",

@@ -201,3 +201,36 @@ def test_ucr_status_shows_a_degraded_link():
     st["link_health"] = {"degraded": False, "usable_rate_hz": 100.0}
     st["rate_hz"] = 100.0
     assert "loop: 100 Hz  up" in format_status(st)[0]
+
+
+def _recovery(slow_every: int, slow_s: float, seconds: float = 3.0) -> list[dict]:
+    """A loop slowed to 50 Hz (nominal 100 Hz) on a link now clean: every exchange answered in
+    4 ms, but every ``slow_every``-th takes ``slow_s`` (within 50 Hz's reply time, not within
+    100 Hz's). The changes it decides over ``seconds``."""
+    h = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    h.period = 0.02
+    changes, t, i = [], 0.0, 0
+    while t < seconds and h.degraded:
+        t, i = t + h.period, i + 1
+        took = slow_s if i % slow_every == 0 else 0.004
+        c = h.observe([True] * 3, took, t, lambda: [0, 0, 0], reply_timeout=0.8 * h.period)
+        if c is not None:
+            changes.append({**c, "t": t})
+    return changes
+
+
+def test_a_hiccup_now_and_then_does_not_hold_the_rate_down():
+    # before: one exchange beyond 100 Hz's reply time (a host's hiccup: GC, a busy core)
+    # restarted the 1 s wait, so a return needed 1 s without any; one in 15 held 50 Hz forever
+    changes = _recovery(15, 0.012)
+    assert [c["change"] for c in changes] == ["restored"], changes
+    assert changes[0]["t"] < 1.2, changes
+
+
+def test_a_link_still_slow_in_many_exchanges_is_not_taken_back_to_the_nominal_rate():
+    # one in four beyond 100 Hz's reply time would miss there: the rate stays down
+    assert _recovery(4, 0.012) == []
+    # ... and when they need less than the lowered rate, it climbs only to what they need
+    changes = _recovery(2, 0.009)
+    assert [c["change"] for c in changes] == ["eased"], changes
+    assert 0.01 < changes[0]["period"] < 0.016

@@ -53,8 +53,11 @@ class RawPage:
         import viser
         from websockets.sync.client import connect
 
+        # max_queue=None: the connection's thread keeps reading (and answering the view's pings)
+        # while a test does other things for a minute; with websockets' default queue of 16 it
+        # stopped reading once 16 messages waited and the keepalive ping timed out (code 1011)
         self.ws = connect(f"ws://{host}:{port}{path}", subprotocols=[f"viser-v{viser.__version__}"],
-                          max_size=None, open_timeout=30)  # fmt: skip
+                          max_size=None, max_queue=None, open_timeout=30)  # fmt: skip
         self.seen: list[dict] = []
         self.send(self.CAMERA)  # viser counts a client as connected after its first camera pose
 
