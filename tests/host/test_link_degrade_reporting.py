@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import pytest
 from test_review_fixes import FakeLink
 
 from host.client_cli import format_status
@@ -219,17 +220,19 @@ def _recovery(slow_every: int, slow_s: float, seconds: float = 3.0) -> list[dict
     return changes
 
 
-def test_a_hiccup_now_and_then_does_not_hold_the_rate_down():
-    # before: one exchange beyond 100 Hz's reply time (a host's hiccup: GC, a busy core)
-    # restarted the 1 s wait, so a return needed 1 s without any; one in 15 held 50 Hz forever
-    changes = _recovery(15, 0.012)
+@pytest.mark.parametrize("slow_every", [15, 4])
+def test_a_clean_chains_slow_exchanges_do_not_hold_the_rate_down(slow_every):
+    # before: one exchange beyond 100 Hz's reply time (a host's hiccup: GC, a busy core; the
+    # emulated chain has ~1 in 10) restarted the 1 s wait, so a return needed 1 s without any:
+    # one in 15 held 50 Hz for ever. Up to 30 % would be late at 100 Hz: half what slows it.
+    changes = _recovery(slow_every, 0.012)
     assert [c["change"] for c in changes] == ["restored"], changes
     assert changes[0]["t"] < 1.2, changes
 
 
 def test_a_link_still_slow_in_many_exchanges_is_not_taken_back_to_the_nominal_rate():
-    # one in four beyond 100 Hz's reply time would miss there: the rate stays down
-    assert _recovery(4, 0.012) == []
+    # one in two beyond 100 Hz's reply time would miss there: the rate stays down
+    assert _recovery(2, 0.012) == []
     # ... and when they need less than the lowered rate, it climbs only to what they need
     changes = _recovery(2, 0.009)
     assert [c["change"] for c in changes] == ["eased"], changes
