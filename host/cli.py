@@ -10,12 +10,11 @@ from __future__ import annotations
 import argparse
 import faulthandler
 import logging
-import signal
 import sys
-import threading
 from typing import Any
 
 from host.client_common import port_arg
+from host.stopsignals import StopSignals
 
 
 def register(subparsers: Any) -> None:
@@ -186,9 +185,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         return 1
     except (ConfigError, DaemonError, ValueError) as exc:
         return print_error(str(exc))
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    signals = StopSignals().install()
     # The API first: its errors (bind, token) are configuration errors, reported before the
     # chain port is opened. Until the chain runs, its requests answer "daemon is not running".
     api = None
@@ -212,7 +209,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         if api is not None:
             api.stop()
         return print_error(str(exc))
-    while not stop.wait(0.5):
+    while not signals.stop.wait(0.5):
         pass
     logging.getLogger("ucr").info("signal received: holding and stopping")
     # A stop that hangs is killed by systemd (TimeoutStopSec=10); before that, every thread's
@@ -224,4 +221,4 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         daemon.stop(hold=True)
     finally:
         faulthandler.cancel_dump_traceback_later()
-    return 0
+    return signals.exit_code()

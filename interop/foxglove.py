@@ -10,23 +10,21 @@ token rule, ``Origin`` and ``Host`` checks and speaks the protocol itself
 
 from __future__ import annotations
 
-import errno
 import os
-import signal
 import sys
-import threading
 from typing import Any
 
 from host.api.auth import AuthConfigError, read_token_file
 from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
+from host.listen import ListenError, listen_failure
+from host.stopsignals import StopSignals
 from interop.guard import FoxgloveGuard, GuardError
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
 from interop.topics import LATCHED, RobotTopics
 
 ENV_SERVE_TOKEN = "UCR_FOXGLOVE_TOKEN"
-FoxgloveBindError = GuardError  # a refused address or token
 
 
 class FoxgloveSink:
@@ -82,23 +80,11 @@ class FoxgloveSink:
         self.guard.stop()
 
 
-def listen_failure(host: str, port: int, exc: OSError, option: str = "--port") -> str:
-    """One sentence for a server that cannot bind ``host:port`` (asyncio's own text repeats the
-    address and the errno), with a hint naming ``option`` where one helps."""
-    why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
-    hint = {
-        errno.EADDRINUSE: f" (another program uses the port: {option} P, or 0 for any free port)",
-        errno.EADDRNOTAVAIL: " (not an address of this machine)",
-        errno.EACCES: " (ports below 1024 need privileges)",
-    }.get(exc.errno or 0, "")
-    return f"cannot listen on {host}:{port}: {why}{hint}"
-
-
 def sink_from_args(host: str, port: int, args: Any, option: str = "--port") -> FoxgloveSink:
     """A FoxgloveSink with the token of ``--serve-token-file`` (or $UCR_FOXGLOVE_TOKEN), the
     allowed origins, ``--tls-cert``/``--tls-key`` and ``--insecure``. GuardError for a token
-    given on the command line, or an address that cannot be bound (``option``: its port's
-    option, in the advice)."""
+    given on the command line; ListenError (an OSError, naming the address) for an address that
+    cannot be bound (``option``: its port's option, in the advice)."""
     if getattr(args, "serve_token", None):
         raise GuardError(
             "--serve-token is refused: a token on the command line is visible to every user in "
@@ -123,14 +109,12 @@ def sink_from_args(host: str, port: int, args: Any, option: str = "--port") -> F
     except OSError as exc:
         if exc.errno is None or isinstance(exc, FileNotFoundError | PermissionError):
             raise  # not the bind (a certificate file): the caller's message
-        raise GuardError(listen_failure(host, port, exc, option)) from None
+        raise ListenError(exc.errno, listen_failure(host, port, exc, option)) from None
 
 
 def run(args: Any) -> int:
     """The ``ucr foxglove`` command."""
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signals = StopSignals().install()
     try:
         client = connect_daemon(args)
     except CliError as exc:
@@ -142,14 +126,17 @@ def run(args: Any) -> int:
         topics = RobotTopics(robot, text, args.subdivisions)
         try:
             sink = sink_from_args(args.host, args.port, args)
+        except ListenError as exc:  # it names the address
+            print(f"ucr: cannot serve Foxglove: {exc}", file=sys.stderr)
+            return 1
         except (GuardError, OSError, RuntimeError) as exc:
             print(f"ucr: cannot serve Foxglove on {args.host}:{args.port}: {exc}", file=sys.stderr)
             return 1
         print(f"ucr: Foxglove WebSocket server on {sink.url} (open it in Foxglove or Lichtblick: "
               "Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)  # fmt: skip
         feed = LiveFeed(client, topics, Fanout([sink]), viz_rate=args.viz_rate)
-        feed.run(stop, duration=args.duration)
-        return 0
+        feed.run(signals.stop, duration=args.duration)
+        return signals.exit_code()
     except FeedError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1

@@ -10,9 +10,7 @@ mid-run (SIGKILL, power loss) leaves a file readable up to its last closed chunk
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import IO, Any
@@ -21,6 +19,7 @@ from mcap.writer import CompressionType, Writer
 
 from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
+from host.stopsignals import INTERRUPTED, StopSignals
 from interop import ros2
 from interop.live import FeedError, LiveFeed, robot_for
 from interop.sinks import Fanout
@@ -208,17 +207,9 @@ def foxglove_address(args: Any) -> tuple[str, int | None]:
 def run(args: Any) -> int:
     """The ``ucr record`` command: 0 at the end (``--duration``, SIGTERM), 130 after Ctrl-C,
     1 when the file cannot be written (the recording stops at once)."""
-    stop = threading.Event()
-    interrupted = threading.Event()
+    signals = StopSignals().install()
+    stop, interrupted = signals.stop, signals.interrupted
     failed: list[str] = []  # why the file sink was dropped
-
-    def on_signal(signum: int, frame: Any) -> None:
-        if signum == signal.SIGINT:
-            interrupted.set()
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
     refusal = output_refusal(args.output, getattr(args, "overwrite", False))
     if refusal:  # before connecting: nothing to wait for
         print(f"ucr: {refusal}", file=sys.stderr)
@@ -241,7 +232,7 @@ def run(args: Any) -> int:
             print(f"ucr: Foxglove WebSocket server on {fox.url}", file=sys.stderr, flush=True)
         if interrupted.is_set():  # Ctrl-C while starting: no file
             print("ucr: interrupted (Ctrl-C) before recording", file=sys.stderr)
-            return 130
+            return INTERRUPTED
         try:
             sink = McapSink(args.output, compression=args.compression,
                             flush_interval=args.flush_interval,
@@ -282,8 +273,7 @@ def run(args: Any) -> int:
                   file=sys.stderr)  # fmt: skip
         if interrupted.is_set():
             print(f"ucr: interrupted (Ctrl-C): {sink.path} closed", file=sys.stderr)
-            return 130
-        return 0
+        return signals.exit_code()
     except OSError as exc:
         print(f"ucr: {exc.strerror or exc}", file=sys.stderr)
         return 1

@@ -33,6 +33,7 @@ from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
 from host.errors import ConfigError
 from host.limits import KAPPA_EPS, BendableLimits, Problems, bendable_limits, kappa_exceeds
+from host.stopsignals import INTERRUPTED, StopSignals
 from interop import ros2
 from interop.live import FeedError, robot_for, robot_mismatch
 from interop.sinks import Fanout
@@ -739,8 +740,8 @@ def run(args: Any) -> int:
     """The ``ucr replay`` command: 0 at the end of the file (or SIGTERM), 130 after Ctrl-C."""
     if args.execute:
         return execute(args)
-    stop = threading.Event()
-    interrupted = threading.Event()
+    signals = StopSignals()  # installed once serving: Ctrl-C while starting raises at once
+    stop, interrupted = signals.stop, signals.interrupted
     sinks: list[Any] = []
     app = None
     n = 0
@@ -749,21 +750,18 @@ def run(args: Any) -> int:
         if getattr(args, "view", False) and getattr(args, "robot", None):
             _check_recorded_robot(args.file, args.robot)
         if not getattr(args, "no_foxglove", False):
-            from interop.foxglove import (  # noqa: PLC0415 - not needed by --execute
-                FoxgloveBindError,
-                sink_from_args,
-            )
+            from interop.foxglove import sink_from_args  # noqa: PLC0415 - not for --execute
+            from interop.guard import GuardError  # noqa: PLC0415
 
             try:
                 sink = sink_from_args(args.host, args.port, args)
-            except (FoxgloveBindError, OSError, RuntimeError) as exc:
+            except (GuardError, OSError, RuntimeError) as exc:  # ListenError: an OSError
                 print(f"ucr: {exc}", file=sys.stderr)
                 return 1
             sinks.append(sink)
             print(f"ucr: Foxglove server on {sink.url}", file=sys.stderr, flush=True)
         if getattr(args, "view", False):
             try:
-                _check_listen(args.view_host, args.view_port, "--view-port")
                 app = _start_view(args)
             except (ImportError, OSError, RuntimeError, UcrdfError) as exc:
                 why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
@@ -775,12 +773,7 @@ def run(args: Any) -> int:
             print("ucr: nothing to play into (--no-foxglove without --view)", file=sys.stderr)
             return 2
 
-        def on_int(*_: Any) -> None:
-            interrupted.set()
-            stop.set()
-
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())  # a requested stop: exit 0
-        signal.signal(signal.SIGINT, on_int)
+        signals.install()
         advertise_recording(args.file, sinks)  # before a client connects (--wait-client)
         speed = f"at {args.rate:g}x" if args.rate > 0 else "as fast as possible (--rate 0)"
         print(f"ucr: replaying {args.file} {speed}", file=sys.stderr, flush=True)
@@ -799,10 +792,10 @@ def run(args: Any) -> int:
             stop.wait()
         if interrupted.is_set() and not cut:  # at the end of the file, in the view
             print("ucr: interrupted (Ctrl-C)", file=sys.stderr)
-        return 130 if interrupted.is_set() else 0
+        return signals.exit_code()
     except KeyboardInterrupt:
         print("ucr: interrupted (Ctrl-C) while starting", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     except (RecordingError, UcrdfError) as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1
@@ -812,26 +805,6 @@ def run(args: Any) -> int:
             s.close()
         if app is not None:
             app.stop()
-
-
-def _check_listen(host: str, port: int, option: str) -> None:
-    """OSError with one sentence when ``host:port`` cannot be listened on, before a server
-    starts (viser's server thread fails to bind in the background and the caller waits)."""
-    import socket  # noqa: PLC0415
-
-    from interop.foxglove import listen_failure  # noqa: PLC0415
-
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-    except socket.gaierror as exc:
-        raise OSError(f"cannot listen on {host}:{port}: {exc.strerror}") from None
-    family, kind, proto, _, addr = infos[0]
-    with socket.socket(family, kind, proto) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers do
-        try:
-            s.bind(addr)
-        except OSError as exc:
-            raise OSError(listen_failure(host, port, exc, option)) from None
 
 
 def _check_recorded_robot(path: str | Path, robot_file: str) -> None:
@@ -855,4 +828,5 @@ def _start_view(args: Any) -> Any:
     from view.replay import ReplaySource  # noqa: PLC0415
 
     source = ReplaySource(args.file, getattr(args, "robot", None))
-    return ViewApp(source, args.view_host, args.view_port, control=False).start()
+    view = ViewApp(source, args.view_host, args.view_port, control=False, port_option="--view-port")
+    return view.start()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import errno
 import html
 import logging
 import math
@@ -30,13 +31,13 @@ import viser.transforms as vtf
 
 from host.api.audit import audit_logger
 from host.api.client import on_behalf_of, sender_words
+from host.listen import ListenError, check_listen, listen_failure
 from ucrdf.ik import IKSolver
 from view.control import MovePlanner, SliderDriver
 from view.guard import (
     GuardError,
     PageGate,
     PageToken,
-    check_bindable,
     guarded_viser,
     page_guard,
     peer_address,
@@ -110,7 +111,9 @@ class ViewApp:
         control: bool = True,
         rate_hz: float = 40.0,
         always_update: bool = False,
+        port_option: str = "--port",
     ):
+        """``port_option``: the option that sets ``port``, named in a port-in-use error."""
         self.source = source
         self.period = 1.0 / rate_hz
         # with no page connected the scene is not computed (nobody looks): the view then costs
@@ -133,14 +136,15 @@ class ViewApp:
         # the guard is set once the port is known (port 0: any free port); until then everything
         # is refused
         self.gate = PageGate(self.page_token)
-        check_bindable(host, port)  # else viser waits forever
+        check_listen(host, port, port_option)  # else viser waits forever
         self.server = guarded_viser(
             lambda: viser.ViserServer(host=host, port=port, verbose=False), self.gate, log.warning
         )
         actual = self.server.get_port()
         if port and actual != port:  # viser silently moves on to the next free port
             self.server.stop()
-            raise OSError(f"port {port} already in use")
+            taken = OSError(errno.EADDRINUSE, "in use")
+            raise ListenError(errno.EADDRINUSE, listen_failure(host, port, taken, port_option))
         if self.page_token is not None and not isinstance(
             getattr(self.server._websock_server, "_live_connections", None), dict
         ):  # which page client presented the token is read there: fail closed

@@ -11,13 +11,13 @@ import argparse
 import logging
 import os
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 from host.api import ENV_TOKEN_FILE
 from host.client_common import number_arg, port_arg
 from host.extras import install_command
+from host.stopsignals import StopSignals
 
 INSTALL_HINT = f"ucr view needs the `view` extra (viser): {install_command('view')}"
 VIEW_NICE = 5  # as the API process (host.api.process.API_NICE): the control loop comes first
@@ -138,8 +138,9 @@ def cmd_view(args: argparse.Namespace) -> int:
         except OSError as exc:  # not fatal: the view works at any priority
             print(f"ucr view: priority unchanged ({exc.strerror})", file=sys.stderr)
     from host.api.client import ApiError
+    from host.listen import check_listen
     from view.app import ViewApp
-    from view.guard import GuardError, check_bindable, is_loopback
+    from view.guard import GuardError, is_loopback
     from view.source import LiveSource, OfflineSource, RobotFileError
 
     if not 0 < args.rate <= 1000:
@@ -147,9 +148,9 @@ def cmd_view(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     try:  # before anything starts: else viser waits forever on an address it cannot bind
-        check_bindable(args.host, args.port)
+        check_listen(args.host, args.port)
     except OSError as exc:
-        print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        print(f"ucr: cannot serve the view: {exc}", file=sys.stderr)
         return 1
     control = True
     if not is_loopback(args.host):
@@ -211,14 +212,16 @@ def cmd_view(args: argparse.Namespace) -> int:
         ).start()
     except (OSError, GuardError) as exc:
         source.stop()
-        print(f"ucr: cannot serve the view on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        print(f"ucr: cannot serve the view: {exc}", file=sys.stderr)
         return 1
     # the URL that works: with the page token when the page can move the robot (view/guard.py)
     print(f"ucr view: {app.url}  ({source.mode}; Ctrl-C to stop)", flush=True)
     parent = os.getppid()
+    signals = StopSignals().install()  # Ctrl-C (exit 130) or SIGTERM (0): the view closes
     try:
         while not (args.exit_with_parent and os.getppid() != parent):  # started by the demo
-            time.sleep(1.0)
-        return 0
+            if signals.stop.wait(1.0):
+                break
+        return signals.exit_code()
     finally:
         app.stop()

@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
-import errno
 import hmac
 import http
 import io
@@ -319,28 +318,6 @@ def _secret_page_headers(response: Any) -> Any:
 
 
 _patch_lock = threading.Lock()
-
-
-def check_bindable(host: str, port: int) -> None:
-    """Raise OSError unless the page server can listen on ``host``:``port`` (every address
-    ``host`` names, as asyncio binds them): viser's server thread tries the next port on any
-    OSError and, when none binds (an address not on this machine), never ends the constructor's
-    wait, so the view hung without a word. A port in use: ``port P already in use``."""
-    if not 0 <= port <= 65535:  # (getaddrinfo wraps it modulo 65536)
-        raise OSError(f"port must be 0..65535, got {port}")
-    for family, kind, proto, _, addr in socket.getaddrinfo(
-        host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
-    ):
-        with socket.socket(family, kind, proto) as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server
-            if family == socket.AF_INET6:
-                s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
-            try:
-                s.bind(addr)
-            except OSError as exc:
-                if exc.errno == errno.EADDRINUSE:
-                    raise OSError(f"port {port} already in use") from None
-                raise
 
 
 def guarded_viser(factory: Callable[[], Any], gate: PageGate, log: Callable[[str], None]) -> Any:

@@ -13,7 +13,6 @@ says on ``ucr/status`` and ``/ucr/segments`` that the daemon is away, and connec
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
@@ -21,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+from host.stopsignals import StopSignals
 from interop.ros2 import full_name
 from interop.sinks import Fanout
 from interop.topics import LATCHED, TOPICS, Message
@@ -183,9 +183,8 @@ def run(args: Any) -> int:
         stop_refused,
     )
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signals = StopSignals().install()
+    stop = signals.stop
     try:
         if args.namespace is not None:
             rmw.check_namespace(args.namespace)
@@ -341,9 +340,10 @@ def run(args: Any) -> int:
                 said += f"; the node keeps its namespace {namespace} (restart ucr zenoh to move it)"
             report(30, said, "ucr.bridge")
 
-        return _serve(
+        served = _serve(
             link, lambda: topics, fanout, stop, args, report, reopen, robot_changed, robot_text
         )
+        return signals.exit_code(served)
     except FeedError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return 1

@@ -4,10 +4,10 @@ whose machines have no ROS 2 installed (ROS 2 machines run
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 from typing import Any
+
+from host.stopsignals import StopSignals
 
 
 def run(args: Any) -> int:
@@ -15,9 +15,7 @@ def run(args: Any) -> int:
 
     from interop.zenoh import config  # noqa: PLC0415
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signals = StopSignals().install()
     try:
         conf = config.build(
             config.SessionOptions(
@@ -44,7 +42,7 @@ def run(args: Any) -> int:
             file=sys.stderr,
             flush=True,
         )
-        stop.wait(args.duration)
-        return 0
+        signals.stop.wait(args.duration)
+        return signals.exit_code()
     finally:
         session.close()

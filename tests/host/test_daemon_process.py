@@ -111,22 +111,24 @@ def _start(chain, *extra: str) -> subprocess.Popen:
     pytest.fail("daemon did not start:\n" + "".join(lines))
 
 
-def test_sigterm_stops_into_hold_and_exits_cleanly(chain):
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
+def test_sigterm_or_ctrl_c_stops_into_hold_and_exits_cleanly(chain, sig, code):
+    # before: 0 after Ctrl-C too (every other ucr command: 130, docs/daemon.md "Stopping")
     proc = _start(chain)
     try:
         time.sleep(0.5)
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         try:
             out, _ = proc.communicate(timeout=10)
         except subprocess.TimeoutExpired:  # the daemon dumps its threads' stacks after 6 s
             proc.kill()
             out, _ = proc.communicate()
-            pytest.fail("the daemon did not exit within 10 s of SIGTERM:\n" + out)
+            pytest.fail(f"the daemon did not exit within 10 s of {sig.name}:\n" + out)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, out
+    assert proc.returncode == code, out
     assert "segments told to HOLD" in out and "Traceback" not in out
     with ChainLink(chain.host_port) as link:
         link.discover(timeout=0.5)

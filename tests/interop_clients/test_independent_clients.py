@@ -97,6 +97,24 @@ def test_sigkill_mid_run_leaves_a_file_readable_up_to_the_last_chunk(rig, tmp_pa
     assert f"{n} messages replayed" in err
 
 
+def test_a_foxglove_port_in_use_is_one_sentence_naming_the_address_once(rig):
+    # before: "ucr: cannot serve Foxglove on 127.0.0.1:P: cannot listen on 127.0.0.1:P: ..."
+    import socket
+
+    url = rig.ensure_whole()
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        proc = ucr("foxglove", "--port", str(port), "--url", url, "--robot", str(ROBOT_FILE))
+        _, err = proc.communicate(timeout=60)
+    said = (
+        f"ucr: cannot serve Foxglove: cannot listen on 127.0.0.1:{port}: address already in use "
+        "(another program uses the port: --port P, or 0 for any free port)"
+    )
+    assert proc.returncode == 1 and err.strip().splitlines() == [said], err
+
+
 def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
     from host.api.client import connect
 
@@ -119,7 +137,7 @@ def test_node_foxglove_client_decodes_live_joint_states(rig, node_clients):
         assert out["_returncode"] == 0, (out, out["_stderr"])
     finally:
         code, _, err = stop(proc)
-    assert code == 0, err
+    assert code == 130, err  # Ctrl-C (before: 0)
     assert out["serverInfo"]["capabilities"] == []  # read-only: no publish, services, params
     for topic, typename in EXPECTED_TOPICS.items():  # all advertised from the start
         assert out["channels"][topic]["schemaName"] == typename
@@ -175,8 +193,8 @@ def test_node_foxglove_client_gets_the_one_shot_topics_of_a_single_goal(rig, nod
         if node is not None and node.poll() is None:
             node.kill()
             node.communicate()
-        code, _, serr = stop(proc)
-    assert code == 0, serr
+        code, _, serr = stop(proc, signal.SIGTERM)
+    assert code == 0, serr  # a requested stop
     assert set(EXPECTED_TOPICS) <= set(out["advertised"]), out  # all before any goal
     for topic in ONE_SHOT:
         assert out["counts"].get(topic, 0) >= 1, (topic, out, err)

@@ -1,0 +1,39 @@
+"""How a long-running ``ucr`` command is stopped, one rule for all of them.
+
+SIGTERM (a service manager, a script: a requested stop) and Ctrl-C (SIGINT) both set one event
+the command waits on, so it closes what it opened either way; the exit code tells them apart:
+0 after SIGTERM, 130 after Ctrl-C (128 + SIGINT, what a shell reports for a command it
+interrupted). docs/daemon.md "Stopping" states the rule.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from typing import Any
+
+#: the exit code after Ctrl-C
+INTERRUPTED = 130
+
+
+class StopSignals:
+    """``stop`` is set by SIGTERM or SIGINT; ``interrupted`` by SIGINT only."""
+
+    def __init__(self) -> None:
+        self.stop = threading.Event()
+        self.interrupted = threading.Event()
+
+    def install(self) -> StopSignals:
+        """Take SIGTERM and SIGINT (from the main thread, as Python's ``signal`` requires)."""
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+        return self
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        if signum == signal.SIGINT:
+            self.interrupted.set()
+        self.stop.set()
+
+    def exit_code(self, result: int = 0) -> int:
+        """The command's ``result``; a success after Ctrl-C is 130 (a failure stays one)."""
+        return INTERRUPTED if result == 0 and self.interrupted.is_set() else result
