@@ -214,10 +214,12 @@ def cmd_view(args: argparse.Namespace) -> int:
         source.stop()
         print(f"ucr: cannot serve the view: {exc}", file=sys.stderr)
         return 1
+    # Ctrl-C (exit 130) or SIGTERM (0) closes the view: taken before the URL is printed, so a
+    # signal sent once the URL is out (the demo's SIGTERM) finds the handler in place
+    signals = StopSignals().install()
     # the URL that works: with the page token when the page can move the robot (view/guard.py)
     print(f"ucr view: {app.url}  ({source.mode}; Ctrl-C to stop)", flush=True)
     parent = os.getppid()
-    signals = StopSignals().install()  # Ctrl-C (exit 130) or SIGTERM (0): the view closes
     try:
         while not (args.exit_with_parent and os.getppid() != parent):  # started by the demo
             if signals.stop.wait(1.0):
