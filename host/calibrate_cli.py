@@ -1,4 +1,10 @@
-"""``ucr calibrate``: command line (script form) and the entry to the terminal UI."""
+"""``ucr calibrate``: command line (script form) and the entry to the terminal UI.
+
+Before its first frame it listens to the port as ``ucr doctor`` does (host/doctor.py ``listen``):
+DISCOVER's bytes include Ctrl-C and Ctrl-D, which would stop or reset a segment's firmware on its
+USB/REPL port, so a REPL or a silent port is refused with nothing sent. --baud and --robot are
+checked by the same argparse types as doctor's (a bounded rate, a non-empty path).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +12,7 @@ import argparse
 import sys
 from typing import Any
 
+from host.doctor import MAX_BAUD, PROTOCOL_FIX, baud_arg, listen, path_arg
 from host.positions import label
 
 #: exit code of a command stopped by Ctrl-C (128 + SIGINT), as every ucr command
@@ -27,9 +34,13 @@ def register(subparsers: Any) -> None:
         help="segment name (descriptor), chain position (counted from 1) or uid",
     )
     p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
-    p.add_argument("--baud", type=int, default=921600, help="bit/s (default 921600)")
-    p.add_argument("--robot", help="U(C)RDF to write the calibration into (on persist)")
-    p.add_argument("--script", help="run these steps instead of the terminal UI")
+    p.add_argument(
+        "--baud", type=baud_arg, default=921600, help=f"bit/s (default 921600, 1..{MAX_BAUD})"
+    )
+    p.add_argument(
+        "--robot", type=path_arg, help="U(C)RDF to write the calibration into (on persist)"
+    )
+    p.add_argument("--script", type=path_arg, help="run these steps instead of the terminal UI")
     p.set_defaults(func=cmd_calibrate)
 
 
@@ -68,20 +79,37 @@ def find_segment(descs: list[dict], which: str) -> dict:
 
 
 def open_session(args: argparse.Namespace, say=print) -> tuple[Any, Any]:
-    """(link, session) for the segment of ``args``; LinkError/ValueError say why not."""
+    """(link, session) for the segment of ``args``; LinkError/ValueError say why not.
+
+    The port is listened to first, as doctor does: a segment's REPL port (or a silent one, as a
+    running firmware's REPL is) gets no frame, since DISCOVER's bytes would stop that segment. A
+    DISCOVER that fails is reported as what it is: a segment in another protocol version (with
+    doctor's fix) or an incomplete chain, not as "no segment answers"."""
     from host.calibrate import Session  # noqa: PLC0415
     from host.link import ChainLink, LinkError  # noqa: PLC0415
+    from host.link_frames import ProtocolVersionError  # noqa: PLC0415
 
+    heard = listen(args.port, args.baud, who="calibrate")
+    if heard is not None:
+        raise ValueError(f"{heard.message}: {heard.fix}")
     link = ChainLink(args.port, args.baud)
     try:
         descs: list[dict] = []
+        failed: LinkError | None = None
         for _ in range(3):
             try:
-                descs = link.discover(timeout=1.0)
-            except LinkError:
-                descs = []
+                descs, failed = link.discover(timeout=1.0), None
+            except ProtocolVersionError as exc:  # it answered: retrying would not change it
+                raise ValueError(f"{exc}; fix: {PROTOCOL_FIX}") from None
+            except LinkError as exc:
+                descs, failed = [], exc
             if descs:
                 break
+        if not descs and failed is not None:
+            raise ValueError(
+                f"no complete answer to DISCOVER in 3 tries ({failed}): check the cable after "
+                f"the last answering segment; `ucr doctor --port {args.port}` finds it"
+            )
         d = find_segment(descs, args.segment)
         if d.get("config_error"):
             raise ValueError(
@@ -107,13 +135,23 @@ def check_robot(args: argparse.Namespace, session: Any) -> None:
 
 
 def persist_robot(args: argparse.Namespace, session: Any, result: Any, say=print) -> None:
-    """Write the persisted calibration into the U(C)RDF given with --robot (if any)."""
+    """Write the persisted calibration into the U(C)RDF given with --robot (if any), right
+    after the segment stored it (the script's and the terminal UI's `persist` step alike).
+    RobotFileError (one line) if the file cannot take it: the segment has it stored already, so
+    the message says the file lacks it and how to write it there once the file is fixed."""
     if not args.robot or result is None:
         return
-    from host.calibrate_robot import write  # noqa: PLC0415
+    from host.calibrate_robot import RobotFileError, write  # noqa: PLC0415
 
     name = session.desc.get("name") or args.segment
-    write(args.robot, name, result.zero_offsets, result.directions)
+    try:
+        write(args.robot, name, result.zero_offsets, result.directions)
+    except (RobotFileError, OSError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise RobotFileError(
+            f"{why}; the calibration is stored on the segment but not in {args.robot}: once "
+            f"the file is fixed, a script of just `persist` with --robot writes it there"
+        ) from None
     say(f"persist: written to {args.robot} (bendable {name}); `ucr check {args.robot}` passes")
 
 
@@ -174,8 +212,9 @@ def run_script(args: argparse.Namespace) -> int:
             print(f"ucr calibrate: {exc} (nothing moved)", file=sys.stderr)
             return 1
         try:
-            result = run(session, steps, args.script)
-            persist_robot(args, session, result)
+            # the robot file is written at the persist step, as the terminal UI does: a step
+            # failing after it must not leave the segment calibrated and the file not
+            run(session, steps, args.script, on_persist=lambda r: persist_robot(args, session, r))
             return 0
         except KeyboardInterrupt:
             try:
@@ -185,7 +224,7 @@ def run_script(args: argparse.Namespace) -> int:
                 said = f"HOLD not sent ({exc}); its watchdog holds it"
             print(f"ucr calibrate: stopped (Ctrl-C): {said}", file=sys.stderr)
             return 130
-        except (CalibrationError, RobotFileError, LinkError) as exc:
+        except (CalibrationError, RobotFileError, LinkError, OSError) as exc:
             try:
                 session.stop()
             except LinkError:
@@ -228,10 +267,18 @@ def run_tui(args: argparse.Namespace) -> int:
             session, on_persist=lambda r: persist_robot(args, session, r, session.say)
         )
         app.run()
+        # what the UI's log said goes with it when it closes: a failed persist (on the segment
+        # or into --robot) is said again here, and a crash is not a success
+        if app.persist_error is not None:
+            print(f"ucr calibrate: persist failed: {app.persist_error}", file=sys.stderr)
         if app.return_code == INTERRUPTED:  # Ctrl-C, a key in the UI: it held the segment
             print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
             return INTERRUPTED
-        return 0
+        if app.return_code:  # textual's code for an unhandled exception, or a failed HOLD
+            said = app.error or f"the terminal UI stopped on an error (code {app.return_code})"
+            print(f"ucr calibrate: {said}", file=sys.stderr)
+            return 1
+        return 1 if app.persist_error is not None else 0
     except KeyboardInterrupt:  # SIGINT outside the UI's raw terminal (e.g. while it starts)
         print("ucr calibrate: stopped (Ctrl-C): the segment holds", file=sys.stderr)
         return INTERRUPTED

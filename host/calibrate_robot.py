@@ -15,6 +15,7 @@ import re
 import tempfile
 from pathlib import Path
 
+from host.errors import not_utf8
 from ucrdf.errors import UcrdfError
 
 _ATTR = r'(\s{name}\s*=\s*)(["\'])(.*?)\2'
@@ -69,18 +70,43 @@ def updated_text(text: str, bendable: str, zeros: list[float], dirs: list[int]) 
     return text[: m.start()] + new_block + text[end:]
 
 
+def _read(p: Path) -> str:
+    """The robot file's text; RobotFileError (one line naming the file) if it cannot be read
+    or is not UTF-8 (a UnicodeDecodeError was a traceback)."""
+    try:
+        return p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise RobotFileError(f"{p}: cannot read the robot file: {not_utf8(exc)}") from None
+    except OSError as exc:
+        raise RobotFileError(f"{p}: cannot read the robot file: {exc.strerror or exc}") from None
+
+
+def _writable_problem(p: Path) -> str | None:
+    """Why :func:`write` could not replace ``p``, or None. It writes a temporary file in the
+    file's directory and renames it over the file, so the directory must take a new file; and
+    a file made read-only is not replaced behind its owner's back."""
+    folder = p.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"its directory {folder} is not writable (a new file cannot be made there)"
+    if not os.access(p, os.W_OK):
+        return "the file is not writable"
+    return None
+
+
 def check(path: str | Path, bendable: str, zeros: list[float], dirs: list[int]) -> None:
-    """Would :func:`write` succeed? The file is read, given this calibration in memory and
-    checked as ``ucr check`` checks it; nothing is written. ``ucr calibrate --robot`` calls it
-    before the segment moves, so a file that cannot take the result is refused up front, not
-    after the calibration was already stored on the segment. RobotFileError says why not."""
+    """Would :func:`write` succeed? The file is read, its directory and the file checked to be
+    writable, the file given this calibration in memory and checked as ``ucr check`` checks it;
+    nothing is written. ``ucr calibrate --robot`` calls it before the segment moves, so a file
+    that cannot take the result is refused up front, not after the calibration was already
+    stored on the segment (a read-only file used to fail only at persist, after the segment had
+    stored it). RobotFileError says why not."""
     from ucrdf.parser import parse_string  # noqa: PLC0415 - lxml only when checking
 
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise RobotFileError(f"{p}: cannot read the robot file: {exc.strerror}") from None
+    text = _read(p)
+    problem = _writable_problem(p)
+    if problem is not None:
+        raise RobotFileError(f"{p}: cannot write the calibration into the robot file: {problem}")
     try:
         new = updated_text(text, bendable, zeros, dirs)
     except RobotFileError as exc:
@@ -93,14 +119,24 @@ def check(path: str | Path, bendable: str, zeros: list[float], dirs: list[int]) 
 
 
 def write(path: str | Path, bendable: str, zeros: list[float], dirs: list[int]) -> Path:
-    """Put the calibration into the robot file at ``path``; checked, then replaced atomically."""
+    """Put the calibration into the robot file at ``path``; checked, then replaced atomically.
+    A file system refusing it (permissions changed since :func:`check`, a full disk) is a
+    RobotFileError naming the file, one line: the segment already stored the calibration, so the
+    message must say the file lacks it rather than end in a traceback."""
+    p = Path(path)
+    try:
+        return _write(p, bendable, zeros, dirs)
+    except OSError as exc:
+        raise RobotFileError(f"{p}: cannot write the robot file: {exc.strerror or exc}") from None
+
+
+def _write(p: Path, bendable: str, zeros: list[float], dirs: list[int]) -> Path:
     from ucrdf.parser import load  # noqa: PLC0415 - lxml only when writing
 
-    p = Path(path)
-    new = updated_text(p.read_text(), bendable, zeros, dirs)
+    new = updated_text(_read(p), bendable, zeros, dirs)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     try:
-        with os.fdopen(fd, "w") as f:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(new)
         try:
             load(tmp)

@@ -22,10 +22,12 @@ segment would clamp it and report a bend it never made) and a servo index it doe
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from host.calibrate import CalibrationError, Result, Session
+from host.errors import not_utf8
 
 #: command -> (minimum, maximum) number of arguments
 _ARITY = {
@@ -165,8 +167,17 @@ def check_segment(steps: list[Step], descriptor: dict, source: str = "<script>")
         raise ScriptError(problems, steps)
 
 
-def run(session: Session, steps: list[Step], source: str = "<script>") -> Result | None:
-    """Run the steps in order; a failing step raises CalibrationError naming its line."""
+def run(
+    session: Session,
+    steps: list[Step],
+    source: str = "<script>",
+    on_persist: Callable[[Result], None] | None = None,
+) -> Result | None:
+    """Run the steps in order; a failing step raises CalibrationError naming its line.
+    ``on_persist`` gets the result of each `persist` step at once (``ucr calibrate --robot``
+    writes the robot file there, as the terminal UI does): were the file written only when the
+    script ends, a step failing after `persist` would leave the segment calibrated and the file
+    not."""
     result = None
     for st in steps:
         a = st.args
@@ -193,15 +204,22 @@ def run(session: Session, steps: list[Step], source: str = "<script>") -> Result
                 session.keep(a[0])
             elif st.command == "persist":
                 result = session.persist()
+                if on_persist is not None:
+                    on_persist(result)
         except CalibrationError as exc:
             raise type(exc)(f"{source}:{st.line}: {st.command}: {exc}") from exc
     return result
 
 
 def load(path: str | Path) -> list[Step]:
+    """The steps of the script file at ``path``, checked (:func:`parse`); a file that cannot be
+    read or is not UTF-8 text is a ScriptError of one line (not a UnicodeDecodeError traceback),
+    exit 1 as every other problem of the script."""
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScriptError(f"{p}: cannot read the script: {not_utf8(exc)}") from None
     except OSError as exc:
-        raise ScriptError(f"{p}: cannot read the script: {exc.strerror}") from None
+        raise ScriptError(f"{p}: cannot read the script: {exc.strerror or exc}") from None
     return parse(text, str(p))

@@ -57,6 +57,11 @@ class CalibrateApp(App):
         self.busy = False
         self.lines: list[str] = []
         self.result: Any = None
+        #: why the last `persist` failed (None: none failed, or a later one succeeded); the CLI
+        #: says it again on stderr at exit, where the UI's log is gone
+        self.persist_error: str | None = None
+        #: a HOLD that could not be sent (the port failed): the CLI exits 1 with it
+        self.error: str | None = None
         session.say = self._say_from_worker
 
     def compose(self) -> ComposeResult:
@@ -108,10 +113,13 @@ class CalibrateApp(App):
                     self.result = out
                     if self.on_persist is not None:
                         self.on_persist(out)
+                    self.persist_error = None
                 self.call_from_thread(self.say, f"{name}: done")
             except CalibrationError as exc:
+                self._failed(name, str(exc))
                 self.call_from_thread(self.say, f"{name}: {exc}")
             except Exception as exc:  # noqa: BLE001 - shown, never a traceback in the UI
+                self._failed(name, str(exc))
                 self.call_from_thread(self.say, f"{name}: failed: {exc}")
             finally:
                 self.busy = False
@@ -119,9 +127,26 @@ class CalibrateApp(App):
 
         self.run_worker(work, thread=True, exclusive=False, name=name)
 
+    def _failed(self, name: str, why: str) -> None:
+        if name == "persist":
+            self.persist_error = why
+
+    def _hold(self) -> str | None:
+        """``session.stop()``; a port that failed (LinkError) is returned as what to say, not
+        raised: raised in an action, textual ended the app with code 1 and a traceback, which
+        the CLI took for a clean exit."""
+        try:
+            self.session.stop()
+        except Exception as exc:  # noqa: BLE001 - the port failed: said, never a crash
+            self.error = f"HOLD not sent ({exc}); its watchdog holds it"
+            return self.error
+        return None
+
     def action_hold(self) -> None:
-        self.session.stop()
-        self.say("HOLD: the segment holds (any step key starts again)")
+        failed = self._hold()
+        self.say(
+            f"HOLD: {failed}" if failed else "HOLD: the segment holds (any step key starts again)"
+        )
 
     def action_select(self, k: int) -> None:
         if k < self.session.n:
@@ -157,10 +182,11 @@ class CalibrateApp(App):
         self._run("persist", self.session.persist)
 
     async def action_quit(self) -> None:
-        self.session.stop()
-        self.exit(self.result)
+        """q: hold and quit; return code 1 when the HOLD could not be sent (``self.error``)."""
+        failed = self._hold()
+        self.exit(self.result, return_code=1 if failed else 0)
 
     async def action_interrupt(self) -> None:
         """Ctrl-C: hold and quit as q does, with the exit code of an interrupted command."""
-        self.session.stop()
+        self._hold()
         self.exit(self.result, return_code=INTERRUPTED)

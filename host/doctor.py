@@ -37,6 +37,39 @@ from host.doctor_config import check_board, check_config_hash, check_robot
 from host.positions import label
 from host.serialport import access_problem
 
+#: the highest --baud taken (doctor, calibrate): above it no UART adapter runs, and pyserial
+#: overflows on 2**31 (a traceback) where a usage error should say so
+MAX_BAUD = 10_000_000
+_baud_at_least_1 = number_arg(int, 1, True)
+
+
+def baud_arg(text: str) -> int:
+    """An argparse ``type`` for --baud: a whole number 1..MAX_BAUD bit/s. 0 would be termios B0
+    (hang up the line) and 2**31 overflowed in pyserial: both are usage errors (exit 2)."""
+    value = _baud_at_least_1(text)
+    if value > MAX_BAUD:
+        raise argparse.ArgumentTypeError(f"must be <= {MAX_BAUD} bit/s, got {text}")
+    return value
+
+
+baud_arg.__name__ = "int"  # argparse names the type in its own messages
+
+
+def path_arg(text: str) -> str:
+    """An argparse ``type`` for a file option: an empty path (``--robot "$ROBOT"`` with the
+    variable unset) is a usage error naming it, not an option silently left out."""
+    if not text:
+        raise argparse.ArgumentTypeError("empty path '' (an unset shell variable?): give a file")
+    return text
+
+
+#: the fix of a segment answering DISCOVER in another protocol version (doctor's `protocol`
+#: finding; ``ucr calibrate`` says the same)
+PROTOCOL_FIX = (
+    "reflash it: `ucr flash --port <its USB port> --robot <robot> --segment <name>` (the "
+    "segments before it answered in this host's version)"
+)
+
 #: bit/s tried, in order, when the chain is silent at the configured rate
 BAUD_RATES = (921600, 460800, 230400, 115200, 1000000, 500000, 250000, 57600)
 
@@ -87,12 +120,16 @@ REPL_MARKERS = (b">>> ", b"MicroPython v", b"raw REPL; CTRL-B", b"[main] ", b"Tr
 LISTEN_S = 0.3
 
 
-def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
+def listen(
+    port: str, baud: int, seconds: float = LISTEN_S, *, who: str = "doctor"
+) -> Finding | None:
     """Before any frame is sent: what does the port say unasked? A segment's USB/REPL port
     (MicroPython prompt, banner, the firmware's lines) is a finding: frames would stop or reset
     its firmware (Ctrl-C, Ctrl-D bytes). A silent port is one too: a powered first segment sends
     ALIVE unasked, so nothing answers there, and a running firmware's REPL is silent as well. Only
-    a carriage return is sent (a REPL shows its prompt; the chain protocol drops it)."""
+    a carriage return is sent (a REPL shows its prompt; the chain protocol drops it). ``who``
+    names the command in the fix: ``ucr calibrate`` listens the same way before its DISCOVER,
+    whose bytes would stop a segment's firmware just as doctor's would."""
     import serial  # noqa: PLC0415
 
     try:
@@ -115,7 +152,7 @@ def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
                     f"{port} is a segment's REPL port (MicroPython answers there), not the chain "
                     "port",
                     "give the chain port (the first segment's upstream UART adapter) with --port; "
-                    "doctor sends nothing more here: frames would stop or reset that segment",
+                    f"{who} sends nothing more here: frames would stop or reset that segment",
                 )
             if seen:
                 return None
@@ -129,7 +166,8 @@ def listen(port: str, baud: int, seconds: float = LISTEN_S) -> Finding | None:
         f"no segment answers at {baud} bit/s: the port is silent (a powered first segment sends "
         "ALIVE unasked every 50 ms)",
         "check power of the first segment and the TX/RX wiring (crossed); a wrong baud rate "
-        "(--baud) would still show garbled bytes. Doctor sends no frame to a silent port: a "
+        f"(--baud) would still show garbled bytes. {who.capitalize()} sends no frame to a "
+        "silent port: a "
         "segment's USB/REPL port running its firmware is silent too, and frames would reset it",
     )
 
@@ -196,9 +234,7 @@ def run(
                         "protocol",
                         "error",
                         str(exc),
-                        "reflash it: `ucr flash --port <its USB port> --robot <robot> "
-                        "--segment <name>` (the segments before it answered in this host's "
-                        "version)",
+                        PROTOCOL_FIX,
                         exc.position,
                     )
                 )
@@ -278,9 +314,9 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--port", default="/dev/ttyUSB0", help="chain port (path or pyserial URL)")
     p.add_argument(
-        "--baud", type=number_arg(int, 1, True), default=921600, help="bit/s (default 921600)"
+        "--baud", type=baud_arg, default=921600, help=f"bit/s (default 921600, 1..{MAX_BAUD})"
     )
-    p.add_argument("--robot", help="U(C)RDF to compare the chain with")
+    p.add_argument("--robot", type=path_arg, help="U(C)RDF to compare the chain with")
     p.add_argument(
         "--seconds",
         type=number_arg(float, 0.0, True, " s"),

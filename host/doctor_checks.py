@@ -177,7 +177,9 @@ def check_segment(link: Any, pos: int, desc: dict, state: dict | None = None) ->
                 "fault",
                 "error",
                 f"in FAULT: {fault} ({fault_count} fault(s) since boot)",
-                "remove the cause, then `ucr clear-fault` (the segment leaves FAULT only then)",
+                "remove the cause, then clear it: start the daemon and run `ucr clear-fault` "
+                "(it sends CLEAR_FAULT through the daemon, which doctor needs stopped), or "
+                "power-cycle the segment; it stays in FAULT until then",
                 pos,
             )
         )
@@ -245,13 +247,26 @@ def check_cpu(link: Any, pos: int, uid: str | None) -> Finding:
 
 
 def check_timing(link: Any, n: int, seconds: float) -> Finding:
-    """HEARTBEAT round trips for ``seconds``: answers complete and the round-trip time."""
+    """HEARTBEAT round trips for ``seconds``: answers complete and the round-trip time. The port
+    failing meanwhile (an adapter unplugged, a cable pulled) is a finding like the other checks'
+    LinkErrors, not a traceback that loses the findings printed so far."""
+    from host.link import LinkError  # noqa: PLC0415
+
     rtts: list[float] = []
     missing = 0
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         t0 = time.perf_counter()
-        states = link.heartbeat(timeout=0.2, expected=n)
+        try:
+            states = link.heartbeat(timeout=0.2, expected=n)
+        except LinkError as exc:
+            return Finding(
+                "timing",
+                "error",
+                f"the chain failed after {len(rtts) + missing} round trip(s): {exc}",
+                "check the port's adapter and the cable to the first segment (unplugged?), "
+                "then run doctor again",
+            )
         dt = time.perf_counter() - t0
         if any(s is None for s in states):
             missing += 1

@@ -143,6 +143,8 @@ def test_ctrl_c_in_the_terminal_ui_exits_130_and_holds(
     class Ran:  # run_tui with an app that ended like that one
         def __init__(self, *a: object, **k: object) -> None:
             self.return_code = app.return_code
+            self.persist_error = app.persist_error
+            self.error = app.error
 
         def run(self) -> None:
             pass
