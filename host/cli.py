@@ -13,7 +13,7 @@ import logging
 import sys
 from typing import Any
 
-from host.client_common import port_arg
+from host.client_common import number_arg, port_arg
 from host.stopsignals import StopSignals
 
 
@@ -34,10 +34,15 @@ def register(subparsers: Any) -> None:
         "segments' descriptors and write it out (path printed)",
     )
     p.add_argument("--adopt-out", help="where --adopt writes (default <robot>.adopted.ucrdf)")
-    p.add_argument("--rate", type=float, help="control loop rate in Hz (overrides config)")
+    p.add_argument(
+        "--rate",
+        type=number_arg(float, 1.0, True, " Hz", high=2000.0),
+        metavar="HZ",
+        help="control loop rate, 1..2000 Hz (overrides config rate_hz)",
+    )
     p.add_argument(
         "--rt-priority",
-        type=int,
+        type=number_arg(int, 0, True, high=98),  # host.realtime.MAX_PRIORITY
         metavar="N",
         help="run the control loop and link reader threads SCHED_FIFO at priority N (1-98; "
         "0: normal scheduling; overrides config realtime_priority; needs root or RLIMIT_RTPRIO)",
@@ -162,6 +167,11 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from host.daemon import Daemon, DaemonError  # noqa: PLC0415
     from ucrdf.errors import UcrdfError  # noqa: PLC0415
 
+    if args.adopt_out is not None and not args.adopt:  # it would change nothing, silently
+        print(
+            "ucr: error: --adopt-out needs --adopt (it says where --adopt writes)", file=sys.stderr
+        )
+        return 2
     setup_logging(args.log_level)
     try:
         robot, cfg = _load(args.robot, args.config)

@@ -181,8 +181,8 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--speed",
         type=number_arg(float, 0.0, False),
-        default=1.0,
-        help="replay speed factor, > 0 (1: as recorded)",
+        default=None,  # None: not given (1, as recorded); given without --replay: refused
+        help="replay speed factor, > 0 (default 1: as recorded); only with --replay",
     )
     p.set_defaults(func=cmd_teleop)
 

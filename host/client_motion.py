@@ -310,21 +310,26 @@ def cmd_teleop(args: argparse.Namespace) -> int:
     if not (0 < args.rate <= 500):
         say_error("--rate must be in (0, 500] Hz")
         return 2
+    if args.speed is not None and not args.replay:  # it would change nothing, silently
+        say_error("--speed is the speed of a replay: give it with --replay FILE")
+        return 2
     if not (args.keyboard or args.replay) and sys.platform.startswith("linux"):
         from host.extras import require  # noqa: PLC0415
 
         require("evdev", extra="gamepad")  # say what to install before connecting
 
     def body(c: Any) -> int:
-        names = list(c.topology().get("controlled") or [])
+        ffc, names = teleop_segments(c)
+        driven = "controlled by the daemon" + (f"'s cFFC {ffc!r}" if ffc else "")
         try:
             if args.replay:
-                source: Any = ReplaySource(args.replay, speed=args.speed)
+                speed = 1.0 if args.speed is None else args.speed
+                source: Any = ReplaySource(args.replay, speed=speed)
                 unknown = sorted(set(source.names) - set(names))
                 if unknown:
                     raise CliError(
                         f"{args.replay}: segment(s) {', '.join(unknown)} not "
-                        f"controlled by the daemon ({', '.join(names) or 'none'})"
+                        f"{driven} ({', '.join(names) or 'none'})"
                     )
                 print(f"replaying {args.replay} ({len(source.events)} events)")
             elif args.keyboard:
@@ -381,6 +386,39 @@ def cmd_teleop(args: argparse.Namespace) -> int:
             )
         if interrupted:
             return 130
+        if result is not None and result.reason == "lost":  # cut off, not ended by the person
+            say_error(f"teleop cut off: {result.note} (the cFFC's deadman stops the segments)")
+            return 1
         return 0 if result is None or result.reason in ("quit", "end") else 1
 
     return with_client(args, body)
+
+
+def teleop_segments(c: Any) -> tuple[str | None, list[str]]:
+    """The cFFC ``ffc.input`` reaches and the segments it commands, in chain order: the active
+    one, else the first configured (as host/motion.py picks it), from ``controllers.list``.
+    Teleop sends every segment it drives (zeros for the unselected ones, and at Ctrl-C), and a
+    cFFC configured with a ``joints`` subset refuses a name it does not command: the segments
+    are its joints, not every controlled one. A daemon that lists no cFFC with its joints:
+    (None, the controlled segments), and the daemon words the refusal of the input."""
+    from host.controllers import ALIASES  # noqa: PLC0415 - the type a config may spell long
+
+    listed = c.controllers()
+    ffcs = [
+        d
+        for d in (listed if isinstance(listed, list) else [])
+        if isinstance(d, dict)
+        and isinstance(t := d.get("type"), str)
+        and ALIASES.get(t, t) == "ffc"
+    ]
+    usable = [d for d in ffcs if d.get("state") != "failed" and isinstance(d.get("joints"), list)]
+    if usable:
+        pick = next((d for d in usable if d.get("state") == "active"), usable[0])
+        joints = [j for j in pick["joints"] if isinstance(j, str)]
+        if not joints:
+            raise CliError(f"the cFFC {pick.get('name')!r} commands no segment now (`ucr status`)")
+        return str(pick.get("name")), joints
+    if ffcs:  # configured, but none loaded: the daemon would only say "no cFFC"
+        d = ffcs[0]
+        raise CliError(f"the cFFC {d.get('name')!r} failed to load: {d.get('error') or '?'}")
+    return None, list(c.topology().get("controlled") or [])

@@ -3,7 +3,10 @@ defaults. The per-bendable interface limits read from the U(C)RDF ``<ros2_contro
 :mod:`host.limits` (controllers import them too); they are re-exported here.
 
 Bad input raises :class:`ConfigError`, whose one-line message names the file and the key, so the
-CLI can print it and exit 1 without a traceback.
+CLI can print it and exit 1 without a traceback. That includes every configured controller's type
+and parameters (checked by the controllers' own ``parse_params`` while the file is read) and,
+once the daemon has its robot, ``joints`` naming a bendable it lacks
+(:func:`check_controller_joints`): all before the chain port is opened.
 """
 
 from __future__ import annotations
@@ -15,7 +18,8 @@ from typing import Any
 
 import yaml
 
-from host.controllers import known_types
+from host.controllers import controller_class, known_types
+from host.controllers.base import ControllerError
 from host.errors import ConfigError, not_utf8
 from host.limits import DEFAULT_KAPPA_RATE_MAX, BendableLimits, bendable_limits
 from host.yamlload import safe_load
@@ -28,6 +32,7 @@ __all__ = [
     "DaemonConfig",
     "WatchdogConfig",
     "bendable_limits",
+    "check_controller_joints",
     "load_config",
     "parse_config",
 ]
@@ -67,6 +72,20 @@ class ApiConfig:
             "origins": tuple(self.origins),
             "names": tuple(self.hosts),
         }
+
+
+#: watchdog key -> (lowest, highest) value accepted (s, or cycles for ``missed_cycles``). The
+#: upper bounds keep a typo from disabling supervision: a segment silent for longer than these
+#: is long held by its own watchdog (200 ms), and a discovery or reconnect waiting longer only
+#: delays getting the chain back.
+WATCHDOG_BOUNDS: dict[str, tuple[float, float | None]] = {
+    "reply_timeout_s": (0.0005, None),  # capped at 0.8 x the loop period anyway
+    "missed_cycles": (1, 100),
+    "silence_s": (0.0005, 5.0),
+    "reconnect_min_s": (0.0005, 60.0),
+    "reconnect_max_s": (0.0005, 60.0),
+    "discover_timeout_s": (0.0005, 10.0),
+}
 
 
 @dataclass
@@ -208,6 +227,7 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
             params = spec.get("params") or {}
             if not isinstance(params, dict):
                 raise ConfigError(source, key + ".params", "expected a mapping")
+            _check_controller(source, name, ctype, params)
             cfg.controllers[name] = {"type": ctype, "params": dict(params)}
         if "active" not in data:
             cfg.active = [n for n in cfg.controllers if n in DEFAULT_ACTIVE]
@@ -253,9 +273,63 @@ def parse_config(data: Any, source: str = "<config>") -> DaemonConfig:
         _check_keys(source, "watchdog.", wd, set(WatchdogConfig.__dataclass_fields__))
         for k, v in wd.items():
             integer = k == "missed_cycles"
-            val = _num(source, f"watchdog.{k}", v, lo=1 if integer else 0.0005, integer=integer)
+            lo, hi = WATCHDOG_BOUNDS.get(k, (0.0005, None))
+            val = _num(source, f"watchdog.{k}", v, lo=lo, hi=hi, integer=integer)
             setattr(cfg.watchdog, k, int(val) if integer else float(val))
+        lo_s, hi_s = cfg.watchdog.reconnect_min_s, cfg.watchdog.reconnect_max_s
+        if lo_s > hi_s:
+            # the back-off starts at the minimum and doubles up to the maximum: a minimum above
+            # it made the first reconnect wait the minimum, however small the maximum. The key
+            # named is the one the file gives (the other may be a default).
+            if "reconnect_min_s" in wd:
+                key, why = "reconnect_min_s", f"must be <= reconnect_max_s ({hi_s:g} s)"
+            else:
+                key, why = "reconnect_max_s", f"must be >= reconnect_min_s ({lo_s:g} s)"
+            got = lo_s if key == "reconnect_min_s" else hi_s
+            raise ConfigError(source, f"watchdog.{key}", f"{why}, got {got:g} s")
     return cfg
+
+
+def _check_controller(source: str, name: str, ctype: str, params: dict[str, Any]) -> None:
+    """Refuse a controller the daemon could not load, while the file is read: its type must
+    import and its parameters pass the controller's own checks (``parse_params``, which the
+    controller runs again when it is built). Controllers are built only once the chain is
+    found, after the port is opened; a typo found then left the daemon running without that
+    controller. What needs the robot (``joints`` naming its bendables) is
+    :func:`check_controller_joints`."""
+    try:
+        cls = controller_class(ctype)
+    except ControllerError as exc:
+        raise ConfigError(source, f"controllers.{name}.type", str(exc)) from None
+    try:
+        cls.parse_params(name, params)
+    except ControllerError as exc:
+        raise ConfigError(source, f"controllers.{name}.params", str(exc)) from None
+
+
+def check_controller_joints(cfg: DaemonConfig, robot: Any) -> None:
+    """Refuse a controller whose ``joints`` name a bendable ``robot`` does not have: the
+    controller would silently command fewer segments than configured (a bendable that goes
+    away while the daemon runs is dropped on purpose; one never there is a typo). Called by
+    the daemon when it is constructed with its robot, before the chain port is opened; not
+    with ``--adopt``, whose robot takes its bendables from the chain (``robot`` None)."""
+    if robot is None:
+        return
+    bendables = list(getattr(robot, "bendables", None) or {})
+    for name, spec in cfg.controllers.items():
+        joints = (spec.get("params") or {}).get("joints")
+        if not isinstance(joints, list):
+            continue
+        unknown = [j for j in joints if j not in bendables]
+        if unknown:
+            raise ConfigError(
+                cfg.source,
+                f"controllers.{name}.params",
+                f"joints: {', '.join(map(repr, unknown))} "
+                f"{'is not a bendable' if len(unknown) == 1 else 'are not bendables'} of "
+                f"{getattr(robot, 'name', 'the robot')} (its bendables: "
+                f"{', '.join(bendables) or 'none'})",
+            )
 
 
 def _str_list(source: str, key: str, value: Any) -> list[str]:

@@ -37,7 +37,7 @@ from typing import Any
 from host import realtime
 from host.api.schema import robot_description
 from host.arbitration import Arbitrator
-from host.config import DaemonConfig, link_baudrate
+from host.config import DaemonConfig, check_controller_joints, link_baudrate
 from host.controller_manager import ControllerManager
 from host.errors import DaemonError, GoalNotFound, TopologyError
 from host.hwi import ACTIVE, HardwareInterface, robot_state_from
@@ -81,10 +81,10 @@ class Daemon:
         adopt_path: str | Path | None = None,
         link_factory: Callable[[str, int], Any] | None = None,
     ):
-        if isinstance(robot, str | Path):
-            robot = load(robot)
+        robot = load(robot) if isinstance(robot, str | Path) else robot
         self.file_robot = robot
         self.cfg = config or DaemonConfig()
+        check_controller_joints(self.cfg, None if adopt else robot)  # --adopt: the chain's names
         baud = link_baudrate(self.cfg, robot)
         if baud != self.cfg.baudrate:
             self.cfg = dataclasses.replace(self.cfg, baudrate=baud)

@@ -65,7 +65,7 @@ __all__ = [
 class TeleopResult:
     """How a session ended and what it sent."""
 
-    reason: str  # "quit" | "end" | "error"
+    reason: str  # "quit" | "end" | "lost" (the device failed: cut off) | "error"
     sent: int = 0
     zeros_sent: int = 0
     duration_s: float = 0.0
@@ -74,6 +74,8 @@ class TeleopResult:
     def summary(self) -> str:
         """One line for people."""
         why = f"{self.reason}: {self.note}" if self.note else self.reason
+        if self.reason == "lost" and self.note:  # the note says it: "gamepad lost: ..."
+            why = self.note
         return (
             f"teleop ended ({why}) after {self.duration_s:.1f} s; {self.sent} commands, "
             f"{self.zeros_sent} stops sent"
@@ -86,7 +88,8 @@ class Teleop:
     Every ``1/rate_hz`` s while any stick is deflected the full set is sent (the cFFC replaces
     its input with each message). When all sticks return to zero one zero message is sent, then
     nothing until the next deflection. ``quit`` sends zero and ends; ``end`` (the input stopped)
-    ends without sending, leaving the stop to the daemon's deadman.
+    and ``lost`` (the device failed; the result says so, for a failing exit status) end without
+    sending, leaving the stop to the daemon's deadman.
     """
 
     def __init__(
@@ -127,7 +130,7 @@ class Teleop:
                         self.current.update(ev.rates)
                     elif ev.kind == "stop":
                         self.current = {k: (0.0, 0.0) for k in self.current}
-                    elif ev.kind in ("quit", "end"):
+                    elif ev.kind in ("quit", "end", "lost"):
                         finished = ev
                         break
                 if finished is not None:

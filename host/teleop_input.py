@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from host.api.schema import unique_keys
 from host.extras import require
 
 Deflection = tuple[float, float]
@@ -34,9 +35,10 @@ class TeleopError(RuntimeError):
 @dataclass
 class InputEvent:
     """What a source reports: new stick values, stop (all zero), quit (person ends), end (input
-    stops: no more data, device gone)."""
+    stops: no more data), lost (the device failed mid-session: the session was cut off, which
+    ``ucr teleop`` reports as a failure, not as an end the person chose)."""
 
-    kind: str  # "rates" | "stop" | "quit" | "end"
+    kind: str  # "rates" | "stop" | "quit" | "end" | "lost"
     rates: dict[str, Deflection] = field(default_factory=dict)
     note: str = ""
 
@@ -76,10 +78,13 @@ def parse_recording(
         if not text or text.startswith("#"):
             continue
         where = f"{source}:{n}"
-        try:
-            obj = json.loads(text)
-        except ValueError as exc:
+        try:  # a key given twice is refused, as in trajectory files: which one would count?
+            obj = json.loads(text, object_pairs_hook=unique_keys)
+        except json.JSONDecodeError as exc:
             raise TeleopError(f"{where}: not JSON ({exc})") from None
+        except ValueError as exc:  # unique_keys: "duplicate key 'a' in an object"
+            said = str(exc) if str(exc).startswith("duplicate key") else f"not JSON ({exc})"
+            raise TeleopError(f"{where}: {said}") from None
         if not isinstance(obj, dict):
             raise TeleopError(f'{where}: expected an object like {{"t": 0.0, "rates": {{...}}}}')
         t = obj.get("t")
@@ -389,7 +394,7 @@ class GamepadSource(InputSource):
         except BlockingIOError:
             return []
         except OSError as exc:
-            return [InputEvent("end", note=f"gamepad lost: {exc.strerror or exc}")]
+            return [InputEvent("lost", note=f"gamepad lost: {exc.strerror or exc}")]
         changed = False
         for ev in raw:
             if ev.type == e.EV_ABS and ev.code in self._axes:
@@ -433,8 +438,8 @@ class Recorder(InputSource):
                     "t": t,
                     "rates": {k: [round(v[0], 4), round(v[1], 4)] for k, v in ev.rates.items()},
                 }
-            else:
-                line = {"t": t, ev.kind: True}
+            else:  # a lost device ends the recording's input there, as end does
+                line = {"t": t, "end" if ev.kind == "lost" else ev.kind: True}
             self.out.write(json.dumps(line) + "\n")
         self.out.flush()
         return events

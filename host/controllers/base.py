@@ -100,32 +100,68 @@ class Controller:
 
     def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
         self.name = name
-        unknown = set(params) - set(self.defaults)
-        if unknown:
-            raise ControllerError(
-                f"controller {name!r} ({self.type_name}): unknown parameter(s) "
-                f"{', '.join(sorted(unknown))} (known: {', '.join(sorted(self.defaults))})"
-            )
-        self.params = {**self.defaults, **params}
+        self.params = self.parse_params(name, params)
         self.ctx = ctx
         joints = self.params.get("joints")
         if joints is None:
             self.joints = list(ctx.limits)
         else:
-            if not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
-                raise ControllerError(f"controller {name!r}: 'joints' must be a list of names")
             # After a hot-plug some configured bendables may be gone: keep the present ones.
             self.joints = [j for j in ctx.limits if j in joints]
         self.active = False
 
-    # -- helpers -----------------------------------------------------------------------------
-    def _float_param(self, key: str, *, lo: float = 0.0) -> float:
-        v = self.params[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < lo:
+    @classmethod
+    def parse_params(cls, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        """The checked parameters, defaults filled in (a subclass's numbers as floats); raises
+        :class:`ControllerError` naming the controller and the parameter.
+
+        Needs no robot: the daemon's configuration is checked with it when it is read, before
+        the chain port is opened (host/config.py), and :meth:`__init__` runs the very same
+        checks, so a file the configuration accepts is one every controller loads. Subclasses
+        extend it (``super().parse_params`` first) and read their values from ``self.params``.
+        """
+        unknown = set(params) - set(cls.defaults)
+        if unknown:
             raise ControllerError(
-                f"controller {self.name!r}: parameter {key!r} must be a number >= {lo}, got {v!r}"
+                f"controller {name!r} ({cls.type_name}): unknown parameter(s) "
+                f"{', '.join(sorted(unknown))} (known: {', '.join(sorted(cls.defaults))})"
+            )
+        out = {**cls.defaults, **params}
+        joints = out.get("joints")
+        if joints is not None and (
+            not isinstance(joints, list) or not all(isinstance(j, str) for j in joints)
+        ):
+            raise ControllerError(f"controller {name!r}: 'joints' must be a list of names")
+        return out
+
+    # -- helpers -----------------------------------------------------------------------------
+    @staticmethod
+    def number_param(
+        name: str,
+        params: dict[str, Any],
+        key: str,
+        *,
+        lo: float = 0.0,
+        hi: float | None = None,
+        lo_open: bool = False,
+    ) -> float:
+        """``params[key]`` as a float within [lo, hi] (``lo_open``: above ``lo``), else a
+        :class:`ControllerError` saying the bounds (for :meth:`parse_params`)."""
+        v = params[key]
+        ok = not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
+        if ok:
+            ok = (v > lo if lo_open else v >= lo) and (hi is None or v <= hi)
+        if not ok:
+            bound = f"{'>' if lo_open else '>='} {lo:g}" + ("" if hi is None else f" and <= {hi:g}")
+            raise ControllerError(
+                f"controller {name!r}: parameter {key!r} must be a number {bound}, got {v!r}"
             )
         return float(v)
+
+    def _float_param(self, key: str, *, lo: float = 0.0) -> float:
+        """``self.params[key]`` as a float >= ``lo`` (kept for controllers written before
+        :meth:`parse_params`; new ones check there, so the configuration is checked early)."""
+        return self.number_param(self.name, self.params, key, lo=lo)
 
     def command_interfaces(self) -> list[str]:
         """The command interfaces this controller claims while active."""

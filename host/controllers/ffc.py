@@ -27,21 +27,38 @@ from host.controllers.base import (
     sender_of,
 )
 
+#: the longest ``deadman_timeout`` (s): the deadman is what stops a robot whose input stopped (a
+#: client gone, a gamepad unplugged); a longer one lets it bend on, unattended, that long
+MAX_DEADMAN_S = 2.0
+
 
 class FeedForwardController(Controller):
-    """cFFC. Parameters: joints, deadman_timeout (s, 0.3), deadzone (0.05 of full deflection),
-    gain (fraction of kappa_rate_max at full deflection, 1.0)."""
+    """cFFC. Parameters: joints, deadman_timeout (s, 0.3; 0.01 to MAX_DEADMAN_S), deadzone
+    (0.05 of full deflection, below 1), gain (fraction of kappa_rate_max at full deflection,
+    1.0; above 0: at 0 a deflected stick takes over and aborts a goal while nothing moves)."""
 
     type_name = "ffc"
     defaults = {**Controller.defaults, "deadman_timeout": 0.3, "deadzone": 0.05, "gain": 1.0}
 
+    @classmethod
+    def parse_params(cls, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        p = super().parse_params(name, params)
+        num = cls.number_param
+        p["deadman_timeout"] = num(name, p, "deadman_timeout", lo=0.01, hi=MAX_DEADMAN_S)
+        p["deadzone"] = num(name, p, "deadzone")
+        p["gain"] = num(name, p, "gain", lo=0.0, lo_open=True, hi=1.0)
+        if p["deadzone"] >= 1.0:
+            raise ControllerError(
+                f"controller {name!r}: parameter 'deadzone' must be < 1 (of full deflection), "
+                f"got {p['deadzone']!r}"
+            )
+        return p
+
     def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
         super().__init__(name, params, ctx)
-        self.deadman_timeout = self._float_param("deadman_timeout", lo=0.01)
-        self.deadzone = self._float_param("deadzone")
-        self.gain = self._float_param("gain")
-        if self.deadzone >= 1.0 or self.gain > 1.0:
-            raise ControllerError(f"controller {name!r}: deadzone must be < 1 and gain <= 1")
+        self.deadman_timeout = self.params["deadman_timeout"]
+        self.deadzone = self.params["deadzone"]
+        self.gain = self.params["gain"]
         self._cmd: dict[str, list[float]] = {j: [0.0, 0.0] for j in self.joints}
         self._input: dict[str, tuple[float, float]] = {}
         self._t_input = -math.inf

@@ -41,9 +41,15 @@ class JointStateBroadcaster(Controller):
     claims_commands = False
     defaults = {**Controller.defaults, "rate_hz": 50.0}
 
+    @classmethod
+    def parse_params(cls, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        p = super().parse_params(name, params)
+        p["rate_hz"] = cls.number_param(name, p, "rate_hz", lo=0.01)
+        return p
+
     def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
         super().__init__(name, params, ctx)
-        self.period = 1.0 / self._float_param("rate_hz", lo=0.01)
+        self.period = 1.0 / self.params["rate_hz"]
         self._next = 0.0
         self._rigid = rigid_joint_positions(ctx.robot)
         self._idx = [ctx.names.index(j) for j in self.joints]

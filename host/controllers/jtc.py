@@ -84,15 +84,24 @@ class JointTrajectoryController(Controller):
         "stop_time": 0.3,
     }
 
+    @classmethod
+    def parse_params(cls, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        p = super().parse_params(name, params)
+        num = cls.number_param
+        p["path_tolerance"] = num(name, p, "path_tolerance")
+        p["goal_tolerance"] = num(name, p, "goal_tolerance", lo=1e-6)
+        p["goal_time_tolerance"] = num(name, p, "goal_time_tolerance")
+        p["rate_margin"] = num(name, p, "rate_margin", lo=0.05, hi=1.0)
+        p["stop_time"] = num(name, p, "stop_time", lo=0.01)
+        return p
+
     def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
         super().__init__(name, params, ctx)
-        self.path_tolerance = self._float_param("path_tolerance")
-        self.goal_tolerance = self._float_param("goal_tolerance", lo=1e-6)
-        self.goal_time_tolerance = self._float_param("goal_time_tolerance")
-        self.rate_margin = self._float_param("rate_margin", lo=0.05)
-        if self.rate_margin > 1.0:
-            raise ControllerError(f"controller {name!r}: rate_margin must be <= 1")
-        self.stop_time = self._float_param("stop_time", lo=0.01)
+        self.path_tolerance = self.params["path_tolerance"]
+        self.goal_tolerance = self.params["goal_tolerance"]
+        self.goal_time_tolerance = self.params["goal_time_tolerance"]
+        self.rate_margin = self.params["rate_margin"]
+        self.stop_time = self.params["stop_time"]
         lim = [ctx.limits[j] for j in self.joints]
         self._kmax = np.array([b.kappa_max for b in lim])
         self._kmax_list = self._kmax.tolist()

@@ -70,13 +70,19 @@ class RobotStatePublisher(Controller):
     claims_commands = False
     defaults = {**Controller.defaults, "rate_hz": 20.0, "backbone_samples": 12}
 
-    def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
-        super().__init__(name, params, ctx)
-        self.period = 1.0 / self._float_param("rate_hz", lo=0.01)
-        n = self.params["backbone_samples"]
+    @classmethod
+    def parse_params(cls, name: str, params: dict[str, Any]) -> dict[str, Any]:
+        p = super().parse_params(name, params)
+        p["rate_hz"] = cls.number_param(name, p, "rate_hz", lo=0.01)
+        n = p["backbone_samples"]
         if isinstance(n, bool) or not isinstance(n, int) or n < 2:
             raise ControllerError(f"controller {name!r}: backbone_samples must be an integer >= 2")
-        self.samples = n
+        return p
+
+    def __init__(self, name: str, params: dict[str, Any], ctx: ControllerContext):
+        super().__init__(name, params, ctx)
+        self.period = 1.0 / self.params["rate_hz"]
+        n = self.samples = self.params["backbone_samples"]
         if ctx.robot is None:
             raise ControllerError(f"controller {name!r}: needs the robot description for FK")
         try:

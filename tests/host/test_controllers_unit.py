@@ -317,10 +317,11 @@ def test_ffc_describes_its_setpoint_only_while_active(ctx):
 
 
 def test_ffc_clamps_at_kappa_max(ctx):
-    ffc = FeedForwardController("ffc", {"deadman_timeout": 100.0}, ctx)
+    # the input streams, as a client sends it (a deadman beyond 2 s is refused since 2026-11-27)
+    ffc = FeedForwardController("ffc", {"deadman_timeout": 0.3}, ctx)
     ffc.on_activate(state_at(ctx.names, 0.0))
-    ffc.set_input({"segment_2": (0.6, 0.8)}, now=0.0)
     for i in range(300):
+        ffc.set_input({"segment_2": (0.6, 0.8)}, now=i * DT)
         out = ffc.update(state_at(ctx.names, i * DT), DT)
     kmax = ctx.limits["segment_2"].kappa_max
     assert math.hypot(*out["segment_2"]) == pytest.approx(kmax)
