@@ -5,7 +5,9 @@ it): three services and two topics under ``<action>/_action/``:
 - ``send_goal`` (``…_SendGoal``): the goal's trajectory becomes one daemon goal through the API
   (``trajectory.send``; same limits, same retiming). Accepted when the daemon accepts it;
   refused (``accepted: false``, reason on ``/rosout``) when the message is malformed, has
-  multi-DOF points, or the daemon refuses (beyond ``kappa_max``, manual control, …).
+  multi-DOF points, or the daemon refuses (beyond ``kappa_max``, manual control, …). A first
+  point at time 0 (MoveIt's start state) is not sent
+  (:func:`~interop.zenoh.commands.drop_start_state`).
 - ``get_result`` (``…_GetResult``): answered when the goal ends: SUCCEEDED (``error_code``
   SUCCESSFUL); CANCELED for a goal canceled, or replaced by a newer goal (INVALID_GOAL and the
   daemon's reason: what ros2_control's JTC reports for a goal preempted by a new one); ABORTED
@@ -45,10 +47,12 @@ from interop.ros2.type_hash import action_type_hash, service_type_hash, type_has
 from interop.zenoh import rmw
 from interop.zenoh.commands import (
     ENVELOPE_BYTES,
+    START_DROPPED,
     CommandError,
     SentGoals,
     audit,
     daemon_said,
+    drop_start_state,
     max_trajectory_bytes,
     to_waypoints,
 )
@@ -117,6 +121,7 @@ class FollowJointTrajectoryServer:
         sent: SentGoals | None = None,
     ) -> None:
         self.client = client
+        self.send_goal: Any = None  # declared below; the bendables setter sizes its requests
         self.bendables = list(bendables)
         self.controller = controller
         self.report = report
@@ -158,8 +163,9 @@ class FollowJointTrajectoryServer:
             "send_goal",
             self._send_goal,
             refusal=refused(lambda why: {"accepted": False, "stamp": _stamp(time.time_ns())}),
-            # the largest goal the daemon could take, as for the JointTrajectory topic
-            max_request_bytes=max_trajectory_bytes(len(self.bendables)) + ENVELOPE_BYTES,
+            # the largest goal the daemon could take, as for the JointTrajectory topic (kept
+            # in step with the robot by the bendables setter)
+            max_request_bytes=self.max_request_bytes,
         )
         self.get_result = srv(
             "GetResult",
@@ -195,6 +201,27 @@ class FollowJointTrajectoryServer:
         self._thread = threading.Thread(target=self._track, name="ucr-zenoh-fjt", daemon=True)
         self._thread.start()
 
+    @property
+    def bendables(self) -> list[str]:
+        """The robot's bendables: the joints a goal may name."""
+        return self._bendables
+
+    @bendables.setter
+    def bendables(self, names: list[str]) -> None:
+        """New bendables (the bridge reconnected to a daemon running another robot): the
+        send_goal size bound follows them, as the topic's (:attr:`TrajectoryCommands.max_bytes`)
+        does. It was fixed at start: after a switch to a robot with more bendables, goals the
+        daemon would take were refused unread by the old robot's bound."""
+        self._bendables = list(names)
+        if self.send_goal is not None:
+            self.send_goal.max_request_bytes = self.max_request_bytes
+
+    @property
+    def max_request_bytes(self) -> int:
+        """The largest send_goal request taken: the largest trajectory the daemon could take for
+        this robot plus :data:`ENVELOPE_BYTES` for the rest of the goal (tolerances, goal id)."""
+        return max_trajectory_bytes(len(self._bendables)) + ENVELOPE_BYTES
+
     # ---------------------------------------------------------------- services
     def _send_goal(self, req: Any) -> dict:
         from host.api.client import ApiError  # noqa: PLC0415
@@ -203,6 +230,7 @@ class FollowJointTrajectoryServer:
         now = time.time_ns()
         refuse = {"accepted": False, "stamp": _stamp(now)}
         goal = req.goal
+        dropped = False
         try:
             if len(uuid) != 16:
                 raise CommandError("goal_id must be 16 bytes")
@@ -214,6 +242,12 @@ class FollowJointTrajectoryServer:
             if not goal.trajectory.points:
                 raise CommandError("empty trajectory")
             points = to_waypoints(goal.trajectory, self.bendables)
+            # MoveIt's first point is the start state at 0 s: not sent (the daemon starts from
+            # where the robot is and refuses a time of 0), a warning if it is not where it is
+            points, warning = drop_start_state(points, self._measured)
+            dropped = len(points) < len(goal.trajectory.points)
+            if warning:
+                self.report(30, f"FollowJointTrajectory goal: {warning}")
             with on_behalf_of(f"zenoh goal_uuid={uuid.hex()}"):  # named in the daemon's audit
                 daemon_id = self.client.send_trajectory(
                     points, wait=False, controller=self.controller
@@ -222,7 +256,11 @@ class FollowJointTrajectoryServer:
             self.report(40, f"FollowJointTrajectory goal refused: {exc}")
             return refuse
         except ApiError as exc:
-            self.report(40, f"FollowJointTrajectory goal refused{daemon_said(exc)}")
+            self.report(
+                40,
+                f"FollowJointTrajectory goal refused{daemon_said(exc)}"
+                + (START_DROPPED if dropped else ""),
+            )
             return refuse
         g = Goal(uuid, str(daemon_id), list(goal.trajectory.joint_names), now)
         self.sent.note(g.daemon_id, "action")
@@ -234,6 +272,10 @@ class FollowJointTrajectoryServer:
         self.report(20, f"FollowJointTrajectory goal accepted: daemon goal {daemon_id}")
         self._publish_status()
         return {"accepted": True, "stamp": _stamp(now)}
+
+    def _measured(self) -> dict:
+        """The daemon's measured joint states (asked only for a start state to compare)."""
+        return self.client.status().get("joint_states") or {}
 
     def _get_result(self, req: Any, respond: Callable[[dict], None]) -> None:
         uuid = bytes(req.goal_id.uuid)

@@ -26,6 +26,7 @@ from interop.sinks import Fanout
 from interop.topics import LATCHED, TOPICS, Message
 from interop.zenoh import rmw
 from interop.zenoh.node import GraphWatch, RmwNode, RmwPublisher
+from interop.zenoh.router import wait_time
 
 DISTROS = rmw.DISTROS
 GLOBAL_TOPICS = ("/rosout",)  # ROS convention: every node logs to the one /rosout
@@ -163,6 +164,18 @@ def watch_clashes(
     return watch
 
 
+def stop_after(duration: float | None, stop: threading.Event) -> threading.Timer | None:
+    """Set ``stop`` after ``duration`` s (``--duration``; None: never). A duration beyond what
+    ``threading`` can wait (``threading.TIMEOUT_MAX``, about 292 years) waits that long: 1e300 s
+    raised OverflowError in the timer's thread (a traceback, and the bridge ran on)."""
+    if duration is None:
+        return None
+    timer = threading.Timer(wait_time(duration), stop.set)
+    timer.daemon = True
+    timer.start()
+    return timer
+
+
 def run(args: Any) -> int:
     """The ``ucr zenoh`` command (dependencies and the domain id already checked)."""
     import zenoh  # noqa: PLC0415
@@ -277,7 +290,11 @@ def run(args: Any) -> int:
                 link, list(robot.bendables), controller=args.controller, report=report, sent=sent
             )
             sub = node.subscription(
-                f"{args.controller}/joint_trajectory", TRAJECTORY_TYPE, commands.on_message
+                f"{args.controller}/joint_trajectory",
+                TRAJECTORY_TYPE,
+                commands.on_message,
+                # a sample without a publisher GID (a plain Zenoh put) is refused, not sent
+                unattributed=commands.unattributed_message,
             )
             command_topic = sub.fqn
         info = BridgeInfo(
@@ -312,10 +329,7 @@ def run(args: Any) -> int:
                 report(30, f"warning: {said}: give one of them its own --namespace", "ucr.bridge")
 
             watch.on_join = joined
-        if args.duration is not None:
-            timer = threading.Timer(args.duration, stop.set)
-            timer.daemon = True
-            timer.start()
+        stop_after(args.duration, stop)
 
         def reopen() -> tuple[Any, Any, str]:
             """A new connection and the robot the daemon runs now."""

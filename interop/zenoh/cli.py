@@ -77,6 +77,9 @@ def _router(args: argparse.Namespace) -> int:
 
 
 def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
+    from interop.zenoh.config import ENV_CONFIG as SESSION_ENV  # noqa: PLC0415 - no zenoh import
+    from interop.zenoh.config import ENV_ROUTER_CONFIG as ROUTER_ENV  # noqa: PLC0415
+
     p.add_argument(
         "--listen",
         action="append",
@@ -97,8 +100,10 @@ def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
         "--zenoh-config",
         default=None,
         metavar="FILE",
+        # rmw_zenoh reads a session's file from $ZENOH_SESSION_CONFIG_URI and rmw_zenohd's from
+        # $ZENOH_ROUTER_CONFIG_URI: each command reads the variable of what it is
         help="Zenoh JSON5 configuration (TLS, access control; default "
-        "$ZENOH_SESSION_CONFIG_URI); the flags above override it",
+        f"${ROUTER_ENV if router else SESSION_ENV}); the flags above override it",
     )
     p.add_argument(
         "--multicast-scouting",
@@ -108,7 +113,11 @@ def _zenoh_options(p: argparse.ArgumentParser, *, router: bool) -> None:
 
 
 def register(subparsers: Any) -> None:
-    from host.client_common import add_connection_args, number_arg  # noqa: PLC0415 - fast --help
+    # the bounds `ucr record` and `ucr foxglove` use: a value no run could mean is a usage error
+    # (exit 2) before anything opens; plain floats took -1, nan and 1e300 (tracebacks, silent
+    # exits, /tf off for good) and --subdivisions had no upper bound (a ConfigError traceback)
+    from host.client_common import add_connection_args  # noqa: PLC0415 - fast --help
+    from interop.cli import POSITIVE_HZ, POSITIVE_S, SUBDIVISIONS  # noqa: PLC0415
     from interop.zenoh.rmw import DISTROS  # noqa: PLC0415 - fast --help (no numpy, no zenoh)
 
     p = subparsers.add_parser(
@@ -157,15 +166,15 @@ def register(subparsers: Any) -> None:
         help="daemon trajectory controller, also the prefix of the command topic and action "
         "inside the namespace: letters, digits, '_' (jtc)",
     )
-    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.add_argument(
         "--subdivisions",
-        type=number_arg(int, 1, True),
+        type=SUBDIVISIONS,
         default=10,
-        help="pseudo-rigid links per bendable in /robot_description and /tf, >= 1 (10)",
+        help="pseudo-rigid links per bendable in /robot_description and /tf, 1..1000 (10)",
     )
     p.add_argument(
-        "--viz-rate", type=float, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
+        "--viz-rate", type=POSITIVE_HZ, default=20.0, help="max rate of /tf and /ucr/arcs, Hz (20)"
     )
     add_connection_args(p)  # --url, --token-file, --ca, --timeout: as every API client
     p.add_argument(
@@ -180,5 +189,5 @@ def register(subparsers: Any) -> None:
         "tcp/[::]:7447, gossip scouting, multicast off) for a network without ROS 2 installed.",
     )
     _zenoh_options(p, router=True)
-    p.add_argument("--duration", type=float, default=None, help="stop after this many s")
+    p.add_argument("--duration", type=POSITIVE_S, default=None, help="stop after this many s")
     p.set_defaults(func=_guard(_router))

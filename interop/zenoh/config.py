@@ -16,7 +16,10 @@ from typing import Any
 MODES = ("peer", "client", "router")
 DEFAULT_CONNECT = ("tcp/localhost:7447",)  # rmw_zenoh: every session connects to the host's router
 DEFAULT_LISTEN = {"peer": ("tcp/localhost:0",), "router": ("tcp/[::]:7447",), "client": ()}
-ENV_CONFIG = "ZENOH_SESSION_CONFIG_URI"  # the variable rmw_zenoh reads
+ENV_CONFIG = "ZENOH_SESSION_CONFIG_URI"  # the variable rmw_zenoh reads for a session (a node)
+# ... and rmw_zenohd for its router: `ucr zenoh-router` stands in for rmw_zenohd, so it reads this
+# one (a router given a session's file would run as what that file says, e.g. a client)
+ENV_ROUTER_CONFIG = "ZENOH_ROUTER_CONFIG_URI"
 ENV_OVERRIDE = "ZENOH_CONFIG_OVERRIDE"  # ``path=json5;path=json5`` (rmw_zenoh's format)
 
 
@@ -34,6 +37,9 @@ class SessionOptions:
     config_file: str | None = None
     multicast: bool = False
     overrides: list[tuple[str, str]] = field(default_factory=list)
+    #: the environment variable naming the file when ``config_file`` is None (as rmw_zenoh: the
+    #: session's for ``ucr zenoh``, :data:`ENV_ROUTER_CONFIG` for ``ucr zenoh-router``)
+    config_env: str = ENV_CONFIG
 
 
 def parse_overrides(text: str) -> list[tuple[str, str]]:
@@ -58,20 +64,23 @@ def _check_endpoint(ep: str) -> str:
 
 
 def build(opts: SessionOptions, environ: dict[str, str] | None = None) -> Any:
-    """A ``zenoh.Config`` from ``opts`` (``$ZENOH_SESSION_CONFIG_URI`` when no file is given)."""
+    """A ``zenoh.Config`` from ``opts`` (the file ``$<opts.config_env>`` names when no file is
+    given)."""
     import zenoh  # noqa: PLC0415 - optional dependency
 
     env = os.environ if environ is None else environ
-    path = opts.config_file or env.get(ENV_CONFIG) or None
+    path = opts.config_file or env.get(opts.config_env) or None
     file_given = path is not None
     if file_given:
+        # a file from the environment says so: the user may not know the variable is set
+        origin = "" if opts.config_file else f"${opts.config_env}: "
         p = Path(path)
         if not p.is_file():
-            raise ZenohConfigError(f"Zenoh configuration file {path}: no such file")
+            raise ZenohConfigError(f"{origin}Zenoh configuration file {path}: no such file")
         try:
             conf = zenoh.Config.from_file(str(p))
         except Exception as exc:  # noqa: BLE001 - zenoh reports parse errors as ZError
-            raise ZenohConfigError(f"Zenoh configuration file {path}: {exc}") from None
+            raise ZenohConfigError(f"{origin}Zenoh configuration file {path}: {exc}") from None
     else:
         conf = zenoh.Config()
     mode = opts.mode or (None if file_given else "peer")

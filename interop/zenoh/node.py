@@ -109,10 +109,22 @@ class RmwPublisher:
 
 class RmwSubscription:
     """One ROS 2 subscription; ``callback(cdr_bytes, attachment or None)`` runs on a Zenoh
-    thread and must not block."""
+    thread and must not block.
+
+    With ``unattributed`` (the command subscription), a sample without a valid rmw_zenoh
+    attachment is not delivered: ``unattributed(why)`` is called instead (Zenoh thread, must not
+    block) and it is counted in ``refused``. Every ROS 2 publisher attaches one (rmw_zenoh drops
+    samples without); a plain Zenoh ``put`` does not, and a command must name its publisher's
+    GID in the audit. Without ``unattributed`` such a sample is delivered with ``None``."""
 
     def __init__(
-        self, node: RmwNode, topic: str, typename: str, callback: Callback, qos: rmw.Qos
+        self,
+        node: RmwNode,
+        topic: str,
+        typename: str,
+        callback: Callback,
+        qos: rmw.Qos,
+        unattributed: Callable[[str], None] | None = None,
     ) -> None:
         self.fqn = rmw.fully_qualified(node.id.namespace, topic)
         self.typename = typename
@@ -121,15 +133,22 @@ class RmwSubscription:
         self.entity_id = node.next_entity_id()
         self.received = 0
         self.bad_attachments = 0
+        self.refused = 0
 
         def on_sample(sample: Any) -> None:
             self.received += 1
             att = None
+            why = "no rmw_zenoh attachment"
             if sample.attachment is not None:
                 try:
                     att = rmw.Attachment.decode(sample.attachment.to_bytes())
-                except ValueError:
+                except ValueError as exc:
                     self.bad_attachments += 1
+                    why = f"bad rmw_zenoh attachment: {exc}"
+            if att is None and unattributed is not None:
+                self.refused += 1
+                unattributed(why)
+                return
             callback(sample.payload.to_bytes(), att)
 
         self._sub = node.session.declare_subscriber(self.key, on_sample)
@@ -445,9 +464,14 @@ class RmwNode:
         return pub
 
     def subscription(
-        self, topic: str, typename: str, callback: Callback, qos: rmw.Qos = rmw.DEFAULT_QOS
+        self,
+        topic: str,
+        typename: str,
+        callback: Callback,
+        qos: rmw.Qos = rmw.DEFAULT_QOS,
+        unattributed: Callable[[str], None] | None = None,
     ) -> RmwSubscription:
-        sub = RmwSubscription(self, topic, typename, callback, qos)
+        sub = RmwSubscription(self, topic, typename, callback, qos, unattributed)
         self.entities.append(sub)
         return sub
 

@@ -113,6 +113,11 @@ class Log:
         return any(part in t for _, t in self.lines)
 
 
+# rmw_zenoh's attachment, as a ROS 2 publisher sends it: the command subscription refuses
+# messages without one (a plain Zenoh put has no GID to audit)
+ATT = rmw.Attachment(1, 0, bytes(range(16)))
+
+
 def jt_bytes(names: list[str], points: list[tuple[float, list[float]]]) -> bytes:
     return ros2.codec(JT).encode({
         "joint_names": names,
@@ -337,13 +342,13 @@ def test_a_joint_trajectory_larger_than_the_daemon_could_take_is_refused_unread(
 
     cmds._codec = Watch()
     limit = max_trajectory_bytes(len(BENDABLES))
-    cmds.on_message(b"\x00\x01\x00\x00" + b"\x00" * limit)
+    cmds.on_message(b"\x00\x01\x00\x00" + b"\x00" * limit, ATT)
     assert wait_for(lambda: log.has("refused unread"), 10), log.lines
     [(level, text)] = log.lines
     assert level == 40 and f"({limit + 4} bytes)" in text and f"({limit} bytes)" in text
     assert "10000 waypoints of 6 joints" in text
     assert decoded == [] and daemon.sent == []
-    cmds.on_message(jt_bytes(["segment_2/kappa", "segment_2/phi"], [(1, [1.0, 0.2])]))
+    cmds.on_message(jt_bytes(["segment_2/kappa", "segment_2/phi"], [(1, [1.0, 0.2])]), ATT)
     assert wait_for(lambda: daemon.sent, 10)  # the next message is taken as usual
 
 
@@ -372,25 +377,25 @@ def test_an_empty_joint_trajectory_stops_the_action_goal_and_says_what_it_did(co
     or action, and says "nothing to cancel" when there is nothing."""
     cmds, daemon, log, sent = commands
     empty = jt_bytes([], [])
-    cmds.on_message(empty)
+    cmds.on_message(empty, ATT)
     assert wait_for(lambda: log.lines, 10)
     nothing = "empty JointTrajectory: nothing to cancel (this bridge has started no goal)"
     assert log.lines[-1] == (20, nothing)
 
-    cmds.on_message(jt_bytes(["segment_1/kappa", "segment_1/phi"], [(1, [1.0, 0.0])]))
+    cmds.on_message(jt_bytes(["segment_1/kappa", "segment_1/phi"], [(1, [1.0, 0.0])]), ATT)
     assert wait_for(lambda: daemon.sent, 10)
     topic_goal = sent.last()[0]
     daemon.finish(topic_goal)
     action_goal = daemon.send_trajectory([{"time_from_start": 9}])  # as the action does
     sent.note(action_goal, "action")
     log.lines.clear()
-    cmds.on_message(empty)
+    cmds.on_message(empty, ATT)
     assert wait_for(lambda: log.lines, 10)
     assert daemon.canceled == [action_goal]
     assert log.lines[-1][1].startswith(f"empty JointTrajectory: goal {action_goal} (from the "
                                        "action) canceled")  # fmt: skip
     log.lines.clear()
-    cmds.on_message(empty)  # again: that goal has ended
+    cmds.on_message(empty, ATT)  # again: that goal has ended
     assert wait_for(lambda: log.lines, 10)
     assert daemon.canceled == [action_goal]
     assert "nothing to cancel" in log.lines[-1][1] and "already canceled" in log.lines[-1][1]
