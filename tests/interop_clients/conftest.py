@@ -161,12 +161,15 @@ def recording(rig, tmp_path_factory):
             time.sleep(1.0)
             pts = [{"time_from_start": 1.5, "segments": {n: {"kappa": k, "phi": p}
                     for n, (k, p) in GOAL.items()}}]  # fmt: skip
+            sent = []  # every goal sent: each is recorded (commanded, accepted)
             for _ in range(3):  # see straighten(): a segment dropped under load aborts a goal
                 whole_chain(c)
                 result = c.send_trajectory(pts, timeout=30)
+                sent.append(result["id"])
                 if not _starved(result):
                     break
             assert result["state"] == "succeeded", result
+            result = {**result, "sent": sent}
             time.sleep(1.5)  # the goal poll (2 Hz) and a status poll (1 Hz) see the result
         finally:
             code, out, err = stop(proc)

@@ -190,8 +190,9 @@ def test_commanded_goal_is_recorded_as_joint_trajectory(recording):
     path, result, _ = recording
     _, msgs = _read_all(path)
     cmds = [m.decoded_message for m in msgs if m.channel.topic == "/ucr/trajectory/commanded"]
-    assert len(cmds) == 1, len(cmds)
-    cmd = cmds[0]
+    # one per goal sent: the fixture sends it again after an abort a loaded host caused
+    assert len(cmds) == len(result["sent"]), (len(cmds), result["sent"])
+    cmd = cmds[-1]
     names = [f"segment_{i}/{v}" for i in (1, 2, 3) for v in ("kappa", "phi")]
     assert list(cmd.joint_names) == names
     assert len(cmd.points) == 1
@@ -205,12 +206,12 @@ def test_commanded_goal_is_recorded_as_joint_trajectory(recording):
     # and the lossless JSON of the daemon's goal_accepted event names the goal that ran
     events = [json.loads(m.decoded_message.data) for m in msgs if m.channel.topic == "/ucr/events"]
     accepted = [e for e in events if e.get("event") == "goal_accepted"]
-    assert [e["goal"] for e in accepted] == [result["id"]]
+    assert [e["goal"] for e in accepted] == result["sent"]
     # and each event is a line for log panels on /rosout (rcl_interfaces/Log), as many
     logs = [m.decoded_message for m in msgs if m.channel.topic == "/rosout"]
     assert len(logs) == len(events)
     lines = [(x.level, x.name) for x in logs if x.name == "ucr.goal_accepted"]
-    assert lines == [(20, "ucr.goal_accepted")]  # INFO
+    assert lines == [(20, "ucr.goal_accepted")] * len(result["sent"])  # INFO
 
 
 def test_channels_carry_rosbag2_offered_qos_profiles(recording):

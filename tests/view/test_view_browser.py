@@ -388,13 +388,14 @@ def test_unplugging_the_tip_removes_its_tube_and_plugging_back_restores_it(rig, 
     page.get_by_text("tubes: 3").wait_for(timeout=60000)
     chain.unplug(2)
     try:
-        page.get_by_text("tubes: 2 (segment_1, segment_2)").wait_for(timeout=20000)
+        # (45 s: a software-WebGL page lags the view by seconds; docs/view.md "Limits")
+        page.get_by_text("tubes: 2 (segment_1, segment_2)").wait_for(timeout=45000)
         assert live_view.facts["tubes"] == ["segment_1", "segment_2"]
         assert "missing:segment_3" in live_view.nodes
-        page.get_by_text("segment_3: missing").wait_for(timeout=5000)
+        page.get_by_text("segment_3: missing").wait_for(timeout=15000)
     finally:
         chain.plug(2)
-    page.get_by_text("tubes: 3").wait_for(timeout=30000)
+    page.get_by_text("tubes: 3").wait_for(timeout=45000)
     assert live_view.facts["tubes"] == ["segment_1", "segment_2", "segment_3"]
 
 
