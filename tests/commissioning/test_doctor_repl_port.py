@@ -40,22 +40,10 @@ def test_doctor_on_a_segments_repl_port_says_so_and_resets_nothing() -> None:
 
 def test_doctor_recognises_a_micropython_prompt() -> None:
     import os
-    import threading
 
-    master, slave = os.openpty()
-    got = bytearray()
+    from test_review_commissioning import _pty  # a fake REPL: answers \r with a prompt
 
-    def repl() -> None:  # answers a carriage return with a prompt, records every byte
-        while True:
-            try:
-                data = os.read(master, 256)
-            except OSError:
-                return
-            got.extend(data)
-            if b"\r" in data:
-                os.write(master, b"\r\n>>> ")
-
-    threading.Thread(target=repl, daemon=True).start()
+    master, slave, got = _pty(b"\r\n>>> ")
     try:
         findings = doctor.run(os.ttyname(slave), 921600, None, 0.0)
     finally:
