@@ -11,10 +11,13 @@ describes both.
 
 from __future__ import annotations
 
+import array
 import asyncio
+import fcntl
 import logging
 import ssl
 import sys
+import termios
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, ClassVar
@@ -50,6 +53,10 @@ class TcpCounts:
             self.by_ip.pop(ip, None)
 
 
+#: silent pending connections whose socket :meth:`Admission.arrive` asks about (``unread``) per
+#: arrival, at most: one that has bytes waiting moves on to :data:`TALKING`, so each is asked once
+PEEK_LIMIT = 8
+
 #: how far a pending connection got with its opening handshake (see :class:`Admission`)
 #: (in the order they are evicted in; :data:`REFUSING`: its token was found wrong, it only waits
 #: out the back-off's hold before its refusal)
@@ -71,7 +78,11 @@ class Admission:
       valid and that wait out the hold (:data:`VERIFIED`): a flood of wrong tokens, each held,
       evicts only itself. A real client sends its request at once and finishes in
       milliseconds; an idle or trickling socket never does, so a flood of them only evicts
-      itself.
+      itself. "Sent nothing" is what the server has read: a loaded server accepts a burst of
+      connections before it reads any of them, so a client whose request waits unread in its
+      socket looked silent and was evicted first. Before a silent one is evicted, its socket is
+      asked (``unread``, up to :data:`PEEK_LIMIT` per arrival); one with bytes waiting counts
+      as talking.
     - open: ``max_open`` in all; the last ``reserve`` of them only for control
       (``promote(conn, control=True)``). Connections that have not authenticated never count
       here, so they cannot use up the slots kept for control.
@@ -91,21 +102,37 @@ class Admission:
     def pending(self) -> int:
         return len(self._stage)
 
-    def arrive(self, conn: object, ip: str) -> tuple[bool, object | None]:
+    def arrive(
+        self, conn: object, ip: str, unread: Callable[[object], bool] | None = None
+    ) -> tuple[bool, object | None]:
         """A TCP connection was accepted: (admitted, the pending connection to evict or None).
-        Refused (nothing counted) only above the per-peer cap."""
+        Refused (nothing counted) only above the per-peer cap. ``unread(c)``: whether a pending
+        connection has received bytes the server has not read yet (its socket asked)."""
         if not self.tcp.admit(ip, sys.maxsize, self.max_per_peer):
             return False, None
         victim = None
         if len(self._stage) >= self.max_pending:
-            for stage in self._pending:
-                if stage:
-                    victim, _ = stage.popitem(last=False)
-                    del self._stage[victim]
-                    break
+            victim = self._victim(unread)
         self._stage[conn] = SILENT
         self._pending[SILENT][conn] = None
         return True, victim
+
+    def _victim(self, unread: Callable[[object], bool] | None) -> object | None:
+        """Take the oldest pending connection that got least far out of the count (a silent one
+        whose request waits unread moves on to :data:`TALKING` instead)."""
+        asked = 0
+        for number, stage in enumerate(self._pending):
+            while stage:
+                oldest = next(iter(stage))
+                if number == SILENT and unread is not None and asked < PEEK_LIMIT:
+                    asked += 1
+                    if unread(oldest):
+                        self.advance(oldest, TALKING)
+                        continue
+                del stage[oldest]
+                del self._stage[oldest]
+                return oldest
+        return None
 
     def advance(self, conn: object, stage: int) -> None:
         """A pending connection got further (:data:`TALKING`, :data:`AUTHORIZING`), or its token
@@ -203,6 +230,19 @@ class _TlsHold(asyncio.Protocol):
         self.kept.clear()
 
 
+def _has_unread(conn: Any) -> bool:
+    """Whether bytes wait unread in a pending connection's socket (its request, if it is a real
+    client that the server has not got to yet): the kernel's count (FIONREAD), one system call;
+    False where it cannot be asked."""
+    transport = conn.ucr_tcp if conn.ucr_tcp is not None else getattr(conn, "transport", None)
+    try:
+        count = array.array("i", [0])
+        fcntl.ioctl(transport.get_extra_info("socket").fileno(), termios.FIONREAD, count)
+    except Exception:  # noqa: BLE001 - closed meanwhile, no socket (a test transport)
+        return False
+    return count[0] > 0
+
+
 def admitted_connections(
     base: type,
     admission: Admission,
@@ -246,7 +286,7 @@ def admitted_connections(
 
         def connection_made(self, transport: Any) -> None:
             ip = peer_ip(transport.get_extra_info("peername"))
-            admitted, victim = admission.arrive(self, ip)
+            admitted, victim = admission.arrive(self, ip, _has_unread)
             if victim is not None:  # the oldest pending one that got least far
                 victim.ucr_evict()
             if not admitted:

@@ -509,6 +509,30 @@ def test_admission_evicts_wrong_tokens_waiting_out_the_hold_first_and_valid_ones
     assert adm.promote("a", control=True)
 
 
+def test_admission_asks_a_bounded_number_of_silent_sockets_before_it_evicts():
+    """A silent connection with bytes waiting moves on to talking instead of being evicted; at
+    most PEEK_LIMIT sockets are asked per arrival, then the oldest silent one goes unasked."""
+    from host.api.admission import PEEK_LIMIT, Admission
+
+    n = PEEK_LIMIT + 4
+    adm = Admission(max_open=64, max_pending=n, max_per_peer=64)
+    for conn in range(n):
+        adm.arrive(conn, "127.0.0.1")
+    asked: list = []
+
+    def unread(conn: object) -> bool:
+        asked.append(conn)
+        return conn in (0, 1)  # the two oldest have their requests waiting
+
+    assert adm.arrive("x", "127.0.0.1", unread) == (True, 2)
+    assert asked == [0, 1, 2]
+    asked.clear()
+    # silent now: 3 … n-1, x; all claim bytes: PEEK_LIMIT are asked (and move on), the next goes
+    assert adm.arrive("y", "127.0.0.1", lambda c: asked.append(c) or True) == (True, 3 + PEEK_LIMIT)
+    assert asked == list(range(3, 3 + PEEK_LIMIT))
+    assert adm.pending == n and not adm.is_pending(3 + PEEK_LIMIT) and adm.is_pending(0)
+
+
 def _handshake(port: int, token: str) -> socket.socket:
     s = socket.create_connection(("127.0.0.1", port), timeout=5)
     key = base64.b64encode(os.urandom(16)).decode()
@@ -581,6 +605,46 @@ def test_an_idle_socket_flood_cannot_keep_a_control_client_out(stub):
         assert srv.stats()["pending_connections"] <= srv.opts.max_connections - 16
     finally:
         flood.close()
+        srv.stop()
+
+
+def test_a_client_whose_request_waits_unread_is_not_evicted_as_an_idle_socket(stub):
+    """Defect (CI, a loaded host: the idle-socket flood test got "did not receive a valid HTTP
+    response"): a server that gets to its accept queue late accepts the whole burst before it
+    reads any socket, so a real client whose request already waited in its socket counted as
+    silent, and, being the oldest, was the one evicted. Here the server's loop is held while a
+    control client sends its request and then more idle sockets than ``max_pending`` connect:
+    the client is still served (its socket is asked before it is evicted)."""
+    import threading
+
+    from host.api.auth import CONTROL, Token
+
+    tokens = (Token(CONTROL_TOKEN, CONTROL, "operator"),)
+    srv = ApiServer(stub, "127.0.0.1", 0, tokens=tokens, max_pending=4).start()
+    result: dict = {}
+
+    def client() -> None:
+        try:
+            with connect(srv.url, token=CONTROL_TOKEN, timeout=10) as c:
+                result["state"] = c.status()["state"]
+        except Exception as exc:  # noqa: BLE001 - reported by the assertion below
+            result["error"] = repr(exc)
+
+    idle: list[socket.socket] = []
+    held = threading.Event()
+    try:
+        srv.call_in_loop(lambda: (held.set(), time.sleep(1.5)))
+        assert held.wait(5)
+        worker = threading.Thread(target=client, daemon=True)
+        worker.start()
+        time.sleep(0.4)  # its TCP connection is made (the kernel's) and its request sent
+        idle = [socket.create_connection(("127.0.0.1", srv.port), timeout=2) for _ in range(8)]
+        worker.join(15)
+        assert "state" in result, result
+        assert srv.stats()["evicted_pending"] >= 4  # idle sockets went instead
+    finally:
+        for s in idle:
+            s.close()
         srv.stop()
 
 
