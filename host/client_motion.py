@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from host.client_common import CliError, bound_text, say_error, with_client
+from host.client_common import CliError, CliUsageError, bound_text, say_error, with_client
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -319,7 +319,13 @@ def cmd_teleop(args: argparse.Namespace) -> int:
         require("evdev", extra="gamepad")  # say what to install before connecting
 
     def body(c: Any) -> int:
-        ffc, names = teleop_segments(c)
+        ffc, names, deadman = teleop_segments(c)
+        if deadman is not None and 1.0 / args.rate > deadman / 2:
+            raise CliUsageError(
+                f"--rate {args.rate:g} Hz sends a command every {1000 / args.rate:.0f} ms, more "
+                f"than half the cFFC {ffc!r}'s deadman ({deadman * 1000:.0f} ms): the segments "
+                f"would stop between commands; use --rate {math.ceil(2 / deadman)} or more"
+            )
         driven = "controlled by the daemon" + (f"'s cFFC {ffc!r}" if ffc else "")
         try:
             if args.replay:
@@ -394,13 +400,14 @@ def cmd_teleop(args: argparse.Namespace) -> int:
     return with_client(args, body)
 
 
-def teleop_segments(c: Any) -> tuple[str | None, list[str]]:
-    """The cFFC ``ffc.input`` reaches and the segments it commands, in chain order: the active
-    one, else the first configured (as host/motion.py picks it), from ``controllers.list``.
+def teleop_segments(c: Any) -> tuple[str | None, list[str], float | None]:
+    """The cFFC ``ffc.input`` reaches, the segments it commands, in chain order, and its deadman
+    (s; None if not said): the active one, else the first configured (as host/motion.py picks
+    it), from ``controllers.list``.
     Teleop sends every segment it drives (zeros for the unselected ones, and at Ctrl-C), and a
     cFFC configured with a ``joints`` subset refuses a name it does not command: the segments
     are its joints, not every controlled one. A daemon that lists no cFFC with its joints:
-    (None, the controlled segments), and the daemon words the refusal of the input."""
+    (None, the controlled segments, None), and the daemon words the refusal of the input."""
     from host.controllers import ALIASES  # noqa: PLC0415 - the type a config may spell long
 
     listed = c.controllers()
@@ -417,8 +424,10 @@ def teleop_segments(c: Any) -> tuple[str | None, list[str]]:
         joints = [j for j in pick["joints"] if isinstance(j, str)]
         if not joints:
             raise CliError(f"the cFFC {pick.get('name')!r} commands no segment now (`ucr status`)")
-        return str(pick.get("name")), joints
+        deadman = pick.get("deadman_timeout_s")
+        ok = isinstance(deadman, (int, float)) and not isinstance(deadman, bool) and deadman > 0
+        return str(pick.get("name")), joints, float(deadman) if ok else None
     if ffcs:  # configured, but none loaded: the daemon would only say "no cFFC"
         d = ffcs[0]
         raise CliError(f"the cFFC {d.get('name')!r} failed to load: {d.get('error') or '?'}")
-    return None, list(c.topology().get("controlled") or [])
+    return None, list(c.topology().get("controlled") or []), None

@@ -271,6 +271,43 @@ def test_ctrl_c_zero_names_only_the_cffcs_joints(capsys, subset_url, monkeypatch
     assert stub.ffc_calls == [{"s2": (0.0, 0.0)}]
 
 
+class DeadmanFacade(SubsetFacade):
+    def controllers(self) -> list[dict]:
+        return [{**d, "deadman_timeout_s": 0.3} for d in super().controllers()]
+
+
+def test_teleop_refuses_a_rate_slower_than_the_deadman_allows(capsys, monkeypatch):
+    """Review finding (teleop pass): `--rate 2` was accepted with the cFFC's 0.3 s deadman, so
+    the deadman stopped the segments between commands (stutter). Now a period above half the
+    deadman is a usage error naming the rate that works; 7 Hz (143 ms < 150 ms) is accepted."""
+    import host.teleop as teleop
+
+    stub = DeadmanFacade()
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    monkeypatch.setattr(sys, "stdin", SimpleNamespace(isatty=lambda: True))
+
+    class Keys:
+        def __init__(self, names: list[str]) -> None:
+            self.names = names
+
+        def read(self, timeout: float) -> list[InputEvent]:
+            return [InputEvent("quit")]
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(teleop, "KeyboardSource", Keys)
+    try:
+        rc, _, err = run(capsys, "teleop", "--url", srv.url, "--keyboard", "--rate", "2")
+        assert rc == 2 and "deadman (300 ms)" in err and "use --rate 7 or more" in err, err
+        assert stub.ffc_calls == []
+        rc, _, err = run(capsys, "teleop", "--url", srv.url, "--keyboard", "--rate", "7")
+        assert rc == 0, err
+    finally:
+        srv.stop()
+        stub.close()
+
+
 def test_teleop_segments_read_the_real_controller_description(robot3):
     """What `controllers.list` carries from a real controller manager: the active cFFC, else
     the first; a failed one is named with its error (the daemon would say only "no cFFC")."""
@@ -283,10 +320,10 @@ def test_teleop_segments_read_the_real_controller_description(robot3):
     cm = ControllerManager(specs, ctx)
     client = SimpleNamespace(controllers=cm.describe, topology=lambda: {"controlled": []})
     # chain order, as the daemon's cFFC holds them
-    assert client_motion.teleop_segments(client) == ("pad", ["segment_2", "segment_3"])
+    assert client_motion.teleop_segments(client) == ("pad", ["segment_2", "segment_3"], 0.3)
     names = ["segment_1", "segment_2", "segment_3"]
     cm.switch(["pad2"], [], RobotState.zeros(names))
-    assert client_motion.teleop_segments(client) == ("pad2", ["segment_1"])
+    assert client_motion.teleop_segments(client) == ("pad2", ["segment_1"], 0.3)
     broken = SimpleNamespace(
         controllers=lambda: [{"name": "pad", "type": "cFFC", "state": "failed", "error": "x"}]
     )
@@ -296,7 +333,7 @@ def test_teleop_segments_read_the_real_controller_description(robot3):
         controllers=lambda: [{"name": "jtc"}], topology=lambda: {"controlled": ["a"]}
     )
     # a daemon that does not say which cFFC: the controlled segments, as before
-    assert client_motion.teleop_segments(old) == (None, ["a"])
+    assert client_motion.teleop_segments(old) == (None, ["a"], None)
 
 
 # ------------------------------------------------------------------ 6. lost gamepad
