@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -218,8 +219,8 @@ def cmd_clear_fault(args: argparse.Namespace) -> int:
 def cmd_goal(args: argparse.Namespace) -> int:
     def body(c: Any) -> int:
         goals = [args.goal] if args.goal else list(c.status().get("running_goals") or [])
-        if not goals:
-            print("no running goal")
+        if not goals:  # --json: no line (one JSON object per goal), the words to stderr
+            print("no running goal", file=sys.stderr if args.json else sys.stdout)
             return 0
         for goal in goals:
             st = c.cancel(goal) if args.cancel else c.trajectory_status(goal)

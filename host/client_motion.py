@@ -387,8 +387,9 @@ def cmd_teleop(args: argparse.Namespace) -> int:
             manual = []
         if manual:
             print(
-                f"{', '.join(manual)} keeps control: `ucr controllers hand-back` returns it "
-                "to the trajectory controller"
+                f"{', '.join(manual)} keeps control: `ucr controllers hand-back` ends it and "
+                "restarts the controllers it took over from, if any (`ucr controllers` shows "
+                "what is active then)"
             )
         if interrupted:
             return 130

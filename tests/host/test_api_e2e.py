@@ -332,6 +332,10 @@ def test_cli_goal_shows_and_cancels_a_goal_sent_with_no_wait(rig, client, capsys
             time.sleep(0.1)
         assert ucr(["goal", "--url", srv.url]) == 0
         assert capsys.readouterr().out.strip() == "no running goal"
+        # --json: one JSON object per goal, so none is no line (`| jq` got plain words, a review)
+        assert ucr(["goal", "--json", "--url", srv.url]) == 0
+        captured = capsys.readouterr()
+        assert captured.out == "" and "no running goal" in captured.err
         assert ucr(["goal", "jtc-nope", "--url", srv.url]) == 1
         assert "unknown goal id 'jtc-nope'" in capsys.readouterr().err
     finally:

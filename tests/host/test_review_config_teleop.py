@@ -275,6 +275,9 @@ class DeadmanFacade(SubsetFacade):
     def controllers(self) -> list[dict]:
         return [{**d, "deadman_timeout_s": 0.3} for d in super().controllers()]
 
+    def status(self) -> dict:
+        return {**super().status(), "manual_control": ["pad"]}
+
 
 def test_teleop_refuses_a_rate_slower_than_the_deadman_allows(capsys, monkeypatch):
     """Review finding (teleop pass): `--rate 2` was accepted with the cFFC's 0.3 s deadman, so
@@ -301,8 +304,11 @@ def test_teleop_refuses_a_rate_slower_than_the_deadman_allows(capsys, monkeypatc
         rc, _, err = run(capsys, "teleop", "--url", srv.url, "--keyboard", "--rate", "2")
         assert rc == 2 and "deadman (300 ms)" in err and "use --rate 7 or more" in err, err
         assert stub.ffc_calls == []
-        rc, _, err = run(capsys, "teleop", "--url", srv.url, "--keyboard", "--rate", "7")
+        rc, out, err = run(capsys, "teleop", "--url", srv.url, "--keyboard", "--rate", "7")
         assert rc == 0, err
+        # the hint after teleop no longer promises the trajectory controller back (review: after
+        # `switch --stop jtc` there was nothing to hand back to)
+        assert "restarts the controllers it took over from, if any" in out, out
     finally:
         srv.stop()
         stub.close()
