@@ -264,19 +264,36 @@ class ControllerManager:
         return True
 
     # -- cycle -------------------------------------------------------------------------------
-    def update(self, state: RobotState, dt: float, period: float | None = None) -> Commands:
+    def update(
+        self,
+        state: RobotState,
+        dt: float,
+        period: float | None = None,
+        remeasured: list[str] | None = None,
+    ) -> Commands:
         """Run every active controller; merge commands (claims guarantee no overlap).
 
         ``period``: the loop's period. A cycle that comes more than ``PAUSE_CYCLES`` periods
         after the last (a rebuild, a rediscovery, a failed rejoin, a stalled host) shifts the
         time base of every timed motion by the excess (``shift_time``): during the pause the
         segments sat at their last setpoint, so the path continues from there, without a step;
-        the goal's time tolerance window is shifted with it."""
+        the goal's time tolerance window is shifted with it. The controllers then integrate
+        one period for that cycle, not the pause (a cFFC would step by the whole pause's rate).
+
+        ``remeasured``: bendables measured again after a gap (the HWI's ``first_measured``):
+        every active controller re-anchors them (``adopt_measured``) after the pause is taken
+        out of the time base, so a goal compares them with where its path stands now that the
+        loop runs again, not with where it would have run on to during the pause."""
         if period is not None and period > 0 and dt > PAUSE_CYCLES * period:
             for c in self.controllers.values():
                 shift = getattr(c, "shift_time", None)
                 if c.active and shift is not None:
                     shift(dt - period)
+            dt = period  # the pause is out of the time base: no controller integrates over it
+        if remeasured:
+            for c in self.controllers.values():
+                if c.active:
+                    c.adopt_measured(list(remeasured), state)
         self.t_last = state.t
         out: Commands = {}
         for c in self.controllers.values():

@@ -52,7 +52,7 @@ import time
 from typing import Any
 
 from host.controllers.base import RobotState
-from host.limits import BendableLimits
+from host.limits import BendableLimits, clamp_phi
 
 UNCONFIGURED, INACTIVE, ACTIVE = "unconfigured", "inactive", "active"
 
@@ -177,7 +177,9 @@ class HardwareInterface:
         return self.state_values[interface]
 
     def set_command(self, interface: str, value: float) -> None:
-        """Write a command interface (clamped to its declared range). Needs ``active``."""
+        """Write a command interface (clamped to its declared range; a phi outside a restricted
+        range to the bound nearer around the circle, ``host.limits.clamp_phi``). Needs
+        ``active``."""
         if self.state != ACTIVE:
             raise LifecycleError(f"command {interface!r} refused: HWI is {self.state}, not active")
         if interface not in self.command:
@@ -188,8 +190,8 @@ class HardwareInterface:
         bl = self.limits[name]
         if kind == "kappa":
             value = min(max(value, 0.0), bl.kappa_max)
-        elif not bl.full_circle:
-            value = min(max(value, bl.phi_min), bl.phi_max)
+        elif not bl.full_circle:  # the bound nearer around the circle: never a flip of the plane
+            value = clamp_phi(value, bl.phi_min, bl.phi_max, prefer=self.command.get(interface))
         self.command[interface] = value
 
     def set_curvature(self, name: str, kx: float, ky: float) -> None:

@@ -58,6 +58,58 @@ def kappa_exceeds(kappa: float, kappa_max: float, measured: bool = False) -> boo
     return kappa > kappa_max + slack + KAPPA_EPS
 
 
+# The one rule for a restricted phi range [phi_min, phi_max] (a bendable whose bending plane may
+# not turn all the way round): phi is an angle, so "outside" and "the nearer bound" are taken
+# around the circle — never numerically, which sends phi = pi (just past phi_max = 3/4 pi) to
+# phi_min and flips the bending plane. Used by the HWI (host/hwi.py), the cFFC and the cJTC's
+# path check (host/controllers/).
+PHI_EPS = 1e-9  # rad: float rounding at a bound
+
+
+def phi_offset(phi: float, phi_min: float, phi_max: float) -> float:
+    """How far (rad, >= 0) ``phi`` lies outside [phi_min, phi_max] around the circle: 0 inside,
+    else the angle to the nearer bound."""
+    span = phi_max - phi_min
+    d = (phi - phi_min) % math.tau
+    if d <= span + PHI_EPS:
+        return 0.0
+    return min(d - span, math.tau - d)
+
+
+def clamp_phi(phi: float, phi_min: float, phi_max: float, prefer: float | None = None) -> float:
+    """``phi`` (rad) inside [phi_min, phi_max]: itself (in that range's representation) when
+    inside, else the bound nearer around the circle; midway between them, the bound nearer to
+    ``prefer`` (the previous value: no flip), else phi_max."""
+    span = phi_max - phi_min
+    d = (phi - phi_min) % math.tau
+    if d <= span + PHI_EPS:
+        return min(phi_min + d, phi_max)
+    to_max, to_min = d - span, math.tau - d
+    if abs(to_max - to_min) <= PHI_EPS and prefer is not None:
+        p = (prefer - phi_min) % math.tau
+        to_max, to_min = abs(p - span), min(p, math.tau - p)
+    return phi_max if to_max <= to_min else phi_min
+
+
+def clamp_to_sector(
+    kx: float, ky: float, phi_min: float, phi_max: float, prefer: tuple[float, float] | None = None
+) -> tuple[float, float]:
+    """The curvature vector (kx, ky) kept inside the sector phi_min <= phi <= phi_max: itself
+    when inside (or straight), else its projection onto the nearer bounding ray (the nearest
+    point of the sector: a step into the excluded sector slides along its edge, never across
+    it). ``prefer``: the previous vector, which decides a tie."""
+    kappa = math.hypot(kx, ky)
+    if kappa <= KAPPA_EPS:
+        return kx, ky
+    phi = math.atan2(ky, kx)
+    if phi_offset(phi, phi_min, phi_max) == 0.0:
+        return kx, ky
+    pref = math.atan2(prefer[1], prefer[0]) if prefer is not None and any(prefer) else None
+    b = clamp_phi(phi, phi_min, phi_max, pref)
+    along = max(0.0, kx * math.cos(b) + ky * math.sin(b))
+    return along * math.cos(b), along * math.sin(b)
+
+
 #: A check of many waypoints (a goal, a recording, a trajectory file) reports every problem it
 #: finds in one go, not only the first: the first this many in full, then how many more.
 MAX_REPORTED_PROBLEMS = 20

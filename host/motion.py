@@ -117,11 +117,9 @@ class Motion:
             dt = now - self._t_last if self._t_last else self.period
             self._t_last = now
             self.state = state
-            if hwi.first_measured:
-                for c in self.cm.controllers.values():
-                    if c.active:
-                        c.adopt_measured(hwi.first_measured, state)
-            cmds = self.cm.update(state, dt, self.period)  # a pause shifts timed motions
+            # a pause shifts timed motions, then the controllers re-anchor segments measured
+            # again after a gap (in that order: a stall must not abort the goal it paused)
+            cmds = self.cm.update(state, dt, self.period, remeasured=hwi.first_measured)
             for name, (kx, ky) in cmds.items():
                 if name in hwi.limits:
                     hwi.set_curvature(name, kx, ky)

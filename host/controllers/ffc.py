@@ -4,10 +4,12 @@ segments, the stick deflection sets the rate of curvature change).
 Input: per bendable a deflection (ux, uy), each in [-1, 1] (stick x/y), streamed through
 ``Daemon.ffc_input``. Output: the commanded curvature vector integrates
     d(kx, ky)/dt = kappa_rate_max * gain * (ux, uy)   (|(ux, uy)| limited to 1, deadzone applied)
-clamped radially at kappa_max. When no input arrives for ``deadman_timeout`` s every rate drops
-to zero: the robot stops where it is (deadman). Who sent the latest input (``input_from``: the
-API connection's peer, program and ``on_behalf_of``) is kept and described, so a
-client can tell its own input from another's; so is the setpoint (:meth:`setpoint`), which the
+clamped radially at kappa_max and, on a bendable whose phi range is restricted, kept inside that
+sector (projected onto its nearer edge: it slides along it, never flips across the excluded
+part; ``host.limits.clamp_to_sector``). When no input arrives for ``deadman_timeout`` s every
+rate drops to zero: the robot stops where it is (deadman). Who sent the latest input
+(``input_from``: the API connection's peer, program and ``on_behalf_of``) is kept and described,
+so a client can tell its own input from another's; so is the setpoint (:meth:`setpoint`), which the
 reply to each input carries too.
 """
 
@@ -26,6 +28,7 @@ from host.controllers.base import (
     clamp_radial,
     sender_of,
 )
+from host.limits import clamp_to_sector
 
 #: the longest ``deadman_timeout`` (s): the deadman is what stops a robot whose input stopped (a
 #: client gone, a gamepad unplugged); a longer one lets it bend on, unattended, that long
@@ -160,7 +163,12 @@ class FeedForwardController(Controller):
             if u is not None:
                 lim = self.ctx.limits[j]
                 rx, ry = self.rate_of(u[0], u[1], lim.kappa_rate_max)
-                c[0], c[1], clamped = clamp_radial(c[0] + rx * dt, c[1] + ry * dt, lim.kappa_max)
+                kx, ky, clamped = clamp_radial(c[0] + rx * dt, c[1] + ry * dt, lim.kappa_max)
+                if not lim.full_circle:  # inside the sector: slide along its edge, never across
+                    sx, sy = clamp_to_sector(kx, ky, lim.phi_min, lim.phi_max, (c[0], c[1]))
+                    clamped = clamped or (sx, sy) != (kx, ky)
+                    kx, ky = sx, sy
+                c[0], c[1] = kx, ky
                 self.clamped |= clamped
             out[j] = (c[0], c[1])
         return out

@@ -8,16 +8,19 @@ Path: piecewise quintic Hermite per bendable and axis. Waypoint velocities are t
 neighbouring chord slopes (zero where a component reverses, and zero at the goal), accelerations at
 waypoints are zero, so position, velocity and acceleration are continuous. The first piece starts
 from the controller's current desired position, velocity and acceleration: a replacement goal
-continues without a jump.
+continues without a jump. A bendable no point names holds; one that was moving stops as a cancel
+stops it (``_stop_ramp``), never runs on and comes back.
 
 Limits (decided here, documented in docs/controllers.md):
 - a waypoint with kappa > kappa_max (or phi outside a restricted phi range) rejects the whole goal
   with a reason naming the waypoint and the bendable; between waypoints the sampled command is
-  clamped radially onto |kappa| <= kappa_max (the spline may bulge slightly near the boundary).
+  clamped radially onto |kappa| <= kappa_max (the spline may bulge slightly near the boundary),
+  and a path whose samples leave a restricted phi range rejects the goal (bendable, time, phi).
 - the rate |d(kx, ky)/dt| is kept <= ``rate_margin`` * kappa_rate_max by stretching the time of the
   pieces that would exceed it (retiming); the status reports the new duration.
 Tolerances (1/m, Euclidean in (kx, ky)): ``path_tolerance`` while moving (0 disables), and
-``goal_tolerance`` within ``goal_time_tolerance`` s after the end. A violation aborts the goal
+``goal_tolerance`` within ``goal_time_tolerance`` s after the end; a segment measured again after a
+gap is judged by the one that applies to it there (``adopt_measured``). A violation aborts the goal
 with a reason and holds the measured position. A pause of the loop (a rebuild, a rediscovery)
 shifts the time base of the running motion by the pause (``shift_time``), so a path continues
 where the segments sat, and the goal's time tolerance window is not spent during the pause.
@@ -54,7 +57,7 @@ from host.controllers.trajectory import (
     StaleGoalError,
     quintic_coeffs,
 )
-from host.controllers.waypoints import distinct, parse_waypoints
+from host.controllers.waypoints import Knots, distinct, parse_waypoints
 
 __all__ = [
     "CurvatureTrajectory",
@@ -131,23 +134,31 @@ class JointTrajectoryController(Controller):
     def adopt_measured(self, names: list[str], state: RobotState) -> None:
         """Bendables measured again after a gap in their states (or for the first time): their
         command restarts from where they are measured. A running goal keeps them only if its
-        path is within ``goal_tolerance`` of every such measurement now (taking them back is then
-        no jump: e.g. a segment the goal holds still); otherwise it is aborted (cause
-        ``link_loss``) and they hold where measured.
+        path is near every such measurement now (taking them back is then no jump): within
+        ``path_tolerance`` of a segment the path still moves (the tracking error it allows
+        anyway; a stall pauses a goal mid-motion), within ``goal_tolerance`` of one it holds
+        still or after its end (and when ``path_tolerance`` is 0). Otherwise it is aborted
+        (cause ``link_loss``) and they hold where measured. The caller takes a loop pause out
+        of the time base first (``ControllerManager.update``).
         """
         idx = [self._index[n] for n in names if n in self._index]
         if not idx:
             return
         hold = self._desired_now(state.t)[0]
-        dev = {}
+        dev, tols = {}, {}
+        moving = self._moving_now(state.t)
         for i in idx:
             si = self._state_index[i]
-            dev[self.joints[i]] = math.hypot(state.kx[si] - hold[i][0], state.ky[si] - hold[i][1])
+            j = self.joints[i]
+            dev[j] = math.hypot(state.kx[si] - hold[i][0], state.ky[si] - hold[i][1])
+            path_tol = self.path_tolerance > 0 and j in moving
+            tols[j] = self.path_tolerance if path_tol else self.goal_tolerance
         if self._goal is not None:
-            worst = max(dev, key=dev.get)
-            tol = self.goal_tolerance
-            if dev[worst] <= tol:
+            over = {j: d for j, d in dev.items() if d > tols[j]}
+            if not over:
                 return  # the path passes near where they are: the goal takes them on
+            worst = max(over, key=over.get)
+            tol = tols[worst]
             err_txt, tol_txt = distinct(dev[worst], tol)  # never "0.050 > 0.050"
             self._goal.finish(
                 "aborted",
@@ -165,6 +176,13 @@ class JointTrajectoryController(Controller):
             hold[i] = (state.kx[si], state.ky[si])
         self._hold = hold
         self._set_motion(None)
+
+    def _moving_now(self, t: float) -> set[str]:
+        """The joints the running goal's path still moves at ``t`` (none after its end)."""
+        tr = self._goal.trajectory if self._goal is not None else None
+        if tr is None or t - tr.t0 >= tr.duration:
+            return set()
+        return tr.moving(list(self.joints), t)
 
     def on_deactivate(self, reason: str = "") -> None:
         if self._goal is not None:
@@ -215,11 +233,55 @@ class JointTrajectoryController(Controller):
         """Step 2, outside the lock: parse and retime (the slow part). Touches no mutable state
         of the controller. Raises ControllerError with the reason for a bad goal."""
         knots = self.parse_points(points, current=start.p)
-        traj = CurvatureTrajectory(start.t_start, start.p, start.v, start.a, knots, self._rate)
+        p0, v0, a0 = start.p, start.v, start.a
+        # a bendable no point names that is moving stops as a cancel stops it (``_stop``), and
+        # holds there: the pieces would carry it on and bring it back to where it was
+        stopping = [
+            i
+            for i in range(len(self.joints))
+            if i not in knots.named and (np.any(v0[i]) or np.any(a0[i]))
+        ]
+        ramp = None
+        if stopping:
+            ramp, end = self._stop_ramp(0.0, p0, v0, a0, stopping)
+            p0, v0, a0 = p0.copy(), v0.copy(), a0.copy()
+            positions = np.array(knots.positions, dtype=float, copy=True)
+            for i in stopping:
+                p0[i], v0[i], a0[i] = end[i], 0.0, 0.0
+                positions[:, i] = end[i]
+            knots = Knots(knots.times, positions, knots.named)
+        traj = CurvatureTrajectory(start.t_start, p0, v0, a0, knots, self._rate)
+        if ramp is not None:
+            traj.with_stops(ramp, stopping)
+        self._check_phi_range(traj, set(stopping))
         goal = Goal(
             f"{self.name}-{next(self._counter)}-{uuid.uuid4().hex[:6]}", self.name, len(knots)
         )
         return goal, traj
+
+    def _check_phi_range(self, traj: CurvatureTrajectory, skip: set[int]) -> None:
+        """Reject a path that leaves a restricted phi range between its waypoints (the waypoints
+        alone are checked by ``parse_waypoints``): from phi = 120 deg to -120 deg in a range
+        [-135, 135] deg the straight chord in (kx, ky) crosses phi = 180 deg, and the bending
+        plane would flip from one bound to the other in one cycle. ``skip``: columns that only
+        stop (a bendable the goal does not name)."""
+        ranges = {
+            i: (b.phi_min, b.phi_max)
+            for i, b in enumerate(self.ctx.limits[j] for j in self.joints)
+            if not b.full_circle and i not in skip
+        }
+        hit = traj.phi_leaves(ranges)
+        if hit is None:
+            return
+        i, t, phi = hit
+        lo, hi = ranges[i]
+        raise ControllerError(
+            f"trajectory: the path of {self.joints[i]} leaves its phi range "
+            f"[{lo:.4g}, {hi:.4g}] rad ([{math.degrees(lo):.1f}, {math.degrees(hi):.1f}] deg) "
+            f"between waypoints: phi {phi:.4g} rad ({math.degrees(phi):.1f} deg) at t = "
+            f"{t:.3f} s (goal rejected; nothing moved). Add a waypoint that goes round "
+            "inside the range, or through straight (kappa 0)"
+        )
 
     def install_goal(
         self, goal: Goal, traj: CurvatureTrajectory, start: GoalStart, now: float
@@ -455,17 +517,35 @@ class JointTrajectoryController(Controller):
     def _stop(self, now: float) -> None:
         """Decelerate from the current desired motion to rest over ``stop_time`` s."""
         p, v, a = self._desired_now(now)
-        end = p + v * self.stop_time / 2.0
-        for i in range(len(self.joints)):
-            end[i, 0], end[i, 1], _ = clamp_radial(end[i, 0], end[i, 1], self._kmax[i])
         if np.allclose(v, 0.0) and np.allclose(a, 0.0):
             self._hold = p
             self._set_motion(None)
             return
+        ramp, end = self._stop_ramp(now, p, v, a)
         self._hold = end
-        self._set_motion(
-            CurvatureTrajectory(now, p, v, a, [(self.stop_time, end)], self._rate / 0.95)
-        )
+        self._set_motion(ramp)
+
+    def _stop_ramp(
+        self,
+        t0: float,
+        p: np.ndarray,
+        v: np.ndarray,
+        a: np.ndarray,
+        cols: list[int] | None = None,
+    ) -> tuple[CurvatureTrajectory, np.ndarray]:
+        """The stop rule (cancel, preemption, a bendable a new goal leaves out): from ``p``,
+        ``v``, ``a`` at ``t0`` to rest at ``p + v * stop_time / 2`` (clamped onto kappa_max)
+        over ``stop_time`` s. ``cols``: only those bendables stop; the others hold at ``p``.
+        Reads only configuration (safe outside the daemon lock). Returns (ramp, end)."""
+        if cols is not None:
+            keep = np.ones(len(self.joints), dtype=bool)
+            keep[cols] = False
+            v, a = v.copy(), a.copy()
+            v[keep], a[keep] = 0.0, 0.0
+        end = p + v * self.stop_time / 2.0
+        for i in range(len(self.joints)):
+            end[i, 0], end[i, 1], _ = clamp_radial(end[i, 0], end[i, 1], self._kmax[i])
+        return CurvatureTrajectory(t0, p, v, a, [(self.stop_time, end)], self._rate / 0.95), end
 
     def _measured(
         self, state: RobotState, fallback: np.ndarray, fresh_only: bool = False

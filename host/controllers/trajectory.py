@@ -98,10 +98,15 @@ class CurvatureTrajectory:
         self.v0, self.a0 = v0, a0
         self.rate_max = rate_max
         self.retimed = False
+        # columns that follow a stop ramp instead (``with_stops``): (ramp, its end, columns)
+        self._stop: CurvatureTrajectory | None = None
+        self._stop_end = 0.0
+        self._stop_cols: list[int] = []
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             self._retime(max_iterations)  # non-finite values are checked, not warned about
         self.ends = np.cumsum(self.durations).tolist()
-        self.duration = self.ends[-1]
+        self._end = self.ends[-1]  # the end of the pieces (``duration``: of the stops too)
+        self.duration = self._end
         self.final = self.positions[-1]
         self._final_list = self.final.tolist()
 
@@ -167,10 +172,75 @@ class CurvatureTrajectory:
             out[lo:hi] = (speed / self.rate_max).max(axis=1)
         return out
 
+    def with_stops(self, ramp: CurvatureTrajectory, cols: list[int]) -> CurvatureTrajectory:
+        """Let the columns ``cols`` follow ``ramp`` (a path over the same joints, its time from
+        this path's start: ``t0`` = 0) instead of the pieces, until the ramp ends; the pieces
+        must hold those columns still where the ramp ends. A goal uses it for the bendables it
+        does not name that were moving: they stop as a cancel stops them (no running on and
+        coming back). Returns self."""
+        self._stop, self._stop_cols = ramp, sorted(cols)
+        self._stop_end = ramp.duration
+        self.duration = max(self._end, self._stop_end)
+        return self
+
+    def phi_leaves(
+        self, ranges: dict[int, tuple[float, float]], kappa_min: float = 1e-6
+    ) -> tuple[int, float, float] | None:
+        """Where the sampled pieces first leave a restricted phi range: ``ranges`` maps a column
+        to its (phi_min, phi_max) rad; samples as in the rate check (``_SAMPLES`` per piece),
+        straight ones (kappa <= ``kappa_min``) count as inside. A column that starts outside
+        (a hold measured there) is checked from where it first is inside. Returns (column, time
+        from the start s, phi rad) of the first sample outside, or None."""
+        if not ranges:
+            return None
+        eps = 1e-6  # rad: beyond float rounding at a bound
+        cols = sorted(ranges)
+        m = len(self.durations)
+        u = np.linspace(0.0, 1.0, _SAMPLES)
+        entered = dict.fromkeys(cols, False)
+        starts = np.concatenate([[0.0], np.asarray(self.ends[:-1])])
+        for lo in range(0, m, _BLOCK):
+            hi = min(m, lo + _BLOCK)
+            tau = self.durations[lo:hi, None] * u  # (b, S)
+            pw = np.stack([np.ones_like(tau), tau, tau**2, tau**3, tau**4, tau**5], axis=1)
+            pos = np.einsum("bjkc,bcs->bjks", self.coeffs[lo:hi][:, cols], pw)  # (b, C, 2, S)
+            times = (starts[lo:hi, None] + tau).reshape(-1)
+            found = []
+            for k, c in enumerate(cols):
+                kx = pos[:, k, 0, :].reshape(-1)
+                ky = pos[:, k, 1, :].reshape(-1)
+                phi = np.arctan2(ky, kx)
+                pmin, pmax = ranges[c]
+                d = np.mod(phi - pmin, math.tau)  # around the circle from phi_min
+                inside = (d <= pmax - pmin + eps) | (d >= math.tau - eps)
+                inside |= np.hypot(kx, ky) <= kappa_min
+                if not entered[c]:
+                    first = np.flatnonzero(inside)
+                    if not len(first):
+                        continue  # outside since the start: it has not left the range
+                    entered[c] = True
+                    inside[: first[0]] = True
+                bad = np.flatnonzero(~inside)
+                if len(bad):
+                    found.append((float(times[bad[0]]), c, float(phi[bad[0]])))
+            if found:
+                t, c, ph = min(found)
+                return c, t, ph
+        return None
+
     def position(self, t: float) -> list[list[float]]:
         """Position only (J lists of [kx, ky]) at absolute time ``t``: the per-cycle fast path."""
         tau = t - self.t0
-        if tau >= self.duration:
+        if tau < self._stop_end:
+            out = [list(r) for r in self._position(tau)]  # a copy: _final_list is shared
+            ramp = self._stop.position(max(tau, 0.0))
+            for c in self._stop_cols:
+                out[c] = ramp[c]
+            return out
+        return self._position(tau)
+
+    def _position(self, tau: float) -> list[list[float]]:
+        if tau >= self._end:
             return self._final_list
         tau = max(tau, 0.0)
         i = bisect.bisect_right(self.ends, tau)
@@ -181,7 +251,15 @@ class CurvatureTrajectory:
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration (each (J, 2)) at absolute time ``t``."""
         tau = t - self.t0
-        if tau >= self.duration:
+        p, v, a = self._sample(tau)
+        if tau < self._stop_end:
+            rp, rv, ra = self._stop.sample(max(tau, 0.0))
+            cols = self._stop_cols
+            p[cols], v[cols], a[cols] = rp[cols], rv[cols], ra[cols]
+        return p, v, a
+
+    def _sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if tau >= self._end:
             z = np.zeros_like(self.final)
             return self.final.copy(), z, z.copy()
         tau = max(tau, 0.0)
@@ -205,6 +283,8 @@ class CurvatureTrajectory:
         P = self.positions
         still = (np.abs(P - P[0]) <= 1e-12).all(axis=(0, 2))
         still &= (np.asarray(self.v0) == 0).all(axis=1) & (np.asarray(self.a0) == 0).all(axis=1)
+        if t - self.t0 < self._stop_end:
+            still[self._stop_cols] = False  # still stopping
         return {j for j, s in zip(joints, still.tolist(), strict=True) if not s}
 
     def remapped(
@@ -236,6 +316,12 @@ class CurvatureTrajectory:
         out.positions, out.coeffs, out.v0, out.a0, out.rate_max = P, C, v0, a0, rate
         out.final = P[-1]
         out._final_list = out.final.tolist()
+        if self._stop is not None:  # the stop ramps of the joints that keep their column
+            stopping = {joints[c] for c in self._stop_cols}
+            out._stop = self._stop.remapped(joints, new_joints, hold, held)
+            out._stop_cols = [k for k, j in enumerate(new_joints) if j in stopping and j in idx]
+            if not out._stop_cols:
+                out._stop, out._stop_end = None, 0.0
         return out
 
 

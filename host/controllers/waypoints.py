@@ -31,9 +31,13 @@ class Knots(Sequence):
     """A goal's knots as two arrays — ``times`` (m,) s from the start, ``positions`` (m, J, 2)
     curvature vectors 1/m — and, for whoever wants it so, a sequence of (time, (J, 2)) pairs."""
 
-    def __init__(self, times: np.ndarray, positions: np.ndarray) -> None:
+    def __init__(
+        self, times: np.ndarray, positions: np.ndarray, named: frozenset[int] | None = None
+    ) -> None:
         self.times = times
         self.positions = positions
+        #: the columns (bendables) some point names; None: every one
+        self.named = frozenset(range(positions.shape[1])) if named is None else named
 
     def __len__(self) -> int:
         return len(self.times)
@@ -63,7 +67,8 @@ def parse_waypoints(
 ) -> Knots:
     """Knots for ``points`` (see ``JointTrajectoryController.parse_points``); a bendable absent
     from a point keeps its previous value, starting from ``current`` ((J, 2), order of
-    ``joints``). Raises ControllerError. Pure: safe outside the daemon lock.
+    ``joints``); ``Knots.named`` tells which bendables some point names (the cJTC stops the
+    others). Raises ControllerError. Pure: safe outside the daemon lock.
 
     It runs beside the control loop (a 10 000-waypoint goal: tens of ms of Python), so it holds
     the interpreter lock only in short pieces: plain floats per point, no numpy call per point,
@@ -84,6 +89,7 @@ def parse_waypoints(
     flat = array("d")
     row = [float(v) for v in np.asarray(current, dtype=float).reshape(-1)]
     problems = Problems()  # every bad point is reported, not only the first
+    named: set[int] = set()
     for n, pt in enumerate(points, start=1):  # counted from 1, as a user counts a file's points
         if problems.full:
             break  # enough to say (Problems.text): the rest is not checked
@@ -102,9 +108,10 @@ def parse_waypoints(
                 "increasing, first > 0)"
             )
         elif t - prev_t < MIN_PIECE_S:
+            after = "the start" if prev_t == 0.0 else "the previous point"
             problems.add(
                 f"trajectory point {n}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms "
-                f"after the previous point; at least {MIN_PIECE_S * 1e3:g} ms between points"
+                f"after {after}; at least {MIN_PIECE_S * 1e3:g} ms between points"
             )
         segs = pt.get("segments")
         if not isinstance(segs, dict) or not segs:
@@ -163,6 +170,7 @@ def parse_waypoints(
                     continue
             row[2 * i] = float(kx)
             row[2 * i + 1] = float(ky)
+            named.add(i)
         if problems.count:  # the knots are thrown away: only keep checking
             if _finite(t):
                 prev_t = t  # each point against the one before it: one typo is one problem
@@ -177,5 +185,7 @@ def parse_waypoints(
         )  # fmt: skip
     m, j = len(times), len(joints)
     return Knots(
-        np.frombuffer(times, dtype=float), np.frombuffer(flat, dtype=float).reshape(m, j, 2)
+        np.frombuffer(times, dtype=float),
+        np.frombuffer(flat, dtype=float).reshape(m, j, 2),
+        frozenset(named),
     )
