@@ -27,6 +27,9 @@ MAX_NAME_LEN = 64
 MAX_POINTS = 10_000
 MAX_TIME_S = 604_800.0  # a waypoint's time_from_start: at most a week (1e15 s broke retiming)
 MAX_SEGMENTS = 64
+#: shortest time between waypoints (s), and from the start to the first: shorter pieces are
+#: numerically unsound (the cJTC refuses them too: host/controllers/waypoints.py)
+MIN_POINT_GAP_S = 1e-3
 MAX_RATE_HZ = 1000.0
 MIN_RATE_HZ = 0.1  # a subscription's max_rate: at least one message per 10 s (1e-300 never sent)
 MAX_UPLOADS = 4  # chunked uploads in progress on one connection
@@ -208,6 +211,13 @@ def validate_points(
             raise _bad(
                 f"{where}.time_from_start",
                 f"times must increase strictly ({t:g} s after {last_t:g} s)",
+            )
+        if t - last_t < MIN_POINT_GAP_S:
+            after = "the start" if last_t == 0.0 else f"the point before ({last_t:g} s)"
+            raise _bad(
+                f"{where}.time_from_start",
+                f"{t:g} s is {(t - last_t) * 1e3:.3g} ms after {after}; at least "
+                f"{MIN_POINT_GAP_S * 1e3:g} ms between points",
             )
         last_t = t
         segs = p["segments"]

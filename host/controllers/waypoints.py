@@ -13,11 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from host.api.schema import MIN_POINT_GAP_S
 from host.controllers.base import ControllerError
 from host.limits import BendableLimits, Problems, kappa_exceeds
 
 MAX_WAYPOINTS = 10_000  # what the API accepts (docs/api.md)
-MIN_PIECE_S = 1e-3  # shortest time between waypoints (s): shorter pieces are numerically unsound
+MIN_PIECE_S = MIN_POINT_GAP_S  # shortest time between waypoints (s): the API's own rule
 
 
 _KEYS = frozenset({"time_from_start", "t", "segments"})

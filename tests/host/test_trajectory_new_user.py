@@ -153,3 +153,23 @@ def test_a_phi_deg_problem_still_checks_the_waypoints_time(tmp_path) -> None:
     assert f"{f}:3: waypoint 3.time_from_start: times must increase strictly (3 s after 5 s)" in (
         text
     ), text
+
+
+def test_the_file_check_refuses_points_closer_than_the_daemon_accepts(tmp_path, capsys) -> None:
+    # review: `ucr trajectory --check` passed waypoints 0.5 ms apart that the daemon always
+    # refuses (at least 1 ms between points); the API's schema now holds that rule too
+    from tools.cli import main as ucr
+
+    f = tmp_path / "close.yaml"
+    f.write_text(
+        "- {t: 1, segments: {s1: {kappa: 1}}}\n"
+        "- {t: 1.0005, segments: {s1: {kappa: 2}}}\n"
+        "- {t: 2, segments: {s1: {kappa: 1}}}\n"
+    )
+    assert ucr(["trajectory", str(f), "--check"]) == 1
+    err = capsys.readouterr().err
+    said = f"{f}:2: waypoint 2.time_from_start: 1.0005 s is 0.5 ms after the point before (1 s)"
+    assert said in err, err
+    f.write_text("- {t: 0.0005, segments: {s1: {kappa: 1}}}\n")
+    assert ucr(["trajectory", str(f), "--check"]) == 1
+    assert "0.5 ms after the start; at least 1 ms between points" in capsys.readouterr().err
