@@ -6,6 +6,14 @@ The transforms are computed here from the joint states, as ROS's robot_state_pub
 /robot_description: /tf carries every movable joint of the exported URDF (the pseudo-rigid joints
 subdivided along each arc included), /tf_static every fixed one; /ucr/arcs draws each segment's
 true backbone curve (exact model FK, not the pseudo-rigid chord).
+
+Only measured poses are shown (one rule for /tf and /ucr/arcs, so for every output built on this
+module: ``ucr record``, ``ucr foxglove``, ``ucr zenoh``): a bendable that a joint state leaves out
+(unplugged, beyond a cut) or reports without a valid measurement (``valid`` false, κ or φ missing
+or not finite) keeps the last pose measured for it, and its arc is drawn in STALE_COLOR. One
+never measured yet has no /tf transforms and no arc, and the bendables it carries no arc either
+(their place in the root frame is unknown): never a made-up straight pose. /joint_states carries
+what the daemon reported, unchanged.
 """
 
 from __future__ import annotations
@@ -46,9 +54,66 @@ VELOCITY_MAX_GAP_S = 0.25
 PHI_RATE_MIN_KAPPA = 0.02
 
 LINE_STRIP = 4
-_LOG_INFO, _LOG_WARN, _LOG_ERROR = 20, 30, 40
-_WARN_EVENTS = ("manual_takeover", "topology", "hold", "rebuild", "deadman", "retimed")
-_ERROR_EVENTS = ("fault", "lost", "error", "abort")
+#: /ucr/arcs colour (RGBA) of a bendable measured in this joint state, and of one shown at its
+#: last measured pose because this joint state has no valid measurement of it (stale).
+ARC_COLOR = {"r": 0.1, "g": 0.6, "b": 0.95, "a": 1.0}
+STALE_COLOR = {"r": 0.6, "g": 0.6, "b": 0.6, "a": 0.4}
+
+# rcl_interfaces/msg/Log levels
+LOG_DEBUG, LOG_INFO, LOG_WARN, LOG_ERROR, LOG_FATAL = 10, 20, 30, 40, 50
+#: /rosout level of each event the daemon emits (docs/daemon.md lists them), of the topology
+#: messages (``kind`` topology) and of the events the feed makes itself (interop/). An
+#: event not in the table (a newer daemon's, or a segment event code this version does not
+#: know, ``event_<code>``) gets EVENT_LEVEL_DEFAULT. Kept complete by
+#: tests/interop_clients/test_review_topics.py, which reads the event names from host/ and
+#: interop/.
+EVENT_LEVELS: dict[str, int] = {
+    # segment events (protocol EVENT frames, host/supervision.py)
+    "downstream_up": LOG_INFO,  # a segment appeared behind another: a rejoin or a new one
+    "downstream_down": LOG_WARN,  # a neighbour went silent: the chain is cut there
+    "watchdog_tripped": LOG_WARN,  # the segment holds: no command reached it in time
+    "watchdog_cleared": LOG_INFO,
+    "servo_fault": LOG_ERROR,
+    "limit_clamped": LOG_WARN,  # the segment clamped a setpoint
+    "boot": LOG_WARN,  # a segment (re)booted: a topology change
+    "fault": LOG_ERROR,  # the segment is in FAULT and holds until cleared
+    "fault_cleared": LOG_INFO,
+    # daemon events
+    "topology_changed": LOG_WARN,
+    "link_stall": LOG_WARN,  # a stall, resumed with the chain unchanged
+    "link_degraded": LOG_WARN,  # the loop slowed down for a slow link
+    "link_recovered": LOG_INFO,
+    "link_too_slow": LOG_ERROR,  # segments behind it not reliably under control
+    "link_lossy": LOG_WARN,
+    "link_loss_cleared": LOG_INFO,
+    "segment_refused": LOG_WARN,  # a segment to reflash: the chain ends before it
+    "segments_held": LOG_WARN,  # segments reported HOLD: controllers re-held
+    "misaddressed": LOG_ERROR,  # a segment applied another's setpoint: goals aborted
+    "fault_clear_sent": LOG_INFO,  # the user's own request (ucr clear-fault)
+    "chain_lost": LOG_ERROR,
+    "link_lost": LOG_ERROR,
+    "link_restored": LOG_INFO,
+    "manual_takeover": LOG_WARN,
+    "hand_back": LOG_INFO,
+    "controllers_switched": LOG_INFO,
+    "goal_accepted": LOG_INFO,
+    "goal_waypoints": LOG_INFO,
+    "adopted": LOG_INFO,
+    "cycle_error": LOG_ERROR,
+    # not events of the daemon: its topology messages, and the feed's own (interop/)
+    "topology": LOG_WARN,
+    "goal_waypoints_incomplete": LOG_WARN,  # the recording lacks a goal's commanded trajectory
+    "daemon_lost": LOG_WARN,  # the live feed lost the daemon: no data until it is back
+    "daemon_reconnected": LOG_INFO,
+}
+#: /rosout level of an event name not in EVENT_LEVELS: WARN, so that it is seen.
+EVENT_LEVEL_DEFAULT = LOG_WARN
+
+
+def event_level(name: str) -> int:
+    """rcl_interfaces/Log level of an API event (or ``topology``) on /rosout: EVENT_LEVELS,
+    else EVENT_LEVEL_DEFAULT."""
+    return EVENT_LEVELS.get(name, EVENT_LEVEL_DEFAULT)
 
 
 @dataclass(frozen=True)
@@ -141,6 +206,14 @@ class RobotTopics:
         self.fixed = [j for j in self.joints if j.type == "fixed"]
         self.bendables = list(robot.bendables)
         self._prev: dict[str, tuple[float, float, float] | None] = {}  # for velocities
+        # the last valid (kappa, phi) measured of each bendable (see the module's docstring)
+        self._measured: dict[str, tuple[float, float]] = {}
+        # the exported URDF's movable joints that place each bendable (export.py's names)
+        self._own_joints = {
+            name: {f"{name}_prb{k}_{ax}" for k in range(subdivisions) for ax in ("rx", "ry")}
+            | {f"{name}_prb_twist"}
+            for name in self.kin.models
+        }
 
     # -- latched -------------------------------------------------------------------------------
     def static_messages(self, t_ns: int) -> list[Message]:
@@ -157,31 +230,65 @@ class RobotTopics:
         ]
 
     # -- joint states --------------------------------------------------------------------------
-    def _coords(self, js: dict) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        coords: dict[str, np.ndarray] = {}
-        names = js.get("names", [])
+    def _measure(self, js: dict) -> set[str]:
+        """Take the valid measurements of joint state ``js`` as the bendables' last measured
+        poses; returns the bendables measured in it. Valid: named, ``valid`` true (or no flags),
+        κ and φ finite numbers. Every method given a joint state calls this (the same state
+        twice changes nothing), so the last measured pose is the newest one this converter saw."""
+        fresh: set[str] = set()
+        names = js.get("names") or []
+        kappas, phis = js.get("kappa") or [], js.get("phi") or []
+        flags = js.get("valid") or []
         for i, name in enumerate(names):
-            model = self.kin.models.get(name)
-            if model is None:
+            if name not in self.kin.models or i >= len(kappas) or i >= len(phis):
                 continue
-            kappa, phi = js["kappa"][i], js["phi"][i]
-            if kappa is None or phi is None:
+            kappa, phi = kappas[i], phis[i]
+            if i < len(flags) and not flags[i]:
                 continue
-            # from (kappa, phi) as /joint_states carries them, so /tf is exactly what a consumer
-            # recomputes from /joint_states (the daemon's kx, ky are rounded separately)
+            if not (_finite(kappa) and _finite(phi)):
+                continue
+            self._measured[name] = (float(kappa), float(phi))
+            fresh.add(name)
+        return fresh
+
+    def _coords(self, js: dict) -> tuple[dict[str, np.ndarray], dict[str, float], set[str]]:
+        """Model coordinates of every bendable at its last measured pose (zeros, a placeholder
+        only, for one never measured), the rigid joints, and the bendables measured in ``js``."""
+        fresh = self._measure(js)
+        coords: dict[str, np.ndarray] = {}
+        for name, model in self.kin.models.items():
             q = np.zeros(len(model.coordinate_names()))
-            q[:2] = kappa * math.cos(phi), kappa * math.sin(phi)
+            if name in self._measured:
+                # from (kappa, phi) as /joint_states carries them, so /tf is exactly what a
+                # consumer recomputes from /joint_states (the daemon's kx, ky are rounded apart)
+                kappa, phi = self._measured[name]
+                q[:2] = kappa * math.cos(phi), kappa * math.sin(phi)
             coords[name] = q
-        for name, model in self.kin.models.items():  # not reported (unplugged): straight
-            coords.setdefault(name, np.zeros(len(model.coordinate_names())))
         rigid = {k: float(v["position"]) for k, v in (js.get("rigid") or {}).items()
                  if isinstance(v, dict) and v.get("position") is not None}  # fmt: skip
-        return coords, rigid
+        return coords, rigid, fresh
+
+    def _placed(self) -> set[str]:
+        """The bendables whose pose in the root frame is known: measured, and every bendable
+        between them and the root measured too."""
+        unknown_links: set[str] = set()
+        placed: set[str] = set()
+        for el in self.kin.order:
+            lost = el.parent in unknown_links
+            if el.kind == "bendable":
+                if lost or el.name not in self._measured:
+                    lost = True
+                else:
+                    placed.add(el.name)
+            if lost:
+                unknown_links.add(el.child)
+        return placed
 
     def joint_states(self, js: dict, t_ns: int) -> Message:
         """sensor_msgs/JointState: ``<b>/kappa`` (1/m) and ``<b>/phi`` (rad) per reported
         bendable, then the movable rigid joints. ``velocity`` (1/m/s, rad/s) is derived from the
         state stream (:meth:`_rates`); NaN where unknown. Effort stays empty (not measured)."""
+        self._measure(js)
         names: list[str] = []
         pos: list[float] = []
         vel: list[float] = []
@@ -225,12 +332,15 @@ class RobotTopics:
         return [k_rate, math.remainder(phi - prev[2], 2.0 * math.pi) / dt]
 
     def joint_positions(self, js: dict) -> dict[str, float]:
-        """Every movable joint of the exported URDF for an API joint_states message (rad / m)."""
-        coords, rigid = self._coords(js)
+        """The movable joints of the exported URDF for an API joint_states message (rad / m):
+        each bendable's at its last measured pose; none for a bendable never measured."""
+        coords, rigid, _ = self._coords(js)
         out = dict(rigid)
         for name, mimic in self.kin.mimics.items():  # follows its master (ucrdf/fk.py)
             out[name] = mimic.position(rigid.get(mimic.joint, 0.0))
         for name, model in self.kin.models.items():
+            if name not in self._measured:
+                continue
             angles, twist = subdivision_angles(model, coords[name], self.subdivisions)
             for k, (a, b) in enumerate(angles):
                 out[f"{name}_prb{k}_rx"] = a
@@ -239,10 +349,18 @@ class RobotTopics:
         return out
 
     def tf(self, js: dict, t_ns: int) -> Message:
-        """tf2_msgs/TFMessage: parent -> child of every movable joint of the exported URDF."""
+        """tf2_msgs/TFMessage: parent -> child of every movable joint of the exported URDF, a
+        bendable's at its last measured pose; none of a bendable never measured (its child
+        links have no transform to the root until it is)."""
         q = self.joint_positions(js)
+        skip: set[str] = set()
+        for name, joints in self._own_joints.items():
+            if name not in self._measured:
+                skip |= joints
         out = []
         for j in self.movable:
+            if j.name in skip:
+                continue
             t = j.origin.copy()
             v = q.get(j.name, 0.0)
             if j.type in ("revolute", "continuous"):
@@ -259,11 +377,16 @@ class RobotTopics:
 
     def arcs(self, js: dict, t_ns: int, samples: int = 24) -> Message:
         """visualization_msgs/MarkerArray: one LINE_STRIP per bendable along its true backbone
-        (root frame), as wide as the segment's backbone (at least 5 mm)."""
-        coords, rigid = self._coords(js)
+        (root frame), as wide as the segment's backbone (at least 5 mm), at its last measured
+        pose: ARC_COLOR when measured in ``js``, STALE_COLOR when not. No marker for a bendable
+        not placed yet (it, or one between it and the root, never measured)."""
+        coords, rigid, fresh = self._coords(js)
+        placed = self._placed()
         frames = self.kin.fk_coordinates(coords, rigid)
         markers = []
         for i, (name, model) in enumerate(self.kin.models.items()):
+            if name not in placed:
+                continue
             b = self.robot.bendables[name]
             base = frames[b.parent] @ b.origin.matrix()
             along = frames_along(model, coords[name], np.linspace(0.0, model.length, samples))
@@ -274,7 +397,7 @@ class RobotTopics:
                 "header": _header(t_ns, self.root), "ns": "ucr/arcs", "id": i,
                 "type": LINE_STRIP, "action": 0, "pose": {"orientation": {"w": 1.0}},
                 "scale": {"x": width, "y": 0.0, "z": 0.0},
-                "color": {"r": 0.1, "g": 0.6, "b": 0.95, "a": 1.0},
+                "color": dict(ARC_COLOR if name in fresh else STALE_COLOR),
                 "frame_locked": False, "points": pts, "text": name,
             })  # fmt: skip
         return Message("/ucr/arcs", TOPICS["/ucr/arcs"], {"markers": markers}, t_ns)
@@ -321,12 +444,7 @@ class RobotTopics:
         the full JSON on /ucr/events (lossless)."""
         name = str(ev.get("event") or ev.get("kind") or "event")
         text = str(ev.get("message") or ev.get("reason") or name)
-        low = name.lower()
-        level = _LOG_INFO
-        if any(w in low for w in _WARN_EVENTS):
-            level = _LOG_WARN
-        if any(w in low for w in _ERROR_EVENTS):
-            level = _LOG_ERROR
+        level = event_level(name)
         log = {"stamp": _header(t_ns)["stamp"], "level": level, "name": f"ucr.{name}",
                "msg": text, "file": "", "function": "", "line": 0}  # fmt: skip
         return [
@@ -437,6 +555,11 @@ def commanded(ev: dict, root: str, t_ns: int) -> Message | None:
     msg = {"header": _header(t_ns, root), "joint_names": names, "points": points}
     topic = "/ucr/trajectory/commanded"
     return Message(topic, TOPICS[topic], msg, t_ns)
+
+
+def _finite(v: Any) -> bool:
+    """A real number (not None, not a bool, not NaN or infinite)."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
