@@ -94,15 +94,14 @@ def _same_as_file(seg):
 def request(seg, flags, raw, pe, seq):
     """CALIBRATE: decode, check identity and state, act, answer CALIBRATION or ERROR. (Small
     functions: each compiles in the small free blocks of a running segment's heap.)"""
-    got = _decode(seg, flags, raw, pe, seq)
-    if got is None:
-        return
     try:
+        got = _decode(seg, flags, raw, pe, seq)
+        if got is None:
+            return
         _act(seg, got[0], got[1], got[2])
-    except (ValueError, OSError) as e:
+        _answer(seg, seq)
+    except Exception as e:  # noqa: BLE001 - any refusal is answered, never a FAULT (as params)
         seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "%s" % (e,))
-        return
-    _answer(seg, seq)
 
 
 def _decode(seg, flags, raw, pe, seq):
@@ -124,8 +123,15 @@ def _decode(seg, flags, raw, pe, seq):
             seq, ERR_IDENTITY_MISMATCH, T_CALIBRATE, "identity mismatch: this segment is " + seg.uid
         )
         return None
-    if len(got[1] or ()) not in (0, seg.n):
-        seg._error(seq, ERR_BAD_VALUE, T_CALIBRATE, "this segment has %d servos" % seg.n)
+    z = got[1]
+    if got[0] == cal.ACTION_APPLY or got[0] == cal.ACTION_PERSIST:
+        bad = len(z) != seg.n  # decode_calibrate: two lists of one length
+    else:  # read, forget: keys 2 and 3 are not used; if given, they must still fit
+        bad = z is not None and (not isinstance(z, list) or len(z) not in (0, seg.n))
+    if bad:
+        seg._error(
+            seq, ERR_BAD_VALUE, T_CALIBRATE, "this segment has %d servos: one value each" % seg.n
+        )
         return None
     return got
 

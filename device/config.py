@@ -242,6 +242,14 @@ class Config:
                     raise ValueError("emulated_start: bad angle %r" % (a,))
         if cfg["uid_override"] is not None and not isinstance(cfg["uid_override"], str):
             raise ValueError("uid_override must be a string")
+        # the DESCRIPTOR must fit one frame (protocol/desc_room.py, loaded for this only)
+        from protocol import desc_room
+
+        why = desc_room.problem(cfg, FW_VERSION)
+        self.err_room = min(40, desc_room.room(cfg, FW_VERSION))  # config_error bytes sent
+        _drop("desc_room")
+        if why:
+            raise ValueError(why)
 
     def _derive(self, cfg):
         self.name = cfg["name"]
@@ -298,7 +306,7 @@ def _wiring(cfg, n):
     PROFILE = boards.profile(board)
     PROFILE_NAME = board
     del boards
-    _drop_boards()
+    _drop()
 
 
 def _e4(x):
@@ -370,7 +378,7 @@ def refused(data, default_driver, why):
                     PROFILE_NAME = board
     except (ValueError, TypeError, KeyError, AttributeError):
         pass  # a plan too broken to read: the chip's own board
-    _drop_boards()
+    _drop()
     return c
 
 
@@ -400,15 +408,16 @@ def _servo_pins(boards, board, data, default_driver):
     return [x for x in out if isinstance(x, int) and not isinstance(x, bool)]
 
 
-def _drop_boards():
-    """Free the board rules (~15 KB) on the board: needed once, at boot (the HAL reads PROFILE)."""
+def _drop(name="boards"):
+    """Free module protocol.``name`` on the board: the board rules (~15 KB) and the DESCRIPTOR
+    rule are needed once, at boot (the HAL reads PROFILE)."""
     import gc
     import sys
 
     if sys.implementation.name == "micropython":
-        sys.modules.pop("protocol.boards", None)
+        sys.modules.pop("protocol." + name, None)
         import protocol
 
-        if hasattr(protocol, "boards"):
-            del protocol.boards
+        if hasattr(protocol, name):
+            delattr(protocol, name)
         gc.collect()

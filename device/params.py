@@ -229,10 +229,21 @@ def descriptor(self):
         "servo_driver": si["servo_driver"],
         "watchdog_ms": self.watchdog_ms,
         "downstream_present": self.down_present,
-        # why config.json was refused, shortened to fit the frame (full text: PARAM 16)
-        "config_error": (self.cfg.error or "")[:40],
+        # why config.json was refused, shortened to fit the frame (full text: PARAM 16): at
+        # most 40 bytes, fewer when the name leaves less room (config.descriptor_room)
+        "config_error": _cut(self.cfg.error or "", self.cfg.err_room),
         "config_hash": _config_hash(self),
     }
+
+
+def _cut(text, n):
+    """``text`` cut to at most ``n`` bytes of UTF-8, never inside a character."""
+    b = text.encode()
+    if len(b) > n:
+        while b[n] & 0xC0 == 0x80:
+            n -= 1
+        text = b[:n].decode()
+    return text
 
 
 def _config_hash(self):
@@ -280,7 +291,8 @@ def descriptor_payload(self):
 
 
 def param_request(self, t, raw, pe, seq):
-    """PARAM_GET / PARAM_SET: decode, check identity and id, answer PARAM_VALUE or ERROR."""
+    """PARAM_GET / PARAM_SET: decode, check keys (ints only), identity and id, answer
+    PARAM_VALUE or ERROR."""
     try:
         req = cbor.loads(raw, HEADER_LEN, pe) if pe > HEADER_LEN else {}
     except ValueError as e:
@@ -288,6 +300,8 @@ def param_request(self, t, raw, pe, seq):
     err = None
     if not isinstance(req, dict):
         err = req if isinstance(req, str) else "payload is not a map"
+    elif [k for k in req if type(k) is not int]:  # (bool keys are not ints here)
+        err = "map keys must be ints"
     elif not isinstance(req.get(0), int) or isinstance(req.get(0), bool):
         err = "key 0 (param_id) must be an int"
     elif 15 in req and not isinstance(req[15], str):

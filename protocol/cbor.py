@@ -8,9 +8,10 @@ dict. Decoding (``loads`` and ``Reader`` alike) rejects ints and lengths outside
 (|n| < 2**30: a 4-byte argument >= 0x40000000, -2**30, any 8-byte argument; docs/protocol.md
 "Integer range"), tags, indefinite lengths, undefined/simple values, duplicate map keys,
 nesting deeper than ``MAX_DEPTH``, text that is not UTF-8 (checked by ``utf8_ok`` on both
-runtimes: MicroPython's ``bytes.decode`` does not validate) and trailing bytes, raising
-``MalformedError``. The in-place ``Reader.skip`` applies the same rules to items it skips (map keys
-there must be ints or text), so content a decoder ignores is still validated.
+runtimes: MicroPython's ``bytes.decode`` does not validate), map keys other than an int, text or
+bytes (no float, bool, null, array or map keys) and trailing bytes, raising ``MalformedError``.
+The in-place ``Reader.skip`` applies the same rules to items it skips, so content a decoder
+ignores is still validated.
 
 ``dumps``/``loads`` allocate (slow path). ``put_*`` write into caller buffers and ``Reader``
 walks a buffer in place: both allocate nothing, for the device hot path.
@@ -570,7 +571,8 @@ class _Dec:
         d = {}
         for _ in range(n):
             k = self.item(depth + 1)
-            if isinstance(k, (list, dict)):
+            if isinstance(k, bool) or not isinstance(k, (int, str, bytes)):
+                # the rule of Reader._key: no float, bool, null, array or map keys
                 raise MalformedError("CBOR map key must be int, text or bytes")
             if k in d:
                 raise MalformedError("duplicate CBOR map key")

@@ -917,6 +917,8 @@ class _Checker:
         m = re.search(r"servos\[(\d+)\]", reason)
         if m:
             line = self.line(("bendable", b.name, "servo", int(m.group(1))), aline)
+        elif reason.startswith("name "):  # too long for the DESCRIPTOR (device/config.py)
+            line = b.line
         self.error(
             line,
             f"bendable {b.name!r}: the segment firmware would refuse this configuration "
