@@ -25,6 +25,7 @@ class BoardMachine:
         self.wires = wires
         self.claimed = {}  # GPIO -> what uses it
         self.uarts = {}
+        self.timers = {}
 
     def _pin(self, gpio, role, output):
         p = self.profile
@@ -59,6 +60,19 @@ class BoardMachine:
     def Pin(self, gpio, role="Pin"):
         self._pin(gpio, role, True)
         return gpio
+
+    def Timer(self, tid):
+        """``machine.Timer(id)`` of the board: its hardware timers (ids 0..3; 0..1 on a C3,
+        SOC_TIMER_GROUP_TOTAL_TIMERS), ValueError as the port words it otherwise."""
+        n = 2 if self.profile.get("chip") == "ESP32C3" else 4
+        if isinstance(tid, bool) or not isinstance(tid, int) or not 0 <= tid < n:
+            raise ValueError("invalid Timer number, max %d" % n)
+        t = self.timers.get(tid)
+        if t is None:
+            from wdt import EmuTimer  # only a segment with a hardware watchdog needs it
+
+            t = self.timers[tid] = EmuTimer(tid)
+        return t
 
 
 class TickPoller:

@@ -1,13 +1,15 @@
 """Segment firmware entry point (ESP32 and the MicroPython unix port).
 
-Picks the HAL by platform, loads config.json (defaults when absent), builds servo driver, MC, SCs
-and the segment coordinator, then runs forever (``Runner``): frames are handled as they arrive,
-the control tick runs every ``tick_ms`` (config.json, default 5 ms). An exception in either
-puts the segment in FAULT (``Segment.enter_fault``) and the loop goes on, so the chain keeps
-forwarding; the optional hardware watchdog (``wdt.py``) is fed only by a healthy pass: one that
-ran the control tick to its end and raised nothing (once per clean tick). The loop never reads
-stdin, so the USB REPL stays free; Ctrl-C (KeyboardInterrupt) ends it and leaves the board (or
-``micropython -i``) at the REPL.
+Picks the HAL by platform, loads config.json (absent or invalid: the segment holds, says why),
+builds servo driver, MC, SCs and the segment coordinator, then runs forever (``Runner``):
+frames are handled as they arrive, the control tick runs every ``tick_ms`` (config.json,
+default 5 ms). An exception in either puts the segment in FAULT (``Segment.enter_fault``) and
+the loop goes on, so the chain keeps forwarding; the optional hardware watchdog (``wdt.py``) is
+fed only by a healthy pass: one that ran the control tick to its end and raised nothing (once
+per clean tick). The loop never reads stdin, so the USB REPL stays free; Ctrl-C
+(KeyboardInterrupt) ends it and leaves the board (or ``micropython -i``) at the REPL, the servos
+in their safe state (``Segment.stop_for_repl``) and a hardware watchdog fed by a timer
+(``wdt.keep_fed``), so a flash over the REPL is not reset.
 """
 
 import os
@@ -17,6 +19,8 @@ _TMASK = 0x3FFFFFFF
 FAULT_TICK = 1  # protocol.constants FAULT_* (plain ints: main.py imports nothing heavy at top)
 FAULT_FRAME = 2
 FAULT_WDT_RESET = 3
+# config.json absent: refused like an invalid one (docs/firmware.md "Configuration")
+NO_CONFIG = "no config.json: flash one (ucr flash)"
 
 
 def _hal_module():
@@ -82,7 +86,11 @@ def build(tick_ms=None):
 
     gc.collect()
     names = os.listdir()
-    if "calibration.json" in names or "calibration.tmp" in names:  # a stored calibration wins
+    if "config.json" not in names:
+        # no configuration was given: never move on guessed defaults (pins, zero offsets,
+        # ranges); hold and say why, as for an invalid file (config.refused)
+        cfg = config.refused(None, halmod.DEFAULT_DRIVER, NO_CONFIG)
+    elif "calibration.json" in names or "calibration.tmp" in names:  # a stored calibration wins
         import calib_store
 
         cfg = calib_store.load_config(config, halmod.DEFAULT_DRIVER)
@@ -189,8 +197,9 @@ class Runner:
         now = hal.ticks_ms()
         d = (now - self.next_t) & _TMASK
         if d < 0x20000000:  # the tick is due
-            if d > 4 * tick_ms:
-                seg.overruns += 1
+            if d >= tick_ms:
+                seg.overruns += 1  # started a whole tick period (or more) late: its slot passed
+            if d > 4 * tick_ms:  # far behind: the missed ticks are dropped, not caught up
                 self.next_t = now
             self.next_t = (self.next_t + tick_ms) & _TMASK
             try:
@@ -231,16 +240,29 @@ def run(tick_ms=None):
     if seg.cfg.hw_watchdog_ms:  # (without a watchdog there is no watchdog reset to report)
         import wdt
 
+        wdt.stop_feeding()  # run() again from the REPL: only the loop feeds it now
         if wdt.reset_by_watchdog():
             seg.enter_fault(FAULT_WDT_RESET, "reset by the hardware watchdog")
         dog = wdt.make(seg.cfg.hw_watchdog_ms)
     gc.collect()
     print("[main] segment %s up, %d Hz" % (seg.uid, 1000 // tick_ms))
     r = Runner(hal, seg, tick_ms, dog)
-    while True:
-        w = r.once()
-        if w:
-            hal.wait(w)
+    try:
+        while True:
+            w = r.once()
+            if w:
+                hal.wait(w)
+    except KeyboardInterrupt:
+        # Ctrl-C (mpremote, ucr flash): the REPL takes over. Servos safe first; then a watchdog
+        # that cannot be stopped (machine.WDT) is fed by a timer, or it would reset the board
+        # in the REPL, in the middle of a flash (docs/flashing.md "Hardware watchdog")
+        try:
+            seg.stop_for_repl()
+        except Exception as e:  # noqa: BLE001 - the REPL must still come; say why
+            print("[main] safe stop failed:", e)
+        if dog is not None:
+            wdt.keep_fed(dog, seg.cfg.hw_watchdog_ms, hal)
+        raise
 
 
 if __name__ == "__main__":

@@ -537,7 +537,11 @@ class Segment:
                 return
             self.enter_hold()
         elif t == T_ALIVE:
-            return  # link-local keep-alive from the host side: nothing to do
+            # link-local keep-alive from the host side: nothing to do, but its payload is
+            # checked like any other (docs/protocol.md: an empty map; invalid -> MALFORMED)
+            if pd.decode_empty(raw, HEADER_LEN, pe) < 0:
+                self.dropped += 1
+                self._error(seq, ERR_MALFORMED, t, "malformed ALIVE")
         elif t == _T_CALIBRATE:
             import gc
 
@@ -589,8 +593,8 @@ class Segment:
         return True
 
     def _may_move(self):
-        # a config.json that was present but rejected leaves the calibration unknown: never move
-        # on guessed zero offsets (an absent file runs on the documented defaults)
+        # a config.json that was rejected or absent (main.NO_CONFIG) leaves the calibration
+        # unknown: never move on guessed zero offsets
         return (
             self.armed
             and not self.hold
@@ -635,6 +639,15 @@ class Segment:
         self.hold = True
         if self.moving:
             self._stop_moving()
+
+    def stop_for_repl(self):
+        """The loop ends (Ctrl-C: the REPL takes over, nothing drives the servos any more): their
+        safe state, as in FAULT: held at the measured positions, or (``fault_action``
+        "release") no longer driven (PWM pulses off, Feetech torque off)."""
+        self.enter_hold()
+        if self.cfg.fault_action == "release":
+            self.moving = False
+            self.bus.release()
 
     def enter_fault(self, code, text):
         """An exception escaped the loop (``main.Runner``): enter FAULT, the one place

@@ -7,7 +7,10 @@ Position "feedback" is the last command as output (``feedback = False``: no stal
 detection). A hobby servo cannot say where it is, so at power-on it is assumed at its configured
 rest pose (servo key ``rest_angle``, rad from zero, inside [min_angle, max_angle]; checked by
 config.py and ``ucr check``): the first pulse goes there, and motion starts from it slew-limited.
-No pulse is output before the first command, so the servos stay limp in the boot hold.
+No pulse is output before the first command, so the servos stay limp in the boot hold. After
+``release`` (pulses off: FAULT with ``fault_action`` "release", Ctrl-C) a limp servo may be
+moved by hand or by its tendon, so its last command says nothing any more: it is assumed at its
+rest pose again, as at power-on (``_assume_rest``), and the next motion starts there.
 A target beyond the pulse range is output at min_us/max_us: ``pos`` holds the angle actually
 output and ``saturated`` is set, so the segment reports CLAMPED and the achieved curvature.
 """
@@ -47,8 +50,8 @@ class PwmBus(ServoBus):
         self.pins = pins
         self.pwm = None
         self.hal = hal
-        for i in range(cfg.n):
-            self.pos[i] = cfg.zero[i] + cfg.rest[i]  # assumed: the configured rest pose
+        self.rest = array("i", [cfg.zero[i] + cfg.rest[i] for i in range(cfg.n)])
+        self._assume_rest()
         self.known = True
         self.pulse_ns = array("i", [self.centre_ns] * cfg.n)
 
@@ -96,10 +99,17 @@ class PwmBus(ServoBus):
     def poll(self, now_ms):
         pass  # open loop: pos is the last command, no faults observable (no _refresh call)
 
+    def _assume_rest(self):
+        """Where an undriven servo is assumed: its configured rest pose, inside [min, max]
+        (docs/firmware.md "First motion"); at power-on and after every release."""
+        for i in range(self.n):
+            self.pos[i] = self.rest[i]
+
     def _release(self):
         if self.pwm is not None:
             for p in self.pwm:
                 p.duty_ns(0)  # no pulses: the servos go limp
+        self._assume_rest()  # the last command is no position any more
 
     def _refresh(self, now_ms):
         pass  # open loop: pos is the last command, no faults observable

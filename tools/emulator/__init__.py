@@ -5,7 +5,13 @@ link (plug, throttle, latency, corruption) and can be used on its own; ``Emulato
 runs ``ucr emulate`` in a process of its own (benchmarks of the host side).
 """
 
-from tools.emulator.chain import EmulatedChain, EmulatorError, populate_segment_dir
+from tools.emulator.chain import (
+    NO_CONFIG,
+    EmulatedChain,
+    EmulatorError,
+    default_config,
+    populate_segment_dir,
+)
 from tools.emulator.pipe import Pipe
 from tools.emulator.process import EmulatorProcess
 
@@ -13,6 +19,8 @@ __all__ = [
     "EmulatedChain",
     "EmulatorError",
     "EmulatorProcess",
+    "NO_CONFIG",
     "Pipe",
+    "default_config",
     "populate_segment_dir",
 ]

@@ -27,6 +27,7 @@ import ctypes
 import fcntl
 import json
 import logging
+import math
 import os
 import secrets
 import shutil
@@ -61,6 +62,40 @@ except OSError:  # pragma: no cover - non-glibc platforms
 
 class EmulatorError(RuntimeError):
     """The emulated chain could not be built or used (bad argument, missing firmware, …)."""
+
+
+#: ``config_for`` entry for a segment flashed without any config.json (the same as None): it refuses
+#: to move and says why (docs/firmware.md "Configuration"), as a board does.
+NO_CONFIG = None
+
+
+def default_config() -> dict:
+    """The configuration every segment of a chain gets when no ``config_for`` is given: the
+    paper's segment (316 mm, three tendons 120° apart at 50 mm, 20 mm spool, κ_max = 60°/316 mm,
+    emulated servos at zero offset 0 with a ±π range), written out as its config.json. A
+    segment never runs built-in defaults in place of a missing file; the emulator provisions
+    this explicitly (docs/emulator.md)."""
+    third = 2.0 * math.pi / 3.0
+    return {
+        "name": "segment",
+        "length": 0.316,
+        "tendon_angles": [0.0, third, 2.0 * third],
+        "tendon_radius": 0.05,
+        "spool_radius": 0.02,
+        "kappa_max": (math.pi / 3.0) / 0.316,
+        "servo_driver": "emulated",
+        "servos": [
+            {
+                "id": i,
+                "zero_offset": 0.0,
+                "direction": 1,
+                "min_angle": -math.pi,
+                "max_angle": math.pi,
+            }
+            for i in range(3)
+        ],
+        "watchdog_ms": 200,
+    }
 
 
 ConfigSource = Callable[[int], dict | None] | Sequence[dict | None] | None
@@ -220,10 +255,10 @@ class EmulatedChain:
 
     Parameters: ``workdir`` (segment directories go to ``workdir/seg<N>``, N counted from 1;
     default a temporary directory removed on close), ``firmware_dir`` (default ``device/``),
-    ``protocol_dir`` (default ``protocol/``), ``config_for`` (position -> config dict or None for
-    firmware defaults; or a list), ``faults_for`` (position -> UCR_FAULTS spec), ``uids`` (hex
-    ids; default random but stable for the chain's life), ``heap`` (``-X heapsize``; default the
-    board's heap budget),
+    ``protocol_dir`` (default ``protocol/``), ``config_for`` (position -> config dict, or None =
+    ``NO_CONFIG`` for no config.json at all; or a list; not given: ``default_config()`` for each),
+    ``faults_for`` (position -> UCR_FAULTS spec), ``uids`` (hex ids; default random but stable
+    for the chain's life), ``heap`` (``-X heapsize``; default the board's heap budget),
     ``reuse_dirs`` (keep existing segment directories, e.g. flashed ones, instead of
     repopulating), ``seed`` (corruption RNG), ``board`` (run every segment as this board; default
     each configuration's ``board``, else esp32), ``timing`` (the board's timing model: RTOS-tick
@@ -364,8 +399,10 @@ class EmulatedChain:
 
     @staticmethod
     def _config(config_for: ConfigSource, k: int) -> dict | None:
+        """Segment ``k``'s config.json content; None: no file (``NO_CONFIG``). Without any
+        ``config_for`` every segment gets ``default_config()``, written out."""
         if config_for is None:
-            return None
+            return default_config()
         if callable(config_for):
             return config_for(k)
         return config_for[k]
