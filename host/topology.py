@@ -4,8 +4,10 @@ and compose a robot from descriptors (``--adopt``).
 The bendables of a robot, in chain order, are found by walking the kinematic tree from the root
 link (document order among siblings): position k on the wire is the k-th bendable met.
 
-Differences are reported kind by kind (count, model, geometry, limits, identity, name) with the
-position and both values, so a user knows exactly what to fix. Identity is checked only when the
+Differences are reported kind by kind (count, config, model, geometry, limits, identity, name)
+with the position and both values, so a user knows exactly what to fix. A segment that refused
+its own configuration (its DESCRIPTOR's ``config_error``: none flashed, invalid, too large) holds
+and never moves, whatever is sent: a blocking ``config`` difference, said first. Identity is checked only when the
 U(C)RDF pins it: a ``<hardware>`` param ``<bendable>/uid`` (e.g.
 ``<param name="seg1/uid">a4cf12fe0b3c</param>``) must equal the segment's unique id.
 """
@@ -33,7 +35,7 @@ ABS_TOL = 1e-6
 class Difference:
     """One way the chain differs from the description. ``blocking`` ones stop a start."""
 
-    kind: str  # count | model | geometry | limits | identity | name
+    kind: str  # count | config | model | geometry | limits | identity | name
     position: int | None  # 0-based chain index (None: the whole chain, e.g. a count)
     bendable: str | None
     message: str
@@ -118,6 +120,13 @@ def _diff_one(
     def add(kind: str, msg: str, blocking: bool = True) -> None:
         out.append(Difference(kind, pos, name, f"{label}: {msg}", blocking))
 
+    refused = d.get("config_error")
+    if refused:  # it runs no configuration of ours: the rest of its descriptor is no robot's
+        add(
+            "config",
+            f"the segment refused its configuration ({str(refused)[:120]}) and will not move; "
+            f"flash it: ucr flash --robot ROBOT --segment {name} --port PORT",
+        )
     model = d.get("model")
     if model != b.model.type:
         add("model", f"model {model!r} on the segment, {b.model.type!r} in the description")

@@ -146,6 +146,22 @@ def test_compare_says_exactly_what_differs(robot3):
     assert "declares 3: missing segment_3" in short.differences[0].message
 
 
+def test_compare_blocks_a_segment_that_refused_its_configuration(robot3):
+    """Review: a segment without (or with an invalid) config.json holds and never moves, but the
+    comparison did not say so: the daemon took it under control and its goals only failed their
+    tolerances. Now a blocking `config` difference names it and how to fix it."""
+    descs = descriptors_of(robot3)
+    descs[1]["config_error"] = "no config.json: flash one (ucr flash)"
+    cmp = compare(robot3, descs)
+    assert not cmp.ok and cmp.matched == 1
+    first = cmp.differences[0]
+    assert first.kind == "config" and first.blocking and first.position == 1
+    assert first.message.startswith(
+        "position 2 (segment_2): the segment refused its configuration (no config.json"
+    )
+    assert "ucr flash --robot ROBOT --segment segment_2" in first.message
+
+
 def test_compare_checks_identity_when_the_description_pins_uids(robot3):
     r = copy.deepcopy(robot3)
     r.ros2_control[0].hardware_params["segment_2/uid"] = "deadbeef"
