@@ -7,8 +7,8 @@ link (document order among siblings): position k on the wire is the k-th bendabl
 Differences are reported kind by kind (count, config, model, geometry, limits, identity, name)
 with the position and both values, so a user knows exactly what to fix. A segment that refused
 its own configuration (its DESCRIPTOR's ``config_error``: none flashed, invalid, too large) holds
-and never moves, whatever is sent: a blocking ``config`` difference, said first. Identity is checked only when the
-U(C)RDF pins it: a ``<hardware>`` param ``<bendable>/uid`` (e.g.
+and never moves, whatever is sent: a blocking ``config`` difference, said first. Identity is
+checked only when the U(C)RDF pins it: a ``<hardware>`` param ``<bendable>/uid`` (e.g.
 ``<param name="seg1/uid">a4cf12fe0b3c</param>``) must equal the segment's unique id.
 """
 
