@@ -15,6 +15,31 @@ from typing import Any
 #: the exit code after Ctrl-C
 INTERRUPTED = 130
 
+#: the long-running commands (docs/daemon.md "Stopping"); ``replay --execute`` is a one-shot
+LONG_RUNNING = frozenset(
+    {"daemon", "view", "record", "replay", "foxglove", "zenoh", "zenoh-router", "emulate"}
+)
+
+
+def stop_while_starting() -> None:
+    """SIGTERM while a long-running command starts (the ``ucr`` dispatcher's parser, the
+    command's heavy imports: mcap, zenoh, viser; before it takes SIGTERM and Ctrl-C itself with
+    :class:`StopSignals`) ends it at once with exit 0, as a stop once it runs, not killed (143):
+    what is open by then closes in its ``finally``. Ctrl-C stays ``KeyboardInterrupt`` (130)."""
+    signal.signal(signal.SIGTERM, _stopped_while_starting)
+
+
+def _stopped_while_starting(signum: int, frame: Any) -> None:
+    raise SystemExit(0)
+
+
+def starts_long_running(argv: list[str]) -> bool:
+    """Whether command line ``argv`` (without the program) starts a long-running command."""
+    words = [a for a in argv if not a.startswith("-")]
+    if not words or words[0] not in LONG_RUNNING:
+        return False
+    return not (words[0] == "replay" and "--execute" in argv)
+
 
 class StopSignals:
     """``stop`` is set by SIGTERM or SIGINT; ``interrupted`` by SIGINT only."""

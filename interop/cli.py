@@ -15,6 +15,7 @@ from typing import Any
 
 from host.client_common import number_arg, port_arg
 from host.extras import install_command
+from host.stopsignals import stop_while_starting
 
 _NEEDS = {
     "record": ("mcap", "mcap_ros2", "zstandard"),
@@ -35,6 +36,8 @@ def missing_dependency(command: str) -> str | None:
 
 def _guard(command: str, fn: Any, parser: argparse.ArgumentParser | None = None) -> Any:
     def run(args: argparse.Namespace) -> int:
+        if not getattr(args, "execute", False):  # a one-shot `replay --execute` keeps the default
+            stop_while_starting()  # (tools/cli.py did already for `ucr`; here for direct callers)
         usage = _usage_error(command, args)
         if usage and parser is not None:
             parser.error(usage)  # exit 2, as argparse's own checks
@@ -135,7 +138,8 @@ def _serve(p: argparse.ArgumentParser) -> None:
                    help="allow a non-loopback address without TLS (the token crosses the "
                    "network in clear: trusted networks only)")  # fmt: skip
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
-                   help="browser origin allowed to connect, e.g. https://app.foxglove.dev "
+                   help="browser origin allowed to connect, e.g. https://app.foxglove.dev; "
+                   "file:// or null (with a token only) for Lichtblick / Foxglove desktop "
                    "(repeatable; default none: only clients that send no Origin)")  # fmt: skip
 
 

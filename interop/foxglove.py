@@ -20,7 +20,7 @@ from host.client_common import CliError, connect_daemon
 from host.listen import ListenError, listen_failure
 from host.stopsignals import StopSignals
 from interop.guard import FoxgloveGuard, GuardError
-from interop.live import FeedError, LiveFeed, robot_for
+from interop.live import DaemonLink, FeedError, LiveFeed, robot_for, run_reconnecting
 from interop.sinks import Fanout
 from interop.topics import LATCHED, RobotTopics
 
@@ -116,13 +116,13 @@ def run(args: Any) -> int:
     """The ``ucr foxglove`` command."""
     signals = StopSignals().install()
     try:
-        client = connect_daemon(args)
+        link = DaemonLink(connect_daemon(args))  # the client of the moment: a restart replaces it
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return exc.exit_code
     sink = None
     try:
-        robot, text = robot_for(client, args.robot)
+        robot, text = robot_for(link, args.robot)
         topics = RobotTopics(robot, text, args.subdivisions)
         try:
             sink = sink_from_args(args.host, args.port, args)
@@ -134,8 +134,13 @@ def run(args: Any) -> int:
             return 1
         print(f"ucr: Foxglove WebSocket server on {sink.url} (open it in Foxglove or Lichtblick: "
               "Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)  # fmt: skip
-        feed = LiveFeed(client, topics, Fanout([sink]), viz_rate=args.viz_rate)
-        feed.run(signals.stop, duration=args.duration)
+        out = Fanout([sink])
+        # a daemon restart: the server and its clients stay, the gap marked by two events
+        run_reconnecting(
+            link, lambda client: LiveFeed(client, topics, out, viz_rate=args.viz_rate),
+            signals.stop, lambda: connect_daemon(args), robot_text=text, robot_path=args.robot,
+            duration=args.duration, say=lambda line: print(f"ucr: {line}", file=sys.stderr),
+        )  # fmt: skip
         return signals.exit_code()
     except FeedError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
@@ -146,4 +151,4 @@ def run(args: Any) -> int:
     finally:
         if sink is not None:
             sink.close()
-        client.close()
+        link.close()

@@ -4,8 +4,10 @@ with the same rules as the daemon's API (one implementation: :mod:`host.api.guar
 Host and path, :mod:`host.api.auth` for tokens, the failed-token back-off and the bind policy).
 It is the only listener: no other server runs behind it, so nothing bypasses the checks.
 
-- ``Origin``: refused (403) unless absent (desktop apps, scripts) or listed (``allowed_origins``,
-  e.g. ``https://app.foxglove.dev``): a web page in a local browser cannot read the robot;
+- ``Origin``: refused (403) unless absent (scripts, ROS tools) or listed (``allowed_origins``,
+  e.g. ``https://app.foxglove.dev``; ``file://`` for a desktop app whose page is a local file;
+  ``null`` only with a token: the guard's rule, :mod:`host.api.guard`): a web page in a local
+  browser cannot read the robot;
 - ``Host``: an IP literal or a name of this server (refuses DNS-rebinding pages); path ``/``;
 - TLS: ``tls_cert``/``tls_key`` (PEM; the key file private, mode 0600: the API's rule and code,
   :func:`host.api.auth.server_tls_context`) make it a ``wss://`` server;
@@ -73,7 +75,7 @@ from host.api.auth import (
     find_token,
     server_tls_context,
 )
-from host.api.guard import GuardConfigError, WebGuard
+from host.api.guard import NULL_NEEDS_TOKEN, GuardConfigError, WebGuard
 from interop import foxglove_protocol as P
 from interop import ros2
 
@@ -184,12 +186,14 @@ class FoxgloveGuard:
                 if token is not None
                 else ()
             )
-            self.web = WebGuard.build(bind=host, port=port, origins=allowed_origins, path="/")
+            self.web = WebGuard.build(bind=host, port=port, origins=allowed_origins, path="/",
+                                      token_required=bool(tokens))  # fmt: skip
             if bool(tls_cert) != bool(tls_key):
                 raise AuthConfigError("TLS needs both --tls-cert and --tls-key")
             self._ssl = server_tls_context(tls_cert, tls_key) if tls_cert and tls_key else None
         except (AuthConfigError, GuardConfigError) as exc:
-            raise GuardError(f"Foxglove server: {exc}") from None
+            hint = " (--serve-token-file FILE)" if NULL_NEEDS_TOKEN in str(exc) else ""
+            raise GuardError(f"Foxglove server: {exc}{hint}") from None
         try:
             check_bind(host, tokens, tls=self._ssl is not None, insecure=insecure)  # the API's
         except AuthConfigError:  # its advice names the API's settings: ours are options

@@ -5,9 +5,10 @@ and publishes every topic of :mod:`interop.topics` to a :class:`~interop.sinks.F
 Runs in the recorder's or the Foxglove server's own process: the daemon never waits for it (a
 slow feed loses stream messages in the daemon's per-client outbox, counted, never a cycle).
 
-A long-running client that outlives the daemon (``ucr zenoh``) keeps a :class:`DaemonLink` and
-connects again with :func:`host.api.reconnect.reconnect`, the back-off ``ucr view``'s live
-source uses too.
+A long-running client that outlives the daemon (``ucr zenoh``, ``ucr record``, ``ucr foxglove``)
+keeps a :class:`DaemonLink` and connects again with :func:`host.api.reconnect.reconnect`, the
+back-off ``ucr view``'s live source uses too (:func:`run_reconnecting`: the recorder and the
+Foxglove server go on into the same outputs and mark the gap with two events).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from host.api.client_errors import ApiConnectionError, ApiError
+from host.api.client_errors import ApiConnectionError, ApiError, ApiTimeoutError
 from host.errors import not_utf8
 from interop.sinks import Fanout, channels_of
 from interop.topics import TOPICS, CommandedGoals, Message, RobotTopics, commanded
@@ -119,6 +120,11 @@ def next_due(due: float, period: float, now: float) -> float:
     return nxt if nxt > now else now + period
 
 
+#: A change of the wall clock against the monotonic one above this (s) is a step (NTP setting the
+#: clock: ntpd steps from 0.128 s, chrony and timesyncd likewise), which every stamp follows
+CLOCK_STEP_S = 0.1
+
+
 def _everything(topic: str) -> bool:
     """``wants`` of an output that takes every topic (one without the method)."""
     return True
@@ -150,22 +156,43 @@ class LiveFeed:
         self.js_rate = js_rate
         self.status_period = status_period
         self.goal_period = goal_period
-        self._offset: float | None = None  # wall - daemon monotonic (s)
+        self._mono_offset: float | None = None  # this host's monotonic - the daemon's (s)
+        self._offset: float | None = None  # wall - this host's monotonic (s), steps followed
         self._goals: dict[str, dict] = {}
         self._topology_changed = False
         self.dropped = 0
 
     def _t_ns(self, t_daemon: float | None) -> int:
-        """Wall-clock stamp (ns) of a daemon monotonic time: same host -> the local offset;
-        otherwise estimated once from the first message's arrival."""
-        now = time.time()
+        """Wall-clock stamp (ns) of a daemon monotonic time (None: now), the one stamping path
+        of every topic. The daemon's monotonic clock is mapped onto this host's (same host: the
+        same clock; another host: the difference estimated once, from the first message's
+        arrival: monotonic clocks do not step), then onto the wall clock by the wall-minus-
+        monotonic offset (:meth:`_wall_offset`), checked at each message: after a wall-clock
+        step (NTP setting the clock of a Pi without RTC) every topic follows it at once, and no
+        two topics disagree by the step."""
+        offset = self._wall_offset()
         if t_daemon is None:
-            return int(now * 1e9)
-        if self._offset is None:
+            return int((time.monotonic() + offset) * 1e9)
+        if self._mono_offset is None:
             local = time.monotonic()
             same_clock = abs(local - t_daemon) < 1.0
-            self._offset = (now - local) if same_clock else (now - t_daemon)
-        return int((t_daemon + self._offset) * 1e9)
+            self._mono_offset = 0.0 if same_clock else local - t_daemon
+        return int((t_daemon + self._mono_offset + offset) * 1e9)
+
+    def _wall_offset(self) -> float:
+        """Wall clock minus this host's monotonic clock (s), read now; a change of more than
+        :data:`CLOCK_STEP_S` (a step) is taken, a smaller one (a synchronised clock's slew, the
+        jitter of reading two clocks) is not: consecutive stamps keep the daemon's own spacing,
+        the one the joint states' velocities are computed on."""
+        m1 = time.monotonic()
+        wall = time.time()
+        m2 = time.monotonic()
+        fresh = wall - (m1 + m2) / 2
+        if self._offset is None or (
+            m2 - m1 < CLOCK_STEP_S / 2 and abs(fresh - self._offset) > CLOCK_STEP_S
+        ):
+            self._offset = fresh
+        return self._offset
 
     def _poll_goals(self, status: dict) -> list[Message]:
         """The goal messages of this poll: each goal newly running, each goal that ended."""
@@ -308,3 +335,95 @@ class LiveFeed:
             if kind == "topology":
                 self._topology_changed = True  # re-read with the next status poll
         return next_viz
+
+
+#: What ends a feed because the daemon went away (stopped, restarted, unreachable): connect again
+LOST = (ApiConnectionError, ApiTimeoutError, StopIteration, ConnectionError)
+
+
+def run_reconnecting(
+    link: DaemonLink,
+    make_feed: Callable[[Any], LiveFeed],
+    stop: threading.Event,
+    connect: Callable[[], Any],
+    *,
+    robot_text: str,
+    robot_path: str | None,
+    duration: float | None = None,
+    on_tick: Callable[[], None] | None = None,
+    say: Callable[[str], None] = print,
+) -> int:
+    """Run ``make_feed(client)`` until ``stop`` or ``duration`` (s); when the daemon goes away (a
+    restart: systemd starts it again 3 s after a failure) say so, publish a ``daemon_lost`` event
+    (/rosout, /ucr/events), connect again with :func:`host.api.reconnect.reconnect` (``connect()``
+    makes a client), publish ``daemon_reconnected`` (with the gap in s) and go on into the same
+    outputs. A daemon back with another robot (its text differs from ``robot_text``) ends it with
+    FeedError. Returns the stream messages dropped. ``on_tick`` runs while waiting too (a
+    recording's chunks are still flushed, its progress line goes on)."""
+    end = None if duration is None else time.monotonic() + duration
+    dropped = 0
+    while True:
+        feed = make_feed(link.client)
+        left = None if end is None else max(0.0, end - time.monotonic())
+        try:
+            feed.run(stop, duration=left, on_tick=on_tick)
+            return dropped + feed.dropped
+        except LOST as exc:
+            why = str(exc) or "the connection closed"
+        if stop.is_set() or (end is not None and time.monotonic() >= end):
+            return dropped
+        lost_at = time.monotonic()
+        link.lost(why)
+        say(f"lost the daemon ({why}); reconnecting, the outputs stay open")
+        _gap_event(feed, "daemon_lost", f"lost the daemon ({why}); reconnecting")
+        client = _wait_for_daemon(link, feed, stop, end, connect, on_tick, say)
+        if client is None:
+            return dropped
+        link.replace(client)
+        _robot, text = robot_for(client, robot_path)
+        if text != robot_text:
+            raise FeedError("the daemon came back with another robot file: stopped (the "
+                            "outputs hold the robot until then)")  # fmt: skip
+        gap = time.monotonic() - lost_at
+        say(f"reconnected to the daemon at {getattr(client, 'url', '?')} after {gap:.1f} s")
+        text = f"reconnected to the daemon after {gap:.1f} s without data"
+        _gap_event(feed, "daemon_reconnected", text, gap_s=round(gap, 3))
+
+
+def _wait_for_daemon(
+    link: DaemonLink,
+    feed: LiveFeed,
+    stop: threading.Event,
+    end: float | None,
+    connect: Callable[[], Any],
+    on_tick: Callable[[], None] | None,
+    say: Callable[[str], None],
+) -> Any:
+    """A new client of the daemon (the back-off of :func:`host.api.reconnect.reconnect`), or
+    None once ``stop`` is set or the duration ``end`` (monotonic s) passed."""
+    from host.api.reconnect import reconnect  # noqa: PLC0415
+
+    halt = threading.Event()
+
+    def tick() -> None:
+        if stop.is_set() or (end is not None and time.monotonic() >= end):
+            halt.set()
+        feed.out.tick()
+        if on_tick is not None:
+            on_tick()
+
+    def retry(reason: str, attempt: int, next_s: float) -> None:
+        link.why = f"{reason} (attempt {attempt}, next in {next_s:.1f} s)"
+        if attempt <= 3 or attempt % 12 == 0:  # about once a minute after the first ones
+            say(f"daemon still away: {link.why}")
+
+    back = reconnect(connect, halt, retry, tick=tick, tick_s=0.1)
+    return None if back is None else back[0]
+
+
+def _gap_event(feed: LiveFeed, name: str, text: str, **extra: Any) -> None:
+    """A gap in the live data as an event on /rosout and /ucr/events (as the daemon's own)."""
+    t_ns = feed._t_ns(None)
+    ev = {"kind": "event", "event": name, "message": text, **extra}
+    for m in feed.topics.event(ev, t_ns):
+        feed.out.publish(m)

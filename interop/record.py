@@ -21,7 +21,7 @@ from host.api.client import ApiError
 from host.client_common import CliError, connect_daemon
 from host.stopsignals import INTERRUPTED, StopSignals
 from interop import ros2
-from interop.live import FeedError, LiveFeed, robot_for
+from interop.live import DaemonLink, FeedError, LiveFeed, robot_for, run_reconnecting
 from interop.sinks import Fanout
 from interop.topics import LATCHED, RobotTopics
 from ucrdf.errors import UcrdfError
@@ -215,13 +215,13 @@ def run(args: Any) -> int:
         print(f"ucr: {refusal}", file=sys.stderr)
         return 1
     try:
-        client = connect_daemon(args)
+        link = DaemonLink(connect_daemon(args))  # the client of the moment: a restart replaces it
     except CliError as exc:
         print(f"ucr: {exc}", file=sys.stderr)
         return exc.exit_code
     sinks: list[Any] = []
     try:
-        robot, text = robot_for(client, args.robot)
+        robot, text = robot_for(link, args.robot)
         topics = RobotTopics(robot, text, args.subdivisions)
         host, port = foxglove_address(args)
         if port is not None:  # before the file: a refused address or port leaves no file behind
@@ -255,8 +255,16 @@ def run(args: Any) -> int:
 
         out = Fanout(sinks, on_drop=on_drop)
         progress = Progress(sink)
-        feed = LiveFeed(client, topics, out, viz_rate=args.viz_rate)
-        feed.run(stop, duration=args.duration, on_tick=progress)
+
+        def say(line: str) -> None:  # below the progress line written in place
+            print(f"{chr(10) if progress.tty else ''}ucr: {line}", file=sys.stderr, flush=True)
+
+        # a daemon restart: the same file goes on, the gap marked by two events (docs)
+        dropped = run_reconnecting(
+            link, lambda client: LiveFeed(client, topics, out, viz_rate=args.viz_rate), stop,
+            lambda: connect_daemon(args), robot_text=text, robot_path=args.robot,
+            duration=args.duration, on_tick=progress, say=say,
+        )  # fmt: skip
         if not failed:
             try:
                 sink.close()  # the summary, fsynced: may fail as any write
@@ -268,8 +276,8 @@ def run(args: Any) -> int:
                   file=sys.stderr)  # fmt: skip
             return 1
         progress(final=True)
-        if feed.dropped:
-            print(f"ucr: {feed.dropped} stream messages were dropped (recorder too slow)",
+        if dropped:
+            print(f"ucr: {dropped} stream messages were dropped (recorder too slow)",
                   file=sys.stderr)  # fmt: skip
         if interrupted.is_set():
             print(f"ucr: interrupted (Ctrl-C): {sink.path} closed", file=sys.stderr)
@@ -289,4 +297,4 @@ def run(args: Any) -> int:
                 s.close()
             except OSError:  # the file sink's failure is reported above
                 pass
-        client.close()
+        link.close()

@@ -13,6 +13,7 @@ import os
 import sys
 
 from host.extras import MissingPart
+from host.stopsignals import starts_long_running, stop_while_starting
 
 _AREAS = (
     "ucrdf.cli",
@@ -46,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if starts_long_running(sys.argv[1:] if argv is None else argv):
+        stop_while_starting()  # SIGTERM while its parser is built and it starts: exit 0, not 143
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:  # the command's own usage, not the dispatcher's (`ucr status --bogus`)

@@ -6,7 +6,12 @@ A web page the user visits can open a WebSocket to any address the browser reach
 cannot be reached from a page it did not allow:
 
 - ``Origin``: absent (not a browser: the Python client, ``ucr``, curl) or one of the configured
-  origins (exact ``scheme://host[:port]``). None are allowed by default; ``null`` never is.
+  origins (exact ``scheme://host[:port]``). None are allowed by default. Two origins are no web
+  site's and may be configured as they are: ``file://`` (a page loaded from a local file in a
+  desktop app built on Electron, e.g. Lichtblick or Foxglove desktop: no web page can send it)
+  and ``null`` (Chromium's opaque origin for such a page, but also what a sandboxed iframe of
+  any web site sends: allowed only on a server that requires a token, else refused when the
+  guard is configured, :data:`NULL_NEEDS_TOKEN`).
 - ``Host``: an IP literal, ``localhost``, or one of the configured names (what the server is bound
   to and known as), with the server's port if a port is given. A rebinding attacker's name is
   none of these.
@@ -38,11 +43,31 @@ class Refusal:
     reason: str
 
 
+#: The origin of a page loaded from a local file, as Electron sends it (no web page can send it).
+FILE_ORIGIN = "file://"
+#: The opaque origin: a local file's page in Chromium, and a sandboxed iframe of any web site.
+NULL_ORIGIN = "null"
+#: Why ``null`` is refused on a server without a token (one rule for every surface).
+NULL_NEEDS_TOKEN = (
+    "origin 'null' is allowed only with a token: a sandboxed iframe of any web site sends it "
+    "too. Require a token (clients then present it), or allow 'file://' if the desktop app "
+    "sends that"
+)
+
+
 def normalize_origin(origin: str) -> str:
-    """``scheme://host[:port]`` lower-cased, default ports dropped; GuardConfigError if not one."""
-    parts = urlsplit(origin.strip())
+    """``scheme://host[:port]`` lower-cased, default ports dropped; ``file://`` (also written
+    ``file:///``) and ``null`` as they are; GuardConfigError for anything else."""
+    text = origin.strip()
+    if text.lower() == NULL_ORIGIN:
+        return NULL_ORIGIN
+    if text.lower() in (FILE_ORIGIN, FILE_ORIGIN + "/"):
+        return FILE_ORIGIN
+    parts = urlsplit(text)
     if parts.scheme not in ("http", "https") or not parts.hostname:
-        raise GuardConfigError(f"origin {origin!r}: expected http(s)://host[:port]")
+        raise GuardConfigError(
+            f"origin {origin!r}: expected http(s)://host[:port], file:// or null"
+        )
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username:
         raise GuardConfigError(f"origin {origin!r}: only scheme, host and port are allowed")
     host = parts.hostname.lower()
@@ -135,11 +160,14 @@ class WebGuard:
         origins: Iterable[str] = (),
         names: Iterable[str] = (),
         path: str = "/",
+        token_required: bool = False,
     ) -> WebGuard:
-        """A guard for a server bound to ``bind``: configured ``origins`` and extra ``names``."""
+        """A guard for a server bound to ``bind``: configured ``origins`` and extra ``names``.
+        ``token_required``: every client of the server must present a token; without it the
+        origin ``null`` is refused (:data:`NULL_NEEDS_TOKEN`)."""
         allowed = frozenset(normalize_origin(o) for o in origins)
-        if "null" in allowed:  # pragma: no cover - normalize_origin refuses it
-            raise GuardConfigError("origin 'null' cannot be allowed")
+        if NULL_ORIGIN in allowed and not token_required:
+            raise GuardConfigError(NULL_NEEDS_TOKEN)
         extra = set()
         for n in names:
             parsed = _split_host(n)
@@ -166,7 +194,7 @@ class WebGuard:
             try:
                 allowed = normalize_origin(origin) in self.origins
             except GuardConfigError:
-                allowed = False  # "null", a file:// page, garbage
+                allowed = False  # garbage, another scheme
             if not allowed:
                 return Refusal(403, f"origin {origin[:100]!r} is not allowed")
         hosts = _all(headers, "Host")

@@ -26,6 +26,9 @@ def missing_dependency() -> str | None:
 
 def _guard(fn: Any) -> Any:
     def run(args: argparse.Namespace) -> int:
+        from host.stopsignals import stop_while_starting  # noqa: PLC0415 - light
+
+        stop_while_starting()  # SIGTERM during the imports below: exit 0, not 143
         mod = missing_dependency()
         if mod:
             print(
