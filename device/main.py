@@ -252,17 +252,29 @@ def run(tick_ms=None):
             w = r.once()
             if w:
                 hal.wait(w)
-    except KeyboardInterrupt:
-        # Ctrl-C (mpremote, ucr flash): the REPL takes over. Servos safe first; then a watchdog
-        # that cannot be stopped (machine.WDT) is fed by a timer, or it would reset the board
-        # in the REPL, in the middle of a flash (docs/flashing.md "Hardware watchdog")
+    except KeyboardInterrupt as e:
+        to_repl(seg, dog, hal)
+        raise e
+
+
+def to_repl(seg, dog, hal):
+    """Ctrl-C (mpremote, ucr flash) ended the loop: the REPL takes over. A watchdog that cannot
+    be stopped (machine.WDT) is fed by a timer (tiny, so first), or it would reset the board in
+    the REPL, mid-flash (docs/flashing.md "Hardware watchdog"); the servos go to their safe
+    state. A second Ctrl-C meanwhile (ucr flash sends two; people double-tap) starts it again."""
+    for _ in range(3):
         try:
+            if dog is not None:
+                import wdt
+
+                wdt.keep_fed(dog, seg.cfg.hw_watchdog_ms, hal)
             seg.stop_for_repl()
+            return
+        except KeyboardInterrupt:
+            pass
         except Exception as e:  # noqa: BLE001 - the REPL must still come; say why
             print("[main] safe stop failed:", e)
-        if dog is not None:
-            wdt.keep_fed(dog, seg.cfg.hw_watchdog_ms, hal)
-        raise
+            return
 
 
 if __name__ == "__main__":

@@ -38,7 +38,9 @@ def starts_long_running(argv: list[str]) -> bool:
     words = [a for a in argv if not a.startswith("-")]
     if not words or words[0] not in LONG_RUNNING:
         return False
-    return not (words[0] == "replay" and "--execute" in argv)
+    # `--execute` as argparse takes it: any prefix of it (replay has no other --e option)
+    one_shot = any(len(a) > 3 and "--execute".startswith(a.split("=")[0]) for a in argv)
+    return not (words[0] == "replay" and one_shot)
 
 
 class StopSignals:

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import math
 import os
+import signal
 import sys
 from typing import Any
 
@@ -36,7 +37,9 @@ def missing_dependency(command: str) -> str | None:
 
 def _guard(command: str, fn: Any, parser: argparse.ArgumentParser | None = None) -> Any:
     def run(args: argparse.Namespace) -> int:
-        if not getattr(args, "execute", False):  # a one-shot `replay --execute` keeps the default
+        if getattr(args, "execute", False):  # a one-shot: SIGTERM's default action, also when
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)  # ucr took it for `--exec` (abbreviated)
+        else:
             stop_while_starting()  # (tools/cli.py did already for `ucr`; here for direct callers)
         usage = _usage_error(command, args)
         if usage and parser is not None:

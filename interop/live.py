@@ -370,17 +370,25 @@ def run_reconnecting(
             return dropped + feed.dropped
         except LOST as exc:
             why = str(exc) or "the connection closed"
+        dropped += feed.dropped  # (each connection's feed counts its own)
         if stop.is_set() or (end is not None and time.monotonic() >= end):
             return dropped
         lost_at = time.monotonic()
         link.lost(why)
         say(f"lost the daemon ({why}); reconnecting, the outputs stay open")
         _gap_event(feed, "daemon_lost", f"lost the daemon ({why}); reconnecting")
-        client = _wait_for_daemon(link, feed, stop, end, connect, on_tick, say)
-        if client is None:
-            return dropped
-        link.replace(client)
-        _robot, text = robot_for(client, robot_path)
+        while True:  # until a daemon answers the robot check too (it may drop again meanwhile)
+            client = _wait_for_daemon(link, feed, stop, end, connect, on_tick, say)
+            if client is None:
+                return dropped
+            link.replace(client)
+            try:
+                _robot, text = robot_for(client, robot_path)
+                break
+            except LOST as exc:
+                why = str(exc) or "the connection closed"
+                link.lost(why)
+                say(f"lost the daemon again ({why}); reconnecting")
         if text != robot_text:
             raise FeedError("the daemon came back with another robot file: stopped (the "
                             "outputs hold the robot until then)")  # fmt: skip

@@ -30,6 +30,8 @@ MAX_SEGMENTS = 64
 #: shortest time between waypoints (s), and from the start to the first: shorter pieces are
 #: numerically unsound (the cJTC refuses them too: host/controllers/waypoints.py)
 MIN_POINT_GAP_S = 1e-3
+#: float rounding of times written with a few decimals: 1 ms written as 1.000 -> 1.001 counts
+TIME_EPS_S = 1e-9
 MAX_RATE_HZ = 1000.0
 MIN_RATE_HZ = 0.1  # a subscription's max_rate: at least one message per 10 s (1e-300 never sent)
 MAX_UPLOADS = 4  # chunked uploads in progress on one connection
@@ -212,7 +214,7 @@ def validate_points(
                 f"{where}.time_from_start",
                 f"times must increase strictly ({t:g} s after {last_t:g} s)",
             )
-        if t - last_t < MIN_POINT_GAP_S:
+        if t - last_t < MIN_POINT_GAP_S - TIME_EPS_S:  # (1.001 - 1.0 is 0.99999... ms)
             after = "the start" if last_t == 0.0 else f"the point before ({last_t:g} s)"
             raise _bad(
                 f"{where}.time_from_start",

@@ -231,7 +231,7 @@ class CurvatureTrajectory:
     def position(self, t: float) -> list[list[float]]:
         """Position only (J lists of [kx, ky]) at absolute time ``t``: the per-cycle fast path."""
         tau = t - self.t0
-        if tau < self._stop_end:
+        if self._stop is not None and tau < self._stop_end:
             out = [list(r) for r in self._position(tau)]  # a copy: _final_list is shared
             ramp = self._stop.position(max(tau, 0.0))
             for c in self._stop_cols:
@@ -252,7 +252,7 @@ class CurvatureTrajectory:
         """Position, velocity, acceleration (each (J, 2)) at absolute time ``t``."""
         tau = t - self.t0
         p, v, a = self._sample(tau)
-        if tau < self._stop_end:
+        if self._stop is not None and tau < self._stop_end:
             rp, rv, ra = self._stop.sample(max(tau, 0.0))
             cols = self._stop_cols
             p[cols], v[cols], a[cols] = rp[cols], rv[cols], ra[cols]

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from host.api.schema import MIN_POINT_GAP_S
+from host.api.schema import MIN_POINT_GAP_S, TIME_EPS_S
 from host.controllers.base import ControllerError
 from host.limits import BendableLimits, Problems, kappa_exceeds
 
@@ -108,7 +108,7 @@ def parse_waypoints(
                 f"trajectory point {n}: time_from_start {t} s must be > {prev_t} s (strictly "
                 "increasing, first > 0)"
             )
-        elif t - prev_t < MIN_PIECE_S:
+        elif t - prev_t < MIN_PIECE_S - TIME_EPS_S:  # exactly 1 ms written in decimals passes
             after = "the start" if prev_t == 0.0 else "the previous point"
             problems.add(
                 f"trajectory point {n}: time_from_start {t} s is {(t - prev_t) * 1e3:.3g} ms "

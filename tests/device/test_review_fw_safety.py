@@ -102,6 +102,32 @@ def test_ctrl_c_leaves_the_servos_safe_and_keeps_the_hardware_watchdog_fed(vm, a
         assert all(p > 0 for p in r["after"])  # held where they are
 
 
+def test_a_second_ctrl_c_during_the_safe_stop_still_feeds_the_watchdog_and_stops(vm):
+    """Code review: ``ucr flash`` sends two Ctrl-C and people double-tap; a second one while the
+    servos were being made safe (a Feetech torque-off takes a while) escaped the handler before
+    the watchdog's feeder started: the board reset in the REPL. Now the handler starts again."""
+    sync = M.encode_sync(1, 1, [(3.0, 0.3)]).hex()
+    cfg = PWM_CFG % ("hold", ", 'hw_watchdog_ms': 300")
+    code = _RUN.replace(
+        "hal.wait = wait\n",
+        "hal.wait = wait\n"
+        "stop = seg.stop_for_repl\n"
+        "calls = [0]\n"
+        "def twice():\n"
+        "    calls[0] += 1\n"
+        "    if calls[0] == 1:\n"
+        "        raise KeyboardInterrupt  # the second Ctrl-C, mid-stop\n"
+        "    stop()\n"
+        "seg.stop_for_repl = twice\n",
+    )
+    code += "R['stop_calls'] = calls[0]\n"
+    r = vm(code % (cfg, sync), heap="4m")
+    assert r["interrupt"] and r["stop_calls"] == 2, r
+    assert r.get("timer") == [1, 100], r  # the feeder runs
+    assert r["feeds_by_timer"] == 3
+    assert r["hold"] and not r["still_moving"]
+
+
 def test_without_a_hardware_watchdog_ctrl_c_starts_no_timer(vm):
     sync = M.encode_sync(1, 1, [(3.0, 0.3)]).hex()
     r = vm(_RUN % (PWM_CFG % ("hold", ""), sync), heap="4m")

@@ -295,3 +295,21 @@ def test_the_cffc_setpoint_stays_in_the_phi_sector_and_slides_along_its_edge():
     # exactly midway, the edge on the side the setpoint came from
     assert clamp_to_sector(-2.0, 0.0, *PHI_RANGE, prefer=_polar(1.0, -100))[1] < 0
     assert clamp_to_sector(-2.0, 0.0, *PHI_RANGE, prefer=_polar(1.0, 100))[1] > 0
+
+
+def test_goals_replaced_before_they_start_do_not_break_the_cycle():
+    """Code review of the stop-ramp change: a path asked for a time before its start (tau < 0:
+    a goal replaced during its 50 ms lead, which a client streaming goal updates does) took the
+    stop-ramp branch of a path without one and raised AttributeError in every cycle until the
+    next goal started. Goals replaced every 20 ms with the daemon's 50 ms lead now run."""
+    m, hwi, jtc, t = _motion_moving()
+    k = 1.0
+    for _ in range(5):  # as host/motion.py send_trajectory: start = now + 50 ms lead
+        s = jtc.goal_snapshot(t + 0.05)
+        g, tr = jtc.build_goal([{"t": 1.0, "segments": {"segment_1": {"kappa": k, "phi": 0.0}}}], s)
+        jtc.install_goal(g, tr, s, t)
+        k += 0.1
+        for _ in range(2):
+            t += DT
+            jtc.update(_state(t, [hwi.cmd["segment_1"][0], 0.0]), DT)
+    assert jtc.current_goal is not None and jtc.current_goal.state == "executing"

@@ -48,6 +48,8 @@ sys.exit(cli.main(sys.argv[1:]))
         (["record", "--help"], 0),
         (["daemon", "--help"], 0),
         (["replay", "x.mcap", "--execute"], -signal.SIGTERM),  # a one-shot: killed, as before
+        # abbreviated (argparse takes it): ucr takes SIGTERM for `replay`, replay gives it back
+        (["replay", "x.mcap", "--exec", "--go"], -signal.SIGTERM),
         (["status"], -signal.SIGTERM),  # not long-running: the default action
     ],
 )

@@ -173,3 +173,15 @@ def test_the_file_check_refuses_points_closer_than_the_daemon_accepts(tmp_path, 
     f.write_text("- {t: 0.0005, segments: {s1: {kappa: 1}}}\n")
     assert ucr(["trajectory", str(f), "--check"]) == 1
     assert "0.5 ms after the start; at least 1 ms between points" in capsys.readouterr().err
+
+
+def test_points_exactly_1_ms_apart_in_decimals_are_accepted() -> None:
+    # code review: 1.0 then 1.001 is 0.99999... ms in floats and was refused by the schema and
+    # the cJTC alike ("1 ms after the point before; at least 1 ms between points")
+    from host.api.schema import validate_points
+
+    pts = [
+        {"t": 1.0 + i * 0.001, "segments": {"s1": {"kappa": 1.0 + i * 0.001}}} for i in range(50)
+    ]
+    assert len(validate_points(pts)) == 50
+    _parse(pts)  # the daemon's own check: no ControllerError
