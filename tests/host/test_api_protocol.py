@@ -54,17 +54,19 @@ class FacadeStub:
         n = 0
         while not self._stop.wait(self.period):
             n += 1
-            self.publish(
-                {
-                    "kind": "joint_states",
-                    "t": time.monotonic(),
-                    "seq": n,
-                    "names": ["s1"],
-                    "kappa": [0.0],
-                    "phi": [0.0],
-                    "pad": self.pad,
-                }
-            )
+            self.publish(self.joint_state(n))
+
+    def joint_state(self, n: int) -> dict:
+        """The ``n``-th joint_states message the publishing loop sends (on the daemon's clock)."""
+        return {
+            "kind": "joint_states",
+            "t": time.monotonic(),
+            "seq": n,
+            "names": ["s1"],
+            "kappa": [0.0],
+            "phi": [0.0],
+            "pad": self.pad,
+        }
 
     def publish(self, msg: dict) -> None:
         with self.lock:

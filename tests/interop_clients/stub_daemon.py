@@ -1,51 +1,30 @@
 """A daemon facade in memory for the interop clients' tests that need no emulated chain: the
 API's contract (what :class:`host.api.server.ApiServer` calls) for softrobot2, joint states at
 ``publish_hz`` on the daemon's clock (``time.monotonic``), no goals. Served by a real
-ApiServer, so ``ucr record`` / ``ucr foxglove`` run against it as their own processes."""
+ApiServer, so ``ucr record`` / ``ucr foxglove`` run against it as their own processes. The
+facade's mechanics (publishing loop, subscriptions) are the API tests' ``FacadeStub``."""
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 from pathlib import Path
+
+from tests.host.test_api_protocol import FacadeStub
 
 REPO = Path(__file__).resolve().parents[2]
 ROBOT_FILE = REPO / "robots" / "softrobot2.ucrdf"
 NAMES = ["segment_1", "segment_2"]
 
 
-class StubDaemon:
+class StubDaemon(FacadeStub):
     def __init__(self, publish_hz: float = 50.0) -> None:
-        self.lock = threading.Lock()
-        self.subscribers: list[tuple[set[str], queue.Queue]] = []
-        self.period = 1.0 / publish_hz
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._publish_loop, daemon=True)
-        self._thread.start()
+        super().__init__(publish_hz=publish_hz)
 
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
+    def joint_state(self, n: int) -> dict:
+        return {"kind": "joint_states", "t": time.monotonic(), "seq": n,
+                "names": NAMES, "kappa": [0.5, 0.5], "phi": [0.0, 0.0]}  # fmt: skip
 
-    def _publish_loop(self) -> None:
-        n = 0
-        while not self._stop.wait(self.period):
-            n += 1
-            self.publish({"kind": "joint_states", "t": time.monotonic(), "seq": n,
-                          "names": NAMES, "kappa": [0.5, 0.5], "phi": [0.0, 0.0]})  # fmt: skip
-
-    def publish(self, msg: dict) -> None:
-        with self.lock:
-            subs = list(self.subscribers)
-        for kinds, q in subs:
-            if msg["kind"] in kinds:
-                try:
-                    q.put_nowait(msg)
-                except queue.Full:
-                    pass
-
-    # --- facade
+    # --- facade (softrobot2's)
     def status(self) -> dict:
         js = {n: {"kappa": 0.5, "phi": 0.0, "valid": True} for n in NAMES}
         return {"state": "connected", "robot": "softrobot2", "port": "loop://", "rate_hz": 50.0,
@@ -58,16 +37,3 @@ class StubDaemon:
 
     def loop_stats(self) -> dict:
         return {"rate_hz": 50.0}
-
-    def controllers(self) -> list[dict]:
-        return [{"name": "jtc", "state": "active"}]
-
-    def subscribe(self, kinds: list[str]) -> queue.Queue:
-        q: queue.Queue = queue.Queue(maxsize=500)
-        with self.lock:
-            self.subscribers.append((set(kinds), q))
-        return q
-
-    def unsubscribe(self, q: queue.Queue) -> None:
-        with self.lock:
-            self.subscribers = [(k, x) for k, x in self.subscribers if x is not q]
