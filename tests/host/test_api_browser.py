@@ -3,8 +3,6 @@ cannot talk to the API; the configured origin can (issue 13, finding 2)."""
 
 from __future__ import annotations
 
-import importlib.util
-import shutil
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
@@ -14,13 +12,6 @@ from host.api.server import ApiServer
 
 pytestmark = pytest.mark.timeout(120)
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-if CHROMIUM is None:
-    pytest.skip("no chromium executable (apt-get install chromium)", allow_module_level=True)
-if importlib.util.find_spec("playwright") is None:
-    pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
-
-from playwright.sync_api import sync_playwright  # noqa: E402
 from test_api_protocol import FacadeStub  # noqa: E402 - the in-memory facade
 
 PAGE = """<!doctype html><meta charset="utf-8"><title>page</title><script>
@@ -52,14 +43,6 @@ def _page_server(page: dict[str, bytes]) -> ThreadingHTTPServer:
     srv = ThreadingHTTPServer(("127.0.0.1", 0), Page)
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     return srv
-
-
-@pytest.fixture
-def browser():
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        yield b
-        b.close()
 
 
 def _visit(browser, url: str):

@@ -5,10 +5,8 @@ worker does (``new WebSocket(url, ["foxglove.websocket.v1"])``) once its origin 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
-import shutil
 
 import pytest
 
@@ -20,13 +18,6 @@ from .stub_daemon import ROBOT_FILE, StubDaemon
 pytestmark = pytest.mark.timeout(180)
 
 pytest.importorskip("mcap_ros2", reason="the 'record' extra (mcap-ros2-support) is not installed")
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-if CHROMIUM is None:
-    pytest.skip("no chromium executable (apt-get install chromium)", allow_module_level=True)
-if importlib.util.find_spec("playwright") is None:
-    pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
-
-from playwright.sync_api import sync_playwright  # noqa: E402
 
 TOKEN = "desktop-viewer-token-0123"
 PAGE = """<!doctype html><meta charset="utf-8"><title>desktop</title><script>
@@ -39,14 +30,6 @@ ws.onmessage = (e) => {
 ws.onerror = () => { if (window.result === undefined) window.result = "refused"; };
 ws.onclose = () => { if (window.result === undefined) window.result = "refused"; };
 </script>"""
-
-
-@pytest.fixture
-def browser():
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        yield b
-        b.close()
 
 
 @pytest.fixture

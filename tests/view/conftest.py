@@ -4,23 +4,14 @@ app on it, and headless Chromium (Debian's /usr/bin/chromium) driven by Playwrig
 from __future__ import annotations
 
 import pytest
-from view_helpers import CHROMIUM_ARGS, ROBOT, chromium_path
+from view_helpers import ROBOT
 
 
 @pytest.fixture(scope="session")
-def browser():
+def browser(browser):
+    """The suite's headless Chromium (tests/conftest.py), for pages of the view extra (viser)."""
     pytest.importorskip("viser", reason="the view extra (viser) is not installed")
-    path = chromium_path()
-    if path is None:
-        pytest.skip("no chromium: install Debian's `chromium` package (apt-get install chromium)")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ModuleNotFoundError:
-        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=path, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
+    return browser
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,9 @@
 """Helpers shared by the view tests (imported as ``view_helpers``: pytest puts this directory on
-sys.path): the robot file, a pretend daemon's topology of it, Chromium's location and flags,
-waiting."""
+sys.path): the robot file, a pretend daemon's topology of it, waiting (Chromium: the suite's
+``browser`` fixture, tests/conftest.py)."""
 
 from __future__ import annotations
 
-import os
-import shutil
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -13,14 +11,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 ROBOT = ROOT / "robots" / "softrobot3.ucrdf"
 NAMES = ["segment_1", "segment_2", "segment_3"]
-CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
-
-
-def chromium_path() -> str | None:
-    for cand in (os.environ.get("UCR_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium")):
-        if cand and Path(cand).is_file():
-            return cand
-    return None
 
 
 def wait_for(cond, timeout: float, step: float = 0.05) -> bool:
