@@ -534,6 +534,8 @@ class TopologyFollower:
         t_ready = time.monotonic()
         if len(self.hwi.names) < len(before):
             self._note_flap(t_ready)  # a segment lost: taken back only once it answers steadily
+        elif rejoin and len(self.hwi.names) > len(before):
+            self.rejoins += 1
         self.hotplug_log.append(
             {
                 "t": t_detect,

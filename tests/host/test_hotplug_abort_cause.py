@@ -186,6 +186,7 @@ def test_a_change_at_the_tip_leaves_a_goal_on_other_segments_running(opened):
     )
     assert d.hwi is hwi and d.topo.topology_changes == changes
     assert d.trajectory_status(gid1)["state"] == "executing"
+    assert d.status()["rejoins"] == {"done": 0, "deferred": 0, "failed": 1}
     # a rejoin that finds segment_3 grows the chain; the goal on segment_1 runs on
     link.answers = [3]
     d.topo.hotplug(
@@ -193,6 +194,8 @@ def test_a_change_at_the_tip_leaves_a_goal_on_other_segments_running(opened):
     )
     assert list(d.hwi.names) == NAMES
     assert d.trajectory_status(gid1)["state"] == "executing"
+    # and status says so (the counter of rejoins done stayed 0 before)
+    assert d.status()["rejoins"] == {"done": 1, "deferred": 0, "failed": 1}
 
 
 def test_a_segment_that_keeps_dropping_out_must_answer_steadily_before_it_rejoins(opened):
