@@ -25,12 +25,15 @@ def rig():
 
 @pytest.fixture(scope="module")
 def live_view(rig, browser):
-    """The view app (as `ucr view` runs it) connected to the rig's API."""
+    """The view app (as `ucr view` runs it) connected to the rig's API, sending 10 scene
+    updates/s: what docs/view.md "Limits" advises for a browser drawing with software WebGL, as
+    this headless Chromium does (at 40/s its page fell tens of seconds behind on a loaded
+    machine, and a test waiting for a line on it timed out)."""
     from view.app import ViewApp
     from view.source import LiveSource
 
     _, _, srv = rig
-    app = ViewApp(LiveSource(srv.url, None).start(), port=0).start()
+    app = ViewApp(LiveSource(srv.url, None).start(), port=0, rate_hz=10.0).start()
     yield app
     app.stop()
 

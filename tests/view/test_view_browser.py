@@ -105,9 +105,13 @@ def test_sliders_follow_motion_made_by_another_source_and_move_nothing(rig, live
     def shown() -> tuple[float, float]:
         return float(boxes.nth(0).input_value()), float(boxes.nth(1).input_value())
 
-    assert wait_for(
-        lambda: abs(shown()[0] - k) <= 0.011 and abs(shown()[1] - math.degrees(ph)) <= 1.01, 10
-    ), (shown(), k, math.degrees(ph))
+    def agrees() -> bool:
+        # against the measured pose now: a segment still settling by a few 0.01 1/m after
+        # the goal's end moved away from a pose read once (a loaded machine, CI)
+        k, ph = measured(daemon, "segment_1")
+        return abs(shown()[0] - k) <= 0.011 and abs(shown()[1] - math.degrees(ph)) <= 1.01
+
+    assert wait_for(agrees, 30), (shown(), measured(daemon, "segment_1"))
     assert not live_view.driver.targets  # the page drives nothing ...
     assert daemon.status()["manual_control"] == []  # ... and took no control
     settle(daemon, live_view)
@@ -141,17 +145,21 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
     left the setpoint beyond the target. Now the measured κ never exceeds the target, and closing
     the page mid-motion stops the robot at or before it, where it holds, though another page
     with controls stays open (which kept the drive going until its idle timeout before).
-    segment_2's firmware slews at 2 1/m/s here (the file says 5): a segment lagging well behind
-    the setpoint."""
+    segment_2's servos follow its setpoint through a slow first-order simple controller here
+    (``p_slew``, gain 0.02 per tick): a segment lagging well behind the setpoint. (Not a lower
+    kappa_rate_max on the segment: that limit is part of its descriptor, and a rediscovery on a
+    loaded machine then rightly refuses a segment slower than the file — it dropped out of the
+    chain for the rest of the module once in CI.)"""
     _, daemon, _ = rig
     tol = 0.03  # 1/m: the emulated segment's measurement and tracking
     ctx = browser.new_context(viewport={"width": 1000, "height": 700})
     pg = ctx.new_page()
     pg.goto(live_view.url)
     pg.get_by_text("tubes: 3").wait_for(timeout=60000)
-    rate = 2  # PARAM id of kappa_rate_max (device/params.py PARAM_NAMES)
-    flashed = daemon.link.param_get(1, rate)
-    daemon.link.param_set(1, rate, 2.0)
+    sc, gain = 3, 4  # PARAM ids of sc and sc_gain (device/params.py PARAM_NAMES)
+    flashed = daemon.link.param_get(1, sc), daemon.link.param_get(1, gain)
+    daemon.link.param_set(1, gain, 0.02)
+    daemon.link.param_set(1, sc, "p_slew")
     sampler = _Sampler(daemon, "segment_2")
     other = None
     try:
@@ -198,7 +206,8 @@ def test_sliders_never_drive_past_their_target_and_closing_the_page_stops_it(
                                               time.monotonic() - t_closed)  # fmt: skip
     finally:
         sampler.stop()
-        daemon.link.param_set(1, rate, flashed)
+        daemon.link.param_set(1, sc, flashed[0])
+        daemon.link.param_set(1, gain, flashed[1])
         if other is not None:
             other.close()
     settle(daemon, live_view)
@@ -497,7 +506,26 @@ def test_a_segment_clamping_its_setpoints_turns_orange(rig, live_view, page):
             [e["event"] for e in daemon.fanout.recent_events][-10:],
             daemon.status()["joint_states"]["segment_1"],
         )
-        page.get_by_text("segment_1: clamped").wait_for(timeout=30000)
+        # the page lags the view by seconds on a loaded machine, and shows a clamp for
+        # EVENT_HOLD_S (1.5 s) after its last event; a stall makes the hold adopt the measured
+        # (clamped) κ, which ends the clamping: keep the daemon commanding beyond the segment's
+        # limit (the cFFC pushed outwards) until the page has shown it
+        pushing = threading.Event()
+
+        def push() -> None:
+            while not pushing.wait(0.05):
+                daemon.ffc_input({"segment_1": (0.3, 0.0)})
+
+        pusher = threading.Thread(target=push, daemon=True)
+        pusher.start()
+        try:
+            page.get_by_text("segment_1: clamped").wait_for(timeout=30000)
+        finally:
+            pushing.set()
+            pusher.join(2)
+            daemon.ffc_input({"segment_1": (0.0, 0.0)})
+            if daemon.status()["manual_control"]:
+                daemon.hand_back("ffc")  # (the JTC holds the measured pose: within 1 1/m)
     finally:
         daemon.link.param_set(0, kappa_max, flashed)
     settle(daemon, live_view)

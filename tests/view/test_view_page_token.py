@@ -207,7 +207,9 @@ def test_the_demo_prints_the_url_that_gives_controls(rig, browser):
             pg.goto(view.url)
             pg.get_by_text("tubes: 3").wait_for(timeout=60000)
             pg.get_by_role("button", name="Stop (hold)").wait_for(timeout=20000)
-            assert pg.locator("input[inputmode='decimal'], input[type='number']").count() == 6
+            boxes = pg.locator("input[inputmode='decimal'], input[type='number']")
+            boxes.nth(5).wait_for(timeout=20000)  # (a loaded page draws its panel in parts)
+            assert boxes.count() == 6
         finally:
             ctx.close()
     finally:
