@@ -242,3 +242,17 @@ def deg(rad: float | None) -> str:
 def kap(k: float | None) -> str:
     """A curvature in 1/m, fixed width (``n/a`` if unknown)."""
     return "  n/a" if k is None else f"{k:6.3f}"
+
+
+def refusal_is_transient(exc: BaseException) -> bool:
+    """Whether ``ucr teleop`` rides through a refusal of its input: the daemon cannot act *now*
+    (``unavailable``: the chain lost or being rebuilt; ``rate_limited``: the token's request
+    budget). A broken connection, a timeout and every other refusal end the session."""
+    from host.api.client import ApiConnectionError, ApiError  # noqa: PLC0415
+    from host.api.schema import RATE_LIMITED, UNAVAILABLE  # noqa: PLC0415
+
+    return (
+        isinstance(exc, ApiError)
+        and not isinstance(exc, ApiConnectionError)
+        and exc.code in (UNAVAILABLE, RATE_LIMITED)
+    )

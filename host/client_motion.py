@@ -11,7 +11,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from host.client_common import CliError, CliUsageError, bound_text, say_error, with_client
+from host.client_common import (
+    CliError,
+    CliUsageError,
+    bound_text,
+    refusal_is_transient,
+    say_error,
+    with_client,
+)
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -367,7 +374,14 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
         interrupted = False
         try:
-            result = Teleop(c.ffc_input, rate_hz=args.rate, on_event=on_event).run(source)
+            teleop = Teleop(
+                c.ffc_input,
+                rate_hz=args.rate,
+                on_event=on_event,
+                transient=refusal_is_transient,  # ride through "unavailable"; re-arm after it
+                on_note=lambda text: print(f"  {text}", flush=True),
+            )
+            result = teleop.run(source)
         except KeyboardInterrupt:
             result, interrupted = None, True
             try:  # stop now, not only when the cFFC's deadman runs out

@@ -5,7 +5,9 @@ An input source turns what a person does into stick *deflections* per bendable, 
 :class:`Teleop` samples the current deflections and streams them (default 50 Hz) while any stick
 is deflected; on release it sends one zero command (the robot stops at once); when the input
 itself stops (replay ends, gamepad unplugged) it simply stops sending and the daemon's deadman
-stops the motion.
+stops the motion. A refusal the caller calls transient (``unavailable``: the chain lost or being
+rebuilt) does not end the session: nothing deflected is sent again until every stick has been
+centred (re-arm), so a robot that comes back never resumes motion from a stick held meanwhile.
 
 Sources: :class:`GamepadSource` (Linux evdev), :class:`KeyboardSource` (terminal in cbreak mode)
 and :class:`ReplaySource` (JSON lines, what the tests use). :class:`Recorder` writes the same
@@ -70,16 +72,18 @@ class TeleopResult:
     zeros_sent: int = 0
     duration_s: float = 0.0
     note: str = ""
+    refused: int = 0  # commands the daemon refused for a transient reason (the session went on)
 
     def summary(self) -> str:
         """One line for people."""
         why = f"{self.reason}: {self.note}" if self.note else self.reason
         if self.reason == "lost" and self.note:  # the note says it: "gamepad lost: ..."
             why = self.note
-        return (
+        line = (
             f"teleop ended ({why}) after {self.duration_s:.1f} s; {self.sent} commands, "
             f"{self.zeros_sent} stops sent"
         )
+        return line + (f"; {self.refused} refused by the daemon" if self.refused else "")
 
 
 class Teleop:
@@ -90,6 +94,11 @@ class Teleop:
     nothing until the next deflection. ``quit`` sends zero and ends; ``end`` (the input stopped)
     and ``lost`` (the device failed; the result says so, for a failing exit status) end without
     sending, leaving the stop to the daemon's deadman.
+
+    ``transient(exc)``: whether an exception of ``send`` is a refusal to ride through (the
+    daemon cannot act *now*); any other exception ends the session. After a transient refusal
+    no deflection is sent until every stick is centred (``on_note`` says so, once per refusal
+    streak and once when input goes through again); the zero of a release is still sent.
     """
 
     def __init__(
@@ -98,6 +107,8 @@ class Teleop:
         rate_hz: float = 50.0,
         on_event: Callable[[InputEvent], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        transient: Callable[[BaseException], bool] | None = None,
+        on_note: Callable[[str], None] | None = None,
     ) -> None:
         if not (0 < rate_hz <= 500):
             raise TeleopError("teleop rate must be in (0, 500] Hz")
@@ -105,7 +116,32 @@ class Teleop:
         self.period = 1.0 / rate_hz
         self.on_event = on_event
         self.clock = clock
+        self.transient = transient
+        self.on_note = on_note
         self.current: dict[str, Deflection] = {}
+        self.rearm = False  # a transient refusal happened: centre every stick before driving
+
+    def _note(self, text: str) -> None:
+        if self.on_note is not None:
+            self.on_note(text)
+
+    def _send(self, rates: dict[str, Deflection], result: TeleopResult, motion: bool) -> bool:
+        """Send; False after a transient refusal (counted; a refused ``motion`` command is said
+        once per streak and re-arms; a refused zero needs nothing: nothing was moving then)."""
+        try:
+            self.send(rates)
+        except Exception as exc:
+            if self.transient is None or not self.transient(exc):
+                raise
+            result.refused += 1
+            if motion and not self.rearm:
+                self._note(
+                    f"daemon refused the input ({exc}); nothing moves: centre every stick "
+                    "to drive again once it accepts input"
+                )
+            self.rearm = self.rearm or motion
+            return False
+        return True
 
     def _deflected(self) -> bool:
         return any(x or y for x, y in self.current.values())
@@ -137,19 +173,23 @@ class Teleop:
                     result.reason, result.note = finished.kind, finished.note
                     if finished.kind == "quit" and self.current:
                         self.current = {k: (0.0, 0.0) for k in self.current}
-                        self.send(dict(self.current))
-                        result.zeros_sent += 1
+                        if self._send(dict(self.current), result, False):
+                            result.zeros_sent += 1
                     break
                 now = self.clock()
                 if now >= next_tick:
                     if self._deflected():
-                        self.send(dict(self.current))
-                        result.sent += 1
+                        if not self.rearm and self._send(dict(self.current), result, True):
+                            result.sent += 1
                         stopped = False
-                    elif not stopped:
-                        self.send(dict(self.current))  # released: stop now, not at deadman
-                        result.zeros_sent += 1
-                        stopped = True
+                    else:
+                        if not stopped:  # released: stop now, not at deadman
+                            if self._send(dict(self.current), result, False):
+                                result.zeros_sent += 1
+                            stopped = True
+                        if self.rearm:
+                            self.rearm = False
+                            self._note("sticks centred: the next deflection is sent again")
                     next_tick += self.period
                     if next_tick < now - self.period:  # fell behind (slow send): resync
                         next_tick = now + self.period

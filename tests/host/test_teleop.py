@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import threading
 import time
 from types import SimpleNamespace
 
@@ -210,3 +211,79 @@ def test_gamepad_sticks_map_to_selected_segment_pair_and_buttons_select_and_hold
     dev.feed((ecodes.EV_KEY, ecodes.BTN_START, 1))
     assert pad.read(0.5) == [InputEvent("quit")]
     pad.close()
+
+
+# ------------------------------------------------------------------ refusals ridden through
+class Refusing(Sink):
+    """A send refused (``Unavailable``) while ``refuse`` is set, as the daemon refuses input
+    while its chain is lost or being rebuilt."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.refuse = False
+        self.refused: list[dict] = []
+        self.log: list[tuple[str, dict]] = []
+
+    def __call__(self, rates: dict) -> None:
+        if self.refuse:
+            self.refused.append(dict(rates))
+            self.log.append(("refused", dict(rates)))
+            raise Unavailable("unavailable: chain not available")
+        self.log.append(("sent", dict(rates)))
+        super().__call__(rates)
+
+
+class Unavailable(Exception):
+    pass
+
+
+def test_a_transient_refusal_holds_the_stick_until_it_is_centred(tmp_path):
+    """Review 2026-11-28: `ucr teleop` ended with an error at the first refusal of a daemon that
+    lost its chain for a moment (a segment's power blip). Now a transient refusal is ridden
+    through, and a stick still held when the daemon accepts input again moves nothing: it has to
+    be centred first (re-arm), so the robot never resumes motion on its own."""
+    rec = write_lines(
+        tmp_path / "r.jsonl",
+        [
+            {"t": 0.0, "rates": {"s1": [0.5, 0.0]}},
+            {"t": 0.6, "stop": True},  # centred: input goes through again
+            {"t": 0.8, "rates": {"s1": [0.0, 0.4]}},
+            {"t": 1.0, "end": True},
+        ],
+    )
+    send, notes = Refusing(), []
+    teleop = Teleop(
+        send, rate_hz=50, transient=lambda e: isinstance(e, Unavailable), on_note=notes.append
+    )
+    t0 = time.monotonic()
+
+    def refuse_between(a: float, b: float) -> None:
+        while time.monotonic() - t0 < b:
+            send.refuse = time.monotonic() - t0 >= a
+            time.sleep(0.002)
+        send.refuse = False
+
+    th = threading.Thread(target=refuse_between, args=(0.1, 0.3), daemon=True)
+    th.start()
+    result = teleop.run(ReplaySource(rec))
+    th.join()
+    assert result.reason == "end" and result.refused >= 1 and send.refused
+    assert all(r == {"s1": (0.5, 0.0)} for r in send.refused)  # refused while held
+    last = max(i for i, (what, _) in enumerate(send.log) if what == "refused")
+    after = [r for what, r in send.log[last + 1 :]]
+    # the daemon accepts input again while the stick is still held: nothing is sent until the
+    # release, whose one zero comes first; then the next deflection drives again (re-armed)
+    assert after[0] == {"s1": (0.0, 0.0)}, after[:3]
+    assert len(after) > 1 and all(r == {"s1": (0.0, 0.4)} for r in after[1:]), after
+    assert len(notes) == 2 and "centre every stick" in notes[0] and "centred" in notes[1], notes
+    assert "refused by the daemon" in result.summary()
+
+
+def test_a_refusal_that_is_not_transient_ends_the_session(tmp_path):
+    rec = write_lines(tmp_path / "r.jsonl", [{"t": 0.0, "rates": {"s1": [0.5, 0.0]}}])
+    send = Refusing()
+    send.refuse = True
+    with pytest.raises(Unavailable):
+        Teleop(send, rate_hz=50, transient=lambda e: False).run(ReplaySource(rec))
+    with pytest.raises(Unavailable):  # no predicate: every exception ends it, as before
+        Teleop(send, rate_hz=50).run(ReplaySource(rec))
