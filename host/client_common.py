@@ -246,13 +246,14 @@ def kap(k: float | None) -> str:
 
 def refusal_is_transient(exc: BaseException) -> bool:
     """Whether ``ucr teleop`` rides through a refusal of its input: the daemon cannot act *now*
-    (``unavailable``: the chain lost or being rebuilt; ``rate_limited``: the token's request
-    budget). A broken connection, a timeout and every other refusal end the session."""
+    (``unavailable``: the chain lost or being rebuilt). A broken connection, a timeout and every
+    other refusal end the session: ``rate_limited`` too (the stream itself is too fast for the
+    token's budget: a re-arm after each refusal would only make the sticks stutter)."""
     from host.api.client import ApiConnectionError, ApiError  # noqa: PLC0415
-    from host.api.schema import RATE_LIMITED, UNAVAILABLE  # noqa: PLC0415
+    from host.api.schema import UNAVAILABLE  # noqa: PLC0415
 
     return (
         isinstance(exc, ApiError)
         and not isinstance(exc, ApiConnectionError)
-        and exc.code in (UNAVAILABLE, RATE_LIMITED)
+        and exc.code == UNAVAILABLE
     )

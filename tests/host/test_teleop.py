@@ -287,3 +287,15 @@ def test_a_refusal_that_is_not_transient_ends_the_session(tmp_path):
         Teleop(send, rate_hz=50, transient=lambda e: False).run(ReplaySource(rec))
     with pytest.raises(Unavailable):  # no predicate: every exception ends it, as before
         Teleop(send, rate_hz=50).run(ReplaySource(rec))
+
+
+def test_teleop_rides_through_unavailable_only():
+    from host.api.client import ApiConnectionError, ApiError, ApiTimeoutError
+    from host.client_common import refusal_is_transient
+
+    assert refusal_is_transient(ApiError("unavailable", "chain not available (waiting: …)"))
+    assert not refusal_is_transient(ApiError("rate_limited", "request budget used up"))
+    assert not refusal_is_transient(ApiError("invalid_params", "unknown segment"))
+    assert not refusal_is_transient(ApiConnectionError("the daemon closed the connection"))
+    assert not refusal_is_transient(ApiTimeoutError("no reply in 5 s"))
+    assert not refusal_is_transient(OSError("boom"))
