@@ -23,7 +23,7 @@ def rig():
         yield r
 
 
-def kx_of(daemon, name: str) -> float | None:
+def kappa_of(daemon, name: str) -> float | None:
     js = daemon.status()["joint_states"].get(name)
     if js is None or not js["valid"]:
         return None
@@ -66,10 +66,10 @@ def test_teleop_rides_through_a_lost_chain_and_a_held_stick_moves_nothing(rig, c
         while daemon.status()["state"] != "connected" and time.monotonic() < end:
             time.sleep(0.01)
         time.sleep(0.5)
-        seen["restored_kx"] = kx_of(daemon, "segment_1")
+        seen["restored_kappa"] = kappa_of(daemon, "segment_1")
         seen["restored_t"] = time.monotonic()
         time.sleep(2.0)
-        seen["later_kx"] = kx_of(daemon, "segment_1")
+        seen["later_kappa"] = kappa_of(daemon, "segment_1")
 
     th = threading.Thread(target=pull_the_plug, daemon=True)
     th.start()
@@ -84,7 +84,7 @@ def test_teleop_rides_through_a_lost_chain_and_a_held_stick_moves_nothing(rig, c
         assert "refused by the daemon" in out and "teleop ended (end" in out, out
         # back with the stick still held: the segment stays where it is (before, had the session
         # gone on, the held stick would have driven it the moment the chain came back)
-        a, b = seen.get("restored_kx"), seen.get("later_kx")
+        a, b = seen.get("restored_kappa"), seen.get("later_kappa")
         assert a is not None and b is not None, seen
         assert abs(b - a) < 0.05, seen
     finally:
