@@ -2,7 +2,8 @@
 view does to the control loop's jitter. Headless Chromium (Debian's /usr/bin/chromium) is the page.
 
     .venv/bin/python benchmarks/bench_view.py [--seconds 5] [--runs 3] [--daemon-nice -5]
-        [--rt-priority N] [--figures FILE]
+        [--rt-priority N] [--view-rate HZ] [--overload S [--busy 2] [--pages 2]]
+        [--figures FILE]
 
 1. Update rate: an offline view whose configuration changes at 200 Hz (every segment moving), with
    a page open; figures: scene pushes/s by the view and state samples/s that reach the page's DOM
@@ -10,6 +11,10 @@ view does to the control loop's jitter. Headless Chromium (Debian's /usr/bin/chr
 2. Live, on the real daemon and an emulated 3-segment chain: daemon->page latency p50/p99 (daemon
    sample time -> the page's DOM showing it; same machine, wall clock), and the loop's jitter p99
    with the view closed vs open (goal ratio <= 1.1).
+3. With ``--overload S``: the live view for S seconds with ``--busy`` processes spinning and
+   ``--pages`` pages open (a machine with more to do than it can): how late the pages show the
+   daemon's samples, and whether a late sample waited in a queue or for the page's next frame
+   (each gap > 250 ms between two animation frames is recorded).
 Prints figures (saved with ``--figures`` for tools/docfigures.py); asserts nothing (the
 machine may be shared and noisy).
 """
@@ -44,7 +49,29 @@ new MutationObserver(() => {
     }
   }
 }).observe(document, {subtree: true, childList: true, characterData: true});
+// Pauses of the page's drawing: [start, end] wall ms of every gap > 250 ms between two
+// animation frames (a frame not drawn: the page shows what it showed before).
+window.__pauses = [];
+(function () {
+  let last = performance.timeOrigin + performance.now();
+  const frame = () => {
+    const now = performance.timeOrigin + performance.now();
+    if (now - last > 250) window.__pauses.push([last, now]);
+    last = now;
+    requestAnimationFrame(frame);
+  };
+  requestAnimationFrame(frame);
+})();
 """
+
+
+def staleness(samples: list[list[float]], end_ms: float) -> float:
+    """Longest time (ms) the page's DOM went on showing one sample: from that sample's daemon
+    time until the page showed the next one (or ``end_ms``, wall ms, for the last)."""
+    if not samples:
+        return math.nan
+    shown = [*samples[1:], [end_ms, math.nan]]
+    return max(nxt[0] - cur[1] for cur, nxt in zip(samples, shown, strict=True))
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -183,8 +210,84 @@ def _median(values: list[float]) -> float:
     return s[len(s) // 2] if s else math.nan
 
 
+def _worst_catch_up(catch_up: list[float]) -> str:
+    """The table cell for the slowest catch-up after a pause (NaN: no fresh sample after it)."""
+    if not catch_up:
+        return "no pause > 1 s"
+    if any(math.isnan(c) for c in catch_up):
+        return "none shown after a pause"
+    return f"{max(catch_up) / 1e3:.1f} s"
+
+
+def overloaded(browser, page, url: str, stress: tuple[float, int, int]) -> list[list[str]]:
+    """The page (and ``pages - 1`` more) while ``busy`` processes spin on this machine's cores
+    for ``seconds``: how late the samples the pages show are, and whether the pages were
+    waiting for a frame (drawing nothing) or queueing what they had not drawn."""
+    import subprocess
+
+    seconds, busy, pages = stress
+    more = []
+    for _ in range(pages - 1):
+        c = browser.new_context(viewport=VIEWPORT)
+        pg = c.new_page()
+        pg.add_init_script(OBSERVER)
+        pg.goto(url)
+        pg.get_by_text("tubes: 3").wait_for(timeout=60000)
+        more.append((c, pg))
+    everyone = [page] + [pg for _, pg in more]
+    spin = "while True: pass"
+    hogs = [subprocess.Popen([sys.executable, "-c", spin]) for _ in range(busy)]
+    rows = []
+    try:
+        for pg in everyone:
+            pg.evaluate("window.__samples = []; window.__pauses = []")
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            page.wait_for_timeout(500)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+    for i, pg in enumerate(everyone):
+        samples, pauses, end = pg.evaluate(
+            "[window.__samples, window.__pauses, performance.timeOrigin + performance.now()]"
+        )
+        lat = [a - b for a, b in samples]
+        stale = staleness(samples, end)
+        longest = max((b - a for a, b in pauses), default=0.0)
+        catch_up = [
+            next((shown - b for shown, t in samples if shown >= b and shown - t < 500), math.nan)
+            for a, b in pauses
+            if b - a > 1000
+        ]  # after each pause > 1 s: until the page shows a sample less than 0.5 s old
+        print(
+            f"overloaded ({busy} busy processes, {pages} pages, {seconds:g} s), page {i + 1}: "
+            f"{len(samples)} samples shown, daemon->DOM p50 {_pct(lat, 0.5):.0f} ms, max "
+            f"{max(lat, default=math.nan):.0f} ms; the page went on showing one sample for up "
+            f"to {stale:.0f} ms; longest pause between two animation frames {longest:.0f} ms "
+            f"({len(pauses)} pauses > 250 ms); after each pause > 1 s, a fresh sample (< 0.5 s "
+            f"old) shown {', '.join(f'{c:.0f}' for c in catch_up) or '-'} ms later",
+            flush=True,
+        )
+        rows.append([
+            f"page {i + 1} of {pages}", f"{len(samples)}", _lat_cell(lat),
+            f"{stale / 1e3:.1f} s", f"{longest / 1e3:.1f} s ({len(pauses)})",
+            _worst_catch_up(catch_up),
+        ])  # fmt: skip
+    for c, _ in more:
+        c.close()
+    return rows
+
+
 def live(
-    browser, seconds: float, runs: int, in_process: bool, daemon_nice: int, rt_priority: int = 0
+    browser,
+    seconds: float,
+    runs: int,
+    in_process: bool,
+    daemon_nice: int,
+    rt_priority: int = 0,
+    stress: tuple[float, int, int] = (0.0, 0, 1),
+    view_rate: float | None = None,
 ) -> dict:
     from host.api.process import start_api_process
     from host.api.server import ApiServer
@@ -226,7 +329,7 @@ def live(
         api_pid = None if in_process else api.pid
 
         # a slow wave keeps joint states changing (every push carries news)
-        total = runs * 3 * seconds + 4 * seconds + 30
+        total = runs * 3 * seconds + 4 * seconds + stress[0] + 60
         wave = [
             {"time_from_start": 2.0 * (k + 1),
              "segments": {n: {"kappa": 1.5 * (k % 2), "phi": 0.5 * k} for n in robot.bendables}}
@@ -234,7 +337,7 @@ def live(
         ]  # fmt: skip
         daemon.send_trajectory(wave)
         time.sleep(1.0)
-        view = start_view_process(api.url)
+        view = start_view_process(api.url, rate_hz=view_rate)
         ctx = browser.new_context(viewport=VIEWPORT)
         page = ctx.new_page()
         page.add_init_script(OBSERVER)
@@ -245,6 +348,7 @@ def live(
         samples, ws_rate = page_samples(page, frames, seconds)
         facts = page.get_by_text("tubes: 3").first.text_content() or ""
         m = re.search(r"update (\d+) Hz", facts)
+        stalls = overloaded(browser, page, view.url, stress) if stress[0] > 0 else []
         ctx.close()
         lat = [a - b for a, b in samples]
         print(
@@ -258,6 +362,7 @@ def live(
             "where": where,
             "live": [m.group(1) + " Hz" if m else "?", f"{ws_rate:.0f} /s", _lat_cell(lat)],
             "runs": [],
+            "stalls": stalls,
         }  # fmt: skip
         view.stop()
         view = None
@@ -265,7 +370,7 @@ def live(
         phases: dict[str, list[tuple]] = {"closed": [], "view": [], "page": []}
         for r in range(runs):
             phases["closed"].append(_p99(daemon, seconds, {"api": api_pid}))
-            view = start_view_process(api.url)
+            view = start_view_process(api.url, rate_hz=view_rate)
             pids = {"api": api_pid, "view": view.proc.pid}
             time.sleep(1.0)
             phases["view"].append(_p99(daemon, seconds, pids))
@@ -332,6 +437,15 @@ def main() -> int:
         "--rt-priority", type=int, default=0, metavar="N",
         help="SCHED_FIFO priority of the daemon's loop and link reader (the unit: 10; 0: normal)",
     )  # fmt: skip
+    ap.add_argument(
+        "--overload", type=float, default=0.0, metavar="S",
+        help="then S seconds with --busy processes spinning and --pages pages open (0: skip)",
+    )  # fmt: skip
+    ap.add_argument("--busy", type=int, default=2, help="spinning processes of --overload (2)")
+    ap.add_argument(
+        "--view-rate", type=float, metavar="HZ", help="the live view's --rate (its default: 40)"
+    )
+    ap.add_argument("--pages", type=int, default=2, help="pages open during --overload (2)")
     ap.add_argument("--figures", metavar="FILE", help="save the tables the docs quote (JSON)")
     args = ap.parse_args()
     from benchmarks.figures import Figures
@@ -353,7 +467,7 @@ def main() -> int:
                 rates.append(update_rate(browser, n, args.seconds, Path(tmp)))
         got = live(
             browser, args.seconds, args.runs, args.api_in_process, args.daemon_nice,
-            args.rt_priority,
+            args.rt_priority, (args.overload, args.busy, args.pages), args.view_rate,
         )  # fmt: skip
         browser.close()
     if figs is not None:
@@ -373,6 +487,17 @@ def main() -> int:
             note=f"live, 3 emulated segments; API in {got['where']}; {gl}",
         )
         figs.row("live", got["live"])
+        if got["stalls"]:
+            figs.table(
+                "overload",
+                ["page", "samples shown", "daemon → page DOM latency p50 / p99",
+                 "longest showing one sample", "longest pause between two frames (> 250 ms)",
+                 "a pause > 1 s over → a fresh sample shown (worst)"],
+                note=f"live, 3 emulated segments, then {args.overload:g} s with {args.busy} "
+                f"processes spinning and {args.pages} pages open; {gl}",
+            )  # fmt: skip
+            for row in got["stalls"]:
+                figs.row("overload", row)
         figs.table(
             "jitter",
             ["loop jitter p99", "view closed", "view process, no page (goal ratio ≤ 1.1)",

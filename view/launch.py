@@ -30,14 +30,19 @@ class ViewProcess:
                 self.proc.wait(timeout)
 
 
-def start_view_process(api_url: str, port: int = 0, timeout: float = 60.0) -> ViewProcess:
-    """Run ``ucr view --url API_URL --port PORT``; returns once it prints its URL.
+def start_view_process(
+    api_url: str, port: int = 0, timeout: float = 60.0, rate_hz: float | None = None
+) -> ViewProcess:
+    """Run ``ucr view --url API_URL --port PORT [--rate RATE_HZ]``; returns once it prints its
+    URL.
 
     RuntimeError with a one-line reason if viser is missing or the view does not come up."""
     if importlib.util.find_spec("viser") is None:
         raise RuntimeError(INSTALL_HINT)
     cmd = [sys.executable, "-m", "tools.cli", "view", "--url", api_url, "--port", str(port),
            "--exit-with-parent"]  # fmt: skip
+    if rate_hz is not None:
+        cmd += ["--rate", f"{rate_hz:g}"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env

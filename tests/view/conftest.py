@@ -26,9 +26,10 @@ def rig():
 @pytest.fixture(scope="module")
 def live_view(rig, browser):
     """The view app (as `ucr view` runs it) connected to the rig's API, sending 10 scene
-    updates/s: what docs/view.md "Limits" advises for a browser drawing with software WebGL, as
-    this headless Chromium does (at 40/s its page fell tens of seconds behind on a loaded
-    machine, and a test waiting for a line on it timed out)."""
+    updates/s: less of the 2 shared cores for the view and the page than its default 40/s. (Not
+    a cure for a page that shows an old state: a headless Chromium with software WebGL on a
+    crowded machine draws nothing for seconds at times, at 10/s as at 40/s, docs/view.md "A page
+    on an overloaded machine"; a test waits for a line on the page 30-60 s.)"""
     from view.app import ViewApp
     from view.source import LiveSource
 
