@@ -2,7 +2,7 @@
 # One entry point for people and CI. Creates or refreshes .venv, then runs a job.
 #   ./run.sh demo      the daemon driving an emulated 3-segment robot (no hardware needed)
 #   ./run.sh test      the whole test suite (what CI runs)
-#   ./run.sh bench     all benchmarks (on demand; prints figures)
+#   ./run.sh bench [NAME…] [OPTIONS]  all benchmarks, or the named ones (on demand; prints figures)
 #   ./run.sh ucr …     any ucr command inside the environment
 #   ./run.sh setup     only create/refresh .venv; says which optional parts were skipped and why
 #   ./run.sh pi-check  install as docs/daemon.md says inside an arm64 Debian rootfs (qemu), run it
@@ -170,11 +170,46 @@ case "$job" in
         exit "$rc"
         ;;
     bench)
+        # ./run.sh bench                 every benchmark with its defaults (a long run)
+        # ./run.sh bench fk chain        the named ones (benchmarks/bench_<name>.py)
+        # ./run.sh bench chain --duration 1   options (from the first word starting with -)
+        #                                go to each named benchmark
+        names=()
+        while [ $# -gt 0 ] && [ "${1#-}" = "$1" ]; do names+=("$1"); shift; done
+        if [ ${#names[@]} -eq 0 ] && [ $# -gt 0 ]; then
+            echo "run.sh bench: options go to named benchmarks, e.g. ./run.sh bench chain $*" >&2
+            echo "  (each benchmark has its own; see .venv/bin/python benchmarks/bench_<name>.py --help)" >&2
+            exit 2
+        fi
+        files=()
+        if [ ${#names[@]} -eq 0 ]; then
+            files=(benchmarks/bench_*.py)
+        else
+            for n in "${names[@]}"; do
+                f="benchmarks/bench_${n#bench_}"; f="${f%.py}.py"
+                if [ ! -f "$f" ]; then
+                    known=$(cd benchmarks && ls bench_*.py | sed 's/^bench_//; s/\.py$//' | tr '\n' ' ' | sed 's/ $//')
+                    echo "run.sh bench: no benchmark '$n' (known: $known)" >&2
+                    exit 2
+                fi
+                files+=("$f")
+            done
+        fi
         ensure_venv
-        for b in benchmarks/bench_*.py; do
+        failed=()
+        set +e
+        for b in "${files[@]}"; do
             echo "== $b"
             "$VENV/bin/python" "$b" "$@"
+            rc=$?
+            [ "$rc" -eq 0 ] || { failed+=("$b (exit $rc)"); echo "== $b failed (exit $rc); going on" >&2; }
         done
+        set -e
+        if [ ${#failed[@]} -gt 0 ]; then
+            echo "run.sh bench: ${#failed[@]} of ${#files[@]} failed: ${failed[*]}" >&2
+            exit 1
+        fi
+        echo "run.sh bench: ${#files[@]} benchmark(s) ran"
         ;;
     ucr)
         ensure_venv
