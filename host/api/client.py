@@ -31,6 +31,7 @@ from websockets.sync.client import ClientConnection
 from host.api import default_url
 from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of, sender_words
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
+from host.api.client_json import as_pair, plain_json, unencodable
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
 
@@ -251,12 +252,16 @@ class Client:
             behalf = _ON_BEHALF_OF.get()
             if behalf is not None:
                 msg["on_behalf_of"] = behalf
-            text = json.dumps(msg, allow_nan=False, separators=_COMPACT)
+            try:
+                text = json.dumps(msg, allow_nan=False, separators=_COMPACT, default=plain_json)
+            except (ValueError, TypeError) as exc:
+                where = unencodable(params) or str(exc)
+                raise ApiError("invalid_params", f"cannot encode request: {where}") from None
             self.ws.send(text)
-        except ValueError as exc:
+        except ApiError:
             with self._lock:
                 self._pending.pop(rid, None)
-            raise ApiError("invalid_params", f"cannot encode request: {exc}") from None
+            raise
         except (ConnectionClosed, OSError) as exc:
             with self._lock:
                 self._pending.pop(rid, None)
@@ -378,9 +383,7 @@ class Client:
 
     def ffc_input(self, rates: dict[str, tuple[float, float] | list[float]]) -> Any:
         """Stream one cFFC input: ``{segment: (dkx, dky)}`` deflections in [-1, 1]."""
-        return self.call(
-            "ffc.input", rates={k: [float(v[0]), float(v[1])] for k, v in rates.items()}
-        )
+        return self.call("ffc.input", rates={k: as_pair(v) for k, v in rates.items()})
 
     def subscribe(
         self, kinds: list[str] | str, max_rate: float | None = None, buffer: int = 1000

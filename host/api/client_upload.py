@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from host.api.client_errors import ApiError, ApiTimeoutError
+from host.api.client_json import plain_json
 from host.api.schema import MAX_REQUEST_BYTES
 
 CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
@@ -65,7 +66,10 @@ def chunks_of(points: list[dict], limit: int) -> list[list[dict]]:
     out: list[list[dict]] = [[]]
     size = 0
     for p in points:
-        n = len(json.dumps(p, separators=_COMPACT).encode()) + 1
+        try:
+            n = len(json.dumps(p, separators=_COMPACT, default=plain_json).encode()) + 1
+        except (TypeError, ValueError):
+            n = 1  # not JSON: the request that carries it says where (ApiError)
         if out[-1] and size + n > limit:
             out.append([])
             size = 0

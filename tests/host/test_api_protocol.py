@@ -359,6 +359,42 @@ def test_valid_ops_reach_the_facade_with_canonical_params(server, stub):
         assert info.value.code == schema.REJECTED and "nope" in info.value.message
 
 
+def test_a_scripts_numpy_values_go_through_and_a_value_json_cannot_carry_is_named(server, stub):
+    """Review 2026-11-28: a script's numpy values (``np.float32``: not a float) raised a raw
+    TypeError from json inside the client, NaN was "Out of range float values are not JSON
+    compliant" without saying which, and a deflection that was not a pair raised IndexError or
+    ValueError from the client's own conversion."""
+    np = pytest.importorskip("numpy")
+    with connect(server.url) as c:
+        c.ffc_input({"s1": np.array([0.5, -0.25], dtype=np.float32)})
+        assert stub.ffc_calls[-1] == {"s1": (0.5, -0.25)}
+        c.ffc_input({"s1": (np.float32(0.25), np.float64(0.0))})
+        assert stub.ffc_calls[-1] == {"s1": (0.25, 0.0)}
+        point = {"time_from_start": np.float32(1.0), "segments": {"s1": {"kappa": np.float32(2)}}}
+        goal = c.send_trajectory([{**point, "segments": {"s1": {"kappa": 2.0, "phi": 0.0}}}],
+                                 wait=False)  # fmt: skip
+        assert goal in stub.goals
+        cases = [
+            ([{**point, "segments": {"s1": {"kappa": np.float64("nan"), "phi": 0.0}}}],
+             "points[0].segments.s1.kappa: nan is not a finite number"),
+            ([{**point, "segments": {"s1": {"kappa": math.inf, "phi": 0.0}}}],
+             "points[0].segments.s1.kappa: inf is not a finite number"),
+            ([point, {**point, "segments": {"s1": {"kappa": 1.0, "phi": {0.5}}}}],
+             "points[1].segments.s1.phi: a set is not a JSON value"),
+        ]  # fmt: skip
+        for points, where in cases:
+            with pytest.raises(ApiError) as info:
+                c.send_trajectory(points, wait=False)
+            assert info.value.code == schema.INVALID_PARAMS, info.value
+            assert info.value.message == f"cannot encode request: {where}"
+        for bad in ((0.5,), "ab", 0.5):
+            with pytest.raises(ApiError) as info:
+                c.ffc_input({"s1": bad})
+            assert info.value.code == schema.INVALID_PARAMS and "rates.s1" in info.value.message
+        assert not c._pending  # noqa: SLF001 - nothing left waiting for a reply never coming
+        assert c.status()  # and the connection goes on
+
+
 # ------------------------------------------------------------------ streams
 def test_subscribe_delivers_messages_and_max_rate_thins_them(server):
     with connect(server.url) as c:
