@@ -123,6 +123,77 @@ def next_due(due: float, period: float, now: float) -> float:
 #: A change of the wall clock against the monotonic one above this (s) is a step (NTP setting the
 #: clock: ntpd steps from 0.128 s, chrony and timesyncd likewise), which every stamp follows
 CLOCK_STEP_S = 0.1
+#: Joint states a second the feed takes while no output wants them (a Zenoh sink that nobody
+#: subscribes to: the daemon's process then encodes and sends 2 of its 50 a second, not 50);
+#: a reader matching is seen within :data:`DEMAND_CHECK_S` and gets the full stream again.
+IDLE_JS_RATE_HZ = 2.0
+DEMAND_CHECK_S = 0.25
+#: The topics computed from the joint states (their demand decides the stream's rate).
+STREAMED = ("/joint_states", "/tf", "/ucr/arcs")
+
+
+def _end(sub: Any) -> int:
+    """Close a subscription; the messages it dropped (locally and at the server)."""
+    sub.__exit__(None, None, None)
+    return int(getattr(sub, "dropped_local", 0) or 0) + int(getattr(sub, "dropped_server", 0) or 0)
+
+
+def _rest(sub: Any) -> list[dict]:
+    """What a closed subscription still held (at most its buffer's 4096)."""
+    out: list[dict] = []
+    while len(out) < 4096:
+        try:
+            msg = sub.get(timeout=0)
+        except LOST:
+            return out
+        if msg is None:
+            return out
+        out.append(msg)
+    return out
+
+
+class _Swap:
+    """Across a change of subscription (old and new overlap by one request): each joint state
+    once, in time order (only those after the last one published), and each event or topology
+    change once (one the old subscription delivered is skipped on the new one for a while)."""
+
+    WINDOW_S = 5.0
+
+    def __init__(self) -> None:
+        self.last_js: float | None = None
+        self.keys: list[tuple] = []
+        self.until = 0.0
+
+    def seen(self, msg: dict) -> dict:
+        t = msg.get("t")
+        if msg.get("kind") == "joint_states" and isinstance(t, int | float):
+            self.last_js = float(t) if self.last_js is None else max(self.last_js, float(t))
+        elif msg.get("kind") in ("event", "topology"):
+            self.keys.append(_key(msg))
+        return msg
+
+    def started(self) -> None:
+        self.until = time.monotonic() + self.WINDOW_S
+
+    def fresh(self, msg: dict | None) -> dict | None:
+        if msg is None:
+            return None
+        kind, t = msg.get("kind"), msg.get("t")
+        if kind == "joint_states" and isinstance(t, int | float):
+            if self.last_js is not None and t <= self.last_js:
+                return None  # the old subscription published it already
+            self.last_js = float(t)
+        elif kind in ("event", "topology") and self.keys:
+            if time.monotonic() > self.until:
+                self.keys.clear()
+            elif _key(msg) in self.keys:
+                self.keys.remove(_key(msg))
+                return None
+        return msg
+
+
+def _key(msg: dict) -> tuple:
+    return (msg.get("kind"), msg.get("t"), repr(sorted(msg.items(), key=lambda kv: kv[0])))
 
 
 def _everything(topic: str) -> bool:
@@ -161,6 +232,8 @@ class LiveFeed:
         self._goals: dict[str, dict] = {}
         self._topology_changed = False
         self.dropped = 0
+        #: the joint-state rate asked of the daemon now (``js_rate``, or the idle rate)
+        self.js_rate_now = js_rate
 
     def _t_ns(self, t_daemon: float | None) -> int:
         """Wall-clock stamp (ns) of a daemon monotonic time (None: now), the one stamping path
@@ -274,16 +347,27 @@ class LiveFeed:
         halt = threading.Event()
         poller = threading.Thread(target=self._poll, args=(halt, results), name="ucr-feed-poll",
                                   daemon=True)  # fmt: skip
-        with self.client.subscribe(
-            ["joint_states", "events", "topology"], max_rate=self.js_rate, buffer=4096
-        ) as sub:
+        demand = self._demand()
+        sub = self._subscribe(demand)
+        swap = _Swap()
+        try:
             poller.start()
+            next_check = time.monotonic() + DEMAND_CHECK_S
             try:
                 while not stop.is_set():
                     now = time.monotonic()
                     if duration is not None and now - t0 >= duration:
                         break
-                    msg = sub.get(timeout=0.05)
+                    if now >= next_check:
+                        next_check = now + DEMAND_CHECK_S
+                        if self._demand() != demand:  # a reader came or the last one went
+                            demand = not demand
+                            old, sub = sub, self._subscribe(demand)
+                            self.dropped += _end(old)
+                            for msg in _rest(old):  # what the old one still held, in order
+                                next_viz = self._publish_stream(swap.seen(msg), next_viz)
+                            swap.started()
+                    msg = swap.fresh(sub.get(timeout=0.05))
                     if msg is not None:
                         next_viz = self._publish_stream(msg, next_viz)
                     self._publish_polled(results)
@@ -298,7 +382,24 @@ class LiveFeed:
             for ev in self.goals_commanded.finish():
                 for m in self.topics.event(ev, t_ns):
                     self.out.publish(m)
-            self.dropped = sub.dropped_local + sub.dropped_server
+        finally:
+            self.dropped += _end(sub)
+
+    def _demand(self) -> bool:
+        """Whether the output takes joint states at the full rate now: a recording always, a
+        Zenoh sink while a subscriber matches /joint_states, /tf or /ucr/arcs."""
+        wants = getattr(self.out, "wants", None) or _everything
+        return any(wants(t) for t in STREAMED)
+
+    def _subscribe(self, demand: bool) -> Any:
+        """The daemon's stream at ``js_rate`` while a reader wants it, else at
+        :data:`IDLE_JS_RATE_HZ` (events and topology are never thinned)."""
+        rate = self.js_rate if demand else min(self.js_rate, IDLE_JS_RATE_HZ)
+        sub = self.client.subscribe(
+            ["joint_states", "events", "topology"], max_rate=rate, buffer=4096
+        )
+        self.js_rate_now = rate
+        return sub.__enter__()
 
     def _publish_stream(self, msg: dict, next_viz: float) -> float:
         """Publish one message of the daemon's stream; returns when /tf is due next.
