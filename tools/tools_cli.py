@@ -97,9 +97,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     fl.set_defaults(func=cmd_flash)
 
 
-def _error(text: str) -> int:
+def _error(text: str, code: int = 2) -> int:
+    """One ``ucr: error:`` line; ``code``: 2 a usage error (the default), 1 a failure."""
     print(f"ucr: error: {text}", file=sys.stderr)
-    return 2
+    return code
 
 
 def _load_robot(path: Path):
@@ -120,9 +121,11 @@ def cmd_flash(args: argparse.Namespace) -> int:
         validate,
     )
 
+    # exit codes as every ucr command's: 2 a usage error (an option value that cannot work), 1 a
+    # file, a configuration or a board that cannot be flashed, 130 interrupted
     robot, err = _load_robot(args.robot)
     if robot is None:
-        return _error(err or "cannot load robot")
+        return _error(err or "cannot load robot", 1)
     try:
         config = config_for(robot, args.segment)
         if args.servo_driver:
@@ -132,7 +135,7 @@ def cmd_flash(args: argparse.Namespace) -> int:
                 return _error(f"--servo-driver {args.servo_driver}: {err}")
             validate(config, str(args.robot))  # e.g. PWM needs a rest pose inside each range
     except SegmentConfigError as exc:
-        return _error(str(exc))
+        return _error(str(exc), 1)
     try:
         flash(
             args.port,
@@ -146,7 +149,7 @@ def cmd_flash(args: argparse.Namespace) -> int:
         _error(str(exc))
         return 130  # interrupted, as every ucr command
     except FlashError as exc:
-        return _error(str(exc))
+        return _error(str(exc), 1)
     except KeyboardInterrupt:
         _error("interrupted before the board was touched")
         return 130

@@ -130,7 +130,7 @@ def test_an_eio_midway_is_one_line_without_traceback(chain, monkeypatch, capsys)
         ["flash", "--port", ch.repl_port(0), "--robot", str(ROBOT), "--segment", "segment_1"]
     )
     err = capsys.readouterr().err
-    assert code == 2
+    assert code == 1
     assert "input/output error: the port went away" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     ch.wait_restarts(0, restarts + 1, timeout=20)
@@ -167,7 +167,7 @@ def test_a_chatty_device_that_is_no_repl_is_given_up_on_within_seconds() -> None
         t0 = time.monotonic()
         proc = _flash_cli(ch.host_port)
         elapsed = time.monotonic() - t0
-    assert proc.returncode == 2, proc.stderr
+    assert proc.returncode == 1, proc.stderr
     assert "did not answer like a MicroPython REPL within 5 s" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert elapsed < 15  # 5 s deadline + interpreter start-up, with margin for a loaded machine
