@@ -22,9 +22,10 @@ def plain_json(value: Any) -> Any:
 def as_pair(value: Any) -> Any:
     """A deflection ``(dkx, dky)`` as the JSON array the API takes; anything else is sent as it
     is, for the server to say what is wrong with it (``rates.segment_1: expected …``)."""
-    if isinstance(value, list | tuple) or hasattr(value, "tolist"):
+    if isinstance(value, list | tuple):
         return list(value)
-    return value
+    tolist = getattr(value, "tolist", None)  # a numpy array (a numpy scalar: the server says)
+    return tolist() if callable(tolist) else value
 
 
 def unencodable(value: Any, path: str = "") -> str:

@@ -387,7 +387,7 @@ def test_a_scripts_numpy_values_go_through_and_a_value_json_cannot_carry_is_name
                 c.send_trajectory(points, wait=False)
             assert info.value.code == schema.INVALID_PARAMS, info.value
             assert info.value.message == f"cannot encode request: {where}"
-        for bad in ((0.5,), "ab", 0.5):
+        for bad in ((0.5,), "ab", 0.5, np.float32(0.5), np.zeros(3)):
             with pytest.raises(ApiError) as info:
                 c.ffc_input({"s1": bad})
             assert info.value.code == schema.INVALID_PARAMS and "rates.s1" in info.value.message
