@@ -202,6 +202,10 @@ case "$job" in
             echo "== $b"
             "$VENV/bin/python" "$b" "$@"
             rc=$?
+            if [ "$rc" -eq 130 ]; then  # Ctrl-C ends the whole run, not one benchmark
+                echo "run.sh bench: interrupted in $b" >&2
+                exit 130
+            fi
             [ "$rc" -eq 0 ] || { failed+=("$b (exit $rc)"); echo "== $b failed (exit $rc); going on" >&2; }
         done
         set -e
