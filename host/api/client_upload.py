@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from host.api.client_errors import ApiError, ApiTimeoutError
-from host.api.client_json import plain_json
+from host.api.client_json import plain_json, unencodable
 from host.api.schema import MAX_REQUEST_BYTES
 
 CHUNK_BYTES = MAX_REQUEST_BYTES - 4096  # waypoints per request, JSON bytes (room for the rest)
@@ -65,11 +65,13 @@ def chunks_of(points: list[dict], limit: int) -> list[list[dict]]:
     """Split waypoints into lists whose JSON stays below ``limit`` bytes (at least one each)."""
     out: list[list[dict]] = [[]]
     size = 0
-    for p in points:
+    for i, p in enumerate(points):
         try:
-            n = len(json.dumps(p, separators=_COMPACT, default=plain_json).encode()) + 1
-        except (TypeError, ValueError):
-            n = 1  # not JSON: the request that carries it says where (ApiError)
+            text = json.dumps(p, allow_nan=False, separators=_COMPACT, default=plain_json)
+        except (TypeError, ValueError) as exc:  # before any chunk went: no upload left behind
+            where = unencodable(p, f"points[{i}]") or str(exc)
+            raise ApiError("invalid_params", f"cannot encode request: {where}") from None
+        n = len(text.encode()) + 1
         if out[-1] and size + n > limit:
             out.append([])
             size = 0

@@ -387,6 +387,21 @@ def test_a_scripts_numpy_values_go_through_and_a_value_json_cannot_carry_is_name
                 c.send_trajectory(points, wait=False)
             assert info.value.code == schema.INVALID_PARAMS, info.value
             assert info.value.message == f"cannot encode request: {where}"
+        # a long trajectory (sent in chunks) with a NaN near its end: refused before any chunk
+        # goes, so no half-made upload is left on the server
+        sent: list[str] = []
+        real_call = c.call
+        c.call = lambda op, **kw: sent.append(op) or real_call(op, **kw)
+        wave = [{"time_from_start": 0.01 * (k + 1), "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}
+                for k in range(3000)]  # fmt: skip
+        wave[2990]["segments"]["s1"]["phi"] = math.nan
+        with pytest.raises(ApiError) as info:
+            c.send_trajectory(wave, wait=False)
+        assert info.value.message == (
+            "cannot encode request: points[2990].segments.s1.phi: nan is not a finite number"
+        )
+        assert sent == []
+        c.call = real_call
         for bad in ((0.5,), "ab", 0.5, np.float32(0.5), np.zeros(3)):
             with pytest.raises(ApiError) as info:
                 c.ffc_input({"s1": bad})
