@@ -4,15 +4,20 @@
     with connect() as c:                       # ws://127.0.0.1:8765 or $UCR_URL
         print(c.status())
         result = c.send_trajectory(points, progress=print)
-        for msg in c.subscribe(["joint_states"], max_rate=10):
-            ...
+        with c.subscribe(["joint_states"], max_rate=10) as sub:
+            for msg in sub:
+                ...
 
 Errors: :class:`ApiError` (``code``, ``message``) for refused requests; connection problems raise
 :class:`ApiConnectionError`, which is also a built-in ``ConnectionError``; a refused token raises
 :class:`ApiAuthError` (also a ``PermissionError``); timeouts raise :class:`ApiTimeoutError`.
 Opening the connection (token, TLS, handshake refusals) is :mod:`host.api.client_open`, sending
-a trajectory above the request limit in chunks :mod:`host.api.client_upload`; the
+a trajectory above the request limit in chunks :mod:`host.api.client_upload`, a request's
+JSON :mod:`host.api.client_json`, progress callbacks :mod:`host.api.client_goals`; the
 errors live in :mod:`host.api.client_errors` and are re-exported here.
+
+One piece: the reader thread, the pending replies, the subscriptions and the goal waits share
+one lock and one connection's state, and each public method is a thin call over them.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from websockets.sync.client import ClientConnection
 from host.api import default_url
 from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of, sender_words
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
+from host.api.client_goals import Callbacks, final_or_raise, positive_seconds
 from host.api.client_json import as_pair, plain_json, unencodable
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
@@ -159,6 +165,7 @@ class Client:
         self._goal_cond = threading.Condition()
         self._upload_lock = threading.Lock()  # one chunked upload at a time from this client
         self.last_goal: Any = None
+        self._callbacks = Callbacks()
         self._reader = threading.Thread(target=self._read_loop, name="ucr-api-client", daemon=True)
         self._reader.start()
 
@@ -202,6 +209,7 @@ class Client:
             p.event.set()
         for sub in list(self._subs.values()):
             sub._end()
+        self._callbacks.close()
         with self._goal_cond:
             self._goal_cond.notify_all()
 
@@ -226,11 +234,8 @@ class Client:
             status = msg.get("status") if isinstance(msg.get("status"), dict) else {}
             # A push overtaking the send reply finds no callback yet: only that progress is lost.
             callback = self._goals.get(goal)
-            if callback is not None:
-                try:
-                    callback(status)
-                except Exception:  # noqa: BLE001, S110 - a user callback must not kill the reader
-                    pass
+            if callback is not None:  # on a thread of its own: it may call this client
+                self._callbacks.put(callback, status)
             if msg.get("done"):
                 with self._goal_cond:
                     self._goals.pop(goal, None)
@@ -337,8 +342,11 @@ class Client:
     ) -> Any:
         """Send waypoints (docs/api.md); with ``wait`` return the final status, else the goal id.
 
-        ``progress`` is called with each status the daemon pushes (from the reader thread).
-        ``timeout`` (s) bounds the wait for the result; None waits as long as it takes.
+        ``progress`` is called with each status the daemon pushes, in order, on a thread of the
+        client's own (it may call the client). ``timeout`` (s) bounds the wait for the result;
+        None waits as long as it takes. Ctrl-C (KeyboardInterrupt) while waiting cancels the
+        goal (the robot decelerates to rest and holds), as ``ucr trajectory`` does; a timeout
+        leaves it running.
         """
         params: dict[str, Any] = {}
         if controller is not None:
@@ -353,20 +361,43 @@ class Client:
             self._goals[goal] = progress
         if not wait:
             return goal
-        return self.wait_trajectory(goal, timeout)
+        try:
+            return self.wait_trajectory(goal, timeout)
+        except KeyboardInterrupt:
+            try:  # the person stopped the script: the motion too
+                self.call("trajectory.cancel", goal=goal, timeout=min(self.timeout, 2.0))
+            except (ApiError, ConnectionError, OSError):
+                pass
+            raise
 
     def wait_trajectory(self, goal: Any, timeout: float | None = None) -> dict:
-        """Block until the goal ends; returns its final status."""
+        """Block until the goal ends; returns its final status (after the goal's progress
+        callbacks ran). Any goal: one this client did not send (or waited for already) is
+        asked for (``trajectory.status``) once a second. :class:`ApiConnectionError` if the
+        daemon went away meanwhile (how the goal ended is unknown)."""
         deadline = None if timeout is None else time.monotonic() + timeout
-        with self._goal_cond:
-            while goal not in self._goal_final:
+        ask_at = time.monotonic() + 1.0
+        while True:
+            with self._goal_cond:
+                if goal in self._goal_final:
+                    final = self._goal_final.pop(goal)
+                    break
                 if self.closed:
                     raise self.error or ApiConnectionError(f"connection to {self.url} closed")
                 remaining = None if deadline is None else deadline - time.monotonic()
                 if remaining is not None and remaining <= 0:
                     raise ApiTimeoutError(f"trajectory {goal} not finished within {timeout:g} s")
                 self._goal_cond.wait(0.5 if remaining is None else min(remaining, 0.5))
-            return self._goal_final.pop(goal)
+            if time.monotonic() >= ask_at:  # no push for it (not ours, or read already)
+                ask_at = time.monotonic() + 1.0
+                status = self.call("trajectory.status", goal=goal)
+                if isinstance(status, dict) and status.get("done"):
+                    with self._goal_cond:
+                        self._goal_final.pop(goal, None)
+                    final = status
+                    break
+        self._callbacks.flush()
+        return final_or_raise(goal, final)
 
     def trajectory_status(self, goal: Any = None) -> Any:
         return self.call("trajectory.status", goal=self._goal(goal))
@@ -388,7 +419,11 @@ class Client:
     def subscribe(
         self, kinds: list[str] | str, max_rate: float | None = None, buffer: int = 1000
     ) -> Subscription:
-        """Subscribe to ``joint_states``, ``transforms``, ``events``, ``topology``."""
+        """Subscribe to ``joint_states``, ``transforms``, ``events``, ``topology``; ``buffer``:
+        messages kept for a slow reader (>= 1; the oldest go first). Close it (``with``, or
+        ``close()``): a loop left by ``break`` or ``return`` does not unsubscribe."""
+        if isinstance(buffer, bool) or not isinstance(buffer, int) or buffer < 1:
+            raise ValueError(f"buffer must be a whole number of messages >= 1, got {buffer!r}")
         kinds = [kinds] if isinstance(kinds, str) else list(kinds)
         params: dict[str, Any] = {"kinds": kinds}
         if max_rate is not None:
@@ -433,6 +468,7 @@ def connect(
     ``wss://`` server that uses a self-signed certificate. ``agent``: the program's name, sent
     as the User-Agent (the daemon's audit lines show it; default ``ucr python client``).
     """
+    timeout = positive_seconds(timeout)
     url = url or default_url()
     token = token if token is not None else read_token()
     return Client(open_websocket(url, token, timeout, cafile, agent), url, timeout)

@@ -1,0 +1,99 @@
+"""The Python client as a script meets it (review 2026-11-28, each seen failing before):
+- a ``progress`` callback that called the client waited out the whole timeout (it ran on the
+  reader thread, which delivers the replies) and was told it timed out though the call ran;
+- ``wait_trajectory`` on a goal another client sent, or one waited for already, never returned;
+- the daemon going away during a wait came back as a "final status" ``{"state": "unknown"}``;
+- Ctrl-C while ``send_trajectory`` waited left the robot moving;
+- ``subscribe(buffer=0)`` killed the connection at the first message; ``connect(timeout=None)``
+  connected, then ``send_trajectory`` raised a raw TypeError."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+from test_api_protocol import FacadeStub
+
+from host.api.client import ApiConnectionError, connect
+from host.api.client_goals import final_or_raise
+from host.api.server import ApiServer
+
+pytestmark = pytest.mark.timeout(60)
+
+POINTS = [{"time_from_start": 0.6, "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}]
+
+
+@pytest.fixture
+def stub():
+    s = FacadeStub()
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def server(stub):
+    srv = ApiServer(stub, "127.0.0.1", 0).start()
+    yield srv
+    srv.stop()
+
+
+def test_a_progress_callback_may_call_the_client(server) -> None:
+    with connect(server.url, timeout=2.0) as c:
+        got: list = []
+
+        def progress(status: dict) -> None:
+            if not got:  # once: what a script does to look at something else meanwhile
+                try:
+                    got.append(c.status())
+                except Exception as exc:  # noqa: BLE001 - recorded, the test says what
+                    got.append(exc)
+            got.append(threading.current_thread().name)
+
+        final = c.send_trajectory(POINTS, progress=progress)
+        assert final["state"] == "succeeded"
+        assert isinstance(got[0], dict), got[0]  # answered, not an ApiTimeoutError
+        # every callback ran before send_trajectory returned, on the callbacks' thread
+        assert set(got[1:]) == {"ucr-api-callbacks"}, got
+
+
+def test_wait_trajectory_waits_for_any_goal_and_twice(server) -> None:
+    with connect(server.url) as a, connect(server.url) as b:
+        goal = a.send_trajectory(POINTS, wait=False)
+        assert b.wait_trajectory(goal, timeout=10)["state"] == "succeeded"  # not b's goal
+        assert a.wait_trajectory(goal, timeout=10)["state"] == "succeeded"
+        assert a.wait_trajectory(goal, timeout=10)["state"] == "succeeded"  # read already
+
+
+def test_an_unknown_end_is_an_error_not_a_status() -> None:
+    with pytest.raises(ApiConnectionError, match="the daemon is not reachable; how the goal"):
+        final_or_raise("g1", {"state": "unknown", "error": "the daemon is not reachable"})
+    done = {"state": "succeeded", "progress": 1.0}
+    assert final_or_raise("g1", done) is done
+
+
+def test_ctrl_c_while_waiting_cancels_the_goal(server, stub, monkeypatch) -> None:
+    cancelled: list[str] = []
+    real = stub.cancel_trajectory
+    monkeypatch.setattr(stub, "cancel_trajectory", lambda gid: cancelled.append(gid) or real(gid))
+    with connect(server.url) as c:
+
+        def interrupted(goal, timeout=None):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(c, "wait_trajectory", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            c.send_trajectory(POINTS)
+        assert cancelled == [c.last_goal]
+
+
+def test_numbers_a_script_passes_are_checked_where_it_passes_them(server) -> None:
+    for bad in (None, "5", 0, -1.0, float("nan"), True):
+        with pytest.raises(ValueError, match="timeout must be a"):
+            connect(server.url, timeout=bad)
+    with connect(server.url) as c:
+        for bad in (0, -3, 2.5, None):
+            with pytest.raises(ValueError, match="buffer must be a whole number"):
+                c.subscribe(["joint_states"], buffer=bad)
+        with c.subscribe(["joint_states"], buffer=1) as sub:  # the smallest works
+            assert sub.get(timeout=5) is not None
+        assert c.status()  # and the connection is fine
