@@ -35,14 +35,27 @@ def daemon(chain, robot3):
 
 
 @pytest.fixture
-def stub_url():
-    """The URL of a real API server over the in-memory facade stub (test_api_protocol)."""
+def stub():
+    """The in-memory facade stub (test_api_protocol's ``FacadeStub``; a module may define its
+    own fixture of that name)."""
     from test_api_protocol import FacadeStub
 
+    s = FacadeStub()
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def stub_server(stub):
+    """A real API server over ``stub``."""
     from host.api.server import ApiServer
 
-    stub = FacadeStub()
     srv = ApiServer(stub, "127.0.0.1", 0).start()
-    yield srv.url
+    yield srv
     srv.stop()
-    stub.close()
+
+
+@pytest.fixture
+def stub_url(stub_server):
+    """The URL of a real API server over the in-memory facade stub (test_api_protocol)."""
+    return stub_server.url

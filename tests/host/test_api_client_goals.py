@@ -12,33 +12,17 @@ from __future__ import annotations
 import threading
 
 import pytest
-from test_api_protocol import FacadeStub
 
 from host.api.client import ApiConnectionError, connect
 from host.api.client_goals import final_or_raise
-from host.api.server import ApiServer
 
 pytestmark = pytest.mark.timeout(60)
 
 POINTS = [{"time_from_start": 0.6, "segments": {"s1": {"kappa": 1.0, "phi": 0.0}}}]
 
 
-@pytest.fixture
-def stub():
-    s = FacadeStub()
-    yield s
-    s.close()
-
-
-@pytest.fixture
-def server(stub):
-    srv = ApiServer(stub, "127.0.0.1", 0).start()
-    yield srv
-    srv.stop()
-
-
-def test_a_progress_callback_may_call_the_client(server) -> None:
-    with connect(server.url, timeout=2.0) as c:
+def test_a_progress_callback_may_call_the_client(stub_server) -> None:
+    with connect(stub_server.url, timeout=2.0) as c:
         got: list = []
 
         def progress(status: dict) -> None:
@@ -56,8 +40,8 @@ def test_a_progress_callback_may_call_the_client(server) -> None:
         assert set(got[1:]) == {"ucr-api-callbacks"}, got
 
 
-def test_wait_trajectory_waits_for_any_goal_and_twice(server) -> None:
-    with connect(server.url) as a, connect(server.url) as b:
+def test_wait_trajectory_waits_for_any_goal_and_twice(stub_server) -> None:
+    with connect(stub_server.url) as a, connect(stub_server.url) as b:
         goal = a.send_trajectory(POINTS, wait=False)
         assert b.wait_trajectory(goal, timeout=10)["state"] == "succeeded"  # not b's goal
         assert a.wait_trajectory(goal, timeout=10)["state"] == "succeeded"
@@ -71,11 +55,11 @@ def test_an_unknown_end_is_an_error_not_a_status() -> None:
     assert final_or_raise("g1", done) is done
 
 
-def test_ctrl_c_while_waiting_cancels_the_goal(server, stub, monkeypatch) -> None:
+def test_ctrl_c_while_waiting_cancels_the_goal(stub_server, stub, monkeypatch) -> None:
     cancelled: list[str] = []
     real = stub.cancel_trajectory
     monkeypatch.setattr(stub, "cancel_trajectory", lambda gid: cancelled.append(gid) or real(gid))
-    with connect(server.url) as c:
+    with connect(stub_server.url) as c:
 
         def interrupted(goal, timeout=None):
             raise KeyboardInterrupt
@@ -86,11 +70,11 @@ def test_ctrl_c_while_waiting_cancels_the_goal(server, stub, monkeypatch) -> Non
         assert cancelled == [c.last_goal]
 
 
-def test_numbers_a_script_passes_are_checked_where_it_passes_them(server) -> None:
+def test_numbers_a_script_passes_are_checked_where_it_passes_them(stub_server) -> None:
     for bad in (None, "5", 0, -1.0, float("nan"), True):
         with pytest.raises(ValueError, match="timeout must be a"):
-            connect(server.url, timeout=bad)
-    with connect(server.url) as c:
+            connect(stub_server.url, timeout=bad)
+    with connect(stub_server.url) as c:
         for bad in (0, -3, 2.5, None):
             with pytest.raises(ValueError, match="buffer must be a whole number"):
                 c.subscribe(["joint_states"], buffer=bad)

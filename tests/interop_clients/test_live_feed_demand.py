@@ -13,6 +13,8 @@ import time
 from interop import live
 from interop.topics import Message
 
+from .test_live_feed import _Daemon as _PolledDaemon
+
 JS_PERIOD = 0.02
 
 
@@ -46,10 +48,11 @@ class _Sub:
             return None
 
 
-class _Daemon:
-    """Publishes a joint state every 20 ms to every open subscription; when the feed opens its
-    second subscription, an event and a joint state reach the old and the new one both (what
-    arrives while they overlap)."""
+class _Daemon(_PolledDaemon):
+    """test_live_feed's daemon (its status, topology and loop_stats polls), here publishing a
+    joint state every 20 ms to every open subscription; when the feed opens its second
+    subscription, an event and a joint state reach the old and the new one both (what arrives
+    while they overlap). Its stream is its subscriptions, not the base's one stream."""
 
     def __init__(self) -> None:
         self.subs: list[_Sub] = []
@@ -77,15 +80,6 @@ class _Daemon:
             self.t += JS_PERIOD
             self._fan({"kind": "joint_states", "t": self.t, "names": []})
         return sub
-
-    def status(self) -> dict:
-        return {"running_goals": []}
-
-    def topology(self) -> dict:
-        return {}
-
-    def loop_stats(self) -> dict:
-        return {}
 
 
 class _Topics:
