@@ -106,6 +106,9 @@ class HardwareInterface:
         self.gaps = 0  # segments that lost their command after a gap (count)
         self.probe_extra = 0  # positions beyond the tip the next SYNC waits for (0 = none)
         self.exchange_s = 0.0  # how long the last exchange waited for its states (s)
+        # how long after its reply time the last exchange's wait returned (s): the link's
+        # ``wait_overrun_s``; None for a link that does not measure it (exchange_s says then)
+        self.wait_overrun_s: float | None = None
         self.exchange_probed = False  # the last exchange waited for positions beyond the tip
         self.exchanges = 0
         self.resume_pending = False  # next SYNCs carry "resume" until no segment reports HOLD
@@ -279,6 +282,7 @@ class HardwareInterface:
             self.close_pipeline()
             self._pending = self.link.heartbeat(timeout=self.reply_timeout)
         self.exchange_s = time.perf_counter() - t0
+        self.wait_overrun_s = getattr(self.link, "wait_overrun_s", None)
         self.exchanges += 1
 
     def _write_pipelined(self, sp: list) -> None:

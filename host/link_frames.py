@@ -120,12 +120,16 @@ class _FramePlumbing:
     Link timing, for the link health (host/link_health.py): the time each request left
     (``_sent_at`` by seq), each position's recent STATE arrival times after their request,
     matched or late (:meth:`arrival_offsets`), STATEs per position that came too late to be
-    used (:meth:`late_by_position`) and the byte rate the host's port receives at while bytes
-    stream in (:meth:`line_rate_bps`). ``ChainLink.__init__`` calls :meth:`_init_timing`.
+    used (:meth:`late_by_position`), the byte rate the host's port receives at while bytes
+    stream in (:meth:`line_rate_bps`) and how late the last wait for replies woke
+    (``wait_overrun_s``). ``ChainLink.__init__`` calls :meth:`_init_timing`.
     """
 
     def _init_timing(self) -> None:
         self._sent_at = [0.0] * 256  # seq -> when that request left (monotonic s)
+        # how long after its deadline the last wait for replies returned (s; 0 when they all
+        # came in time): a wait that woke late was held up in this process (link health)
+        self.wait_overrun_s = 0.0
         self._late_pos: list[int] = []  # per position: STATEs too late for their exchange
         self._arrivals: dict[int, deque[float]] = {}  # position -> recent arrival offsets (s)
         self._rx_t = 0.0  # when the bytes being dispatched were read
@@ -419,6 +423,7 @@ class _FramePlumbing:
                 if left <= 0 or self._closed or self._error is not None:
                     break
                 self._cond.wait(left)
+            self.wait_overrun_s = max(time.monotonic() - end, 0.0)
             if close and self._collector is col:
                 self._collector = None
             if close and self._pipelined.get(col.seq) is col:

@@ -78,9 +78,12 @@ RECOVER_FAIL_S = 1.0
 #: a return to the nominal rate that holds this long (no slow link meanwhile) was good: the
 #: back-off starts again from RECOVER_S (a later slow spell is a new one) (s)
 RECOVER_HOLD_S = 5.0
-#: An exchange that returned this much later than its reply timeout was held up in this process
-#: (a garbage collection or another thread holding the interpreter lock delays the link reader
-#: and the loop alike), not on the link: its misses say nothing about the link (s).
+#: An exchange whose wait for replies returned this much later than its deadline was held up in
+#: this process (a garbage collection or another thread holding the interpreter lock delays the
+#: link reader and the loop alike), not on the link: its misses say nothing about the link (s).
+#: Measured on the wait itself, not the whole exchange: sending the request and decoding the
+#: replies take 1-3 ms of a loaded 2-core host's time, and counted in they made nearly every
+#: exchange of a slow link's "held up" — its degrade waited for 9 silent stretches instead of 1.
 HOST_STALL_S = 0.002
 #: A silent stretch (a stall) within this long of a held-up exchange is the process's, too (s).
 HOST_STALL_HOLD_S = 0.5
@@ -158,6 +161,7 @@ class LinkHealth:
         now: float,
         late_replies: Callable[[], int | list[int]] = lambda: 1,
         reply_timeout: float | None = None,
+        held_s: float | None = None,
     ) -> dict[str, Any] | None:
         """One cycle: ``answered[i]`` whether position i answered; ``exchange_s`` how long
         the exchange waited; ``late_replies()`` a running count of replies that came after
@@ -165,8 +169,9 @@ class LinkHealth:
         total, counted for the first position missing (asked only while replies miss).
         Missing replies that arrive late mean a slow link: slowing down helps. Missing
         replies that never come (a cut, a corrupting link) make a lossy link: reported
-        (``lossy``), left to supervision. An exchange with misses that returned more than
-        HOST_STALL_S after ``reply_timeout`` (s) was held up in this process: it is left out
+        (``lossy``), left to supervision. An exchange with misses whose wait for replies
+        returned more than HOST_STALL_S after its deadline (``held_s``, s; without it,
+        ``exchange_s`` past ``reply_timeout``) was held up in this process: it is left out
         (counted in ``host_stalls``), not taken for the link's.
         Returns a change ``{"period", "change", ...}`` or None."""
         if not answered:
@@ -180,7 +185,9 @@ class LinkHealth:
                 change["reason"] = "left_chain"
             return change
         complete = all(answered)
-        if reply_timeout is not None and exchange_s > reply_timeout + HOST_STALL_S and not complete:
+        if held_s is None and reply_timeout is not None:
+            held_s = exchange_s - reply_timeout  # (sending and decoding count too: coarser)
+        if held_s is not None and held_s > HOST_STALL_S and not complete:
             self.host_stalls += 1
             self._host_stall_at = now
             return None

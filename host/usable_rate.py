@@ -106,6 +106,9 @@ class UsableRate:
         self._bad_hist: deque[tuple[float, int]] = deque()  # (when, garbled frames so far)
         self._looked_at = -1e9  # when the garbled-frame count was last read
         self._late_read: tuple[float, int | list[int]] | None = None  # (when, late replies)
+        # the exchange last observed (HWI, its exchange count): a cycle that ended in
+        # supervision sends none, and the next one reads no new states — seen once only
+        self._seen: tuple[object, int] | None = None
 
     def start(self, link: Any) -> None:
         """A fresh link: no stretch of misses yet."""
@@ -119,7 +122,14 @@ class UsableRate:
         self._late_mark = None
 
     def observe(self, hwi: HardwareInterface, link: Any, now: float) -> None:
-        """Feed the link health with the last exchange; apply and report a change."""
+        """Feed the link health with the last exchange (once: the same exchange again is
+        left out); apply and report a change."""
+        count = getattr(hwi, "exchanges", None)
+        if count is not None:
+            seen = self._seen
+            if seen is not None and seen[0] is hwi and seen[1] == count:
+                return
+            self._seen = (hwi, count)
         answered = [s is not None for s in hwi.raw_states]
         if all(answered):
             self._late_mark = None  # a complete exchange ends a stretch of misses
@@ -138,6 +148,7 @@ class UsableRate:
             now,
             lambda: self._late_replies(link, now),
             reply_timeout=hwi.reply_timeout,
+            held_s=getattr(hwi, "wait_overrun_s", None),
         )
         if change is not None:
             self._name_link(link, change, len(answered))

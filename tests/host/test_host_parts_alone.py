@@ -178,3 +178,55 @@ def test_outboxes_forget_a_removed_subscription():
     out.remove(sub)
     assert wanted == [dict.fromkeys(kinds), {}]
     assert all(not subs for subs in out.by_kind.values())
+
+
+def test_a_slow_links_exchanges_are_not_taken_for_held_up_ones_for_their_send_and_decode():
+    """Held up means the wait for replies woke past its deadline (the link's
+    ``wait_overrun_s``, copied by the HWI as ``wait_overrun_s``). Before: the whole exchange
+    (sending the SYNC, decoding the STATEs: 1-3 ms of a loaded 2-core host) was compared with
+    the reply time, so nearly every exchange of a slow link counted as held up; the window
+    filled from the few left and the stall path was held off — at 50 Hz the daemon waited
+    for 7-10 silent stretches instead of 1 before slowing again."""
+    periods: list[float] = []
+    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
+    link = SimpleNamespace(stats={"unmatched": 0})
+    rate.start(link)
+    slow = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008 + 0.003,
+        reply_timeout=0.008, wait_overrun_s=0.0002, exchanges=0,
+    )  # fmt: skip
+    for k in range(5):
+        slow.exchanges += 1
+        link.stats["unmatched"] += 1
+        rate.observe(slow, link, 0.01 * k)
+    assert health.host_stalls == 0
+    rate.stall(slow, link, 1, 0.06)  # the first silent stretch slows the loop
+    assert periods == [0.02]
+    # a wait that did wake 15 ms late is the process's: left out, as before
+    slow.wait_overrun_s = 0.015
+    slow.exchanges += 1
+    rate.observe(slow, link, 0.1)
+    assert health.host_stalls == 1
+
+
+def test_an_exchange_is_observed_once_however_many_cycles_read_it():
+    """A cycle that ends in supervision (a stall, a rebuild) sends no exchange; the next one
+    reads no new states and hands the link health the same exchange again. Before: it was
+    counted each time (one miss counted twice)."""
+    periods: list[float] = []
+    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
+    link = SimpleNamespace(stats={"unmatched": 0})
+    rate.start(link)
+    hwi = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.004,
+        reply_timeout=0.008, exchanges=7,
+    )  # fmt: skip
+    for k in range(40):
+        link.stats["unmatched"] += 1
+        rate.observe(hwi, link, 0.01 * k)
+    assert len(health._answered) == 1 and periods == []
+    hwi.exchanges += 1  # a new exchange counts
+    rate.observe(hwi, link, 0.5)
+    assert len(health._answered) == 2
