@@ -155,12 +155,15 @@ def watch_clashes(
     """Watch the graph for what would clash with this node: a node of the same fully qualified
     name in the domain and, given the ``action`` this node serves with commands enabled, another
     server of that action (a node of another name in the same namespace would take the same
-    commands). Returns once the tokens already there have arrived (:data:`GRAPH_SETTLE_S`)."""
+    commands). Returns once the tokens already there have arrived (:data:`GRAPH_SETTLE_S`), at
+    once when a node of the same name is seen (the clearer clash to name). Not at the first
+    token of any kind: the action's token of a node of the same name could arrive before that
+    node's own, and the refusal named the action (whichever token won the race)."""
     keys = [rmw.node_query(domain_id, namespace, node_name)]
     if action:
         keys.append(rmw.server_query(domain_id, f"{action}/_action/send_goal"))
     watch = GraphWatch(session, keys)
-    watch.settle(GRAPH_SETTLE_S, bool)
+    watch.settle(GRAPH_SETTLE_S, lambda seen: any(rmw.parse_node_token(k) for k in seen))
     return watch
 
 

@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -847,3 +848,46 @@ def test_two_robots_on_one_network_stay_apart_by_namespace(bridge, rig2, router,
     finally:
         c2.close()
         stop(proc2)
+
+
+def test_the_clash_check_names_the_node_of_the_same_name_whatever_token_comes_first(router):
+    """CI defect (2026-11-28): the check returned at the first token it saw; when a bridge's
+    action token reached the starting bridge before that bridge's node token, the refusal named
+    the action instead of the node of the same name. Now it waits (up to GRAPH_SETTLE_S) for a
+    node token: here the action's token is there first and the node's comes 0.3 s later."""
+    import zenoh
+
+    from interop.zenoh import rmw
+    from interop.zenoh.bridge import GRAPH_SETTLE_S, describe_clash, watch_clashes
+
+    def session():
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", json.dumps([f"tcp/{router}"]))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        return zenoh.open(conf)
+
+    with session() as other, session() as mine:
+        who = rmw.NodeId(0, str(other.info.zid()), 5, NS, "ucr_bridge")
+        action_key = rmw.endpoint_token(
+            who, 9, rmw.SERVICE, f"{ACTION}/_action/send_goal",
+            "control_msgs/action/FollowJointTrajectory_SendGoal", "RIHS01_" + "0" * 64,
+            rmw.SERVICE_QOS,
+        )  # fmt: skip
+        tokens = [other.liveliness().declare_token(action_key)]
+        later = threading.Timer(
+            0.3, lambda: tokens.append(other.liveliness().declare_token(rmw.node_token(who)))
+        )
+        later.start()
+        try:
+            t0 = time.monotonic()
+            watch = watch_clashes(mine, 0, NS, "ucr_bridge", ACTION)
+            took = time.monotonic() - t0
+            found = sorted(watch.current(), key=lambda k: rmw.parse_node_token(k) is None)
+            watch.close()
+        finally:
+            later.join()
+            for tok in tokens:
+                tok.undeclare()
+    assert took < GRAPH_SETTLE_S + 0.5  # (returns when the node is seen, at most the settle)
+    assert describe_clash(found[0], 0).startswith(f"a ROS 2 node {NS}/ucr_bridge is already on")
