@@ -17,6 +17,17 @@ from host.link_health import LinkHealth
 from host.usable_rate import UsableRate
 
 
+def _usable_rate() -> tuple[LinkHealth, UsableRate, SimpleNamespace, list[float]]:
+    """A 100 Hz usable rate (floor 10 Hz) on a link with one late-reply counter; the periods
+    it applies."""
+    periods: list[float] = []
+    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
+    link = SimpleNamespace(stats={"unmatched": 0})
+    rate.start(link)
+    return health, rate, link, periods
+
+
 def test_usable_rate_slows_the_loop_through_its_callback_and_reports_which_link():
     events: list[tuple[str, dict]] = []
     periods: list[float] = []
@@ -47,11 +58,7 @@ def test_exchanges_held_up_in_the_daemons_own_process_do_not_slow_the_loop():
     like — but the exchange itself returns long after its reply timeout, which a slow link's
     never does. Such exchanges are left out (counted), so the daemon does not halve its rate
     for its own stalls."""
-    periods: list[float] = []
-    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
-    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
-    link = SimpleNamespace(stats={"unmatched": 0})
-    rate.start(link)
+    health, rate, link, periods = _usable_rate()
     stalled = SimpleNamespace(
         names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008 + 0.015,
         reply_timeout=0.008,
@@ -187,11 +194,7 @@ def test_a_slow_links_exchanges_are_not_taken_for_held_up_ones_for_their_send_an
     the reply time, so nearly every exchange of a slow link counted as held up; the window
     filled from the few left and the stall path was held off — at 50 Hz the daemon waited
     for 7-10 silent stretches instead of 1 before slowing again."""
-    periods: list[float] = []
-    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
-    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
-    link = SimpleNamespace(stats={"unmatched": 0})
-    rate.start(link)
+    health, rate, link, periods = _usable_rate()
     slow = SimpleNamespace(
         names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008 + 0.003,
         reply_timeout=0.008, wait_overrun_s=0.0002, exchanges=0,
@@ -214,11 +217,7 @@ def test_an_exchange_is_observed_once_however_many_cycles_read_it():
     """A cycle that ends in supervision (a stall, a rebuild) sends no exchange; the next one
     reads no new states and hands the link health the same exchange again. Before: it was
     counted each time (one miss counted twice)."""
-    periods: list[float] = []
-    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
-    rate = UsableRate(health, 100.0, lambda kind, **kw: None, periods.append)
-    link = SimpleNamespace(stats={"unmatched": 0})
-    rate.start(link)
+    health, rate, link, periods = _usable_rate()
     hwi = SimpleNamespace(
         names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.004,
         reply_timeout=0.008, exchanges=7,
