@@ -21,7 +21,7 @@ DEGRADE_LATE, and at least DEGRADE_LATE_SHARE of its misses (late replies are co
 exchange in the window, per position when the link tells them apart; the stall path counts
 them since that position began to miss, never from longer ago). The stall path only does not
 wait for a full window. At the floor rate a link that is still slow is *too slow*: reported
-once (``too_slow``), the rate cannot go lower.
+once (``too_slow``) by either path, the rate cannot go lower.
 
 Loss without late replies (a corrupting link, frames dropped) is *lossy*, never slowed for —
 a lower rate would not bring those replies back: a position missing ≥ LOSSY_LOSS of a full
@@ -407,8 +407,12 @@ class LinkHealth:
         window so far and ``late`` ≥ DEGRADE_LATE replies (counted since it began to miss)
         arrived late meanwhile, the link is slow — degrade at once, without waiting for a full
         window; unless an exchange was held up in this process less than HOST_STALL_HOLD_S ago
-        (:meth:`observe`). Returns a change as :meth:`observe` does."""
-        if late < DEGRADE_LATE or self.period >= self.min_period * 0.999:
+        (:meth:`observe`). At the floor rate such a link is *too slow* (reported once, as by
+        :meth:`observe`) once RECENT exchanges there missed as much (not a backlog from the
+        faster rate draining): a chain that a too-slow link keeps silent may never hold still
+        for a full window there. Returns a change as :meth:`observe` does."""
+        floor = self.period >= self.min_period * 0.999
+        if late < DEGRADE_LATE or (floor and self.too_slow is not None):
             return None
         if self._misses and 0 <= position < len(self._misses):
             if late < DEGRADE_LATE_SHARE * self._misses[position]:
@@ -418,6 +422,11 @@ class LinkHealth:
         loss = self.loss()
         if not 0 <= position < len(loss) or loss[position] < DEGRADE_LOSS:
             return None  # the same threshold as a full window: a few misses are no slow link
+        if floor:  # the last RECENT exchanges at the floor still miss: no backlog draining
+            recent = list(self._answered)[-RECENT:]
+            if len(recent) < RECENT or sum(not a[position] for a in recent) < DEGRADE_LOSS * RECENT:
+                return None
+            return self.too_slow_now(position, loss[position])
         return self._degrade(position, loss[position], now)
 
     def _push(self, answered: tuple[bool, ...], late: tuple[int, ...]) -> None:

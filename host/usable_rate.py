@@ -247,17 +247,21 @@ class UsableRate:
 
     def stall(self, hwi: HardwareInterface, link: Any, position: int, now: float) -> None:
         """A stall (silence, same chain) at 0-based ``position``: late replies since the
-        replies began to miss mean a slow link (link health decides, with its loss rule)."""
+        replies began to miss at this rate mean a slow link (link health decides, with its
+        loss rule; at the floor rate: too slow)."""
         if self._late_mark is None:
             return  # no stretch of misses was seen: nothing to count from
         try:
             count = late_replies(link)
         except (OSError, AttributeError):
             return
+        # late replies over the stretch of misses at this rate (a stretch can hold several
+        # stalls): counted from the last stall only, they fell below half the misses the
+        # window holds from that stretch, and the stall was taken for a lossy link's
         late = count - self._late_mark
-        self._late_mark = count
         change = self.health.stall(position, late, now)
         if change is not None:
+            self._late_mark = count  # a new rate: its late replies count afresh
             self._name_link(link, change, len(hwi.raw_states))
         self._report(hwi, change)
         self._report_too_slow(hwi, change)

@@ -229,3 +229,48 @@ def test_an_exchange_is_observed_once_however_many_cycles_read_it():
     hwi.exchanges += 1  # a new exchange counts
     rate.observe(hwi, link, 0.5)
     assert len(health._answered) == 2
+
+
+def test_a_stall_counts_the_late_replies_of_its_whole_stretch_of_misses():
+    """Silent stretches follow one another while a slow link keeps replies late; the window
+    holds the misses of all of them. Before: the late replies were counted from the last stall
+    only, fell below half the window's misses, and the stall was taken for a lossy link's
+    (at 50 Hz the loop slowed again only once the window was full)."""
+    health, rate, link, periods = _usable_rate()
+    hwi = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008,
+        reply_timeout=0.008, wait_overrun_s=0.0, exchanges=0,
+    )  # fmt: skip
+
+    def exchanges(n: int, t: float) -> float:
+        for _ in range(n):
+            hwi.exchanges += 1
+            link.stats["unmatched"] += 1  # each missing reply arrives late
+            rate.observe(hwi, link, t)
+            t += 0.01
+        return t
+
+    t = exchanges(8, 0.0)
+    hwi.wait_overrun_s, hwi.exchanges = 0.01, hwi.exchanges + 1  # one exchange held up here
+    rate.observe(hwi, link, t)
+    hwi.wait_overrun_s = 0.0
+    rate.stall(hwi, link, 1, t)  # within HOST_STALL_HOLD_S of it: not the link's
+    assert periods == []
+    t = exchanges(6, t + 0.6)
+    rate.stall(hwi, link, 1, t)  # 13 late replies in the stretch, 14 misses in the window
+    assert periods == [0.02]
+
+
+def test_a_stall_at_the_floor_rate_reports_the_link_too_slow():
+    """A link too slow for the floor keeps the chain silent: supervision's stalls (and rebuilds)
+    may never leave a full window at the floor. Before: the stall path did nothing there, and
+    only a full window could report the link too slow."""
+    health = LinkHealth(0.01, 0.8, min_rate_hz=10.0)
+    health.period = health.min_period  # slowed to the floor already
+    for k in range(9):
+        health.observe([True, False], 0.08, 0.1 * k, lambda k=k: [0, k + 1], reply_timeout=0.08)
+    assert health.stall(1, 5, 0.9) is None  # under a second at the floor: a backlog may drain
+    health.observe([True, False], 0.08, 0.9, lambda: [0, 10], reply_timeout=0.08)
+    change = health.stall(1, 5, 1.0)
+    assert change is not None and change["change"] == "too_slow" and change["link"] == 2
+    assert health.too_slow is not None and health.stall(1, 5, 1.1) is None  # once
