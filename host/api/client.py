@@ -27,7 +27,7 @@ import itertools
 import json
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from websockets.exceptions import ConnectionClosed
@@ -37,7 +37,7 @@ from host.api import default_url
 from host.api.client_behalf import _ON_BEHALF_OF, on_behalf_of, sender_words
 from host.api.client_errors import ApiAuthError, ApiConnectionError, ApiError, ApiTimeoutError
 from host.api.client_goals import Callbacks, final_or_raise, positive_seconds
-from host.api.client_json import as_pair, plain_json, unencodable
+from host.api.client_json import as_pair, name_list, plain_json, unencodable, waypoint_list
 from host.api.client_open import open_websocket, read_token
 from host.api.client_upload import cancel_upload, send_in_chunks
 
@@ -314,9 +314,12 @@ class Client:
     def controllers(self) -> Any:
         return self.call("controllers.list")
 
-    def switch(self, start: list[str] | None = None, stop: list[str] | None = None) -> Any:
-        """Activate ``start`` and deactivate ``stop`` controllers in one switch."""
-        return self.call("controllers.switch", start=list(start or []), stop=list(stop or []))
+    def switch(
+        self, start: list[str] | str | None = None, stop: list[str] | str | None = None
+    ) -> Any:
+        """Activate ``start`` and deactivate ``stop`` controllers (names, or one name) in one
+        switch."""
+        return self.call("controllers.switch", start=name_list(start), stop=name_list(stop))
 
     def hand_back(self, manual: str | None = None) -> Any:
         """End a manual (cFFC) takeover and restart the controllers it preempted."""
@@ -333,7 +336,7 @@ class Client:
 
     def send_trajectory(
         self,
-        points: list[dict],
+        points: Iterable[dict],
         *,
         wait: bool = True,
         progress: Callable[[dict], None] | None = None,
@@ -348,6 +351,7 @@ class Client:
         goal (the robot decelerates to rest and holds), as ``ucr trajectory`` does; a timeout
         leaves it running.
         """
+        points = waypoint_list(points)  # (a generator, a tuple: read once)
         params: dict[str, Any] = {}
         if controller is not None:
             params["controller"] = controller
@@ -413,8 +417,11 @@ class Client:
         return goal
 
     def ffc_input(self, rates: dict[str, tuple[float, float] | list[float]]) -> Any:
-        """Stream one cFFC input: ``{segment: (dkx, dky)}`` deflections in [-1, 1]."""
-        return self.call("ffc.input", rates={k: as_pair(v) for k, v in rates.items()})
+        """Stream one cFFC input: ``{segment: (dkx, dky)}`` deflections in [-1, 1]. Anything
+        but a dict is sent as it is: the daemon's error names what it expected."""
+        if isinstance(rates, dict):
+            rates = {k: as_pair(v) for k, v in rates.items()}
+        return self.call("ffc.input", rates=rates)
 
     def subscribe(
         self, kinds: list[str] | str, max_rate: float | None = None, buffer: int = 1000

@@ -5,9 +5,12 @@ in the request, before anything is sent."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Any
 
-__all__ = ["as_pair", "plain_json", "unencodable"]
+from host.api.client_errors import ApiError
+
+__all__ = ["as_pair", "name_list", "plain_json", "unencodable", "waypoint_list"]
 
 
 def plain_json(value: Any) -> Any:
@@ -26,6 +29,35 @@ def as_pair(value: Any) -> Any:
         return list(value)
     tolist = getattr(value, "tolist", None)  # a numpy array (a numpy scalar: the server says)
     return tolist() if callable(tolist) else value
+
+
+def name_list(value: Any) -> Any:
+    """Controller names as the API takes them (a JSON array): one name alone (a ``str``) is a
+    list of one — ``switch(start="jtc")`` was sent as ``["j", "t", "c"]`` — None is none, any
+    other iterable (a tuple, a generator) a list; anything else is sent as it is, for the
+    server to say what is wrong with it."""
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, Iterable) and not isinstance(value, bytes | bytearray | dict):
+        return list(value)
+    return value
+
+
+def waypoint_list(points: Any) -> list:
+    """Waypoints as a list: any iterable of them (a generator, a tuple) is read once; a single
+    waypoint (a dict), a string or a non-iterable is an :class:`ApiError` (``invalid_params``)
+    before anything is sent."""
+    if isinstance(points, list):
+        return points
+    if isinstance(points, Iterable) and not isinstance(points, str | bytes | bytearray | dict):
+        return list(points)
+    raise ApiError(
+        "invalid_params",
+        f"points: expected a list of waypoints, got {type(points).__name__}"
+        + (" (one waypoint: put it in a list)" if isinstance(points, dict) else ""),
+    )
 
 
 def unencodable(value: Any, path: str = "") -> str:

@@ -5,7 +5,9 @@
 - the daemon going away during a wait came back as a "final status" ``{"state": "unknown"}``;
 - Ctrl-C while ``send_trajectory`` waited left the robot moving;
 - ``subscribe(buffer=0)`` killed the connection at the first message; ``connect(timeout=None)``
-  connected, then ``send_trajectory`` raised a raw TypeError."""
+  connected, then ``send_trajectory`` raised a raw TypeError;
+- ``switch(start="jtc")`` asked for controllers "j", "t" and "c"; ``send_trajectory`` of a
+  generator raised TypeError (``len``); ``ffc_input`` of a list raised AttributeError."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import threading
 
 import pytest
 
-from host.api.client import ApiConnectionError, connect
+from host.api.client import ApiConnectionError, ApiError, connect
 from host.api.client_goals import final_or_raise
 
 pytestmark = pytest.mark.timeout(60)
@@ -81,3 +83,25 @@ def test_numbers_a_script_passes_are_checked_where_it_passes_them(stub_server) -
         with c.subscribe(["joint_states"], buffer=1) as sub:  # the smallest works
             assert sub.get(timeout=5) is not None
         assert c.status()  # and the connection is fine
+
+
+def test_arguments_of_other_shapes_mean_what_a_script_means(stub_server, stub) -> None:
+    with connect(stub_server.url) as c:
+        c.switch(start="ffc", stop="jtc")  # one name each
+        c.switch(start=("jtc",), stop=(n for n in ["ffc"]))
+        assert stub.switch_calls == [(["ffc"], ["jtc"]), (["jtc"], ["ffc"])]
+        goal = c.send_trajectory((p for p in POINTS), wait=False)  # a generator: read once
+        assert goal in stub.goals and stub.goals[goal]["duration"] == POINTS[-1]["time_from_start"]
+        for bad, said in [
+            (POINTS[0], "points: expected a list of waypoints, got dict (one waypoint: put it"),
+            ("abc", "points: expected a list of waypoints, got str"),
+            (3, "points: expected a list of waypoints, got int"),
+        ]:
+            with pytest.raises(ApiError) as info:
+                c.send_trajectory(bad, wait=False)
+            assert info.value.code == "invalid_params" and info.value.message.startswith(said)
+        with pytest.raises(ApiError) as info:  # the daemon's own words for it
+            c.ffc_input([("s1", (0.5, 0.0))])
+        assert info.value.code == "invalid_params", info.value
+        assert "rates: expected an object {name: [dkx, dky]}, got" in info.value.message
+        assert c.status()  # the connection is fine
