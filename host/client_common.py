@@ -153,7 +153,7 @@ def connect_daemon(args: argparse.Namespace) -> Any:
     except ApiConnectionError as exc:
         if exc.code == "bad_url":
             raise CliUsageError(exc.message) from None
-        if exc.code in ("tls", "busy", "timeout", "not_daemon"):
+        if exc.code in ("tls", "busy", "timeout", "not_daemon", "wrong_path"):
             raise CliError(exc.message) from None
         raise CliError(unreachable_message(url, args.url)) from None
 

@@ -93,7 +93,8 @@ def open_websocket(
     lines). Raises :class:`ApiAuthError` / :class:`ApiConnectionError` (``code``: ``bad_url``
     for a URL or CA file that cannot work, ``tls``, ``timeout`` when the daemon did not answer
     the handshake within ``timeout`` s, ``busy``, ``not_daemon`` for an HTTP server that refuses
-    without the reason a daemon always gives, else ``connection``)."""
+    without the reason a daemon always gives, ``wrong_path`` for a path the daemon does not
+    serve, else ``connection``)."""
     check_url(url, cafile)
     headers = {"Authorization": f"Bearer {token}"} if token else None
     if token:
@@ -142,6 +143,11 @@ def open_websocket(
                     f"the server at {url} answered HTTP {status} with no reason: not a ucr "
                     "daemon's API (check --url / $UCR_URL)",
                     code="not_daemon",
+                ) from None
+            if status == 404:  # a path the daemon does not serve: the URL is wrong, not who asks
+                raise ApiConnectionError(
+                    f"the daemon at {url} serves no API there: {reason} (check --url / $UCR_URL)",
+                    code="wrong_path",
                 ) from None
             raise ApiAuthError(f"the daemon at {url} refused the connection: {reason}") from None
         raise ApiConnectionError(f"the daemon at {url} answered HTTP {status}") from None

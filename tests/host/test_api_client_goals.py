@@ -7,7 +7,9 @@
 - ``subscribe(buffer=0)`` killed the connection at the first message; ``connect(timeout=None)``
   connected, then ``send_trajectory`` raised a raw TypeError;
 - ``switch(start="jtc")`` asked for controllers "j", "t" and "c"; ``send_trajectory`` of a
-  generator raised TypeError (``len``); ``ffc_input`` of a list raised AttributeError."""
+  generator raised TypeError (``len``); ``ffc_input`` of a list raised AttributeError;
+- a URL with a path the daemon does not serve raised ApiAuthError (a PermissionError: "check
+  your token") instead of naming the wrong path."""
 
 from __future__ import annotations
 
@@ -105,3 +107,11 @@ def test_arguments_of_other_shapes_mean_what_a_script_means(stub_server, stub) -
         assert info.value.code == "invalid_params", info.value
         assert "rates: expected an object {name: [dkx, dky]}, got" in info.value.message
         assert c.status()  # the connection is fine
+
+
+def test_a_path_the_daemon_does_not_serve_is_a_wrong_url_not_a_refused_token(stub_server) -> None:
+    with pytest.raises(ApiConnectionError) as info:
+        connect(stub_server.url.rstrip("/") + "/api/v1")
+    assert not isinstance(info.value, PermissionError) and info.value.code == "wrong_path"
+    assert "serves no API there: nothing at '/api/v1'" in info.value.message
+    assert "check --url" in info.value.message
