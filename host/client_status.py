@@ -59,6 +59,10 @@ def manual_senders(c: Any, st: dict) -> dict[str, str]:
     }
 
 
+#: a status older than this (s; the daemon sends one every 50 ms) is said to be old
+STALE_STATUS_S = 1.0
+
+
 def format_status(
     st: dict, topo: dict | None = None, senders: dict[str, str] | None = None
 ) -> list[str]:
@@ -73,6 +77,12 @@ def format_status(
         ),
         *degraded,
     ]
+    age = st.get("status_age_s")
+    if isinstance(age, int | float) and age > STALE_STATUS_S:
+        lines.append(
+            f"  this status is {age:.1f} s old: the daemon has sent none since (its process is "
+            "frozen or its control loop holds it up); what follows is how it was then"
+        )
     if st.get("error"):
         lines.append(f"  error: {st['error']}")
     lines.append(

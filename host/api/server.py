@@ -364,8 +364,14 @@ class ApiServer:
         return await self._link.call(name, *args)
 
     def _status_text(self) -> str | None:
-        """The latest status snapshot the daemon sent (JSON text), None before the first."""
-        return self._link.status_text
+        """The latest status snapshot the daemon sent (JSON text), None before the first, with
+        ``status_age_s``: how long ago it came (the daemon sends one every 50 ms; a daemon
+        whose process is frozen or whose lock is held sends none, and its last one ages)."""
+        text = self._link.status_text
+        if text is None or not text.startswith("{") or text.startswith('{"__error__"'):
+            return text
+        age = max(time.monotonic() - self._link.status_t, 0.0)
+        return f'{{"status_age_s":{age:.3f}' + ("," + text[1:] if text != "{}" else "}")
 
     def _want_stream(self, kinds: dict[str, tuple[float, ...] | None]) -> None:
         self._link.want_stream(kinds)

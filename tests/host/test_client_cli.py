@@ -379,3 +379,31 @@ def test_status_names_who_drives_a_manual_takeover():
 
     assert manual_senders(Refusing(), st) == {}  # the line just says less
     assert manual_senders(Client(), {"manual_control": "ffc"}) == {}  # not a list: nothing
+
+
+def test_status_says_how_old_it_is_and_ucr_status_warns_when_the_daemon_sent_none_lately(
+    capsys, stub, stub_server
+):
+    """Review 2026-11-28: the API answers ``status`` from the daemon's last snapshot; with the
+    daemon frozen it went on answering that snapshot, and nothing told it from a fresh one."""
+    import threading
+    import time
+
+    from host.api.client import connect
+
+    url = stub_server.url
+    with connect(url) as c:
+        assert 0.0 <= c.status()["status_age_s"] < 1.0  # one every 50 ms
+        rc, out, _ = run(capsys, "status", "--url", url)
+        assert rc == 0 and " s old: the daemon has sent none since" not in out
+        held = threading.Event()
+        fresh = stub.status
+        stub.status = lambda: held.wait(30) or fresh()  # the daemon's lock held: no snapshot
+        try:
+            time.sleep(1.5)
+            age = c.status()["status_age_s"]
+            rc, out, _ = run(capsys, "status", "--url", url)
+        finally:
+            held.set()
+    assert age > 1.0
+    assert rc == 0 and " s old: the daemon has sent none since (its process is frozen" in out
