@@ -147,6 +147,10 @@ class Teleop:
         return any(x or y for x, y in self.current.values())
 
     def run(self, source: InputSource, max_duration: float | None = None) -> TeleopResult:
+        """Stream ``source``'s input until it ends (or ``max_duration`` s). Every run starts
+        with every stick centred: a stick held when the last run ended moves nothing now."""
+        self.current = {}
+        self.rearm = False
         result = TeleopResult("end")
         t_start = self.clock()
         next_tick = t_start

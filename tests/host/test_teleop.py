@@ -299,3 +299,18 @@ def test_teleop_rides_through_unavailable_only():
     assert not refusal_is_transient(ApiConnectionError("the daemon closed the connection"))
     assert not refusal_is_transient(ApiTimeoutError("no reply in 5 s"))
     assert not refusal_is_transient(OSError("boom"))
+
+
+def test_a_second_run_starts_centred_whatever_the_last_one_ended_with(tmp_path):
+    """Review 2026-11-28: a Teleop run again (a script's second session) kept the deflection
+    its last run ended with, and streamed it from the first tick with no input."""
+    held = write_lines(
+        tmp_path / "a.jsonl", [{"t": 0.0, "rates": {"s1": [0.5, 0.0]}}, {"t": 0.1, "end": True}]
+    )
+    idle = write_lines(tmp_path / "b.jsonl", [{"t": 0.3, "end": True}])
+    sink = Sink()
+    teleop = Teleop(sink, rate_hz=50)
+    assert teleop.run(ReplaySource(held)).reason == "end"  # ended deflected (no zero owed)
+    before = len(sink.sent)
+    assert teleop.run(ReplaySource(idle)).reason == "end"
+    assert sink.sent[before:] == []  # nothing moved: no input in this run
