@@ -401,6 +401,10 @@ class LinkHealth:
         }
         return {"period": self.period, "change": "degraded", **self.last}
 
+    def held_up(self, now: float) -> bool:
+        """An exchange was held up in this process less than HOST_STALL_HOLD_S ago."""
+        return self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S
+
     def stall(self, position: int, late: int, now: float) -> dict[str, Any] | None:
         """Supervision found a silent stretch and the very same chain behind it (a stall) at
         0-based ``position``: when that position missed ≥ DEGRADE_LOSS of the exchanges in the
@@ -417,7 +421,7 @@ class LinkHealth:
         if self._misses and 0 <= position < len(self._misses):
             if late < DEGRADE_LATE_SHARE * self._misses[position]:
                 return None  # most of its replies never came: lossy, not slow
-        if self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S:
+        if self.held_up(now):
             return None  # the process was held up meanwhile (see observe), not the link
         loss = self.loss()
         if not 0 <= position < len(loss) or loss[position] < DEGRADE_LOSS:

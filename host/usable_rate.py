@@ -151,6 +151,7 @@ class UsableRate:
             held_s=getattr(hwi, "wait_overrun_s", None),
         )
         if change is not None:
+            self._restart_late_count(link)  # a new rate (or report): late replies count afresh
             self._name_link(link, change, len(answered))
         elif now - self._base_at >= BASELINE_EVERY_S and self._clean():
             offsets = getattr(link, "arrival_offsets", None)
@@ -158,6 +159,14 @@ class UsableRate:
                 self._base, self._base_at = offsets(), now
         self._report(hwi, change)
         self._report_too_slow(hwi, change)
+
+    def _restart_late_count(self, link: Any) -> None:
+        """The stretch of misses goes on, but its late replies count from here."""
+        if self._late_mark is not None:
+            try:
+                self._late_mark = late_replies(link)
+            except (OSError, AttributeError):
+                self._late_mark = None
 
     def _late_replies(self, link: Any, now: float) -> int | list[int]:
         """The link's late replies (per position when it tells them apart), read at most every
@@ -260,8 +269,12 @@ class UsableRate:
         # window holds from that stretch, and the stall was taken for a lossy link's
         late = count - self._late_mark
         change = self.health.stall(position, late, now)
+        if change is not None or self.health.held_up(now):
+            # a new rate: its late replies count afresh; a stall the process's own hold-up
+            # excused: the late replies of its held-up exchanges (left out of the window)
+            # never count for a later one
+            self._late_mark = count
         if change is not None:
-            self._late_mark = count  # a new rate: its late replies count afresh
             self._name_link(link, change, len(hwi.raw_states))
         self._report(hwi, change)
         self._report_too_slow(hwi, change)

@@ -242,23 +242,61 @@ def test_a_stall_counts_the_late_replies_of_its_whole_stretch_of_misses():
         reply_timeout=0.008, wait_overrun_s=0.0, exchanges=0,
     )  # fmt: skip
 
-    def exchanges(n: int, t: float) -> float:
+    def exchanges(n: int, t: float, late: int) -> float:
         for _ in range(n):
             hwi.exchanges += 1
-            link.stats["unmatched"] += 1  # each missing reply arrives late
+            link.stats["unmatched"] += late  # late replies arriving meanwhile
             rate.observe(hwi, link, t)
             t += 0.01
         return t
 
-    t = exchanges(8, 0.0)
-    hwi.wait_overrun_s, hwi.exchanges = 0.01, hwi.exchanges + 1  # one exchange held up here
-    rate.observe(hwi, link, t)
-    hwi.wait_overrun_s = 0.0
-    rate.stall(hwi, link, 1, t)  # within HOST_STALL_HOLD_S of it: not the link's
+    t = exchanges(6, 0.0, 0)
+    link.stats["unmatched"] += 2  # the first late replies: the rest are still on their way
+    rate.stall(hwi, link, 1, t)  # 2 late: too few to tell yet
     assert periods == []
-    t = exchanges(6, t + 0.6)
-    rate.stall(hwi, link, 1, t)  # 13 late replies in the stretch, 14 misses in the window
+    t = exchanges(4, t, 1)
+    rate.stall(hwi, link, 1, t)  # 6 late replies in the stretch, 10 misses in the window
     assert periods == [0.02]
+
+
+def test_late_replies_count_afresh_after_any_change_of_rate_and_after_an_excused_stall():
+    """Review: a rate lowered by a full window left the count where the stretch began, so a
+    stall at the new rate counted the faster rate's late replies (and slowed again for a link
+    that had turned lossy); a stall excused by the process's own hold-up must not leave the
+    late replies of its held-up exchanges (left out of the window) to the next one."""
+    health, rate, link, periods = _usable_rate()
+    hwi = SimpleNamespace(
+        names=["segment_1", "segment_2"], raw_states=[{}, None], exchange_s=0.008,
+        reply_timeout=0.008, wait_overrun_s=0.0, exchanges=0,
+    )  # fmt: skip
+    t = 0.0
+    for _ in range(30):  # slow: every reply late; the window slows the loop to 50 Hz
+        hwi.exchanges += 1
+        link.stats["unmatched"] += 1
+        rate.observe(hwi, link, t)
+        t += 0.01
+    assert periods == [0.02]
+    for _ in range(5):  # now lossy: replies missing, none late
+        hwi.exchanges += 1
+        rate.observe(hwi, link, t)
+        t += 0.02
+    rate.stall(hwi, link, 1, t)
+    assert periods == [0.02]  # (before: slowed to 25 Hz, "its replies come late")
+    # a stall excused by a hold-up moves the count past its late replies
+    health2, rate2, link2, periods2 = _usable_rate()
+    hwi.exchanges = 0
+    for k in range(8):
+        hwi.exchanges += 1
+        link2.stats["unmatched"] += 1
+        hwi.wait_overrun_s = 0.01 if k == 7 else 0.0  # the last one held up
+        rate2.observe(hwi, link2, 0.01 * k)
+    rate2.stall(hwi, link2, 1, 0.08)  # excused
+    hwi.wait_overrun_s = 0.0
+    for k in range(4):  # no late reply since
+        hwi.exchanges += 1
+        rate2.observe(hwi, link2, 0.7 + 0.01 * k)
+    rate2.stall(hwi, link2, 1, 0.75)
+    assert periods2 == []
 
 
 def test_a_stall_at_the_floor_rate_reports_the_link_too_slow():
