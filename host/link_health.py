@@ -82,8 +82,8 @@ RECOVER_HOLD_S = 5.0
 #: this process (a garbage collection or another thread holding the interpreter lock delays the
 #: link reader and the loop alike), not on the link: its misses say nothing about the link (s).
 #: Measured on the wait itself, not the whole exchange: sending the request and decoding the
-#: replies take 1-3 ms of a loaded 2-core host's time, and counted in they made nearly every
-#: exchange of a slow link's "held up" — its degrade waited for 9 silent stretches instead of 1.
+#: replies put an exchange 2-6 ms past its reply time on a loaded 2-core host, which made nearly
+#: every exchange of a slow link "held up" — its degrade waited for 9 silent stretches, not 1.
 HOST_STALL_S = 0.002
 #: A silent stretch (a stall) within this long of a held-up exchange is the process's, too (s).
 HOST_STALL_HOLD_S = 0.5

@@ -190,7 +190,7 @@ def test_outboxes_forget_a_removed_subscription():
 def test_a_slow_links_exchanges_are_not_taken_for_held_up_ones_for_their_send_and_decode():
     """Held up means the wait for replies woke past its deadline (the link's
     ``wait_overrun_s``, copied by the HWI as ``wait_overrun_s``). Before: the whole exchange
-    (sending the SYNC, decoding the STATEs: 1-3 ms of a loaded 2-core host) was compared with
+    (sending the SYNC, decoding the STATEs: 2-6 ms over on a loaded 2-core host) was compared with
     the reply time, so nearly every exchange of a slow link counted as held up; the window
     filled from the few left and the stall path was held off — at 50 Hz the daemon waited
     for 7-10 silent stretches instead of 1 before slowing again."""
