@@ -211,8 +211,7 @@ class LinkHealth:
             # needs drops more and more of them: the link's queue overflows) — unless the
             # misses are dying out (a backlog from the faster rate draining)
             if floor and self.too_slow is None and self._late[first] >= DEGRADE_LATE:
-                recent = list(self._answered)[-RECENT:]
-                if sum(not a[first] for a in recent) >= DEGRADE_LOSS * len(recent):
+                if self._still_missing(first):
                     return self.too_slow_now(first, loss[worst])
         change = self._lossy(full, loss, first, worst, now)
         if change is not None:
@@ -401,6 +400,14 @@ class LinkHealth:
         }
         return {"period": self.period, "change": "degraded", **self.last}
 
+    def _still_missing(self, position: int) -> bool:
+        """The last RECENT exchanges (at least that many in the window) missed ``position`` in
+        at least DEGRADE_LOSS of them: not a backlog from a faster rate draining."""
+        recent = list(self._answered)[-RECENT:]
+        return len(recent) == RECENT and sum(not a[position] for a in recent) >= (
+            DEGRADE_LOSS * RECENT
+        )
+
     def held_up(self, now: float) -> bool:
         """An exchange was held up in this process less than HOST_STALL_HOLD_S ago."""
         return self._host_stall_at is not None and now - self._host_stall_at < HOST_STALL_HOLD_S
@@ -426,9 +433,8 @@ class LinkHealth:
         loss = self.loss()
         if not 0 <= position < len(loss) or loss[position] < DEGRADE_LOSS:
             return None  # the same threshold as a full window: a few misses are no slow link
-        if floor:  # the last RECENT exchanges at the floor still miss: no backlog draining
-            recent = list(self._answered)[-RECENT:]
-            if len(recent) < RECENT or sum(not a[position] for a in recent) < DEGRADE_LOSS * RECENT:
+        if floor:
+            if not self._still_missing(position):
                 return None
             return self.too_slow_now(position, loss[position])
         return self._degrade(position, loss[position], now)

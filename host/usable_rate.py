@@ -42,6 +42,14 @@ def late_replies(link: Any) -> int:
     return int(stats.get("unmatched", 0)) + int(stats.get("stale", 0))
 
 
+def late_count(link: Any) -> int | None:
+    """:func:`late_replies`, or None when the link cannot say (its port failed)."""
+    try:
+        return late_replies(link)
+    except (OSError, AttributeError):
+        return None
+
+
 def late_by_position(link: Any) -> int | list[int]:
     """Late STATEs per position when the link tells them apart, else its one total."""
     by_position = getattr(link, "late_by_position", None)
@@ -137,11 +145,8 @@ class UsableRate:
             if now - self._looked_at >= LOOK_EVERY_S:
                 self._looked_at = now
                 self._look_for_garbled(link, now)
-            if self._late_mark is None:
-                try:  # one look at the link's late replies per stretch, not per cycle
-                    self._late_mark = late_replies(link)
-                except (OSError, AttributeError):
-                    self._late_mark = None
+            if self._late_mark is None:  # one look per stretch, not per cycle
+                self._late_mark = late_count(link)
         change = self.health.observe(
             answered,
             hwi.exchange_s,
@@ -163,10 +168,7 @@ class UsableRate:
     def _restart_late_count(self, link: Any) -> None:
         """The stretch of misses goes on, but its late replies count from here."""
         if self._late_mark is not None:
-            try:
-                self._late_mark = late_replies(link)
-            except (OSError, AttributeError):
-                self._late_mark = None
+            self._late_mark = late_count(link)
 
     def _late_replies(self, link: Any, now: float) -> int | list[int]:
         """The link's late replies (per position when it tells them apart), read at most every
@@ -260,9 +262,8 @@ class UsableRate:
         loss rule; at the floor rate: too slow)."""
         if self._late_mark is None:
             return  # no stretch of misses was seen: nothing to count from
-        try:
-            count = late_replies(link)
-        except (OSError, AttributeError):
+        count = late_count(link)
+        if count is None:
             return
         # late replies over the stretch of misses at this rate (a stretch can hold several
         # stalls): counted from the last stall only, they fell below half the misses the
